@@ -1,0 +1,1 @@
+"""Launch files, parameters, the node-graph runner and the vibro command-line interface."""

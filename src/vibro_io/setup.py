@@ -1,0 +1,26 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "vibro_io"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="vibro maintainers",
+    maintainer_email="vibro@example.com",
+    description="Recording I/O for vibro: rig.yaml validation, frame sequences, accelerometer CSV, DIC tracks and results files.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            
+        ],
+    },
+)

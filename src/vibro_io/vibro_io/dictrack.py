@@ -1,0 +1,106 @@
+"""The DIC track of a recording: per-frame displacements, as in ``dic.csv``.
+
+Displacements are in mm since frame 0, positive up (towards the upper plate).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from .errors import RecordingError
+
+DIC_COLUMNS = (
+    "frame", "t_s", "ball_mm", "structure_mm", "ball_valid", "structure_valid",
+    "ball_zncc", "structure_zncc", "lost",
+)
+
+
+@dataclass
+class FrameTrack:
+    """DIC result of one frame. ``*_valid`` count mesh points kept; ``lost`` flags an unusable frame."""
+
+    frame: int
+    t_s: float
+    ball_mm: float
+    structure_mm: float
+    ball_valid: int
+    structure_valid: int
+    ball_zncc: float
+    structure_zncc: float
+    lost: bool
+
+
+@dataclass
+class DicTrack:
+    """Column arrays of a whole track (one entry per frame slot, lost frames included, NaN there)."""
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    ball_mm: np.ndarray
+    structure_mm: np.ndarray
+    ball_valid: np.ndarray
+    structure_valid: np.ndarray
+    ball_zncc: np.ndarray
+    structure_zncc: np.ndarray
+    lost: np.ndarray
+
+    @classmethod
+    def from_frames(cls, rows: Iterable[FrameTrack]) -> "DicTrack":
+        rows = list(rows)
+        cols = {f.name: np.array([getattr(r, f.name) for r in rows]) for f in fields(FrameTrack)}
+        cols["frame"] = cols["frame"].astype(int)
+        cols["lost"] = cols["lost"].astype(bool)
+        for name in ("t_s", "ball_mm", "structure_mm", "ball_zncc", "structure_zncc"):
+            cols[name] = cols[name].astype(float)
+        return cls(**cols)
+
+    def __len__(self) -> int:
+        return int(self.frame.size)
+
+    @property
+    def good(self) -> np.ndarray:
+        """Boolean mask of frames that are not lost and have finite displacements."""
+        return ~self.lost & np.isfinite(self.ball_mm) & np.isfinite(self.structure_mm)
+
+
+def write_dic_csv(path: str | Path, rows: Iterable[FrameTrack]) -> int:
+    """Write rows to ``dic.csv`` (contract column order); returns the number written."""
+    n = 0
+    with Path(path).open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(DIC_COLUMNS)
+        for r in rows:
+            writer.writerow([
+                r.frame, f"{r.t_s:.9f}", f"{r.ball_mm:.9g}", f"{r.structure_mm:.9g}",
+                r.ball_valid, r.structure_valid, f"{r.ball_zncc:.6f}", f"{r.structure_zncc:.6f}", int(r.lost),
+            ])
+            n += 1
+    return n
+
+
+def read_dic_csv(path: str | Path) -> DicTrack:
+    """Read a ``dic.csv``; raises :class:`RecordingError` naming the line of a bad row."""
+    path = Path(path)
+    rows = []
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            reader = csv.reader(handle)
+            header = next(reader, None)
+            if header is None or tuple(h.strip() for h in header) != DIC_COLUMNS:
+                raise RecordingError(f"{path}: line 1: expected columns {','.join(DIC_COLUMNS)}")
+            for line_no, row in enumerate(reader, start=2):
+                try:
+                    rows.append(FrameTrack(
+                        int(row[0]), float(row[1]), float(row[2]), float(row[3]), int(row[4]),
+                        int(row[5]), float(row[6]), float(row[7]), bool(int(row[8])),
+                    ))
+                except (ValueError, IndexError):
+                    raise RecordingError(f"{path}: line {line_no}: bad row {row!r}") from None
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read ({exc})") from None
+    return DicTrack.from_frames(rows)

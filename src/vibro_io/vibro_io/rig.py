@@ -1,0 +1,265 @@
+"""Read and validate ``rig.yaml`` (see docs/recording-format.md).
+
+Conventions: lengths in the YAML are millimetres or pixels as their key names say,
+masses in kg, moduli in Pa. Every error names the file and the dotted key.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from .errors import RigError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Roi:
+    """Axis-aligned rectangle in pixels: column x, row y, width w, height h."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+    def as_list(self) -> list[int]:
+        return [self.x, self.y, self.w, self.h]
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    fps: float
+    t0_s: float
+    mm_per_px: float
+
+    def frame_time_s(self, index: int) -> float:
+        """Time (s) of frame ``index``: t0_s + index / fps."""
+        return self.t0_s + index / self.fps
+
+
+@dataclass(frozen=True)
+class BallConfig:
+    mass_kg: float
+    diameter_mm: float
+    youngs_modulus_pa: float
+    poisson_ratio: float
+
+
+@dataclass(frozen=True)
+class StructureConfig:
+    gap_mm: float
+    mass_kg: float
+    youngs_modulus_pa: float
+    poisson_ratio: float
+
+
+@dataclass(frozen=True)
+class ExcitationConfig:
+    frequency_hz: float
+
+
+@dataclass(frozen=True)
+class DicConfig:
+    subset_px: int
+    mesh_step_px: int
+    ball_roi: Roi
+    structure_roi: Roi
+
+
+@dataclass(frozen=True)
+class AccelConfig:
+    file: str
+    time_column: str
+    upper_column: str
+    lower_column: str
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """Everything rig.yaml says; ``path`` is the file it was read from (or None)."""
+
+    camera: CameraConfig
+    ball: BallConfig
+    structure: StructureConfig
+    excitation: ExcitationConfig
+    dic: DicConfig
+    accelerometers: AccelConfig | None = None
+    path: str | None = None
+
+    @property
+    def free_play_mm(self) -> float:
+        """Half the travel of the ball centre between the plates, b = (gap - diameter) / 2 (mm)."""
+        return 0.5 * (self.structure.gap_mm - self.ball.diameter_mm)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML mapping of this rig (inverse of :func:`parse_rig`)."""
+        out = asdict(self)
+        out.pop("path")
+        out["dic"]["ball_roi"] = self.dic.ball_roi.as_list()
+        out["dic"]["structure_roi"] = self.dic.structure_roi.as_list()
+        if self.accelerometers is None:
+            out.pop("accelerometers")
+        return out
+
+
+# PyYAML's YAML 1.1 resolver reads "3.1e11" and "1e-4" as strings; people write them.
+_FLOAT_RE = re.compile(
+    r"""^[-+]?(?:
+        (?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+       |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+       |[0-9][0-9_]*[eE][-+]?[0-9]+
+       |\.(?:inf|Inf|INF)
+       |\.(?:nan|NaN|NAN))$""",
+    re.X,
+)
+
+
+class _RigLoader(yaml.SafeLoader):
+    """SafeLoader that reads scientific notation without a dot as a float."""
+
+
+_RigLoader.yaml_implicit_resolvers = {
+    k: [r for r in v if r[0] != "tag:yaml.org,2002:float"]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_RigLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_RE, list("-+0123456789."))
+
+
+_SCHEMA: dict[str, dict[str, str]] = {
+    "camera": {"fps": "pos", "t0_s": "float", "mm_per_px": "pos"},
+    "ball": {"mass_kg": "pos", "diameter_mm": "pos", "youngs_modulus_pa": "pos", "poisson_ratio": "poisson"},
+    "structure": {"gap_mm": "pos", "mass_kg": "pos", "youngs_modulus_pa": "pos", "poisson_ratio": "poisson"},
+    "excitation": {"frequency_hz": "pos"},
+    "dic": {"subset_px": "odd", "mesh_step_px": "posint", "ball_roi": "roi", "structure_roi": "roi"},
+}
+_ACCEL_SCHEMA = {"file": "str", "time_column": "str", "upper_column": "str", "lower_column": "str"}
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Parse a YAML file with the rig loader (scientific notation read as numbers)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RigError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RigError(f"{path}: cannot read ({exc})") from None
+    try:
+        return yaml.load(text, Loader=_RigLoader)
+    except yaml.YAMLError as exc:
+        raise RigError(f"{path}: not valid YAML ({exc})") from None
+
+
+def load_rig(path: str | Path) -> RigConfig:
+    """Read and validate a rig.yaml file; raises :class:`RigError` naming file and key."""
+    return parse_rig(load_yaml(path), str(path))
+
+
+def _check(value: Any, kind: str, where: str) -> Any:
+    def fail(expect: str) -> RigError:
+        return RigError(f"{where}: expected {expect}, got {value!r}")
+
+    if kind == "str":
+        if not isinstance(value, str) or not value.strip():
+            raise fail("a non-empty string")
+        return value
+    if kind == "roi":
+        if not isinstance(value, (list, tuple)) or len(value) != 4:
+            raise fail("a list [x, y, w, h] of 4 integers (pixels)")
+        ints = [_check(v, "int", where) for v in value]
+        if ints[0] < 0 or ints[1] < 0 or ints[2] <= 0 or ints[3] <= 0:
+            raise fail("x, y >= 0 and w, h > 0 (pixels)")
+        return Roi(*ints)
+    if kind in ("int", "posint", "odd"):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+            raise fail("an integer")
+        value = int(value)
+        if kind in ("posint", "odd") and value <= 0:
+            raise fail("a positive integer")
+        if kind == "odd" and value % 2 == 0:
+            raise fail("an odd integer (the subset has a centre pixel)")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise fail("a finite number")
+    value = float(value)
+    if kind == "pos" and value <= 0:
+        raise fail("a positive number")
+    if kind == "poisson" and not -1.0 < value < 0.5:
+        raise fail("a Poisson ratio in (-1, 0.5)")
+    return value
+
+
+def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src: str) -> dict[str, Any]:
+    if name not in data:
+        raise RigError(f"{src}: missing required key '{name}'")
+    block = data[name]
+    if not isinstance(block, Mapping):
+        raise RigError(f"{src}: key '{name}' must be a mapping, got {block!r}")
+    out = {}
+    for key, kind in schema.items():
+        if key not in block:
+            raise RigError(f"{src}: missing required key '{name}.{key}'")
+        out[key] = _check(block[key], kind, f"{src}: key '{name}.{key}'")
+    for key in block:
+        if key not in schema:
+            log.warning("%s: unknown key '%s.%s' ignored", src, name, key)
+    return out
+
+
+def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
+    """Validate a rig mapping (as parsed from YAML) into a :class:`RigConfig`."""
+    if not isinstance(data, Mapping):
+        raise RigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    sections = {name: _section(data, name, schema, source) for name, schema in _SCHEMA.items()}
+    accel = None
+    if "accelerometers" in data and data["accelerometers"] is not None:
+        accel = AccelConfig(**_section(data, "accelerometers", _ACCEL_SCHEMA, source))
+    for key in data:
+        if key not in _SCHEMA and key != "accelerometers":
+            log.warning("%s: unknown key '%s' ignored", source, key)
+    rig = RigConfig(
+        camera=CameraConfig(**sections["camera"]),
+        ball=BallConfig(**sections["ball"]),
+        structure=StructureConfig(**sections["structure"]),
+        excitation=ExcitationConfig(**sections["excitation"]),
+        dic=DicConfig(**sections["dic"]),
+        accelerometers=accel,
+        path=source,
+    )
+    if rig.structure.gap_mm <= rig.ball.diameter_mm:
+        raise RigError(
+            f"{source}: key 'structure.gap_mm' ({rig.structure.gap_mm}) must exceed "
+            f"'ball.diameter_mm' ({rig.ball.diameter_mm}): the ball has no room to move"
+        )
+    return rig
+
+
+def check_rois_in_image(rig: RigConfig, height_px: int, width_px: int) -> None:
+    """Raise :class:`RigError` if a ROI leaves the image or cannot hold one subset.
+
+    Convention: mesh points are placed so that every subset lies inside its ROI.
+    """
+    for name in ("ball_roi", "structure_roi"):
+        roi: Roi = getattr(rig.dic, name)
+        if roi.x + roi.w > width_px or roi.y + roi.h > height_px:
+            raise RigError(
+                f"{rig.path}: key 'dic.{name}' {roi.as_list()} (x, y, w, h in pixels) "
+                f"goes outside the {width_px}x{height_px} px image"
+            )
+        if roi.w < rig.dic.subset_px or roi.h < rig.dic.subset_px:
+            raise RigError(
+                f"{rig.path}: key 'dic.{name}' {roi.as_list()} is smaller than one "
+                f"{rig.dic.subset_px} px subset (dic.subset_px)"
+            )
+
+
+def write_rig(rig: RigConfig, path: str | Path) -> None:
+    """Write ``rig`` as YAML to ``path``."""
+    Path(path).write_text(yaml.safe_dump(rig.to_dict(), sort_keys=False), encoding="utf-8")

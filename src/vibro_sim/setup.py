@@ -1,0 +1,26 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "vibro_sim"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="vibro maintainers",
+    maintainer_email="vibro@example.com",
+    description="Vibro-impact models (COR and Hertz-damped contact), simulator node and a synthetic rig that writes recordings with ground truth.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "simulator = vibro_sim.simulator_node:main"
+        ],
+    },
+)
