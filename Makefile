@@ -1,0 +1,46 @@
+# vibro: two commands do everything on a fresh machine.
+#   make demo   synthesize a recording and run the whole analysis on it
+#   make test   run the test suite
+# Both set up what they need first (idempotent; a second run skips what is done).
+
+SHELL := /bin/bash
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+DEPS_STAMP := $(VENV)/.deps-$(shell cat requirements.txt | sha256sum | cut -c1-16)
+PTH := $(VENV)/lib/python3.11/site-packages/vibro_src.pth
+PACKAGES := vibro_io vibro_dic vibro_fit vibro_sim vibro_bringup
+DEMO_DIR ?= demo
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test msgs clean bench
+
+setup: $(DEPS_STAMP) $(PTH) msgs
+
+$(PY):
+	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "vibro needs Python 3.11 (ROS 2 Jazzy wheels are cp311); found " + sys.version' 
+	$(PYTHON) -m venv $(VENV)
+
+$(DEPS_STAMP): requirements.txt | $(PY)
+	$(PY) -m pip install --disable-pip-version-check -q -r requirements.txt
+	rm -f $(VENV)/.deps-* && touch $@
+
+# Development install of the ament_python packages: their source folders on sys.path
+# (a lab PC uses `colcon build` instead; see README).
+$(PTH): | $(PY)
+	@for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done > $@
+
+msgs: $(DEPS_STAMP)
+	@scripts/build_msgs.sh
+
+demo: setup
+	@scripts/demo.sh $(DEMO_DIR)
+
+test: setup
+	@. scripts/env.sh && $(PY) -m pytest -q $(PYTEST_ARGS) tests
+
+bench: setup
+	@. scripts/env.sh && for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf build install log $(DEMO_DIR)
