@@ -1,0 +1,134 @@
+"""ROS node ``frame_source``: publish a recording's frames as ``sensor_msgs/Image``.
+
+Stamps are camera time (t0_s + k/fps), so a subscriber recovers the frame index from
+the stamp, exactly as with a live camera driver. With ``rate_hz = 0`` it sends as fast as
+the DIC tracker keeps up, never more than ``window`` frames ahead of the tracker's
+acknowledgements (its DicFrame messages): no frame is ever dropped. A frame that cannot be
+read is reported (log, diagnostics, StreamStatus.items_lost) and the tracker sees the gap.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import Image
+
+from vibro_io import topics
+from vibro_io.frames import Frame
+from vibro_io.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_io.recording import open_recording
+from vibro_msgs.msg import DicFrame
+
+
+def image_message(frame: Frame, frame_id: str) -> Image:
+    """A mono8/mono16 Image of ``frame`` stamped with its camera time."""
+    img = frame.image
+    msg = Image(height=img.shape[0], width=img.shape[1], is_bigendian=0)
+    msg.encoding = "mono8" if img.dtype.itemsize == 1 else "mono16"
+    msg.step = img.shape[1] * img.dtype.itemsize
+    msg.data = img.tobytes()
+    msg.header.frame_id = frame_id
+    stamp_from_seconds(msg.header, frame.t_s)
+    return msg
+
+
+class FrameSource(Node):
+    def __init__(self) -> None:
+        super().__init__("frame_source")
+        path = declare(self, "recording", "", "recording directory (rig.yaml and frames/ or video.avi)")
+        self.rate_hz = float(declare(self, "rate_hz", 0.0,
+                                     "frames/s to publish at; 0 = as fast as the tracker acknowledges (lossless)"))
+        self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker (rate_hz = 0)"))
+        self.min_subscribers = int(declare(self, "wait_for_subscribers", 1,
+                                           "start once this many subscribers match the frames topic"))
+        self.frame_id = declare(self, "frame_id", "camera", "header.frame_id of the images")
+        self.linger_s = float(declare(self, "linger_s", 3.0,
+                                      "seconds to wait for the last acknowledgements before exiting"))
+        if not path:
+            from vibro_io.errors import RecordingError
+            raise RecordingError("frame_source: parameter 'recording' is required")
+        self.recording = open_recording(path)
+        self.total = len(self.recording.frames)
+        self._frames = iter(self.recording.frames)
+        self.sent = self.lost = self.acked = 0
+        self.last_index_sent = -1
+        self.last_index_acked = -1
+        self.exhausted = False
+        self.done = Future()
+        self._started_at: float | None = None
+        self._last_progress = time.monotonic()
+        self.health = Health(self)
+        self.health.rate_counter = "published"
+        self.health.values["frames_total"] = self.total
+        self.status = StatusPublisher(self, "frames")
+        self.pub = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
+        self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
+        self.create_timer(0.01, self._tick)
+        self.get_logger().info(f"{self.total} frames from {self.recording.frames.source}")
+
+    def _on_ack(self, msg: DicFrame) -> None:
+        self.acked += 1
+        self.last_index_acked = max(self.last_index_acked, int(msg.frame_index))
+        self._last_progress = time.monotonic()
+        if self.rate_hz <= 0:
+            # the tracker answers every frame slot (gaps too), so its last index paces the window
+            self._send_until(self.last_index_acked + 1 + self.window)
+
+    def _send_one(self) -> bool:
+        """Publish the next readable frame; False when the recording is exhausted."""
+        for frame in self._frames:
+            if frame.ok:
+                self.pub.publish(image_message(frame, self.frame_id))
+                self.sent += 1
+                self.last_index_sent = frame.index
+                self.health.count("published")
+                return True
+            self.lost += 1
+            self.health.count("unreadable")
+            self.health.warn(f"frame {frame.index} not published: {frame.error}")
+            self.get_logger().warning(f"frame {frame.index} not published: {frame.error}")
+        self.exhausted = True
+        return False
+
+    def _send_until(self, limit: int) -> None:
+        while not self.exhausted and self.sent + self.lost < limit:
+            if not self._send_one():
+                break
+        if self.exhausted:
+            self.status.publish(self.sent, self.lost, True)
+
+    def _tick(self) -> None:
+        if self.done.done():
+            return
+        if self._started_at is None:
+            if self.pub.get_subscription_count() < self.min_subscribers:
+                return
+            self._started_at = time.monotonic()
+            self._last_progress = self._started_at
+        if not self.exhausted:
+            if self.rate_hz > 0:
+                due = int((time.monotonic() - self._started_at) * self.rate_hz) + 1
+                self._send_until(due)
+            elif self.sent == 0 or time.monotonic() - self._last_progress > self.linger_s:
+                # start the window, or push on when the tracker stopped acknowledging (it reports the gap)
+                self._send_until(self.sent + self.lost + self.window)
+                self._last_progress = time.monotonic()
+            self.status.publish(self.sent, self.lost, self.exhausted)
+            return
+        all_acked = self.last_index_acked >= self.last_index_sent
+        if all_acked or time.monotonic() - self._last_progress > self.linger_s:
+            self.status.publish(self.sent, self.lost, True)
+            self.get_logger().info(
+                f"done: {self.sent} published, {self.lost} unreadable, {self.acked} acknowledged of {self.total}")
+            self.done.set_result(True)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(FrameSource, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

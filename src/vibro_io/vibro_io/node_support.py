@@ -1,0 +1,144 @@
+"""What every vibro node shares: QoS profiles, declared parameters, diagnostics, clean shutdown.
+
+This is the only vibro_io module that imports rclpy; the algorithm modules never do.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rcl_interfaces.msg import ParameterDescriptor
+from std_msgs.msg import Header
+
+from vibro_msgs.msg import StreamStatus
+
+from . import topics
+
+#: Data streams: reliable, deep queue; senders also apply credit-based flow control
+#: (frame_source waits for the tracker's acknowledgements), so nothing is dropped.
+STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+#: Results: reliable and transient-local, so a recorder or fitter that joins late still gets them.
+RESULTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
+                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: A live camera driver's image_raw (best effort, shallow).
+SENSOR_QOS = qos_profile_sensor_data
+
+QOS_BY_KIND = {"stream": STREAM_QOS, "results": RESULTS_QOS, "sensor": SENSOR_QOS}
+
+
+def declare(node: Node, name: str, default: Any, description: str, read_only: bool = True) -> Any:
+    """Declare a parameter with a description and return its value."""
+    node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only))
+    return node.get_parameter(name).value
+
+
+def stamp_from_seconds(header: Header, t_s: float) -> Header:
+    """Set ``header.stamp`` to ``t_s`` seconds (camera or DAQ time)."""
+    sec = int(t_s // 1)
+    header.stamp.sec = sec
+    header.stamp.nanosec = int(round((t_s - sec) * 1e9)) % 1_000_000_000
+    return header
+
+
+def seconds_from_stamp(header: Header) -> float:
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+class Health:
+    """Counts and rates a node reports on /diagnostics once a second."""
+
+    def __init__(self, node: Node, hardware_id: str = "vibro"):
+        self._node = node
+        self._hardware_id = hardware_id
+        self.counters: dict[str, int] = {}
+        self.values: dict[str, float | str] = {}
+        self.level = DiagnosticStatus.OK
+        self.message = "ok"
+        self._start = time.monotonic()
+        self._last_count = 0
+        self._last_time = self._start
+        self.rate_counter = "processed"
+        self._pub = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS.name, 10)
+        node.create_timer(1.0, self.publish)
+
+    def count(self, key: str, n: int = 1) -> None:
+        self.counters[key] = self.counters.get(key, 0) + n
+
+    def warn(self, message: str) -> None:
+        self.level = max(self.level, DiagnosticStatus.WARN)
+        self.message = message
+
+    def error(self, message: str) -> None:
+        self.level = DiagnosticStatus.ERROR
+        self.message = message
+
+    def publish(self) -> None:
+        now = time.monotonic()
+        n = self.counters.get(self.rate_counter, 0)
+        rate = (n - self._last_count) / max(now - self._last_time, 1e-9)
+        self._last_count, self._last_time = n, now
+        status = DiagnosticStatus(level=self.level, name=self._node.get_fully_qualified_name(),
+                                  message=self.message, hardware_id=self._hardware_id)
+        values = {f"{k}_count": str(v) for k, v in self.counters.items()}
+        values["rate_hz"] = f"{rate:.1f}"
+        values.update({k: str(v) for k, v in self.values.items()})
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        self._pub.publish(msg)
+
+
+class StatusPublisher:
+    """Publishes :class:`StreamStatus` for one stream (items sent/lost, finished)."""
+
+    def __init__(self, node: Node, stream: str):
+        self._node = node
+        self._stream = stream
+        self._pub = node.create_publisher(StreamStatus, topics.STATUS.name, RESULTS_QOS)
+
+    def publish(self, sent: int, lost: int, finished: bool) -> None:
+        msg = StreamStatus(stream=self._stream, items_sent=sent, items_lost=lost, finished=finished)
+        msg.header.stamp = self._node.get_clock().now().to_msg()
+        self._pub.publish(msg)
+
+
+def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Init rclpy, spin the node until SIGINT/SIGTERM or until it is done, then shut down cleanly.
+
+    A node that ends by itself has a ``done`` attribute (an ``rclpy.task.Future``) and sets
+    its result. Bad input raised while building the node (``RecordingError``) is logged
+    as one line and gives exit code 2.
+    """
+    from .errors import RecordingError
+
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = factory()
+        done = getattr(node, "done", None)
+        if done is None:
+            rclpy.spin(node)
+        else:
+            rclpy.spin_until_future_complete(node, done)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RecordingError as exc:
+        rclpy.logging.get_logger("vibro").error(str(exc))
+        code = 2
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
