@@ -133,6 +133,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     except RecordingError as exc:
         rclpy.logging.get_logger("vibro").error(str(exc))
         code = 2
+    except Exception:
+        if rclpy.ok():
+            raise
+        # a callback that ran while SIGINT/SIGTERM was shutting the context down: clean stop
     finally:
         if node is not None:
             close = getattr(node, "close", None)

@@ -1,0 +1,153 @@
+"""ROS node ``dic_tracker``: sensor_msgs/Image in, one vibro_msgs/DicFrame out per frame slot.
+
+The frame index comes from the image stamp (k = round((t - t0_s) * fps)), as with a live
+camera. A missing index (a frame dropped or unreadable upstream) is answered with a lost
+DicFrame, so the gap is visible downstream and the frame source's flow control keeps going.
+The first image received is the DIC reference (frame 0 of the mesh, ROIs from rig.yaml).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+
+from vibro_io import topics
+from vibro_io.dictrack import FrameTrack
+from vibro_io.errors import RecordingError
+from vibro_io.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
+                                   seconds_from_stamp, stamp_from_seconds)
+from vibro_io.rig import check_rois_in_image, load_rig
+from vibro_msgs.msg import DicFrame, StreamStatus
+
+from .tracker import METHODS, DicTracker
+
+_DTYPES = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16}
+
+
+def image_array(msg: Image) -> np.ndarray:
+    """The pixels of a mono8/mono16 Image as a 2-D array; RecordingError for other encodings."""
+    dtype = _DTYPES.get(msg.encoding)
+    if dtype is None:
+        raise RecordingError(f"image encoding {msg.encoding!r} not supported (mono8 or mono16)")
+    itemsize = np.dtype(dtype).itemsize
+    if msg.step < msg.width * itemsize or len(msg.data) < msg.step * msg.height:
+        raise RecordingError(f"image {msg.width}x{msg.height} step {msg.step}: data has {len(msg.data)} bytes")
+    buf = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)[:, : msg.width * itemsize]
+    img = np.ascontiguousarray(buf).view(dtype)
+    if msg.is_bigendian and itemsize > 1:
+        img = img.byteswap()
+    return img
+
+
+def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "") -> DicFrame:
+    msg = DicFrame(frame_index=row.frame, t_s=row.t_s, ball_mm=row.ball_mm, structure_mm=row.structure_mm,
+                   ball_valid_points=row.ball_valid, structure_valid_points=row.structure_valid,
+                   ball_mesh_points=mesh_points[0], structure_mesh_points=mesh_points[1],
+                   ball_mean_zncc=row.ball_zncc, structure_mean_zncc=row.structure_zncc,
+                   lost=row.lost, status=status)
+    msg.header.frame_id = "camera"
+    stamp_from_seconds(msg.header, row.t_s)
+    return msg
+
+
+class DicTrackerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("dic_tracker")
+        rig_file = declare(self, "rig_file", "", "rig.yaml giving fps, t0_s, mm_per_px, subset size and ROIs")
+        self.method = declare(self, "method", "icgn", f"sub-pixel method: {' or '.join(METHODS)}")
+        self.zncc_min = float(declare(self, "zncc_min", 0.6, "a mesh point below this ZNCC is rejected"))
+        live = bool(declare(self, "live_camera", False,
+                            "true: best-effort sensor QoS for a camera driver's image_raw"))
+        if not rig_file:
+            raise RecordingError("dic_tracker: parameter 'rig_file' is required")
+        if self.method not in METHODS:
+            raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
+        self.rig = load_rig(rig_file)
+        self.tracker: DicTracker | None = None
+        self.next_index = 0
+        self.published = self.lost = self.received = 0
+        self.frames_finished: StreamStatus | None = None
+        self.health = Health(self)
+        self.health.rate_counter = "tracked"
+        self.status = StatusPublisher(self, "dic")
+        self.pub = self.create_publisher(DicFrame, topics.DIC.name, STREAM_QOS)
+        self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
+        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, 10)
+        self.create_timer(1.0, self._report)
+
+    def _index_of(self, msg: Image) -> int:
+        cam = self.rig.camera
+        return int(round((seconds_from_stamp(msg.header) - cam.t0_s) * cam.fps))
+
+    def _publish(self, row: FrameTrack, status: str = "") -> None:
+        mesh = (len(self.tracker.ball.points), len(self.tracker.structure.points)) if self.tracker else (0, 0)
+        self.pub.publish(dic_message(row, mesh, status))
+        self.published += 1
+        if row.lost:
+            self.lost += 1
+            self.health.count("lost")
+        self.health.count("tracked")
+
+    def _on_image(self, msg: Image) -> None:
+        self.received += 1
+        k = self._index_of(msg)
+        t = self.rig.camera.frame_time_s(k)
+        if k < self.next_index:
+            self.get_logger().warning(f"frame {k} arrived after frame {self.next_index - 1}; ignored")
+            self.health.count("out_of_order")
+            return
+        try:
+            image = image_array(msg)
+            if self.tracker is None:
+                check_rois_in_image(self.rig, *image.shape)
+                self.tracker = DicTracker(image, self.rig.dic, self.rig.camera.mm_per_px,
+                                          method=self.method, zncc_min=self.zncc_min)
+                if k != 0:
+                    self.get_logger().warning(f"first image is frame {k}; it is the DIC reference")
+                self.next_index = k
+        except RecordingError as exc:
+            self.health.error(str(exc))
+            self.get_logger().error(f"frame {k}: {exc}")
+            self._publish(FrameTrack(k, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True), str(exc))
+            self.next_index = k + 1
+            return
+        for gap in range(self.next_index, k):  # frames that never arrived
+            gt = self.rig.camera.frame_time_s(gap)
+            self._publish(FrameTrack(gap, gt, math.nan, math.nan, 0, 0, math.nan, math.nan, True),
+                          "no image received (dropped or unreadable upstream)")
+        row = self.tracker.track_image(k, t, image)
+        reasons = "; ".join(r.reason for r in self.tracker.last_results.values() if r.lost and r.reason)
+        self._publish(row, reasons)
+        self.next_index = k + 1
+        self._maybe_finish()
+
+    def _on_status(self, msg: StreamStatus) -> None:
+        if msg.stream == "frames" and msg.finished:
+            self.frames_finished = msg
+            self._maybe_finish()
+
+    @property
+    def finished(self) -> bool:
+        """Every image the frame source announced has been tracked."""
+        src = self.frames_finished
+        return src is not None and self.received >= src.items_sent
+
+    def _maybe_finish(self) -> None:
+        if self.finished:
+            self.status.publish(self.published, self.lost, True)
+
+    def _report(self) -> None:
+        self.health.values["frames_lost"] = self.lost
+        self.status.publish(self.published, self.lost, self.finished)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(DicTrackerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
