@@ -22,7 +22,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            
+            "recorder = vibro_bringup.recorder_node:main",
+            "vibro = vibro_bringup.cli:main",
         ],
     },
 )

@@ -1,0 +1,48 @@
+"""``vibro analyze <recording> --out DIR``: DIC + identification + simulation + report."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from vibro_fit.identify import METHODS
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("analyze", help="track, identify, simulate; write results.json, CSVs and report.html")
+    p.add_argument("recording", help="recording directory (rig.yaml, frames/ or video, accel.csv)")
+    p.add_argument("--out", required=True, help="output directory (created)")
+    p.add_argument("--method", choices=METHODS, default="paper",
+                   help="COR method: paper (Eq. 15-16, default) or joint (flights constrained to meet on the "
+                        "plate, friction shrunk towards the recording's mean)")
+    p.add_argument("--track", help="use this dic.csv instead of running DIC (frames are then not read)")
+    p.add_argument("--dic-method", default="icgn", help="DIC sub-pixel method (icgn, parabolic)")
+    p.add_argument("--no-report", action="store_true", help="skip figures and report.html")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .analyze import analyze_recording
+
+    progress = not args.no_progress and sys.stderr.isatty()
+    doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,
+                            track_csv=args.track, dic_method=args.dic_method, report=not args.no_report)
+    summ = doc["cor_summary"]
+    sim = doc["simulation"]
+
+    def f(v, spec):
+        return "n/a" if v is None else format(v, spec)
+
+    print(f"results        {args.out}/results.json")
+    print(f"regime         {doc['regime']['name']}; {len(doc['flights'])} flights, {len(doc['impacts'])} impacts")
+    s = doc["structure"]
+    print(f"structure      A = {s['amplitude_mm']:.4f} mm, f = {s['frequency_hz']:.4f} Hz")
+    for plate in ("bottom", "top"):
+        d = summ[plate]
+        print(f"COR {plate:<7}    mean {f(d['mean'], '.4f')}  std {f(d['std'], '.4f')}  n {d['n']}")
+    print(f"deviation D    COR model {f(sim['cor_model']['deviation'], '.4f')}, "
+          f"Hertz model {f(sim['hertz_model']['deviation'], '.4f')}")
+    for w in doc.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
+    return 0

@@ -1,0 +1,66 @@
+"""The vibro node graph, defined once: used by ``vibro graph`` here and by the launch file on a lab PC."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node: ``ros2 run <package> <executable>`` on a lab PC, ``python -m <module>`` here."""
+
+    name: str
+    package: str
+    executable: str
+    module: str
+    role: str  # "source" (ends by itself), "processing" or "sink"
+
+
+NODES: tuple[NodeSpec, ...] = (
+    NodeSpec("recorder", "vibro_bringup", "recorder", "vibro_bringup.recorder_node", "sink"),
+    NodeSpec("dic_tracker", "vibro_dic", "dic_tracker", "vibro_dic.dic_tracker_node", "processing"),
+    NodeSpec("impact_detector", "vibro_fit", "impact_detector", "vibro_fit.impact_detector_node", "processing"),
+    NodeSpec("trajectory_fitter", "vibro_fit", "trajectory_fitter", "vibro_fit.trajectory_fitter_node", "processing"),
+    NodeSpec("simulator", "vibro_sim", "simulator", "vibro_sim.simulator_node", "processing"),
+    NodeSpec("frame_source", "vibro_dic", "frame_source", "vibro_dic.frame_source_node", "source"),
+    NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source"),
+)
+
+
+
+def default_params_file() -> Path:
+    """config/vibro.yaml of the source tree, else of the installed package's share/ folder."""
+    here = Path(__file__).resolve().parents[1] / "config" / "vibro.yaml"
+    if here.is_file():
+        return here
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory("vibro_bringup")) / "config" / "vibro.yaml"
+
+
+def node_parameters(recording: str | Path, bag: str | Path | None, base: str | Path | None = None,
+                    with_accel: bool = True) -> dict[str, dict[str, Any]]:
+    """Parameters per node for one run: the defaults file, then the recording and bag paths."""
+    data = yaml.safe_load(Path(base or default_params_file()).read_text(encoding="utf-8")) or {}
+    params = {name: dict(block.get("ros__parameters", {})) for name, block in data.items()}
+    rec = Path(recording).resolve()
+    params.setdefault("frame_source", {})["recording"] = str(rec)
+    params.setdefault("accel_source", {})["recording"] = str(rec)
+    for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector"):
+        params.setdefault(name, {})["rig_file"] = str(rec / "rig.yaml")
+    params["trajectory_fitter"]["use_accelerometers"] = with_accel
+    if bag is not None:
+        params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
+    return params
+
+
+def write_params_file(params: dict[str, dict[str, Any]], path: str | Path) -> Path:
+    """Write a ROS 2 parameters YAML (``node: ros__parameters: {...}``)."""
+    path = Path(path)
+    path.write_text(yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=False),
+                    encoding="utf-8")
+    return path
