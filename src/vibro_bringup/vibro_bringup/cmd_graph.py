@@ -1,0 +1,235 @@
+"""``vibro graph <recording> --bag bags/NAME``: run the node graph on a recording, record it, summarise.
+
+Every node runs in its own OS process and talks over DDS. This command starts them
+(sinks and processing first, sources last), watches ``vibro/status`` until the last
+stage has finished, stops everything with SIGINT, and prints what came through: frames
+in / tracked / lost (a lost frame is never silent), COR per plate, D per model, findings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from vibro_io.errors import RecordingError
+from vibro_io.recording import open_recording
+
+from .graph_spec import NODES, NodeSpec, node_parameters, write_params_file
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("graph", help="run the ROS node graph on a recording and record it to a bag")
+    p.add_argument("recording", help="recording directory")
+    p.add_argument("--bag", required=True, help="bag directory to create, e.g. bags/run1")
+    p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
+    p.add_argument("--timeout-s", type=float, default=900.0, help="give up after this many seconds")
+    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
+    p.set_defaults(func=run)
+
+
+@dataclass
+class GraphSummary:
+    """What the monitor saw on the graph's topics."""
+
+    frames_announced: int = 0
+    frames_unreadable: int = 0
+    dic_frames: int = 0
+    dic_lost: int = 0
+    lost_reasons: dict[str, int] = field(default_factory=dict)
+    impacts: list = field(default_factory=list)
+    deviations: dict[str, float] = field(default_factory=dict)
+    findings: list = field(default_factory=list)
+    finished: dict[str, bool] = field(default_factory=dict)
+    dic_indices: set = field(default_factory=set)
+
+
+class GraphRun:
+    """Processes of one graph run plus an in-process monitor node."""
+
+    def __init__(self, recording: Path, bag: Path, params_file: Path, env: dict[str, str]):
+        self.recording = recording
+        self.bag = bag
+        self.params_file = params_file
+        self.env = env
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
+        self.summary = GraphSummary()
+
+    def start(self, spec: NodeSpec, log_dir: Path) -> None:
+        log = log_dir / f"{spec.name}.log"
+        self.logs[spec.name] = log
+        self.procs[spec.name] = subprocess.Popen(
+            [sys.executable, "-m", spec.module, "--ros-args", "--params-file", str(self.params_file),
+             "-r", f"__node:={spec.name}"],
+            stdout=log.open("w"), stderr=subprocess.STDOUT, env=self.env)
+
+    def died(self) -> list[str]:
+        """Non-source nodes that exited on their own (a source exits when done)."""
+        roles = {s.name: s.role for s in NODES}
+        return [n for n, p in self.procs.items() if p.poll() is not None and roles[n] != "source"]
+
+    def stop(self) -> None:
+        order = [s.name for s in NODES if s.role == "source"] + \
+                [s.name for s in NODES if s.role == "processing"] + ["recorder"]
+        for name in order:
+            proc = self.procs.get(name)
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+
+def _monitor(run: GraphRun, until_streams: tuple[str, ...], timeout_s: float, with_accel: bool) -> bool:
+    """Spin a monitor node until every stream in ``until_streams`` is finished; False on timeout/death."""
+    import rclpy
+
+    from vibro_io import topics
+    from vibro_io.node_support import RESULTS_QOS, STREAM_QOS
+    from vibro_msgs.msg import DicFrame, DiscrepancyFinding, ImpactEstimate, SimulationResult, StreamStatus
+
+    s = run.summary
+    rclpy.init()
+    node = rclpy.create_node("vibro_graph_monitor")
+
+    def on_status(m: StreamStatus) -> None:
+        if m.stream == "frames":
+            s.frames_announced = max(s.frames_announced, int(m.items_sent + m.items_lost))
+            s.frames_unreadable = max(s.frames_unreadable, int(m.items_lost))
+        if m.finished:
+            s.finished[m.stream] = True
+
+    def on_dic(m: DicFrame) -> None:
+        if m.frame_index in s.dic_indices:
+            return
+        s.dic_indices.add(int(m.frame_index))
+        s.dic_frames += 1
+        if m.lost:
+            s.dic_lost += 1
+            reason = m.status or "lost"
+            s.lost_reasons[reason] = s.lost_reasons.get(reason, 0) + 1
+
+    node.create_subscription(StreamStatus, topics.STATUS.name, on_status, RESULTS_QOS)
+    node.create_subscription(DicFrame, topics.DIC.name, on_dic, STREAM_QOS)
+    node.create_subscription(ImpactEstimate, topics.IMPACTS.name, s.impacts.append, RESULTS_QOS)
+    node.create_subscription(SimulationResult, topics.SIMULATION.name,
+                             lambda m: s.deviations.__setitem__(m.model, m.deviation), RESULTS_QOS)
+    node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
+    deadline = time.monotonic() + timeout_s
+    ok = False
+    try:
+        while time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if all(s.finished.get(k) for k in until_streams):
+                ok = True
+                break
+            dead = run.died()
+            if dead:
+                print(f"vibro graph: node(s) {', '.join(dead)} exited early; see {run.logs[dead[0]]}",
+                      file=sys.stderr)
+                break
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:  # collect stragglers
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    return ok
+
+
+def print_summary(s: GraphSummary, bag: Path) -> None:
+    tracked = s.dic_frames - s.dic_lost
+    never = max(0, s.frames_announced - s.dic_frames)
+    print(f"frames in {s.frames_announced} / tracked {tracked} / lost {s.dic_lost + never}"
+          + (f" (unreadable at the source: {s.frames_unreadable})" if s.frames_unreadable else ""))
+    for reason, n in sorted(s.lost_reasons.items(), key=lambda kv: -kv[1]):
+        print(f"  lost x{n}: {reason}")
+    if never:
+        print(f"  lost x{never}: no DIC result ever published")
+    print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
+    for plate in ("bottom", "top"):
+        cors = [m.cor for m in s.impacts if m.plate == plate and math.isfinite(m.cor)]
+        if cors:
+            mean = sum(cors) / len(cors)
+            std = math.sqrt(sum((c - mean) ** 2 for c in cors) / max(1, len(cors) - 1))
+            print(f"{plate:8s} {len(cors):4d} {mean:9.4f} {std:8.4f}")
+        else:
+            print(f"{plate:8s} {0:4d} {'-':>9s} {'-':>8s}")
+    for model, d in sorted(s.deviations.items()):
+        print(f"D {model:12s} {100 * d:6.2f} %")
+    if s.findings:
+        for f in s.findings:
+            params = ", ".join(f"{n}={v:.4g}" for n, v in zip(f.parameter_names, f.parameter_values))
+            print(f"finding: {f.effect} ({params}) D {100 * f.deviation_before:.2f} % -> "
+                  f"{100 * f.deviation_after:.2f} %; {f.where}")
+    else:
+        print("findings: none published")
+    print(f"bag: {bag}")
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = open_recording(args.recording)  # validate before starting anything
+    bag = Path(args.bag)
+    if bag.exists():
+        raise RecordingError(f"{bag}: already exists; choose a new bag name")
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    if args.domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(args.domain_id)
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
+    with_accel = recording.has_accel
+    available = [s for s in NODES if _importable(s.module)]
+    missing = [s.name for s in NODES if s not in available]
+    if missing:
+        print(f"vibro graph: nodes not available in this checkout: {', '.join(missing)}", file=sys.stderr)
+    if not with_accel:
+        available = [s for s in available if s.name not in ("accel_source", "impact_detector")]
+    names = {s.name for s in available}
+    until = tuple(k for k, node in (("frames", "frame_source"), ("dic", "dic_tracker"),
+                                    ("impacts", "trajectory_fitter"), ("simulation", "simulator"))
+                  if node in names)
+    with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
+        params = node_parameters(recording.path, bag, args.params, with_accel)
+        params_file = write_params_file(params, Path(tmp) / "params.yaml")
+        log_dir = bag.parent / f"{bag.name}.logs"
+        log_dir.mkdir(exist_ok=True)
+        graph = GraphRun(recording.path, bag, params_file, env)
+        t0 = time.monotonic()
+        try:
+            for spec in available:
+                if spec.role != "source":
+                    graph.start(spec, log_dir)
+            time.sleep(1.0)
+            for spec in available:
+                if spec.role == "source":
+                    graph.start(spec, log_dir)
+            ok = _monitor(graph, until, args.timeout_s, with_accel)
+        finally:
+            graph.stop()
+        elapsed = time.monotonic() - t0
+    print(f"graph: {len(available)} nodes, {elapsed:.1f} s, logs in {log_dir}")
+    print_summary(graph.summary, bag)
+    if not ok:
+        print("vibro graph: the graph did not finish (timeout or a node died); the bag holds what was recorded",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def _importable(module: str) -> bool:
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:
+        return False
