@@ -22,7 +22,7 @@ fi
 # built them; point them at this interpreter's and numpy's (inside the venv only).
 py_inc=$("$PY" -c "import sysconfig; print(sysconfig.get_paths()['include'])")
 np_inc=$("$PY" -c "import numpy; print(numpy.get_include())")
-grep -l "/opt/python/cp311-cp311" "$VENV"/share/*/cmake/*.cmake 2>/dev/null | while read -r f; do
+{ grep -l "/opt/python/cp311-cp311" "$VENV"/share/*/cmake/*.cmake 2>/dev/null || true; } | while read -r f; do
   sed -i -e "s#/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include#$np_inc#g" \
          -e "s#/opt/python/cp311-cp311/include/python3.11#$py_inc#g" "$f"
 done
