@@ -1,0 +1,368 @@
+"""Event-driven COR model (paper Eq. 4-5): exact flights between instantaneous impacts.
+
+Conventions: SI units, lab frame, positive up. ``y0_m`` is the ball centre in the same
+frame as ``structure.position`` (so the ball touches the top plate when
+y - Y_s(t) = +b and the bottom plate when y - Y_s(t) = -b, b = cavity.free_play_m).
+
+Free flights use exact solutions (:mod:`vibro_sim.flight`); the contact times are
+zeros of the gap functions g_top = b - (y - Y_s) and g_bottom = (y - Y_s) + b, found
+by :func:`vibro_sim.events.first_root` (never by stepping past a contact) and refined
+by Brent's method to 1e-12 s. At an impact v_b+ = v_s - e (v_b- - v_s) with e from the
+restitution law. When the rebound relative speed is below ``stick_speed_ms`` the ball
+is put at rest on the plate; if the plate then pushes it (plate acceleration beyond
+the ball's free acceleration) it rides on the plate until the plate's acceleration
+releases it (no Zeno loop of ever smaller bounces).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .events import first_root
+from .flight import Segment, Stuck, make_flight_segment
+from .forces import ForceLaw, NoForce
+from .params import BallCavity
+from .restitution import RestitutionLaw
+from .structure import StructureMotion
+
+log = logging.getLogger(__name__)
+
+GAP_TOL_M = 1e-12
+
+
+@dataclass(frozen=True)
+class ImpactEvent:
+    """One impact: time (s), plate, COR used, ball velocity before/after and structure velocity (m/s)."""
+
+    t_s: float
+    plate: str
+    cor: float
+    v_ball_before_ms: float
+    v_ball_after_ms: float
+    v_structure_ms: float
+    index: int
+
+    @property
+    def v_rel_before_ms(self) -> float:
+        return self.v_ball_before_ms - self.v_structure_ms
+
+    @property
+    def v_rel_after_ms(self) -> float:
+        return self.v_ball_after_ms - self.v_structure_ms
+
+
+@dataclass(frozen=True)
+class FlightRecord:
+    """A free flight between two events. Flight i ends with impact i.
+
+    ``start_plate``/``end_plate`` are None at the simulation's start/end. ``mean_force_n``
+    is m (mean acceleration + g_eff): what a parabola fit (paper Eq. 17) would see.
+    ``direction`` is "up" when the ball travels towards the top plate.
+    """
+
+    index: int
+    t_start_s: float
+    t_end_s: float
+    force_law: str
+    start_plate: str | None
+    end_plate: str | None
+    direction: str
+    mean_force_n: float
+
+
+@dataclass(frozen=True)
+class StuckPhase:
+    """The ball rides on ``plate`` from t_start_s to t_end_s."""
+
+    t_start_s: float
+    t_end_s: float
+    plate: str
+
+
+@dataclass
+class SimResult:
+    """Output of :func:`simulate_cor` (and the Hertz model): events and an exact trajectory."""
+
+    structure: StructureMotion
+    cavity: BallCavity
+    t0_s: float
+    t_end_s: float
+    impacts: list[ImpactEvent] = field(default_factory=list)
+    flights: list[FlightRecord] = field(default_factory=list)
+    stuck: list[StuckPhase] = field(default_factory=list)
+    segments: list[Segment] = field(default_factory=list)
+    truncated: bool = False
+    model: str = "cor"
+
+    def _starts(self) -> np.ndarray:
+        cache = getattr(self, "_starts_cache", None)
+        if cache is None or cache.size != len(self.segments):
+            cache = np.array([s.t0 for s in self.segments])
+            self._starts_cache = cache
+        return cache
+
+    def _eval(self, t, what: str):
+        t_arr = np.atleast_1d(np.asarray(t, dtype=float))
+        span = 1e-9 * max(1.0, abs(self.t_end_s))
+        if t_arr.size and (t_arr.min() < self.t0_s - span or t_arr.max() > self.t_end_s + span):
+            raise ValueError(
+                f"time outside the simulated span [{self.t0_s}, {self.t_end_s}] s: "
+                f"[{t_arr.min()}, {t_arr.max()}]")
+        idx = np.searchsorted(self._starts(), t_arr, side="right") - 1
+        idx = np.clip(idx, 0, len(self.segments) - 1)
+        out = np.empty_like(t_arr)
+        for k in np.unique(idx):
+            mask = idx == k
+            out[mask] = getattr(self.segments[k], what)(t_arr[mask])
+        return out if np.ndim(t) else float(out[0])
+
+    def sample(self, t_s):
+        """Ball centre position (m, lab frame) at any time(s) in [t0_s, t_end_s]."""
+        return self._eval(t_s, "pos")
+
+    def velocity(self, t_s):
+        """Ball velocity (m/s); at an impact instant, the rebound velocity."""
+        return self._eval(t_s, "vel")
+
+    def acceleration(self, t_s):
+        """Ball acceleration (m/s^2) (free-flight value; impacts are instantaneous)."""
+        return self._eval(t_s, "acc")
+
+    def relative_position(self, t_s):
+        """Ball centre minus cavity centre, y - Y_s (m): +b touches the top, -b the bottom."""
+        return self.sample(t_s) - self.structure.position(t_s)
+
+
+def force_array(force: ForceLaw, v, flight_index: int):
+    """Vectorised F(v) (N) for the built-in laws; falls back to a loop."""
+    v = np.asarray(v, dtype=float)
+    kind = getattr(force, "kind", "ode")
+    if kind == "constant":
+        return np.full_like(v, force.constant_n(flight_index))
+    if kind == "coulomb":
+        return -force.magnitude_n * np.sign(v)
+    if kind == "viscous":
+        return -force.coefficient_ns_per_m * v
+    if kind == "quadratic":
+        return -force.coefficient_ns2_per_m2 * v * np.abs(v)
+    return np.array([force.force_n(float(x), flight_index) for x in v.ravel()]).reshape(v.shape)
+
+
+def _law_name(force: ForceLaw) -> str:
+    return type(force).__name__
+
+
+class _Simulator:
+    def __init__(self, structure, cavity, restitution, force, stick_speed_ms, scan_step_s):
+        self.S = structure
+        self.cav = cavity
+        self.law = restitution
+        self.force = force if force is not None else NoForce()
+        self.b = cavity.free_play_m
+        self.m = cavity.mass_kg
+        self.g = cavity.g_eff_ms2
+        self.stick_speed = stick_speed_ms
+        self.step = scan_step_s or min(1e-4, 1.0 / (400.0 * structure.frequency_hz))
+
+    # gap functions ---------------------------------------------------------
+    def gap_fn(self, plate: str, seg: Segment):
+        S, b = self.S, self.b
+        if plate == "top":
+            return lambda t: b - (seg.pos(t) - S.position(t))
+        return lambda t: (seg.pos(t) - S.position(t)) + b
+
+    def gap_derivs(self, plate: str, seg: Segment, t: float) -> tuple[float, float, float, float]:
+        S = self.S
+        rel = (float(seg.pos(t) - S.position(t)), float(seg.vel(t) - S.velocity(t)),
+               float(seg.acc(t) - S.acceleration(t)), float(seg.jerk(t) - S.jerk(t)))
+        if plate == "top":
+            return self.b - rel[0], -rel[1], -rel[2], -rel[3]
+        return rel[0] + self.b, rel[1], rel[2], rel[3]
+
+    def gap_bounds(self, seg: Segment) -> tuple[float, float, float]:
+        a, j, s = seg.bounds()
+        return a + self.S.bound(2), j + self.S.bound(3), s + self.S.bound(4)
+
+    def leave_delay(self, plate: str, seg: Segment, t: float):
+        """At a contact (gap ~ 0): 'impact' if moving in, None if pressed (stick), else a
+        delay tau such that the gap is provably > 0 on (t, t + tau]."""
+        g0, g1, g2, g3 = self.gap_derivs(plate, seg, t)
+        m2, m3, m4 = self.gap_bounds(seg)
+        if g1 < -1e-9:
+            return "impact"
+        if g1 > 1e-9:
+            return g1 / m2 if m2 > 0 else math.inf
+        if g2 > 1e-7:
+            return 1.5 * g2 / m3 if m3 > 0 else math.inf
+        if g2 < -1e-7:
+            return None
+        if g3 > 1e-5:
+            return 2.0 * g3 / m4 if m4 > 0 else math.inf
+        return None
+
+    def release_fn(self, plate: str, flight_index: int):
+        """Positive while the plate presses the ball: s (Y_s'' - a_free), s = +1 bottom, -1 top."""
+        S, m, g, force = self.S, self.m, self.g, self.force
+        sgn = 1.0 if plate == "bottom" else -1.0
+
+        def f(t):
+            a_free = -g + force_array(force, S.velocity(t), flight_index) / m
+            return sgn * (S.acceleration(t) - a_free)
+        return f
+
+    def release_bound(self) -> float:
+        S, m = self.S, self.m
+        kind = getattr(self.force, "kind", "ode")
+        extra = 0.0
+        if kind == "viscous":
+            extra = self.force.coefficient_ns_per_m / m * S.bound(3)
+        elif kind == "quadratic":
+            extra = 2 * self.force.coefficient_ns2_per_m2 / m * (S.bound(1) * S.bound(3) + S.bound(2) ** 2)
+        return S.bound(4) + extra + 1e-9
+
+    # main loop -------------------------------------------------------------
+    def run(self, y0, v0, t0, t_end, max_events) -> SimResult:
+        S, b, m, g = self.S, self.b, self.m, self.g
+        res = SimResult(structure=S, cavity=self.cav, t0_s=t0, t_end_s=t_end)
+        rel0 = y0 - S.position(t0)
+        if abs(rel0) > b * (1 + 1e-9) + GAP_TOL_M:
+            raise ValueError(f"initial ball position y0 - Y_s(t0) = {rel0:.6g} m is outside the "
+                             f"cavity (free play b = {b:.6g} m)")
+        rel0 = min(max(rel0, -b), b)
+        t, y, v = t0, S.position(t0) + rel0, v0
+        fi = ii = 0
+        flight_start, flight_v0, start_plate = t0, v0, None
+        mode, stuck_plate = "free", None
+        released_now = False
+        events = 0
+        while t < t_end:
+            events += 1
+            if events > max_events:
+                log.warning("COR model stopped after %d events at t = %.6f s", max_events, t)
+                res.truncated = True
+                break
+            if mode == "stuck":
+                seg = Stuck(t, S, b, stuck_plate)
+                res.segments.append(seg)
+                f = self.release_fn(stuck_plate, fi)
+                if float(f(t)) > 0.0:
+                    tr = first_root(f, t, t_end, self.release_bound(), self.step)
+                else:
+                    tr = t
+                tr = t_end if tr is None else tr
+                res.stuck.append(StuckPhase(t, tr, stuck_plate))
+                t, y, v = tr, float(seg.pos(tr)), float(seg.vel(tr))
+                mode, flight_start, flight_v0, start_plate = "free", t, v, stuck_plate
+                released_now = True
+                continue
+            seg = make_flight_segment(t, y, v, self.force, fi, m, g, t_end)
+            t_seg_end = min(seg.t_natural_end, t_end)
+            m2 = self.gap_bounds(seg)[0]
+            best = None
+            go_stuck = None
+            # Scan the plate the ball heads for first; the other only up to that contact.
+            order = ("top", "bottom") if float(seg.vel(t) - S.velocity(t)) >= 0 else ("bottom", "top")
+            for plate in order:
+                gap = self.gap_fn(plate, seg)
+                ta = t
+                if float(gap(t)) <= GAP_TOL_M:
+                    delay = self.leave_delay(plate, seg, t)
+                    if delay == "impact":
+                        best = (t, plate)
+                        break
+                    if delay is None:
+                        if released_now:
+                            delay = 1e-9  # released on the boundary: let it go
+                        else:
+                            go_stuck = plate
+                            break
+                    ta = t + delay
+                t_stop = t_seg_end if best is None else best[0]
+                if ta >= t_stop:
+                    continue
+                r = first_root(gap, ta, t_stop, m2, self.step)
+                if r is not None and (best is None or r < best[0]):
+                    best = (r, plate)
+            released_now = False
+            if go_stuck is not None:
+                mode, stuck_plate = "stuck", go_stuck
+                continue
+            res.segments.append(seg)
+            if best is None:
+                apex = t_seg_end == seg.t_natural_end and seg.label == "flight" \
+                    and getattr(self.force, "kind", "") in ("coulomb", "quadratic")
+                t = t_seg_end
+                y, v = float(seg.pos(t)), float(seg.vel(t))
+                if apex:
+                    v = 0.0  # exactly at the apex: the next piece falls (no apex ping-pong)
+                continue
+            tr, plate = best
+            vb = float(seg.vel(tr))
+            self._close_flight(res, fi, flight_start, tr, flight_v0, vb, start_plate, plate)
+            t, y, v = self.impact(res, tr, plate, vb, ii, fi, t_end)
+            ii += 1
+            fi += 1
+            flight_start, flight_v0, start_plate = t, v, plate
+        if not res.segments:
+            res.segments.append(make_flight_segment(t0, y0, v0, self.force, 0, m, g, t_end))
+        if mode == "free" and flight_start < min(t, t_end):
+            t_last = min(t, t_end)
+            self._close_flight(res, fi, flight_start, t_last, flight_v0, float(res.velocity(t_last)),
+                               start_plate, None)
+        if res.truncated:
+            res.t_end_s = t
+        return res
+
+    def impact(self, res: SimResult, tr: float, plate: str, vb: float, ii: int, fi: int,
+               t_end: float) -> tuple[float, float, float]:
+        """Instantaneous Newton impact (Eq. 5); returns the state (t, y, v) after it."""
+        S, b = self.S, self.b
+        vs = float(S.velocity(tr))
+        vrel = vb - vs
+        e = float(self.law.cor(plate, vrel, ii))
+        vrel_after = -e * vrel
+        if abs(vrel_after) < self.stick_speed:
+            vrel_after = 0.0
+        v_after = vs + vrel_after
+        res.impacts.append(ImpactEvent(tr, plate, e, vb, v_after, vs, ii))
+        return tr, float(S.position(tr)) + (b if plate == "top" else -b), v_after
+
+    def _close_flight(self, res, fi, t_start, t_end, v_start, v_end, start_plate, end_plate):
+        dt = t_end - t_start
+        if dt <= 0:
+            return
+        mean_force = self.m * ((v_end - v_start) / dt + self.g)
+        if end_plate is not None:
+            direction = "up" if end_plate == "top" else "down"
+        elif start_plate is not None:
+            direction = "up" if start_plate == "bottom" else "down"
+        else:
+            direction = "up" if v_end - float(self.S.velocity(t_end)) > 0 else "down"
+        res.flights.append(FlightRecord(fi, t_start, t_end, _law_name(self.force), start_plate,
+                                        end_plate, direction, mean_force))
+
+
+def simulate_cor(structure: StructureMotion, cavity: BallCavity, restitution: RestitutionLaw,
+                 force: ForceLaw | None = None, y0_m: float = 0.0, v0_ms: float = 0.0,
+                 t0_s: float = 0.0, t_end_s: float = 1.5, *, stick_speed_ms: float = 1e-4,
+                 scan_step_s: float | None = None, max_events: int = 1_000_000) -> SimResult:
+    """Simulate the COR model from (t0_s, y0_m, v0_ms) to t_end_s.
+
+    ``y0_m``: ball centre (m) in the structure's frame of reference (the lab frame);
+    ``v0_ms``: its velocity (m/s). ``force``: a :mod:`vibro_sim.forces` law (None =
+    gravity only). ``stick_speed_ms``: rebounds slower than this (relative, m/s) are
+    set to zero (sticking). ``scan_step_s``: grid of the contact scan (default
+    min(1e-4 s, T/400)); contacts are found exactly whatever its value.
+    Raises ValueError if the ball starts outside the cavity or t_end_s < t0_s.
+    """
+    for name, value in (("y0_m", y0_m), ("v0_ms", v0_ms), ("t0_s", t0_s), ("t_end_s", t_end_s)):
+        if not math.isfinite(value):
+            raise ValueError(f"simulate_cor: {name} must be finite, got {value!r}")
+    if t_end_s < t0_s:
+        raise ValueError(f"simulate_cor: t_end_s ({t_end_s}) < t0_s ({t0_s})")
+    sim = _Simulator(structure, cavity, restitution, force, stick_speed_ms, scan_step_s)
+    return sim.run(float(y0_m), float(v0_ms), float(t0_s), float(t_end_s), max_events)

@@ -1,0 +1,65 @@
+"""Accelerometer signals (m/s^2) of the upper and lower plates at 50 kHz.
+
+Each plate sees the structure's rigid acceleration Y_s''(t) plus, after each impact at
+t_i with impulse J = m (v+ - v-) (N s), a decaying multi-mode burst
+
+    sum_k g_p J w_k / m_k  sin(w_k (t - t_i)) exp(-zeta_k w_k (t - t_i)),   t > t_i
+
+(the impulse response of modes of modal mass m_k), with g_p = 1 on the plate that was
+hit and ``cross_gain`` on the other, plus Gaussian noise. The DAQ clock runs ahead of
+the camera clock by ``clock_offset_s``: the sample written with time t was taken at
+camera time t - clock_offset_s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# (frequency Hz, damping ratio, modal mass kg): plausible plate/rod modes of the rig.
+MODES = ((2150.0, 0.012, 0.25), (4730.0, 0.010, 0.35), (8310.0, 0.008, 0.5), (13500.0, 0.006, 0.8))
+CROSS_GAIN = 0.3
+BURST_DECAY_TAUS = 8.0  # burst truncated after this many decay times of its slowest mode
+
+
+@dataclass
+class AccelSignals:
+    t_daq_s: np.ndarray
+    upper_ms2: np.ndarray
+    lower_ms2: np.ndarray
+
+
+def make_accel(structure, impacts, mass_kg: float, t_first_s: float, t_last_s: float,
+               rate_hz: float, noise_ms2: float, clock_offset_s: float,
+               rng: np.random.Generator) -> AccelSignals:
+    """Samples on the DAQ clock covering the camera window [t_first_s, t_last_s]."""
+    n0 = int(math.ceil((t_first_s + clock_offset_s) * rate_hz))
+    n1 = int(math.floor((t_last_s + clock_offset_s) * rate_hz))
+    t_daq = np.arange(n0, n1 + 1) / rate_hz
+    t_cam = t_daq - clock_offset_s
+    base = np.asarray(structure.acceleration(t_cam), dtype=float)
+    upper = base.copy()
+    lower = base.copy()
+    span = max(BURST_DECAY_TAUS / (z * 2 * math.pi * f) for f, z, _ in MODES)
+    for imp in impacts:
+        J = mass_kg * (imp.v_ball_after_ms - imp.v_ball_before_ms)
+        i0 = int(np.searchsorted(t_cam, imp.t_s, side="right"))
+        i1 = int(np.searchsorted(t_cam, imp.t_s + span, side="right"))
+        if i1 <= i0:
+            continue
+        tau = t_cam[i0:i1] - imp.t_s
+        burst = np.zeros_like(tau)
+        for f, z, mk in MODES:
+            w = 2 * math.pi * f
+            burst += (abs(J) * w / mk) * np.sin(w * tau) * np.exp(-z * w * tau)
+        # sign: the hit plate is pushed away from the ball (top: up, bottom: down)
+        sign = 1.0 if imp.plate == "top" else -1.0
+        hit, other = (upper, lower) if imp.plate == "top" else (lower, upper)
+        hit[i0:i1] += sign * burst
+        other[i0:i1] += sign * CROSS_GAIN * burst
+    if noise_ms2 > 0:
+        upper += rng.normal(0.0, noise_ms2, upper.shape)
+        lower += rng.normal(0.0, noise_ms2, lower.shape)
+    return AccelSignals(t_daq, upper, lower)

@@ -1,0 +1,247 @@
+"""Render the synthetic camera frames with true sub-pixel motion.
+
+Geometry (pixel centres at integer indices, rows grow downwards): the lab height z
+(mm, positive up, 0 = the structure's mean position) maps to the row
+``row_mid - z / mm_per_px`` with ``row_mid = (height - 1) / 2``; the ball's centre is on
+column ``(width - 1) / 2``.
+
+Sub-pixel motion is exact for band-limited content: the speckle textures are
+Gaussian-blurred random impulses (sigma 1.3 px, so the spectrum at Nyquist is ~1e-3)
+and every moving layer is shifted by a Fourier phase ramp along the rows (the
+structure layer as a whole; the ball as a small patch shifted by its fractional row
+then pasted at the integer row). Layers carry an alpha channel (smooth erf edges) and
+are composited over a static background. Then a mild global illumination flicker and
+Gaussian read noise are applied and the result is quantised.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.ndimage import gaussian_filter
+from scipy.special import erf
+
+SPECKLE_SIGMA_PX = 1.3
+EDGE_SIGMA_PX = 1.5  # erf edges: spectrum at Nyquist exp(-(pi 1.5)^2 / 2) ~ 1e-5, no ringing
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Image geometry: size, scale and where the physics lands in pixels."""
+
+    width_px: int
+    height_px: int
+    mm_per_px: float
+    ball_radius_px: float
+    gap_px: float
+    margin_px: int  # padding of the moving structure canvas (> max shift)
+
+    @property
+    def row_mid(self) -> float:
+        return 0.5 * (self.height_px - 1)
+
+    @property
+    def col_mid(self) -> float:
+        return 0.5 * (self.width_px - 1)
+
+    def row_of_mm(self, z_mm):
+        """Image row of lab height z (mm) with no camera drift."""
+        return self.row_mid - np.asarray(z_mm, dtype=float) / self.mm_per_px
+
+
+ROI_MARGIN_PX = 6      # structure ROI starts this far inside the plate (> 3 edge sigmas)
+STRUCT_ROI_H_PX = 45   # structure ROI height
+DEFAULT_MM_PER_PX = 0.06
+
+
+def choose_layout(width_px: int, height_px: int, ball_diameter_mm: float, gap_mm: float,
+                  amplitude_mm: float, mm_per_px: float | None, subset_px: int,
+                  drift_px: float = 0.0) -> Layout:
+    """Pick the scale: 0.06 mm/px unless the lower plate's ROI would leave the image.
+
+    The structure ROI sits on the lower plate in frame 0 and must stay in the image for
+    every frame: (gap/2 + A)/s + margin + ROI height <= row_mid (independent of the phase
+    at frame 0), so s >= (gap/2 + A) / (row_mid - margin - ROI height).
+    """
+    row_mid = 0.5 * (height_px - 1)
+    room = row_mid - ROI_MARGIN_PX - STRUCT_ROI_H_PX - abs(drift_px) - 2
+    need = (0.5 * gap_mm + amplitude_mm) / room if room > 0 else math.inf
+    scale = mm_per_px if mm_per_px is not None else max(DEFAULT_MM_PER_PX, need)
+    if scale < need:
+        raise ValueError(f"mm_per_px {scale} is too fine: the plates' travel needs >= {need:.4f} mm/px "
+                         f"for a {height_px} px high image")
+    radius_px = 0.5 * ball_diameter_mm / scale
+    if (radius_px - 3 * EDGE_SIGMA_PX - 1.0) * math.sqrt(2) < subset_px:
+        why = (f" (the plates' travel of +-{amplitude_mm:.2f} mm needs >= {need:.4f} mm/px in a "
+               f"{height_px} px high image)" if scale == need else "")
+        raise ValueError(f"the ball ({2 * radius_px:.1f} px across at {scale:.4f} mm/px{why}) cannot hold "
+                         f"a {subset_px} px subset; lower the shaker amplitude or use a larger image")
+    if 2 * radius_px + 8 > width_px:
+        raise ValueError(f"the ball ({2 * radius_px:.1f} px) does not fit the {width_px} px wide image")
+    margin = int(math.ceil(amplitude_mm / scale * 3.5 + abs(drift_px) + 24))
+    return Layout(width_px, height_px, scale, radius_px, gap_mm / scale, margin)
+
+
+def speckle(rng: np.random.Generator, shape: tuple[int, int], density: float = 0.05,
+            sigma_px: float = SPECKLE_SIGMA_PX) -> np.ndarray:
+    """Band-limited speckle in about [0, 1]: blurred random impulses."""
+    imp = (rng.random(shape) < density) * rng.uniform(0.5, 1.0, shape)
+    field = gaussian_filter(imp.astype(np.float64), sigma_px, mode="wrap")
+    return field / max(np.quantile(field, 0.995), 1e-12)
+
+
+def _smooth_step(x):
+    """0 -> 1 across x = 0 with an erf edge of width EDGE_SIGMA_PX (x in px)."""
+    return 0.5 * (1.0 + erf(x / (math.sqrt(2.0) * EDGE_SIGMA_PX)))
+
+
+class _ShiftLayer:
+    """A (value, alpha) layer shifted along rows by a Fourier phase ramp."""
+
+    def __init__(self, premult: np.ndarray, alpha: np.ndarray):
+        self.n = premult.shape[0]
+        self.spec = np.fft.fft(premult + 1j * alpha, axis=0)
+        if self.n % 2 == 0:
+            # A fractional shift of the Nyquist row is not real: it would leak value into
+            # alpha (both share one complex FFT). Band-limited layers hold ~nothing there.
+            self.spec[self.n // 2] = 0.0
+        self.k = np.fft.fftfreq(self.n)[:, None]
+
+    def shifted_mean(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean of the layer over several shifts (exact: one averaged phase ramp)."""
+        ramp = np.mean(np.exp(-2j * math.pi * self.k[None, :, :] * np.asarray(rows, float)[:, None, None]),
+                       axis=0)
+        out = np.fft.ifft(self.spec * ramp, axis=0)
+        return out.real, out.imag
+
+    def shifted(self, rows: float) -> tuple[np.ndarray, np.ndarray]:
+        """Content moved down by ``rows`` (may be fractional)."""
+        if rows == 0.0:
+            out = np.fft.ifft(self.spec, axis=0)
+        else:
+            out = np.fft.ifft(self.spec * np.exp(-2j * math.pi * self.k * rows), axis=0)
+        return out.real, out.imag
+
+
+class Renderer:
+    """Draws one frame from the structure displacement and the ball height (mm)."""
+
+    def __init__(self, layout: Layout, rng: np.random.Generator, drift: bool = False):
+        self.L = layout
+        H, W, M = layout.height_px, layout.width_px, layout.margin_px
+        rows = np.arange(H)[:, None]
+        cols = np.arange(W)[None, :]
+        # static background: dim gradient with faint blurred blotches
+        bg = 55.0 + 20.0 * rows / H + 6.0 * np.sin(cols / W * math.pi)
+        blot = cv2.GaussianBlur(rng.random((H + 2 * M, W)), (0, 0), 6.0)
+        blot = (blot - blot.mean()) / (blot.std() + 1e-12)
+        self.drift = drift
+        if drift:  # the background moves with the camera too: keep it as a padded layer
+            bgc = np.pad(bg, ((M, M), (0, 0)), mode="edge") + 4.0 * blot
+            self.bg_layer = _ShiftLayer(bgc, np.ones_like(bgc))
+            self.background = None
+        else:
+            self.background = bg + 4.0 * blot[M:M + H]
+        # structure canvas: plates above and below the cavity, speckled
+        Hc = H + 2 * M
+        q = np.arange(Hc)[:, None] - (layout.row_mid + M)
+        dist = np.abs(q) - 0.5 * layout.gap_px  # > 0 inside a plate
+        alpha_s = np.broadcast_to(_smooth_step(dist), (Hc, W)).copy()
+        tex = 45.0 + 175.0 * speckle(rng, (Hc, W))
+        tex *= 1.0 - 0.08 * np.exp(-np.maximum(dist, 0) / 12.0)  # slight shading near the edges
+        self.struct_layer = _ShiftLayer(tex * alpha_s, alpha_s)
+        # ball patch: speckled disc with mild spherical shading
+        R = layout.ball_radius_px
+        hp = int(2 * math.ceil(R + 8))
+        self.patch_rows = hp
+        self.patch_centre_row = hp // 2
+        self.patch_col0 = int(round(layout.col_mid - (hp / 2 - 0.5)))
+        pr = np.arange(hp)[:, None] - self.patch_centre_row
+        pc = np.arange(hp)[None, :] - (hp / 2 - 0.5)
+        r = np.sqrt(pr ** 2 + pc ** 2)
+        alpha_b = _smooth_step(R - r)
+        shade = 1.0 - 0.25 * np.clip(r / R, 0, 1) ** 2
+        tex_b = (60.0 + 180.0 * speckle(rng, (hp, hp), density=0.06)) * shade
+        self.ball_layer = _ShiftLayer(tex_b * alpha_b, alpha_b)
+
+    def _ball_over(self, img: np.ndarray, ball_mm: float, dr: float) -> np.ndarray:
+        L = self.L
+        H, W = L.height_px, L.width_px
+        row_b = float(L.row_of_mm(ball_mm)) + dr
+        ri = math.floor(row_b)
+        pv, pa = self.ball_layer.shifted(row_b - ri)
+        top = ri - self.patch_centre_row
+        r0, r1 = max(top, 0), min(top + self.patch_rows, H)
+        if r1 > r0:
+            c0 = self.patch_col0
+            c1 = c0 + self.patch_rows
+            cs0, cs1 = max(c0, 0), min(c1, W)
+            sub_v = pv[r0 - top:r1 - top, cs0 - c0:cs1 - c0]
+            sub_a = pa[r0 - top:r1 - top, cs0 - c0:cs1 - c0]
+            img[r0:r1, cs0:cs1] = img[r0:r1, cs0:cs1] * (1.0 - sub_a) + sub_v
+        return img
+
+    def render_blurred(self, structure_mm, ball_mm, drift_mm: float = 0.0) -> np.ndarray:
+        """Mean image over an exposure sampled at positions ``structure_mm[j]``, ``ball_mm[j]``.
+
+        Exact per layer (the structure layer uses one averaged phase ramp); compositing
+        uses the mean ball image under the mean structure alpha, which differs from the
+        mean of the composites only where the ball and a plate edge overlap during the
+        exposure (at contact, outside the ROIs).
+        """
+        L = self.L
+        H, M = L.height_px, L.margin_px
+        dr = -drift_mm / L.mm_per_px
+        base = self.background if not self.drift else self.bg_layer.shifted(dr)[0][M:M + H]
+        under = np.mean([self._ball_over(base.copy(), b, dr) for b in ball_mm], axis=0)
+        sv, sa = self.struct_layer.shifted_mean(-np.asarray(structure_mm, float) / L.mm_per_px + dr)
+        sv, sa = sv[M:M + H], sa[M:M + H]
+        return under * (1.0 - sa) + sv
+
+    def render(self, structure_mm: float, ball_mm: float, drift_mm: float = 0.0) -> np.ndarray:
+        """Float image (gray levels of 255) for structure displacement and ball height (mm).
+
+        ``drift_mm``: apparent upward shift of the whole scene (camera drift).
+        """
+        L = self.L
+        H, W, M = L.height_px, L.width_px, L.margin_px
+        dr = -drift_mm / L.mm_per_px  # rows down
+        if self.drift:
+            bgv, _ = self.bg_layer.shifted(dr)
+            img = bgv[M:M + H].copy()
+        else:
+            img = self.background.copy()
+        img = self._ball_over(img, ball_mm, dr)
+        # structure on top
+        sv, sa = self.struct_layer.shifted(-structure_mm / L.mm_per_px + dr)
+        sv, sa = sv[M:M + H], sa[M:M + H]
+        return img * (1.0 - sa) + sv
+
+    def ball_roi(self, ball_mm0: float, subset_px: int) -> list[int]:
+        """[x, y, w, h] square well inside the ball disc in frame 0."""
+        L = self.L
+        # corners at least 3 edge sigmas + 1 px inside the disc edge: alpha > 0.9998 there
+        side = int(math.floor((L.ball_radius_px - 3 * EDGE_SIGMA_PX - 1.0) * math.sqrt(2.0)))
+        side = max(side, subset_px)
+        rc = float(L.row_of_mm(ball_mm0))
+        x = int(round(L.col_mid - side / 2 + 0.5))
+        y = int(round(rc - side / 2 + 0.5))
+        return [x, y, side, side]
+
+    def structure_roi(self, structure_mm0: float) -> list[int]:
+        """[x, y, w, h] on the lower plate in frame 0, starting ROI_MARGIN_PX below its edge."""
+        L = self.L
+        edge = float(L.row_of_mm(structure_mm0)) + 0.5 * L.gap_px
+        y = int(math.ceil(edge + ROI_MARGIN_PX))
+        x = 8
+        return [x, y, L.width_px - 16, STRUCT_ROI_H_PX]
+
+
+def quantise(img: np.ndarray, tiff16: bool) -> np.ndarray:
+    """Round a float image (gray levels of 255) to uint8, or to uint16 (x 257)."""
+    if tiff16:
+        return np.clip(np.rint(img * 257.0), 0, 65535).astype(np.uint16)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)

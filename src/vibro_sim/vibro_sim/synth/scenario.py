@@ -1,0 +1,247 @@
+"""What the synthetic rig simulates: :class:`SynthConfig`, effects, and the models they give.
+
+Effects use the contract's names and parameter names (docs/recording-format.md);
+every parameter name belongs to exactly one effect, so ``--param key=value`` finds its
+effect by the key. Extra (non-contract) knobs: ``cor_sigma`` (per-impact Gaussian COR
+scatter of ``asymmetric_restitution``, default 0.04 as in the paper's Table 2) and
+``h2_phase_rad``/``h3_phase_rad`` of ``structure_harmonics``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any, Mapping
+
+from vibro_io.errors import RecordingError
+
+from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
+from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
+from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
+from ..structure import StructureMotion
+
+
+class SynthError(RecordingError):
+    """Bad synthetic-rig configuration (unknown effect, bad parameter, ...)."""
+
+
+BASELINE_COR = 0.7
+STRUCTURE_MASS_KG = 0.663
+
+# effect -> {parameter: (default, min, max)}; bounds inclusive.
+EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
+    "coulomb_friction": {"force_n": (2.0e-4, 0.0, 1.0e-2)},
+    "viscous_drag": {"coefficient_ns_per_m": (2.0e-4, 0.0, 1.0e-1)},
+    "quadratic_drag": {"coefficient_ns2_per_m2": (2.0e-4, 0.0, 1.0e-1)},
+    "asymmetric_restitution": {"cor_top": (0.6, 0.0, 1.0), "cor_bottom": (0.75, 0.0, 1.0),
+                               "cor_sigma": (0.04, 0.0, 0.3)},
+    "velocity_dependent_restitution": {"cor_at_zero": (0.85, 0.0, 1.0), "slope_s_per_m": (0.15, -1.0, 5.0)},
+    "gravity_tilt": {"tilt_deg": (30.0, -89.0, 89.0)},
+    "structure_harmonics": {"h2_ratio": (0.05, 0.0, 0.5), "h3_ratio": (0.02, 0.0, 0.5),
+                            "h2_phase_rad": (0.5, -2 * math.pi, 2 * math.pi),
+                            "h3_phase_rad": (-0.8, -2 * math.pi, 2 * math.pi)},
+}
+EFFECT_NAMES = tuple(EFFECTS) + ("none",)
+_PARAM_OWNER = {p: eff for eff, ps in EFFECTS.items() for p in ps}
+_RESTITUTION = ("asymmetric_restitution", "velocity_dependent_restitution")
+_FORCES = ("coulomb_friction", "viscous_drag", "quadratic_drag")
+
+# Default shaker acceleration amplitude (m/s^2) at 22 Hz: chosen by simulation
+# (bench/bench_sim.py --regime; tests/test_sim_synth.py checks the baseline) so that the
+# baseline and every single effect keep one top and one bottom impact per cycle. The
+# scan (4 seeds each) holds from 24 to 36 m/s^2; 20 loses it with Coulomb friction and
+# 40 with the harmonics. At 27 the impact phases also repeat cycle to cycle (period 1,
+# spread < 0.05 rad without COR scatter). A = 27 / (2 pi 22)^2 = 1.41 mm.
+DEFAULT_ACCEL_MS2 = 27.0
+
+
+@dataclass
+class SynthConfig:
+    """Everything the synthetic rig needs. Defaults: the paper's Test 1 rig.
+
+    effects        {effect name: {parameter: value}} (contract names; missing
+                   parameters take the defaults of ``EFFECTS``); empty = baseline
+                   (constant COR 0.7, gravity only, pure sine, vertical).
+    frequency_hz   shaker frequency (22 Hz).
+    accel_ms2      shaker acceleration amplitude A w^2 (27 m/s^2: two impacts/cycle).
+    phase_rad      structure phase at camera time 0; None = drawn from the seed.
+    seed           seeds every random draw (phase, speckle, noise, COR scatter).
+    frames         number of frames (1500 = 1.5 s at 1000 fps).
+    fps            camera frame rate (1000).
+    lead_in_s      simulated time before frame 0 so that the transient has settled.
+    noise_gray     Gaussian read noise sigma in gray levels (of 255) (2).
+    flicker        relative amplitude of the illumination flicker (0.01).
+    blur           motion blur over ``exposure_s`` centred on each frame time.
+    exposure_s     exposure time used for blur (0.5 ms).
+    clock_offset_s accelerometer clock minus camera clock (s).
+    still          no motion at all (noise study); ``drift`` adds slow camera drift.
+    drift_px       peak camera drift in pixels (vertical) when ``drift``.
+    tiff16         write 16-bit TIFF instead of 8-bit PNG.
+    width_px, height_px  image size (160 x 480).
+    mm_per_px      image scale; None = 0.06 or larger if the motion needs it.
+    accel          write accel.csv (50 kHz) and the rig's accelerometers block.
+    accel_rate_hz  accelerometer sample rate (50 kHz).
+    accel_noise_ms2  accelerometer noise sigma (m/s^2).
+    """
+
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    frequency_hz: float = 22.0
+    accel_ms2: float = DEFAULT_ACCEL_MS2
+    phase_rad: float | None = None
+    seed: int = 0
+    frames: int = 1500
+    fps: float = 1000.0
+    lead_in_s: float = 1.0
+    noise_gray: float = 2.0
+    flicker: float = 0.01
+    blur: bool = False
+    exposure_s: float = 0.5e-3
+    clock_offset_s: float = 0.0
+    still: bool = False
+    drift: bool = False
+    drift_px: float = 0.3
+    tiff16: bool = False
+    width_px: int = 160
+    height_px: int = 480
+    mm_per_px: float | None = None
+    accel: bool = True
+    accel_rate_hz: float = 50_000.0
+    accel_noise_ms2: float = 0.5
+    ball_mass_kg: float = BALL_MASS_KG
+    ball_diameter_mm: float = BALL_DIAMETER_M * 1e3
+    gap_mm: float = GAP_M * 1e3
+
+    def __post_init__(self) -> None:
+        self.effects = normalise_effects(self.effects)
+        checks = [
+            ("frequency_hz", self.frequency_hz > 0, "> 0"), ("accel_ms2", self.accel_ms2 >= 0, ">= 0"),
+            ("frames", isinstance(self.frames, int) and self.frames >= 2, "an integer >= 2"),
+            ("fps", self.fps > 0, "> 0"), ("lead_in_s", self.lead_in_s >= 0, ">= 0"),
+            ("noise_gray", self.noise_gray >= 0, ">= 0"), ("flicker", 0 <= self.flicker < 0.5, "in [0, 0.5)"),
+            ("exposure_s", 0 < self.exposure_s <= 1.0 / self.fps, f"in (0, 1/fps = {1 / self.fps} s]"),
+            ("drift_px", abs(self.drift_px) <= 20, "within +-20 px"),
+            ("width_px", isinstance(self.width_px, int) and self.width_px >= 64, "an integer >= 64"),
+            ("height_px", isinstance(self.height_px, int) and self.height_px >= 128, "an integer >= 128"),
+            ("accel_rate_hz", self.accel_rate_hz > 0, "> 0"), ("accel_noise_ms2", self.accel_noise_ms2 >= 0, ">= 0"),
+            ("gap_mm", self.gap_mm > self.ball_diameter_mm, "larger than ball_diameter_mm"),
+        ]
+        for name, ok, expect in checks:
+            value = getattr(self, name)
+            if isinstance(value, float) and not math.isfinite(value):
+                ok = False
+            if not ok:
+                raise SynthError(f"synth option '{name}' must be {expect}, got {value!r}")
+        if self.mm_per_px is not None and not self.mm_per_px > 0:
+            raise SynthError(f"synth option 'mm_per_px' must be > 0, got {self.mm_per_px!r}")
+        if not math.isfinite(self.clock_offset_s) or abs(self.clock_offset_s) > 1.0:
+            raise SynthError(f"synth option 'clock_offset_s' must be within +-1 s, got {self.clock_offset_s!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def normalise_effects(effects: Mapping[str, Mapping[str, Any]] | None) -> dict[str, dict[str, float]]:
+    """Validate effect names and parameters; fill defaults. Raises :class:`SynthError`."""
+    out: dict[str, dict[str, float]] = {}
+    for name, params in (effects or {}).items():
+        if name == "none":
+            continue
+        if name not in EFFECTS:
+            raise SynthError(f"unknown effect '{name}' (choose from: {', '.join(EFFECT_NAMES)})")
+        spec = EFFECTS[name]
+        values = {k: d for k, (d, _, _) in spec.items()}
+        for key, value in (params or {}).items():
+            if key not in spec:
+                raise SynthError(f"effect '{name}' has no parameter '{key}' (it takes: {', '.join(spec)})")
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise SynthError(f"parameter '{key}' of effect '{name}' must be a number, got {value!r}") from None
+            _, lo, hi = spec[key]
+            if not math.isfinite(value) or not lo <= value <= hi:
+                raise SynthError(f"parameter '{key}' of effect '{name}' must be in [{lo}, {hi}], got {value!r}")
+            values[key] = value
+        out[name] = values
+    if sum(n in out for n in _RESTITUTION) > 1:
+        raise SynthError(f"choose at most one restitution effect ({' or '.join(_RESTITUTION)})")
+    if sum(n in out for n in _FORCES) > 1:
+        raise SynthError(f"choose at most one flight-force effect ({', '.join(_FORCES)})")
+    return out
+
+
+def parse_effect_args(effect_names: list[str] | None, params: list[str] | None) -> dict[str, dict[str, float]]:
+    """CLI form: ``--effect NAME`` (repeatable) and ``--param key=value`` (repeatable).
+
+    Each parameter goes to the chosen effect that owns its key (keys are unique across
+    effects). Raises :class:`SynthError` with a clear message.
+    """
+    chosen: dict[str, dict[str, Any]] = {}
+    for name in effect_names or []:
+        if name not in EFFECT_NAMES:
+            raise SynthError(f"--effect: unknown effect '{name}' (choose from: {', '.join(EFFECT_NAMES)})")
+        if name != "none":
+            chosen.setdefault(name, {})
+    for item in params or []:
+        if "=" not in item:
+            raise SynthError(f"--param '{item}': expected key=value, e.g. force_n=2e-4")
+        key, value = (s.strip() for s in item.split("=", 1))
+        owner = _PARAM_OWNER.get(key)
+        if owner is None:
+            raise SynthError(f"--param '{item}': unknown parameter '{key}' (known: {', '.join(_PARAM_OWNER)})")
+        if owner not in chosen:
+            raise SynthError(f"--param '{item}': '{key}' belongs to effect '{owner}', which was not "
+                             f"chosen (add --effect {owner})")
+        try:
+            chosen[owner][key] = float(value)
+        except ValueError:
+            raise SynthError(f"--param '{item}': value '{value}' is not a number") from None
+    return normalise_effects(chosen)
+
+
+@dataclass
+class Models:
+    """The physics of one scenario."""
+
+    structure: StructureMotion
+    cavity: BallCavity
+    restitution: RestitutionLaw
+    force: ForceLaw
+
+
+def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
+    """Structure, cavity and laws for ``cfg`` (SI; structure offset 0 = lab origin)."""
+    eff = cfg.effects
+    w = 2 * math.pi * cfg.frequency_hz
+    h = eff.get("structure_harmonics", {})
+    amp = 0.0 if cfg.still else cfg.accel_ms2 / w ** 2
+    structure = StructureMotion(amp, cfg.frequency_hz, phase_rad, 0.0,
+                                h.get("h2_ratio", 0.0), h.get("h3_ratio", 0.0),
+                                h.get("h2_phase_rad", 0.0), h.get("h3_phase_rad", 0.0))
+    cavity = BallCavity(mass_kg=cfg.ball_mass_kg, radius_m=0.5e-3 * cfg.ball_diameter_mm,
+                        free_play_m=0.5e-3 * (cfg.gap_mm - cfg.ball_diameter_mm),
+                        tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
+                        ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
+    law: RestitutionLaw = Constant(BASELINE_COR)
+    if "asymmetric_restitution" in eff:
+        p = eff["asymmetric_restitution"]
+        law = PerPlate(p["cor_top"], p["cor_bottom"])
+        if p["cor_sigma"] > 0:
+            law = Scattered(law, p["cor_sigma"], seed=cfg.seed + 7919)
+    elif "velocity_dependent_restitution" in eff:
+        p = eff["velocity_dependent_restitution"]
+        law = VelocityDependent(p["cor_at_zero"], p["slope_s_per_m"])
+    force: ForceLaw = NoForce()
+    if "coulomb_friction" in eff:
+        force = Coulomb(eff["coulomb_friction"]["force_n"])
+    elif "viscous_drag" in eff:
+        force = Viscous(eff["viscous_drag"]["coefficient_ns_per_m"])
+    elif "quadratic_drag" in eff:
+        force = Quadratic(eff["quadratic_drag"]["coefficient_ns2_per_m2"])
+    return Models(structure, cavity, law, force)
+
+
+def effects_truth(cfg: SynthConfig) -> list[dict[str, Any]]:
+    """The truth file's ``effects`` list (contract parameter names; extras kept)."""
+    if not cfg.effects:
+        return [{"effect": "none", "parameters": {}}]
+    return [{"effect": name, "parameters": dict(params)} for name, params in cfg.effects.items()]

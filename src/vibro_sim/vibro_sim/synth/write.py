@@ -1,0 +1,201 @@
+"""Write a synthetic recording (rig.yaml, frames/, accel.csv) and its truth file beside it."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vibro_io.accel import AccelData, write_accel
+from vibro_io.rig import (AccelConfig, BallConfig, CameraConfig, DicConfig, ExcitationConfig, RigConfig,
+                          Roi, StructureConfig, check_rois_in_image, write_rig)
+
+from .accel import make_accel
+from .render import Renderer, choose_layout, quantise
+from .scenario import BASELINE_COR, STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
+from .trajectory import regime, simulate_window
+
+log = logging.getLogger(__name__)
+
+SUBSET_PX = 31
+MESH_STEP_PX = 10
+BLUR_SUBSAMPLES = 7
+ACCEL_COLUMNS = AccelConfig(file="accel.csv", time_column="time_s", upper_column="upper_ms2",
+                            lower_column="lower_ms2")
+
+
+def truth_path(out_dir: str | Path) -> Path:
+    """``DIR.truth.json`` beside (never inside) the recording directory ``DIR``."""
+    out_dir = Path(out_dir)
+    return out_dir.parent / (out_dir.name + ".truth.json")
+
+
+def _prepare_dir(out_dir: Path, overwrite: bool) -> None:
+    if out_dir.exists():
+        if not out_dir.is_dir():
+            raise SynthError(f"--out {out_dir}: exists and is not a directory")
+        if any(out_dir.iterdir()):
+            if not overwrite:
+                raise SynthError(f"--out {out_dir}: directory is not empty (use --overwrite)")
+            shutil.rmtree(out_dir)
+    try:
+        (out_dir / "frames").mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SynthError(f"--out {out_dir}: cannot create ({exc})") from None
+
+
+def _drift_mm(t: np.ndarray, cfg: SynthConfig, mm_per_px: float) -> np.ndarray:
+    """Slow camera drift (apparent upward scene shift, mm): a 0.4 Hz sway plus a ramp, 0 at t=0."""
+    if not (cfg.still and cfg.drift):
+        return np.zeros_like(t)
+    duration = max(t[-1] - t[0], 1e-9)
+    return cfg.drift_px * mm_per_px * (0.7 * np.sin(2 * math.pi * 0.4 * t) + 0.3 * (t - t[0]) / duration)
+
+
+def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwrite: bool = False,
+               progress: bool | None = None) -> dict[str, Any]:
+    """Write a complete synthetic recording to ``out_dir`` and ``out_dir.truth.json``.
+
+    Returns the truth mapping (also written to the truth file). ``progress``: show a
+    tqdm bar on stderr (None = only when stderr is a terminal). Raises
+    :class:`SynthError` for bad configuration or an unusable output path.
+    """
+    cfg = config or SynthConfig()
+    out_dir = Path(out_dir)
+    if str(out_dir).strip() in ("", "."):
+        raise SynthError("--out: give a new directory for the recording")
+    rng = np.random.default_rng(cfg.seed)
+    phase = float(rng.uniform(0.0, 2 * math.pi)) if cfg.phase_rad is None else float(cfg.phase_rad)
+    models = build_models(cfg, phase)
+    traj = simulate_window(cfg, models)
+    S = models.structure
+    try:
+        layout = choose_layout(cfg.width_px, cfg.height_px, cfg.ball_diameter_mm, cfg.gap_mm,
+                               S.bound(0) * 1e3, cfg.mm_per_px, SUBSET_PX,
+                               cfg.drift_px if cfg.still and cfg.drift else 0.0)
+    except ValueError as exc:
+        raise SynthError(f"image layout: {exc}") from None
+    _prepare_dir(out_dir, overwrite)
+    render_rng = np.random.default_rng([cfg.seed, 1])
+    noise_rng = np.random.default_rng([cfg.seed, 2])
+    renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift)
+
+    t = traj.frame_t_s
+    ball_mm = traj.ball_m * 1e3
+    struct_mm = traj.structure_m * 1e3
+    drift = _drift_mm(t, cfg, layout.mm_per_px)
+
+    rig = RigConfig(
+        camera=CameraConfig(fps=cfg.fps, t0_s=0.0, mm_per_px=layout.mm_per_px),
+        ball=BallConfig(mass_kg=cfg.ball_mass_kg, diameter_mm=cfg.ball_diameter_mm,
+                        youngs_modulus_pa=models.cavity.ball_E_pa, poisson_ratio=models.cavity.ball_nu),
+        structure=StructureConfig(gap_mm=cfg.gap_mm, mass_kg=STRUCTURE_MASS_KG,
+                                  youngs_modulus_pa=models.cavity.plate_E_pa,
+                                  poisson_ratio=models.cavity.plate_nu),
+        excitation=ExcitationConfig(frequency_hz=cfg.frequency_hz),
+        dic=DicConfig(subset_px=SUBSET_PX, mesh_step_px=MESH_STEP_PX,
+                      ball_roi=Roi(*renderer.ball_roi(ball_mm[0] + drift[0], SUBSET_PX)),
+                      structure_roi=Roi(*renderer.structure_roi(struct_mm[0] + drift[0]))),
+        accelerometers=ACCEL_COLUMNS if cfg.accel else None,
+        path=str(out_dir / "rig.yaml"),
+    )
+    check_rois_in_image(rig, cfg.height_px, cfg.width_px)
+    write_rig(rig, out_dir / "rig.yaml")
+
+    _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress)
+
+    if cfg.accel:
+        sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, float(t[0]), float(t[-1]),
+                         cfg.accel_rate_hz, cfg.accel_noise_ms2, cfg.clock_offset_s, noise_rng)
+        write_accel(out_dir / "accel.csv", AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
+
+    truth = _truth(cfg, models, traj, layout, phase, drift, rig)
+    tp = truth_path(out_dir)
+    tp.write_text(json.dumps(truth, indent=1), encoding="utf-8")
+    return truth
+
+
+def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray,
+                  rng: np.random.Generator, progress: bool | None) -> None:
+    from tqdm import tqdm
+
+    t = traj.frame_t_s
+    S = traj.result.structure
+    ext = ".tif" if cfg.tiff16 else ".png"
+    params = [] if cfg.tiff16 else [cv2.IMWRITE_PNG_COMPRESSION, 1]
+    show = sys.stderr.isatty() if progress is None else progress
+    flick_phase = float(rng.uniform(0, 2 * math.pi))
+    if cfg.blur:
+        offsets = cfg.exposure_s * (np.arange(BLUR_SUBSAMPLES) + 0.5 - BLUR_SUBSAMPLES / 2) / BLUR_SUBSAMPLES
+    for k in tqdm(range(t.size), desc="synth frames", unit="frame", disable=not show, file=sys.stderr):
+        if cfg.blur and not cfg.still:
+            ts = t[k] + offsets
+            ball = np.asarray(traj.result.sample(ts)) * 1e3
+            struct = np.asarray(S.position(ts)) * 1e3
+            img = renderer.render_blurred(struct, ball, drift[k])
+        else:
+            img = renderer.render(traj.structure_m[k] * 1e3, traj.ball_m[k] * 1e3, drift[k])
+        gain = 1.0 + cfg.flicker * (0.7 * math.sin(2 * math.pi * 100.0 * t[k] + flick_phase)
+                                    + 0.3 * float(rng.standard_normal()))
+        img = img * gain
+        if cfg.noise_gray > 0:
+            img = img + rng.normal(0.0, cfg.noise_gray, img.shape)
+        ok = cv2.imwrite(str(folder / f"{k:06d}{ext}"), quantise(img, cfg.tiff16), params)
+        if not ok:
+            raise SynthError(f"{folder / f'{k:06d}{ext}'}: cannot write frame")
+
+
+def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
+    S = models.structure
+    impacts = [{"index": j, "t": i.t_s, "plate": i.plate, "cor": i.cor,
+                "v_ball_before": i.v_ball_before_ms, "v_ball_after": i.v_ball_after_ms,
+                "v_structure": i.v_structure_ms, "sim_index": i.index}
+               for j, i in enumerate(traj.impacts)]
+    first_flight = traj.flights[0].index if traj.flights else 0
+    flights = [{"index": f.index - first_flight, "t_start": f.t_start_s, "t_end": f.t_end_s,
+                "direction": f.direction, "friction_n": f.mean_force_n,
+                "start_plate": f.start_plate, "end_plate": f.end_plate}
+               for f in traj.flights]
+    cfg_dict = cfg.to_dict()
+    cfg_dict["phase_rad"] = phase
+    truth: dict[str, Any] = {
+        "schema": "vibro.truth/1",
+        "effects": effects_truth(cfg),
+        "structure": {"amplitude_mm": S.amplitude_m * 1e3, "frequency_hz": S.frequency_hz,
+                      "phase_rad": phase, "offset_mm": S.offset_m * 1e3,
+                      "h2_ratio": S.h2_ratio, "h3_ratio": S.h3_ratio,
+                      "h2_phase_rad": S.h2_phase_rad, "h3_phase_rad": S.h3_phase_rad,
+                      "accel_ms2": S.amplitude_m * S.omega_rad_s ** 2,
+                      "convention": "Y_s = B + A[sin(th) + h2 sin(2 th + p2) + h3 sin(3 th + p3)], th = w t + phase"},
+        "frames": {"t_s": traj.frame_t_s.tolist(), "ball_mm": (traj.ball_m * 1e3).tolist(),
+                   "structure_mm": (traj.structure_m * 1e3).tolist()},
+        "impacts": impacts,
+        "flights": flights,
+        "free_play_mm": models.cavity.free_play_m * 1e3,
+        "ball_offset_mm": float((traj.ball_m[0] - traj.structure_m[0]) * 1e3),
+        "gravity_ms2": models.cavity.gravity_ms2,
+        "g_eff_ms2": models.cavity.g_eff_ms2,
+        "ball_mass_kg": models.cavity.mass_kg,
+        "clock_offset_s": cfg.clock_offset_s,
+        "clock_convention": "accel.csv time_s = camera time + clock_offset_s",
+        "image": {"mm_per_px": layout.mm_per_px, "width_px": layout.width_px, "height_px": layout.height_px,
+                  "ball_radius_px": layout.ball_radius_px, "row_mid": layout.row_mid,
+                  "ball_roi": rig.dic.ball_roi.as_list(), "structure_roi": rig.dic.structure_roi.as_list()},
+        "models": {"restitution": repr(models.restitution), "force": repr(models.force)},
+        "baseline": {"cor": BASELINE_COR, "force": "none", "gravity": "vertical",
+                     "structure": "pure sine", "note": "what the effects modify"},
+        "regime": regime(traj, cfg.frequency_hz) if not cfg.still else None,
+        "config": cfg_dict,
+    }
+    if cfg.still and cfg.drift:
+        truth["camera_drift_mm"] = drift.tolist()
+        truth["camera_drift_note"] = ("apparent upward shift of the whole scene; DIC measures "
+                                      "frames.*_mm - frames.*_mm[0] + camera_drift_mm")
+    return truth
