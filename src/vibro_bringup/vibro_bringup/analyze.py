@@ -1,13 +1,14 @@
 """``analyze_recording``: DIC -> identification -> simulation (COR and Hertz models) -> results + report.
 
 The same cores as the nodes: vibro_dic.tracker.track_recording, vibro_fit.identify (which runs the
-streaming fitter), vibro_sim.simulate_cor / simulate_hertz, vibro_sim.deviation (Eq. 18).
+streaming fitter), vibro_sim.replay.simulate_measured (COR and Hertz models), vibro_sim.deviation (Eq. 18).
 
 Replay of the identified motion (``replay_models``): the structure is the fitted sine (track
 coordinates, m); the ball starts at the start of the first free flight with that flight's position and
 velocity, moved into the cavity frame by the measured offset c0 between ball and cavity centre at frame 0
 (from the impacts' relative positions); each impact uses its identified COR (PerImpact, the mean after
-the last) and each flight its identified friction force (PerFlight, 0 for a flight that is not free).
+the last) and each flight its identified friction force (0 for a flight that is not free). D is computed
+on the measured ball displacement as DIC gives it (mm since frame 0).
 """
 
 from __future__ import annotations
@@ -36,28 +37,18 @@ def _bar(total: int, progress: bool, desc: str):
 
 def cavity_offset_mm(ident, rig: RigConfig) -> float:
     """c0 = ball centre minus cavity centre at frame 0 (mm), from the plate levels of the impacts."""
-    lv = ident.plate_levels
-    b = rig.free_play_mm
-    if "offset_mm" in lv:
-        return float(lv["offset_mm"])
-    if "top" in lv:
-        return float(b - lv["top"])
-    if "bottom" in lv:
-        return float(-b - lv["bottom"])
-    return 0.0
+    return float(ident.plate_levels.get("offset_mm", 0.0))
 
 
 def replay_models(ident, track: DicTrack, rig: RigConfig) -> dict:
-    """Simulate the COR and Hertz models with the identified parameters; D (Eq. 18) of each.
+    """Simulate the COR and Hertz models with the identified parameters (vibro_sim.replay); D (Eq. 18)
+    of each against the measured ball displacement (track coordinates, mm since frame 0).
 
     Returns {"t_s", "measured_mm", "curves": {name: mm}, "deviations": {name: D}, "errors": {name: msg}}.
     """
-    from vibro_sim.cor_model import simulate_cor
     from vibro_sim.deviation import deviation
-    from vibro_sim.forces import PerFlight
-    from vibro_sim.hertz_model import simulate_hertz
     from vibro_sim.params import BallCavity
-    from vibro_sim.restitution import PerImpact
+    from vibro_sim.replay import ReplayInputs, simulate_measured
     from vibro_sim.structure import StructureMotion
 
     out = {"t_s": None, "measured_mm": None, "curves": {}, "deviations": {}, "errors": {}}
@@ -67,37 +58,42 @@ def replay_models(ident, track: DicTrack, rig: RigConfig) -> dict:
         return out
     fl0 = free[0]
     s = ident.structure
+    # the fitted sine, in track coordinates (m); c0 moves the ball track into the cavity frame
     structure = StructureMotion(s.amplitude_mm * 1e-3, s.frequency_hz, s.phase_rad, s.offset_mm * 1e-3)
     cavity = BallCavity(mass_kg=rig.ball.mass_kg, radius_m=0.5e-3 * rig.ball.diameter_mm,
                         free_play_m=1e-3 * rig.free_play_mm, ball_E_pa=rig.ball.youngs_modulus_pa,
                         ball_nu=rig.ball.poisson_ratio, plate_E_pa=rig.structure.youngs_modulus_pa,
                         plate_nu=rig.structure.poisson_ratio)
     c0 = cavity_offset_mm(ident, rig)
-    t0 = fl0.t_start_s
     b = rig.free_play_mm
-    y_rel0 = float(fl0.position_mm(t0)) + c0 - s.position_mm(t0)
+    t0 = fl0.t_start_s
+    y_rel0 = float(fl0.position_mm(t0)) + c0 - float(s.position_mm(t0))
     y_rel0 = float(np.clip(y_rel0, -0.999 * b, 0.999 * b))
-    y0_m = 1e-3 * (y_rel0 + s.position_mm(t0))
-    v0 = float(fl0.velocity_ms(t0))
-    cors = [i.cor for i in ident.impacts if i.t_s > t0]
-    forces = []
-    for f in ident.flights:
-        if f.t_end_s < t0:
-            continue
-        forces.append(f.friction_n(ident.mass_kg)[0] if f.is_free else 0.0)
-    restitution = PerImpact(cors=tuple(cors))
-    force = PerFlight(forces_n=tuple(forces))
+    v_rel0 = float(fl0.velocity_ms(t0)) - float(s.velocity_ms(t0))
+    by_index = {f.index: f for f in ident.flights}
+
+    def force(k):
+        f = by_index.get(k)
+        return f.friction_n(ident.mass_kg)[0] if f is not None and f.is_free else 0.0
+
+    imps = ident.impacts
+    # flight i ends with impact i; one more flight after the last impact
+    forces = [force(i.flight_before) for i in imps] + [force(imps[-1].flight_after)]
     good = track.good & (track.t_s >= t0)
     t = track.t_s[good]
     meas = track.ball_mm[good]
     out["t_s"], out["measured_mm"] = t, meas
-    for name, fn in (("cor_model", simulate_cor), ("hertz_model", simulate_hertz)):
+    try:
+        inputs = ReplayInputs(structure, [i.t_s for i in imps], [i.plate for i in imps], [i.cor for i in imps],
+                              forces, t_start_s=float(t0), y_rel_m=1e-3 * y_rel0, v_rel_ms=v_rel0,
+                              t_end_s=float(t[-1]))
+    except ValueError as exc:
+        out["errors"]["all"] = str(exc)
+        return out
+    for name in ("cor_model", "hertz_model"):
         try:
-            res = fn(structure, cavity, restitution, force, y0_m=y0_m, v0_ms=v0, t0_s=t0, t_end_s=float(t[-1]))
-            tt = t[t <= res.t_end_s]
-            y = 1e3 * np.asarray(res.sample(tt)) - c0
-            if tt.size < t.size:
-                y = np.concatenate([y, np.full(t.size - tt.size, np.nan)])
+            y_m, _ = simulate_measured(inputs, cavity, t, models=(name,))[name]
+            y = 1e3 * y_m - c0
             out["curves"][name] = y
             out["deviations"][name] = float(deviation(t, y, meas))
         except Exception as exc:  # a model failure must not lose the identification
@@ -129,7 +125,7 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
 
 def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progress: bool = True,
                       method: str = "paper", track_csv: str | Path | None = None, dic_method: str = "icgn",
-                      report: bool = True) -> dict:
+                      report: bool = True, weights: str | None = None) -> dict:
     """Run the whole analysis; writes results.json, flights.csv, impacts.csv, PNG figures and report.html
     into ``out_dir`` (created). Returns the results mapping."""
     from vibro_fit.identify import identify
@@ -145,7 +141,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
                                         out_dir=out)
         bar.update(1)
         bar.set_description("identify")
-        ident = identify(track, rig, accel=accel, method=method)
+        ident = identify(track, rig, accel=accel, method=method, weights=weights)
         bar.update(1)
         bar.set_description("simulate")
         sim = replay_models(ident, track, rig)

@@ -15,6 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=METHODS, default="paper",
                    help="COR method: paper (Eq. 15-16, default) or joint (flights constrained to meet on the "
                         "plate, friction shrunk towards the recording's mean)")
+    p.add_argument("--weights", choices=("none", "dic_valid"), default="none",
+                   help="flight-fit weights: none (paper) or dic_valid (by the number of valid DIC points)")
     p.add_argument("--track", help="use this dic.csv instead of running DIC (frames are then not read)")
     p.add_argument("--dic-method", default="icgn", help="DIC sub-pixel method (icgn, parabolic)")
     p.add_argument("--no-report", action="store_true", help="skip figures and report.html")
@@ -27,7 +29,8 @@ def run(args: argparse.Namespace) -> int:
 
     progress = not args.no_progress and sys.stderr.isatty()
     doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,
-                            track_csv=args.track, dic_method=args.dic_method, report=not args.no_report)
+                            track_csv=args.track, dic_method=args.dic_method, report=not args.no_report,
+                            weights=args.weights)
     summ = doc["cor_summary"]
     sim = doc["simulation"]
 

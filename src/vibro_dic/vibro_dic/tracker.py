@@ -1,0 +1,373 @@
+"""Frame-by-frame DIC tracking of the ball and the structure (rigid translations).
+
+Pipeline for each mesh (ball, structure) and each frame:
+
+1. **Prediction**: the mesh displacement is extrapolated from the last good frames
+   (constant acceleration from three, constant velocity from two; frame indices are
+   used, so dropped frames are handled).
+2. **Integer search** by ZNCC (paper Eq. 1, ``cv2.matchTemplate`` TM_CCOEFF_NORMED) of the
+   mesh's bounding box (the union of its subsets, frame 0) in a window of +-``search_px`` (default 4)
+   around the prediction. If the peak is below ``zncc_min`` or on the window's border,
+   the window is widened to cover the last good position +- (2 x fastest recent speed x
+   frames elapsed + search_px) (a reversal at an impact); failing that the whole image is
+   searched.
+3. **Sub-pixel**:
+   - ``method="icgn"``: translation IC-GN (ZNSSD, Keys cubic interpolation; see
+     :mod:`vibro_dic.icgn`) first on the whole bounding box, then one Gauss-Newton step
+     per subset from there (per-point estimates; a point whose step exceeds
+     ``tol_px`` is iterated on its own until it converges).
+   - ``method="parabolic"`` (baseline): per subset, ZNCC search +-2 px around the mesh's
+     integer displacement and a 1-D parabola through the peak and its neighbours in x
+     and in y.
+4. **Robust rigid displacement**. A point is kept when (a) it converged (IC-GN step below
+   tol within max_iter, or a parabolic peak not on its window's border), (b) its ZNCC is
+   >= ``zncc_min``, and (c) both displacement components lie within
+   max(``outlier_k`` x 1.4826 x MAD, ``outlier_floor_px``) of the median over the points
+   passing (a) and (b). The mesh displacement is the mean of the kept points.
+5. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
+   fewer than ``min_valid_fraction`` of the points kept. A lost mesh reports NaN
+   displacement and 0 valid points; it is never extrapolated. The frame is flagged lost
+   if either mesh is lost or the image is missing (the other mesh keeps its value).
+
+Output conventions (:class:`vibro_io.dictrack.FrameTrack`): displacement since frame 0 in
+mm, POSITIVE UP; image rows grow downward, so ``up_mm = -u_y_px * mm_per_px``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+
+from vibro_io.dictrack import FrameTrack
+from vibro_io.errors import FrameError, RecordingError
+from vibro_io.frames import Frame
+from vibro_io.rig import DicConfig, Roi
+
+from .icgn import IcgnBlocks, extract_blocks
+from .interp import KERNEL_TAPS, patch_margin
+from .mesh import mesh_points
+from .search import SearchResult, zncc_search
+
+log = logging.getLogger(__name__)
+
+METHODS = ("icgn", "parabolic")
+MIN_SUBSET_STD = 2.0  # gray levels: below this a subset holds no usable pattern
+# The bounding-box IC-GN stops at a finer step than the subsets' tol_px, so that the one
+# per-subset step that follows is dominated by the subset's own (noise) deviation.
+BOX_TOL_PX = 0.005
+
+
+@dataclass
+class MeshResult:
+    """Outcome for one mesh in one frame (pixels, image axes: x = column, y = row down)."""
+
+    name: str
+    u_px: np.ndarray  # (2,) mean displacement (x, y) px since frame 0; NaN when lost
+    valid: int
+    zncc: float  # mean ZNCC of the kept points (NaN when none)
+    lost: bool
+    reason: str = ""
+    point_u_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+    point_valid: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
+    point_zncc: np.ndarray = field(default_factory=lambda: np.empty(0))
+
+
+class MeshTracker:
+    """Tracks one rigid mesh of subsets against the reference image (see module doc)."""
+
+    def __init__(self, name: str, reference: np.ndarray, roi: Roi, subset_px: int, step_px: int, *,
+                 method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
+                 search_px: int = 4, taps: int = 6, tol_px: float = 0.02, outlier_k: float = 3.0,
+                 outlier_floor_px: float = 0.1):
+        self.name = name
+        self.method = method
+        self.subset_px = subset_px
+        self.zncc_min = zncc_min
+        self.search_px = search_px
+        self.outlier_k = outlier_k
+        self.outlier_floor_px = outlier_floor_px
+        self.points = mesh_points(roi, subset_px, step_px)  # (N, 2) centres
+        n = len(self.points)
+        self.min_valid = max(1, math.ceil(min_valid_fraction * n - 1e-9))
+        h = subset_px // 2
+        self.corners = self.points - h  # top-left pixels of the subsets
+        x0, y0 = self.corners.min(axis=0)
+        x1, y1 = self.corners.max(axis=0) + subset_px
+        self.box_corner = np.array([x0, y0], dtype=float)
+        self.box_size = (int(y1 - y0), int(x1 - x0))  # (h, w) of the union of the subsets
+        self.template = extract_blocks(reference, [x0], [y0], self.box_size)[0]
+        self.box = IcgnBlocks(reference, self.box_corner[None], self.box_size, taps=taps, tol_px=BOX_TOL_PX,
+                              max_move_px=2.0)
+        self.subsets = IcgnBlocks(reference, self.corners, (subset_px, subset_px), taps=taps, tol_px=tol_px,
+                                  max_move_px=2.0)
+        self.offsets = (self.corners - self.box_corner).astype(np.intp)  # subset corners inside the box
+        if method == "parabolic":
+            self.subset_templates = extract_blocks(reference, self.corners[:, 0], self.corners[:, 1],
+                                                   (subset_px, subset_px))
+        self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=3)
+        self.n_widened = 0  # frames whose first search window missed (statistics)
+        self.n_global = 0  # frames that needed the whole-image search
+        # bad input: a ROI without speckle (flat, saturated) cannot be tracked at all
+        std = self.subsets.df / math.sqrt(subset_px * subset_px)  # gray-level std of each subset
+        self.subsets.textured &= std >= MIN_SUBSET_STD  # such subsets are never used
+        textured = int(np.count_nonzero(self.subsets.textured))
+        if textured < self.min_valid:
+            raise RecordingError(
+                f"dic.{name}_roi {roi.as_list()}: only {textured} of {n} subsets have speckle texture in "
+                f"frame 0 (gray-level std >= {MIN_SUBSET_STD:g}); need {self.min_valid}: put the ROI on the pattern")
+
+    # --- prediction and integer search ---------------------------------------------------------
+    def predict(self, k: int) -> np.ndarray:
+        """Predicted displacement (x, y) px at frame k: quadratic (3 frames), linear (2) or last (1) fit."""
+        if not self.history:
+            return np.zeros(2)
+        ks = np.array([h[0] for h in self.history], dtype=float)
+        us = np.array([h[1] for h in self.history])
+        if len(ks) == 1:
+            return us[0].copy()
+        # Lagrange extrapolation through the stored points (exact for constant velocity/acceleration)
+        out = np.zeros(2)
+        for i in range(len(ks)):
+            w = 1.0
+            for j in range(len(ks)):
+                if j != i:
+                    w *= (k - ks[j]) / (ks[i] - ks[j])
+            out += w * us[i]
+        return out
+
+    def search(self, image: np.ndarray, k: int) -> SearchResult | None:
+        def good(res: SearchResult | None) -> bool:
+            return res is not None and not res.on_border and res.zncc >= self.zncc_min
+
+        r = self.search_px
+        pred = self.predict(k)
+        cx, cy = (self.box_corner + np.rint(pred)).astype(int)
+        res = zncc_search(image, self.template, cx - r, cx + r, cy - r, cy + r)
+        if good(res):
+            return res
+        self.n_widened += 1
+        if self.history:
+            k_last, u_last = self.history[-1]
+            # fastest recent speed (px/frame) per axis; x2 covers a reversal (impact) since then
+            speed = np.zeros(2)
+            for (k0, u0), (k1, u1) in zip(list(self.history)[:-1], list(self.history)[1:]):
+                speed = np.maximum(speed, np.abs(u1 - u0) / (k1 - k0))
+            ext = 2.0 * speed * max(k - k_last, 1) + r
+            lx, ly = self.box_corner + u_last
+            x_lo, x_hi = int(min(lx - ext[0], cx - r)), int(math.ceil(max(lx + ext[0], cx + r)))
+            y_lo, y_hi = int(min(ly - ext[1], cy - r)), int(math.ceil(max(ly + ext[1], cy + r)))
+            res2 = zncc_search(image, self.template, x_lo, x_hi, y_lo, y_hi)
+            if good(res2):
+                return res2
+        rows, cols = image.shape
+        self.n_global += 1
+        res3 = zncc_search(image, self.template, 0, cols, 0, rows)
+        if res3 is not None and res3.zncc >= self.zncc_min:
+            return res3
+        return None
+
+    # --- sub-pixel ---------------------------------------------------------------------------------
+    def _icgn_points(self, image: np.ndarray, u_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """IC-GN on the bounding box to convergence, then one Gauss-Newton step per subset from the
+        box's last sample (points whose step exceeds tol are iterated on their own)."""
+        n = len(self.points)
+        box = self.box
+        u = u_start.astype(float).copy()
+        g_box = None
+        for _ in range(box.max_iter):
+            if abs(u[0] - u_start[0]) > box.max_move_px or abs(u[1] - u_start[1]) > box.max_move_px \
+                    or not box.inside(u[None], image.shape)[0]:
+                break
+            g = box.sample(image, u[None])
+            du, _, ok = box.step(g)
+            if not ok[0]:
+                break
+            if du[0, 0] ** 2 + du[0, 1] ** 2 <= box.tol_px ** 2:
+                g_box = g[0]  # sampled at u; the per-subset steps start from here
+                break
+            u += du[0]
+        if g_box is not None:
+            windows = np.lib.stride_tricks.sliding_window_view(g_box, (self.subset_px, self.subset_px))
+            g = windows[self.offsets[:, 1], self.offsets[:, 0]]
+            du, zncc, ok = self.subsets.step(g)
+            pu = u + du
+            big = np.einsum("ij,ij->i", du, du) > self.subsets.tol_px ** 2
+            converged = ok & ~big & self.subsets.textured
+            if np.any(big & ok):
+                again = self.subsets.refine(image, pu, active=big & ok)
+                pu[big] = again.u[big]
+                zncc[big] = again.zncc[big]
+                converged |= again.converged & big
+            return pu, zncc, converged
+        res = self.subsets.refine(image, np.repeat(u_start[None], n, axis=0))
+        return res.u, res.zncc, res.converged
+
+    def _parabolic_points(self, image: np.ndarray, d_int: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = len(self.points)
+        u = np.full((n, 2), np.nan)
+        zncc = np.full(n, np.nan)
+        ok = np.zeros(n, dtype=bool)
+        for i in range(n):
+            cx, cy = (self.corners[i] + d_int).astype(int)
+            res = zncc_search(image, self.subset_templates[i], cx - 2, cx + 2, cy - 2, cy + 2)
+            if res is None:
+                continue
+            u[i] = (res.x - self.corners[i, 0] + res.sub_dx, res.y - self.corners[i, 1] + res.sub_dy)
+            zncc[i] = res.zncc
+            ok[i] = not res.on_border
+        return u, zncc, ok
+
+    # --- one frame -------------------------------------------------------------------------------
+    def lost(self, reason: str) -> MeshResult:
+        return MeshResult(self.name, np.full(2, np.nan), 0, float("nan"), True, reason)
+
+    def track(self, image: np.ndarray, k: int) -> MeshResult:
+        """Track this mesh in ``image`` (2-D float32) of frame index ``k``."""
+        res = self.search(image, k)
+        if res is None:
+            pred = self.predict(k)
+            if self.history and not self.box.inside(pred[None], image.shape)[0]:
+                return self.lost(f"{self.name}: ROI leaves the image (predicted displacement "
+                                 f"{pred.round(1).tolist()} px) and no ZNCC peak >= {self.zncc_min:g} inside")
+            return self.lost(f"{self.name}: no ZNCC peak >= {self.zncc_min:g} in the image")
+        d_int = np.array([res.x, res.y], dtype=float) - self.box_corner
+        u_start = d_int + (res.sub_dx, res.sub_dy)
+        if not self.box.inside(u_start[None], image.shape)[0]:
+            return self.lost(f"{self.name}: ROI leaves the image (displacement {u_start.round(1).tolist()} px)")
+        if self.method == "icgn":
+            u, zncc, conv = self._icgn_points(image, u_start)
+        else:
+            u, zncc, conv = self._parabolic_points(image, d_int)
+        out = self._combine(u, zncc, conv)
+        if not out.lost:
+            self.history.append((k, out.u_px.copy()))
+        return out
+
+    def _combine(self, u: np.ndarray, zncc: np.ndarray, conv: np.ndarray) -> MeshResult:
+        n = len(u)
+        cand = conv & np.isfinite(zncc) & (zncc >= self.zncc_min) & np.all(np.isfinite(u), axis=1)
+        valid = cand.copy()
+        m = int(cand.sum())
+        if m:
+            srt = np.sort(u[cand], axis=0)
+            med = 0.5 * (srt[(m - 1) // 2] + srt[m // 2])
+            dev = np.sort(np.abs(u[cand] - med), axis=0)
+            mad = 1.4826 * 0.5 * (dev[(m - 1) // 2] + dev[m // 2])
+            thr = np.maximum(self.outlier_k * mad, self.outlier_floor_px)
+            valid &= np.all(np.abs(u - med) <= thr, axis=1)
+        nv = int(valid.sum())
+        if nv < self.min_valid:
+            r = self.lost(f"{self.name}: too few valid points ({nv} of {n}, need {self.min_valid})")
+            r.point_u_px, r.point_valid, r.point_zncc = u, valid, zncc
+            return r
+        return MeshResult(self.name, u[valid].mean(axis=0), nv, float(zncc[valid].mean()), False, "",
+                          u, valid, zncc)
+
+
+class DicTracker:
+    """Streaming DIC tracker of ball and structure against ``reference_image`` (frame 0).
+
+    ``dic_config`` gives subset size, mesh step and the two ROIs (px, frame 0);
+    ``mm_per_px`` converts to mm. ``method``: "icgn" (default) or "parabolic" (baseline).
+    Call :meth:`track` once per frame, in order; it keeps the motion prediction.
+    """
+
+    def __init__(self, reference_image: np.ndarray, dic_config: DicConfig, mm_per_px: float, *,
+                 method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
+                 search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1):
+        if method not in METHODS:
+            raise RecordingError(f"DIC method must be one of {', '.join(METHODS)}, got {method!r}")
+        ref = np.asarray(reference_image)
+        if ref.ndim != 2 or ref.size == 0:
+            raise FrameError(f"reference image must be a 2-D grayscale array, got shape {ref.shape}")
+        if not (math.isfinite(mm_per_px) and mm_per_px > 0):
+            raise RecordingError(f"camera.mm_per_px must be a positive number, got {mm_per_px!r}")
+        if not 0.0 < zncc_min < 1.0:
+            raise RecordingError(f"zncc_min must be in (0, 1), got {zncc_min!r}")
+        if not 0.0 < min_valid_fraction <= 1.0:
+            raise RecordingError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction!r}")
+        if taps not in KERNEL_TAPS:
+            raise RecordingError(f"interpolation taps must be one of {KERNEL_TAPS}, got {taps!r}")
+        if search_px < 1:
+            raise RecordingError(f"search_px must be >= 1, got {search_px!r}")
+        rows, cols = ref.shape
+        before, after = patch_margin(taps)
+        for name in ("ball_roi", "structure_roi"):
+            roi: Roi = getattr(dic_config, name)
+            if roi.x < 0 or roi.y < 0 or roi.x + roi.w > cols or roi.y + roi.h > rows:
+                raise RecordingError(f"dic.{name} {roi.as_list()} (x, y, w, h) goes outside the "
+                                     f"{cols}x{rows} px reference image")
+            if roi.x < before or roi.y < before or roi.x + roi.w > cols - after or roi.y + roi.h > rows - after:
+                raise RecordingError(f"dic.{name} {roi.as_list()} (x, y, w, h) must keep {before} px from the "
+                                     f"left/top and {after} px from the right/bottom image border (sub-pixel "
+                                     f"interpolation support); the image is {cols}x{rows} px")
+        self.shape = ref.shape
+        self.method = method
+        self.mm_per_px = float(mm_per_px)
+        ref32 = ref.astype(np.float32)
+        kw = dict(method=method, zncc_min=zncc_min, min_valid_fraction=min_valid_fraction, search_px=search_px,
+                  taps=taps, outlier_k=outlier_k, outlier_floor_px=outlier_floor_px)
+        self.ball = MeshTracker("ball", ref32, dic_config.ball_roi, dic_config.subset_px,
+                                dic_config.mesh_step_px, **kw)
+        self.structure = MeshTracker("structure", ref32, dic_config.structure_roi, dic_config.subset_px,
+                                     dic_config.mesh_step_px, **kw)
+        self.last_results: dict[str, MeshResult] = {}
+
+    def track(self, frame: Frame) -> FrameTrack:
+        """Track one frame. ``frame.image is None`` gives lost=True and NaN displacements."""
+        return self.track_image(frame.index, frame.t_s, frame.image)
+
+    def track_image(self, index: int, t_s: float, image: np.ndarray | None) -> FrameTrack:
+        """Track one image (2-D array, same size as the reference) of frame ``index`` at ``t_s`` (s)."""
+        if image is None:
+            self.last_results = {}
+            return FrameTrack(index, t_s, float("nan"), float("nan"), 0, 0, float("nan"), float("nan"), True)
+        if image.shape != self.shape:
+            raise FrameError(f"frame {index}: size {image.shape[1]}x{image.shape[0]} differs from the "
+                             f"reference ({self.shape[1]}x{self.shape[0]})")
+        img = image.astype(np.float32, copy=False)
+        b = self.ball.track(img, index)
+        s = self.structure.track(img, index)
+        self.last_results = {"ball": b, "structure": s}
+        for r in (b, s):
+            if r.lost:
+                log.debug("frame %d: %s", index, r.reason)
+        return FrameTrack(
+            frame=index, t_s=t_s,
+            ball_mm=float(-b.u_px[1] * self.mm_per_px), structure_mm=float(-s.u_px[1] * self.mm_per_px),
+            ball_valid=b.valid, structure_valid=s.valid, ball_zncc=b.zncc, structure_zncc=s.zncc,
+            lost=bool(b.lost or s.lost),
+        )
+
+
+def track_recording(recording, *, method: str = "icgn", progress: bool = False, **tracker_kwargs
+                    ) -> Iterator[FrameTrack]:
+    """Stream :class:`FrameTrack` rows for every frame slot of ``recording`` (a vibro_io Recording).
+
+    Frame 0 is the reference (it must decode). Frames are read one at a time; a frame
+    that failed to decode is logged with its index and yields a lost row.
+    ``tracker_kwargs`` go to :class:`DicTracker`.
+    """
+    from tqdm import tqdm
+
+    rig = recording.rig
+    frames = recording.frames
+    tracker: DicTracker | None = None
+    bar = tqdm(total=len(frames), unit="frame", disable=not progress, desc="track", leave=False)
+    try:
+        for frame in frames:
+            if tracker is None:
+                if frame.image is None:
+                    raise FrameError(f"frame {frame.index} (reference): {frame.error or 'cannot be read'}")
+                tracker = DicTracker(frame.image, rig.dic, rig.camera.mm_per_px, method=method, **tracker_kwargs)
+            if frame.image is None:
+                log.warning("frame %d skipped: %s", frame.index, frame.error)
+            yield tracker.track(frame)
+            bar.update(1)
+    finally:
+        bar.close()

@@ -1,0 +1,315 @@
+"""Accelerometer impacts: high-pass, detection, isolation, spectra (Fig. 6-7), plate, clipping, clock offset.
+
+Detection rule: both channels are high-passed (zero-phase Butterworth, ``sosfiltfilt``, 100 Hz default)
+to remove the excitation. The detection signal is s = |hp_upper| + |hp_lower|; its noise level is
+robust: sigma = 1.4826 * MAD(s - median(s)) (the impact ringing occupies a minority of samples). An
+impact starts at the first sample where s > median(s) + k_sigma * sigma (k_sigma = 8 by default); after
+a detection, the detector is blind for a refractory time (a quarter of the excitation period by default),
+so that the ringing of one impact is not counted twice.
+Each impact is isolated over half an excitation period from its onset (as in the paper) and its
+spectrum is |rfft| of that segment per channel; the spectra are averaged over all impacts.
+Plate attribution: the channel with the larger energy (sum of squares of the high-passed signal) over
+the first ``attribution_s`` (2 ms) after the onset, cut at the next onset (the half-period segment can
+hold the next impact).
+Clipping: a run of >= 3 consecutive samples equal to the channel's extreme value (max or min) is
+reported with the channel name and time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import butter, find_peaks, sosfiltfilt
+
+from vibro_io.accel import AccelData
+from vibro_io.errors import AccelError
+
+
+@dataclass
+class AccelImpact:
+    """One accelerometer impact. Energies are sum(a^2) dt of the high-passed signal over the attribution
+    window (m^2/s^3); ``peak_ms2`` is the peak |high-passed acceleration| on the attributed channel;
+    ``dominant_frequencies_hz`` the main peaks of that channel's spectrum over the isolated segment;
+    ``clipped`` when the raw signal of a channel sits at its extreme value for >= 3 consecutive samples
+    inside the attribution window."""
+
+    t_s: float              # onset, DAQ clock (s)
+    plate: str              # "top" | "bottom" (channel with the larger energy)
+    energy_upper: float
+    energy_lower: float
+    peak_ms2: float
+    dominant_frequencies_hz: list[float] = field(default_factory=list)
+    clipped: bool = False
+
+
+def _flat_extreme(x: np.ndarray, min_run: int = 3) -> bool:
+    """True when the largest |x| of the segment is held for >= min_run consecutive samples."""
+    if x.size < min_run:
+        return False
+    m = np.abs(x) >= np.max(np.abs(x))
+    run = 0
+    for v in m:
+        run = run + 1 if v else 0
+        if run >= min_run:
+            return True
+    return False
+
+
+def _spectrum_peaks(seg: np.ndarray, fs: float, n_peaks: int = 3) -> list[float]:
+    mag = np.abs(np.fft.rfft(seg))
+    freqs = np.fft.rfftfreq(seg.size, 1.0 / fs)
+    if not mag.any():
+        return []
+    idx, props = find_peaks(mag, prominence=0.05 * mag.max())
+    order = np.argsort(props["prominences"])[::-1][:n_peaks]
+    return sorted(float(freqs[idx[k]]) for k in order)
+
+
+def _make_impact(t: float, hu: np.ndarray, hl: np.ndarray, n_att: int, raw_u: np.ndarray, raw_l: np.ndarray,
+                 fs: float) -> AccelImpact:
+    """hu/hl: high-passed isolated segments starting at the onset; the first n_att samples attribute."""
+    dt = 1.0 / fs
+    eu = float(hu[:n_att] @ hu[:n_att]) * dt
+    el = float(hl[:n_att] @ hl[:n_att]) * dt
+    top = eu >= el
+    ch = hu if top else hl
+    return AccelImpact(float(t), "top" if top else "bottom", eu, el, float(np.max(np.abs(ch[:n_att]))),
+                       _spectrum_peaks(ch, fs), _flat_extreme(raw_u[:n_att]) or _flat_extreme(raw_l[:n_att]))
+
+
+@dataclass
+class AccelAnalysis:
+    impacts: list[AccelImpact]
+    freqs_hz: np.ndarray
+    mean_spectrum_upper: np.ndarray
+    mean_spectrum_lower: np.ndarray
+    peaks_hz: list[float]
+    threshold: float
+    sample_rate_hz: float
+    clipping: list[dict] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ClockOffset:
+    """t_daq = t_camera + offset_s, from ``n_matched`` impact pairs; ``residual_std_s`` their scatter."""
+
+    offset_s: float
+    n_matched: int
+    residual_std_s: float
+
+
+def highpass(x: np.ndarray, fs_hz: float, cutoff_hz: float = 100.0, order: int = 4) -> np.ndarray:
+    """Zero-phase Butterworth high-pass (sosfiltfilt)."""
+    if not 0 < cutoff_hz < 0.5 * fs_hz:
+        raise AccelError(f"high-pass cut-off {cutoff_hz} Hz must be in (0, {0.5 * fs_hz:g}) Hz (Nyquist)")
+    sos = butter(order, cutoff_hz, btype="highpass", fs=fs_hz, output="sos")
+    x = np.asarray(x, float)
+    pad = 3 * (2 * len(sos) + 1)
+    if x.size <= pad:
+        raise AccelError(f"accelerometer signal of {x.size} samples is too short for the zero-phase "
+                         f"high-pass (needs more than {pad})")
+    return sosfiltfilt(sos, x)
+
+
+def find_clipping(t_s: np.ndarray, x: np.ndarray, channel: str, min_run: int = 3) -> list[dict]:
+    """Runs of >= ``min_run`` samples stuck at the channel's max or min: [{channel, t_s, n, value}]."""
+    out = []
+    for value in (float(np.max(x)), float(np.min(x))):
+        at = x == value
+        if at.sum() < min_run:
+            continue
+        edges = np.diff(np.concatenate([[0], at.astype(int), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        for s, e in zip(starts, ends):
+            if e - s >= min_run:
+                out.append({"channel": channel, "t_s": float(t_s[s]), "n": int(e - s), "value": value})
+    return out
+
+
+def detect_impacts(t_s: np.ndarray, hp_upper: np.ndarray, hp_lower: np.ndarray, k_sigma: float = 8.0,
+                   refractory_s: float = 0.01) -> tuple[np.ndarray, float]:
+    """Onset sample indices of impacts and the threshold used (see module rule)."""
+    s = np.abs(hp_upper) + np.abs(hp_lower)
+    med = float(np.median(s))
+    sigma = 1.4826 * float(np.median(np.abs(s - med)))
+    thr = med + k_sigma * sigma
+    above = np.flatnonzero(s > thr)
+    onsets = []
+    last = -np.inf
+    for i in above:
+        if t_s[i] - last >= refractory_s:
+            onsets.append(i)
+            last = t_s[i]
+    return np.asarray(onsets, int), thr
+
+
+def analyse_accel(data: AccelData, frequency_hz: float, highpass_hz: float = 100.0, k_sigma: float = 8.0,
+                  refractory_s: float | None = None, n_peaks: int = 5, attribution_s: float = 0.002
+                  ) -> AccelAnalysis:
+    """Detect impacts on the accelerometers and compute their averaged spectrum (see module rules)."""
+    fs = data.sample_rate_hz
+    warnings: list[str] = []
+    clipping = find_clipping(data.t_s, data.upper_ms2, "upper") + find_clipping(data.t_s, data.lower_ms2, "lower")
+    for c in clipping:
+        warnings.append(f"accelerometer channel '{c['channel']}' clipped at {c['value']:g} m/s^2 "
+                        f"for {c['n']} samples from t = {c['t_s']:.5f} s: impact amplitudes there are wrong")
+    hu = highpass(data.upper_ms2, fs, highpass_hz)
+    hl = highpass(data.lower_ms2, fs, highpass_hz)
+    refr = refractory_s if refractory_s is not None else 0.25 / frequency_hz
+    onsets, thr = detect_impacts(data.t_s, hu, hl, k_sigma, refr)
+    seg = max(int(round(0.5 / frequency_hz * fs)), 8)
+    impacts: list[AccelImpact] = []
+    spec_u, spec_l = [], []
+    n_att = max(int(round(attribution_s * fs)), 4)
+    for m, i in enumerate(onsets):
+        j = min(i + seg, data.t_s.size)
+        su, sl = hu[i:j], hl[i:j]
+        ja = min(i + n_att, onsets[m + 1] if m + 1 < onsets.size else data.t_s.size)
+        impacts.append(_make_impact(data.t_s[i], su, sl, ja - i, data.upper_ms2[i:j], data.lower_ms2[i:j], fs))
+        if j - i == seg:
+            spec_u.append(np.abs(np.fft.rfft(su)))
+            spec_l.append(np.abs(np.fft.rfft(sl)))
+    freqs = np.fft.rfftfreq(seg, 1.0 / fs)
+    mu = np.mean(spec_u, axis=0) if spec_u else np.zeros(freqs.size)
+    ml = np.mean(spec_l, axis=0) if spec_l else np.zeros(freqs.size)
+    peaks: list[float] = []
+    tot = mu + ml
+    if tot.any():
+        idx, props = find_peaks(tot, prominence=0.05 * tot.max())
+        order = np.argsort(props["prominences"])[::-1][:n_peaks]
+        peaks = sorted(float(freqs[idx[k]]) for k in order)
+    if not impacts:
+        warnings.append("no impact found on the accelerometers")
+    return AccelAnalysis(impacts, freqs, mu, ml, peaks, thr, fs, clipping, warnings)
+
+
+def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = None, tol_s: float = 0.0005,
+                          max_offset_s: float = 1.0) -> ClockOffset | None:
+    """Offset (s) with t_daq = t_camera + offset, matching accelerometer and DIC impact times.
+
+    All pairwise differences t_daq - t_camera within +-``max_offset_s`` are histogrammed with bins of
+    ``tol_s``; the densest pair of adjacent bins gives the offset (the true offset collects one
+    difference per matched impact, wrong ones scatter because impact intervals are uneven), refined as
+    the median of the differences within ``tol_s`` of it, and checked by nearest-neighbour matching.
+    ``period_s`` is unused (kept for the API). None when nothing matches.
+    """
+    a = np.sort(np.asarray(accel_times_s, float))
+    d = np.sort(np.asarray(dic_times_s, float))
+    if a.size == 0 or d.size == 0:
+        return None
+    diffs = (a[:, None] - d[None, :]).ravel()
+    diffs = diffs[np.abs(diffs) <= max_offset_s]
+    if diffs.size == 0:
+        return None
+    edges = np.arange(-max_offset_s, max_offset_s + tol_s, tol_s)
+    counts, edges = np.histogram(diffs, bins=edges)
+    pair = counts[:-1] + counts[1:] if counts.size > 1 else counts
+    k = int(np.argmax(pair))
+    centre = edges[k + 1] if counts.size > 1 else 0.5 * (edges[0] + edges[1])
+    near = diffs[np.abs(diffs - centre) <= tol_s]
+    off = float(np.median(near)) if near.size else float(centre)
+
+    def residuals(o):
+        k = np.clip(np.searchsorted(a, d + o), 1, max(a.size - 1, 1))
+        cand = np.stack([a[k - 1], a[np.minimum(k, a.size - 1)]]) - (d + o)
+        return cand[np.argmin(np.abs(cand), axis=0), np.arange(d.size)]
+
+    r = residuals(off)
+    sel = np.abs(r) <= tol_s
+    if sel.sum() == 0:
+        return None
+    off += float(np.median(r[sel]))
+    r = residuals(off)
+    sel = np.abs(r) <= tol_s
+    return ClockOffset(float(off), int(sel.sum()), float(np.std(r[sel])) if sel.sum() > 1 else 0.0)
+
+
+class AccelImpactDetector:
+    """Block-by-block impact detection (the core of the impact_detector node).
+
+    The same rule as :func:`analyse_accel`: the high-pass is zero-phase, so each block is filtered
+    together with ``context_s`` of samples before and after it; detections are therefore final
+    ``context_s`` after the samples arrive (default 30 ms = 3 time constants of a 100 Hz filter).
+    The threshold median + k_sigma * 1.4826 MAD comes from the first ``warmup_s`` of data (or
+    ``threshold`` if given) and stays fixed. Impacts carry the DAQ clock time of their onset.
+    """
+
+    def __init__(self, sample_rate_hz: float, frequency_hz: float, *, highpass_hz: float = 100.0,
+                 k_sigma: float = 8.0, refractory_s: float | None = None, context_s: float = 0.03,
+                 warmup_s: float = 0.2, attribution_s: float = 0.002, threshold: float | None = None) -> None:
+        self.fs = float(sample_rate_hz)
+        self.highpass_hz = highpass_hz
+        self.k_sigma = k_sigma
+        self.refractory_s = refractory_s if refractory_s is not None else 0.25 / frequency_hz
+        self.n_ctx = max(int(round(context_s * self.fs)), 16)
+        self.n_warm = max(int(round(warmup_s * self.fs)), 4 * self.n_ctx)
+        self.n_att = max(int(round(attribution_s * self.fs)), 4)
+        self.n_iso = max(int(round(0.5 / frequency_hz * self.fs)), 8)
+        self.threshold = threshold
+        self._t = np.empty(0)
+        self._u = np.empty(0)
+        self._l = np.empty(0)
+        self._done = 0          # samples of the buffer already scanned
+        self._last_onset = -np.inf
+        self.impacts: list[AccelImpact] = []
+
+    def push_block(self, t_s, upper_ms2, lower_ms2) -> list[AccelImpact]:
+        """Add samples (DAQ clock); returns the impacts that became final."""
+        self._t = np.concatenate([self._t, np.asarray(t_s, float)])
+        self._u = np.concatenate([self._u, np.asarray(upper_ms2, float)])
+        self._l = np.concatenate([self._l, np.asarray(lower_ms2, float)])
+        return self._scan(final=False)
+
+    def finish(self) -> list[AccelImpact]:
+        """End of data: scan the tail."""
+        return self._scan(final=True)
+
+    def _scan(self, final: bool) -> list[AccelImpact]:
+        n = self._t.size
+        if self.threshold is None:
+            if n < self.n_warm and not final:
+                return []
+            hu = highpass(self._u, self.fs, self.highpass_hz)
+            hl = highpass(self._l, self.fs, self.highpass_hz)
+            s = np.abs(hu) + np.abs(hl)
+            med = float(np.median(s))
+            self.threshold = med + self.k_sigma * 1.4826 * float(np.median(np.abs(s - med)))
+        end = n if final else n - self.n_ctx - self.n_iso
+        if end <= self._done:
+            return []
+        lo = max(self._done - self.n_ctx, 0)
+        hu = highpass(self._u[lo:], self.fs, self.highpass_hz)
+        hl = highpass(self._l[lo:], self.fs, self.highpass_hz)
+        s = np.abs(hu) + np.abs(hl)
+        out = []
+        for i in np.flatnonzero(s[self._done - lo:end - lo] > self.threshold) + (self._done - lo):
+            t = self._t[lo + i]
+            if t - self._last_onset < self.refractory_s:
+                continue
+            self._last_onset = t
+            j = min(i + self.n_iso, s.size)
+            out.append((i, j, t))
+        # attribution window: up to the next onset (as in analyse_accel)
+        made = []
+        for m, (i, j, t) in enumerate(out):
+            nxt = out[m + 1][0] if m + 1 < len(out) else self._next_onset(s, j, i)
+            n_att = max(min(self.n_att, nxt - i), 1)
+            made.append(_make_impact(t, hu[i:j], hl[i:j], n_att, self._u[lo + i:lo + j], self._l[lo + i:lo + j],
+                                     self.fs))
+        out = made
+        self._done = end
+        # keep a bounded buffer: context before the scan point is all the filter needs
+        keep = max(self._done - 2 * self.n_ctx, 0)
+        if keep > 0:
+            self._t, self._u, self._l = self._t[keep:], self._u[keep:], self._l[keep:]
+            self._done -= keep
+        self.impacts += out
+        return out
+
+    def _next_onset(self, s: np.ndarray, j: int, i: int) -> int:
+        """Index of the next above-threshold sample after the refractory time following onset i (or j)."""
+        k0 = i + int(round(self.refractory_s * self.fs))
+        above = np.flatnonzero(s[k0:j] > self.threshold) if k0 < j else np.empty(0, int)
+        return int(k0 + above[0]) if above.size else j

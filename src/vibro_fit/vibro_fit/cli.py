@@ -1,0 +1,88 @@
+"""``vibro fit <dic.csv> --rig rig.yaml --out DIR``: identification from a DIC track alone."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .identify import METHODS
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fit", help="identify structure, flights, impacts (COR) and friction from a dic.csv")
+    p.add_argument("track", help="dic.csv written by 'vibro track'")
+    p.add_argument("--rig", required=True, help="rig.yaml of the recording")
+    p.add_argument("--accel", help="accelerometer CSV (columns as in rig.yaml's accelerometers block)")
+    p.add_argument("--out", required=True, help="output directory (results.json without simulation, CSVs)")
+    p.add_argument("--weights", choices=("none", "dic_valid"), default="none",
+                   help="flight-fit weights: none (paper) or dic_valid (by the number of valid DIC points)")
+    p.add_argument("--method", choices=METHODS, default="paper", help="COR method (default paper)")
+    p.set_defaults(func=run)
+
+    q = sub.add_parser("summary", help="COR mean +- std per plate across recordings (paper Fig. 14)")
+    q.add_argument("results", nargs="+", help="results.json files written by 'vibro analyze' or 'vibro fit'")
+    q.add_argument("--out", required=True, help="output PNG (a CSV table is written beside it)")
+    q.set_defaults(func=run_summary)
+
+
+def run(args: argparse.Namespace) -> int:
+    from vibro_io.accel import load_accel
+    from vibro_io.dictrack import read_dic_csv
+    from vibro_io.errors import RecordingError
+    from vibro_io.rig import load_rig
+
+    from .identify import identify
+    from .results import results_document, write_csv_tables, write_json
+
+    rig = load_rig(args.rig)
+    track = read_dic_csv(args.track)
+    accel = None
+    if args.accel:
+        if rig.accelerometers is None:
+            raise RecordingError(f"{args.rig}: --accel given but rig.yaml has no 'accelerometers' block (columns)")
+        accel = load_accel(args.accel, rig.accelerometers)
+    ident = identify(track, rig, accel=accel, method=args.method, weights=args.weights)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = results_document(ident, str(args.track))
+    write_json(out / "results.json", doc)
+    write_csv_tables(ident, out)
+    print(f"{len(ident.flights)} flights, {len(ident.impacts)} impacts, regime {ident.regime.name}; "
+          f"written to {out}")
+    return 0
+
+
+def run_summary(args: argparse.Namespace) -> int:
+    import csv
+    import json
+
+    from vibro_io.errors import RecordingError
+
+    from .report import fig_errorbars
+    from .statistics import errorbar_table
+
+    summaries = {}
+    for path in args.results:
+        try:
+            doc = json.loads(Path(path).read_text(encoding="utf-8"))
+            summ = doc["cor_summary"]
+        except (OSError, ValueError) as exc:
+            raise RecordingError(f"{path}: cannot read results ({exc})") from None
+        except (KeyError, TypeError):
+            raise RecordingError(f"{path}: no 'cor_summary' section (not a vibro results.json)") from None
+        label = Path(path).parent.name or Path(path).stem
+        summaries[label] = summ
+    rows = errorbar_table(summaries)
+    if not rows:
+        raise RecordingError("no COR in any of the results given")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig_errorbars(rows, out)
+    with out.with_suffix(".csv").open("w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
+        w.writeheader()
+        w.writerows(rows)
+    for r in rows:
+        std = "n/a" if r["std"] is None else f"{r['std']:.4f}"
+        print(f"{r['label']:<20} {r['plate']:<7} mean {r['mean']:.4f}  std {std}  n {r['n']}")
+    return 0

@@ -1,0 +1,99 @@
+"""Parabola per free flight (paper Eq. 3, 14) and friction per flight (Eq. 17).
+
+Each flight is fitted in centred time tc = t - t_ref (t_ref = mid time of its frames) for
+conditioning: Y[mm] = A tc^2 + B tc + C, with the covariance s^2 (X^T X)^-1, s^2 = SSR / (n - 3).
+:meth:`FlightFit.abs_coefficients` gives a, b, c for Y[mm] = a t^2 + b t + c with t the absolute
+camera time (s), as results.json wants. Ball acceleration 2A is in mm/s^2 (x 1e-3 for m/s^2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+G_MS2 = 9.81  # gravity (m/s^2), the value vibro_sim uses
+
+
+@dataclass
+class FlightFit:
+    """One free flight. ``frames`` are the track indices used; ``coef`` = (A, B, C) about ``t_ref_s``."""
+
+    index: int
+    frames: np.ndarray
+    t_start_s: float
+    t_end_s: float
+    t_ref_s: float
+    coef: np.ndarray
+    cov: np.ndarray
+    rms_residual_mm: float
+    n_points: int
+    fitted: bool = True
+    is_free: bool = True
+    reason: str = ""
+    direction: str = ""      # "up" | "down" | "" (unknown)
+    notes: list[str] = field(default_factory=list)
+
+    def position_mm(self, t_s: np.ndarray | float) -> np.ndarray | float:
+        tc = np.asarray(t_s) - self.t_ref_s
+        return (self.coef[0] * tc + self.coef[1]) * tc + self.coef[2]
+
+    def velocity_ms(self, t_s: np.ndarray | float) -> np.ndarray | float:
+        """Ball velocity (m/s)."""
+        tc = np.asarray(t_s) - self.t_ref_s
+        return 1e-3 * (2.0 * self.coef[0] * tc + self.coef[1])
+
+    @property
+    def acceleration_ms2(self) -> float:
+        return 2e-3 * float(self.coef[0])
+
+    @property
+    def acceleration_std_ms2(self) -> float:
+        return 2e-3 * float(np.sqrt(max(self.cov[0, 0], 0.0)))
+
+    def friction_n(self, mass_kg: float, g_ms2: float = G_MS2) -> tuple[float, float]:
+        """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N)."""
+        return mass_kg * (self.acceleration_ms2 + g_ms2), mass_kg * self.acceleration_std_ms2
+
+    def abs_coefficients(self) -> tuple[float, float, float]:
+        """(a, b, c) for Y[mm] = a t^2 + b t + c, t absolute camera time (s)."""
+        a_, b_, c_ = (float(v) for v in self.coef)
+        r = self.t_ref_s
+        return a_, b_ - 2.0 * a_ * r, a_ * r * r - b_ * r + c_
+
+
+def fit_parabola(t_s: np.ndarray, y_mm: np.ndarray, weights: np.ndarray | None = None
+                 ) -> tuple[float, np.ndarray, np.ndarray, float]:
+    """Least-squares parabola in centred time. Returns (t_ref, coef, cov, rms_residual_mm).
+
+    With ``weights`` (inverse variances, relative) the fit is weighted and the covariance scaled by
+    the weighted residual variance.
+    """
+    t_s = np.asarray(t_s, float)
+    y_mm = np.asarray(y_mm, float)
+    t_ref = 0.5 * (t_s[0] + t_s[-1])
+    tc = t_s - t_ref
+    x = np.column_stack([tc * tc, tc, np.ones_like(tc)])
+    w = np.ones_like(tc) if weights is None else np.asarray(weights, float)
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(x * sw[:, None], y_mm * sw, rcond=None)
+    r = y_mm - x @ coef
+    dof = max(t_s.size - 3, 1)
+    s2 = float(np.sum(w * r * r)) / dof
+    cov = s2 * np.linalg.inv((x * w[:, None]).T @ x)
+    return t_ref, coef, cov, float(np.sqrt(np.mean(r * r)))
+
+
+def fit_flight(index: int, frames: np.ndarray, t_s: np.ndarray, y_mm: np.ndarray, min_points: int = 6,
+               weights: np.ndarray | None = None) -> FlightFit:
+    """Fit one flight on the given frame indices (into t_s / y_mm). Flights with fewer than
+    ``min_points`` frames are returned with ``fitted=False`` (reported, not fitted)."""
+    frames = np.asarray(frames, int)
+    t, y = t_s[frames], y_mm[frames]
+    if frames.size < max(min_points, 4):
+        return FlightFit(index, frames, float(t[0]) if t.size else float("nan"),
+                         float(t[-1]) if t.size else float("nan"), float("nan"), np.full(3, np.nan),
+                         np.full((3, 3), np.nan), float("nan"), int(frames.size), fitted=False,
+                         is_free=False, reason=f"too few points ({frames.size} < {min_points})")
+    t_ref, coef, cov, rms = fit_parabola(t, y, None if weights is None else weights[frames])
+    return FlightFit(index, frames, float(t[0]), float(t[-1]), t_ref, coef, cov, rms, int(frames.size))

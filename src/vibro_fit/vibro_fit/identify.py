@@ -1,0 +1,204 @@
+"""Whole-recording identification: structure, flights, impacts, friction, COR summary, regime, clock offset.
+
+The per-impact path is :class:`vibro_fit.streaming.StreamingFitter` run over the whole track (so the
+offline result and the node's streamed estimates are the same numbers); the global structure fit,
+statistics, regime, accelerometer analysis and the ``joint`` refinement are added here.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vibro_io.accel import AccelData
+from vibro_io.dictrack import DicTrack, FrameTrack
+from vibro_io.errors import RecordingError
+from vibro_io.rig import RigConfig
+
+from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
+from .flight_fit import FlightFit
+from .impacts import ImpactEstimate, joint_impact
+from .regimes import Regime, classify_regime, y_rel_range
+from .segmentation import SegmentationConfig, noise_sigma_mm, plate_levels
+from .statistics import cor_summary
+from .streaming import Cluster, StreamingFitter
+from .structure_fit import StructureFit, fit_structure
+
+log = logging.getLogger(__name__)
+
+METHODS = ("paper", "joint")
+
+
+@dataclass
+class Identification:
+    """Everything identified from one recording (positions mm, velocities m/s, forces N, times s)."""
+
+    structure: StructureFit
+    flights: list[FlightFit]
+    impacts: list[ImpactEstimate]
+    friction: list[dict]
+    cor_summary: dict
+    regime: Regime
+    plate_levels: dict
+    noise_mm: float
+    method: str
+    mass_kg: float
+    short_flights: list[FlightFit] = field(default_factory=list)
+    clusters: list[Cluster] = field(default_factory=list)
+    accel: AccelAnalysis | None = None
+    clock_offset: ClockOffset | None = None
+    warnings: list[str] = field(default_factory=list)
+    weights: str = "none"
+
+
+def track_rows(track: DicTrack):
+    """The FrameTrack rows of a DicTrack, in order."""
+    for k in range(len(track)):
+        yield FrameTrack(int(track.frame[k]), float(track.t_s[k]), float(track.ball_mm[k]),
+                         float(track.structure_mm[k]), int(track.ball_valid[k]), int(track.structure_valid[k]),
+                         float(track.ball_zncc[k]), float(track.structure_zncc[k]), bool(track.lost[k]))
+
+
+def run_streaming(track: DicTrack, frequency_hz: float, noise_mm: float | None, method: str = "paper",
+                  config: SegmentationConfig | None = None, accel_times_s=(), weights: str | None = None
+                  ) -> StreamingFitter:
+    """Run the streaming fitter over a whole track (accelerometer impact times on the camera clock)."""
+    sf = StreamingFitter(frequency_hz, noise_mm=noise_mm, method="paper" if method == "joint" else method,
+                         config=config, weights=weights)
+    for tx in accel_times_s:
+        sf.push_accel_impact(tx)
+    for row in track_rows(track):
+        sf.push(row)
+    sf.finish()
+    return sf
+
+
+def acceleration_priors(flights: list[FlightFit]) -> dict[str, tuple[float, float]]:
+    """Per flight direction ("up"/"down"): (median, spread) of the quadratic coefficient A (mm/s^2) over the
+    free flights, the spread being the between-flight std (robust std minus the fits' own noise, in
+    quadrature), floored at 0.3 x the median fit std so that a constant friction never gets infinite weight."""
+    out = {}
+    for d in ("up", "down"):
+        fl = [f for f in flights if f.is_free and f.direction == d]
+        if len(fl) < 5:
+            continue
+        a = np.array([f.coef[0] for f in fl])
+        var_fit = np.array([f.cov[0, 0] for f in fl])
+        robust_sd = 1.4826 * float(np.median(np.abs(a - np.median(a))))
+        between = robust_sd ** 2 - float(np.median(var_fit))
+        floor = 0.3 * float(np.sqrt(np.median(var_fit)))
+        out[d] = (float(np.median(a)), max(float(np.sqrt(max(between, 0.0))), floor))
+    return out
+
+
+def _prior_for(fl: FlightFit, priors: dict) -> tuple[float, float] | None:
+    """The direction's prior, unless this flight's own A disagrees with it by more than 3 sigma (an
+    atypical flight keeps its own acceleration)."""
+    pr = priors.get(fl.direction)
+    if pr is None:
+        return None
+    if abs(fl.coef[0] - pr[0]) > 3.0 * np.sqrt(fl.cov[0, 0] + pr[1] ** 2):
+        return None
+    return pr
+
+
+def _validate(track: DicTrack) -> None:
+    n = len(track)
+    if n < 20:
+        raise RecordingError(f"DIC track: {n} frames, need at least 20 to identify the motion")
+    if np.any(np.diff(track.t_s) <= 0):
+        k = int(np.flatnonzero(np.diff(track.t_s) <= 0)[0]) + 1
+        raise RecordingError(f"DIC track: frame {int(track.frame[k])}: time {track.t_s[k]} s does not increase")
+    good = track.good
+    if good.sum() < 20:
+        raise RecordingError(f"DIC track: only {int(good.sum())} of {n} frames are usable (not lost, finite)")
+
+
+def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, method: str = "paper",
+             config: SegmentationConfig | None = None, highpass_hz: float = 100.0,
+             weights: str | None = None) -> Identification:
+    """Identify structure motion, free flights, impacts (COR), friction and regime from a DIC track.
+
+    ``method``: "paper" (Eq. 15-16 on separate parabola fits) or "joint" (pairs of flights refitted with the
+    constraint that they meet on the plate). With ``accel`` the impacts are also detected on the
+    accelerometers, the camera-to-DAQ clock offset estimated, and the accelerometer impact times (camera
+    clock) used to refine the segmentation. ``weights="dic_valid"`` weights the flight fits by the number
+    of valid ball mesh points of each frame (DIC quality).
+    """
+    if weights not in (None, "none", "dic_valid"):
+        raise RecordingError(f"identify: unknown weights {weights!r} (none, dic_valid)")
+    if method not in METHODS:
+        raise RecordingError(f"identify: unknown method {method!r} (choose from {', '.join(METHODS)})")
+    _validate(track)
+    cfg = config or SegmentationConfig()
+    warnings: list[str] = []
+    good = track.good
+    t, ball, st = track.t_s, track.ball_mm, track.structure_mm
+    f_nom = rig.excitation.frequency_hz
+    structure = fit_structure(t[good], st[good])
+    if abs(structure.frequency_hz - f_nom) > 0.05 * f_nom:
+        warnings.append(f"structure frequency {structure.frequency_hz:.3f} Hz differs from the nominal "
+                        f"{f_nom:g} Hz (rig.yaml excitation.frequency_hz) by more than 5 %")
+    if good.sum() < len(track):
+        warnings.append(f"{int(len(track) - good.sum())} lost/invalid frames excluded")
+    noise = noise_sigma_mm(t[good], ball[good])
+    if not np.isfinite(noise):
+        noise = 0.0
+    sf = run_streaming(track, f_nom, noise, method, cfg, weights=weights)
+    accel_res = None
+    offset = None
+    if accel is not None:
+        accel_res = analyse_accel(accel, structure.frequency_hz, highpass_hz=highpass_hz)
+        warnings += accel_res.warnings
+        offset = estimate_clock_offset([i.t_s for i in accel_res.impacts], [i.t_s for i in sf.impacts],
+                                       period_s=1.0 / structure.frequency_hz)
+        n_dic = len(sf.impacts)
+        if offset is not None and offset.n_matched >= max(3, 0.5 * n_dic):
+            cam_times = [i.t_s - offset.offset_s for i in accel_res.impacts]
+            sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=cam_times, weights=weights)
+        else:
+            warnings.append("accelerometer impacts could not be matched to DIC impacts: clock offset unknown, "
+                            "segmentation from DIC only")
+    impacts = list(sf.impacts)
+    levels = plate_levels(impacts, rig.free_play_mm)
+    if method == "joint":
+        by_index = {f.index: f for f in sf.flights}
+        priors = acceleration_priors(sf.flights)
+        refined = []
+        for est in impacts:
+            y_plate = levels.get(est.plate) if est.plate in ("top", "bottom") else None
+            p, q = by_index.get(est.flight_before), by_index.get(est.flight_after)
+            if y_plate is None or p is None or q is None:
+                refined.append(est)
+                continue
+            refined.append(joint_impact(est, p, q, t, ball, y_plate,
+                                        (_prior_for(p, priors), _prior_for(q, priors)), noise))
+        impacts = refined
+    b = rig.free_play_mm
+    if "free_play_mm" in levels and abs(levels["free_play_mm"] - b) > 0.05 * b:
+        warnings.append(f"measured free play {levels['free_play_mm']:.3f} mm (half the ball's relative travel "
+                        f"between the plates) differs from rig.yaml (gap - diameter)/2 = {b:.3f} mm by more than 5 %")
+    friction = []
+    for fl in sf.flights:
+        if not fl.direction:
+            # no impact next to it: the sign of the relative velocity (ball - structure) at mid-flight
+            tm = 0.5 * (fl.t_start_s + fl.t_end_s)
+            fl.direction = "up" if fl.velocity_ms(tm) - structure.velocity_ms(tm) > 0 else "down"
+        f_n, f_std = fl.friction_n(rig.ball.mass_kg, cfg.g_ms2)
+        friction.append({"flight": fl.index, "friction_n": f_n, "friction_std_n": f_std,
+                         "direction": fl.direction, "free": fl.is_free})
+    for fl in sf.flights:
+        if not fl.is_free:
+            warnings.append(f"flight {fl.index} ({fl.t_start_s:.4f}..{fl.t_end_s:.4f} s) is not a free flight: "
+                            f"{fl.reason}; no COR from it")
+    warnings += sf.rejected
+    dt = float(np.median(np.diff(t)))
+    regime = classify_regime(float(t[-1] - t[0] + dt), structure.frequency_hz, impacts, sf.clusters,
+                             sf.short_flights, cfg.max_impact_frames, dt, y_rel_range(ball, st), b)
+    if regime.name != "two_impacts_per_cycle":
+        warnings.append(f"regime: {regime.name} ({'; '.join(regime.notes) or 'see regime counts'})")
+    return Identification(structure, list(sf.flights), impacts, friction, cor_summary(impacts), regime, levels,
+                          float(noise), method, rig.ball.mass_kg, list(sf.short_flights), list(sf.clusters),
+                          accel_res, offset, warnings, weights or "none")

@@ -1,0 +1,233 @@
+"""Impact time (Eq. 15), plate, COR (Eq. 16 with its minus sign) and their uncertainties.
+
+Conventions: positions mm (track displacements, positive up), times s (camera clock), velocities m/s.
+COR e = -(v_b+ - v_s) / (v_b- - v_s), all at the impact time t_i.
+The plate is "top" when the ball approaches it moving up relative to the structure (v_b- - v_s > 0).
+
+Methods
+- ``paper``: t_i is the root of Eq. 15 (difference of the two flight parabolas) inside the gap between
+  the last frame of the flight before and the first frame of the flight after; roots outside the gap are
+  never used (no root inside -> no impact). The COR std is propagated to first order from the covariances
+  of both flights and of the local structure fit (numerical Jacobian, central differences).
+- ``joint``: better than the paper: the two flights are fitted together with the constraint that they
+  meet *on the plate*, i.e. Y_b(t_i) - Y_s(t_i) = y_plate (the relative position of that plate, measured
+  once from all the impacts of the recording). 5 parameters (t_i, v-, a-, v+, a+) instead of 6 plus one
+  geometric constraint, which pins the extrapolated end points of both parabolas.
+- ``finite_difference_cor``: the baseline the paper argues against: central differences of the track at
+  the frames around the impact (for the benchmark only).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .flight_fit import FlightFit
+from .structure_fit import StructureFit, with_params
+
+
+@dataclass
+class ImpactEstimate:
+    """One impact between flight ``flight_before`` and ``flight_after``."""
+
+    index: int
+    t_s: float
+    t_std_s: float
+    plate: str                # "top" | "bottom"
+    cor: float
+    cor_std: float
+    v_ball_before_ms: float
+    v_ball_after_ms: float
+    v_structure_ms: float
+    y_rel_mm: float           # ball - structure displacement at t_i (track coordinates, mm)
+    flight_before: int
+    flight_after: int
+    method: str = "paper"
+    structure: StructureFit | None = None
+
+
+def _shift(coef: np.ndarray, t_ref: float, t_new: float) -> tuple[float, float, float]:
+    """Coefficients of A (t-t_ref)^2 + B (t-t_ref) + C re-expressed about t_new."""
+    a, b, c = coef
+    d = t_new - t_ref
+    return a, 2.0 * a * d + b, (a * d + b) * d + c
+
+
+def gap_root(p_coef: np.ndarray, p_ref: float, q_coef: np.ndarray, q_ref: float,
+             t_lo: float, t_hi: float) -> float | None:
+    """Eq. 15: the time in [t_lo, t_hi] where the two parabolas meet, or None (never a root outside)."""
+    tm = 0.5 * (t_lo + t_hi)
+    h = 0.5 * (t_hi - t_lo)
+    pa, pb, pc = _shift(p_coef, p_ref, tm)
+    qa, qb, qc = _shift(q_coef, q_ref, tm)
+    al, be, ga = qa - pa, qb - pb, qc - pc
+    roots: list[float] = []
+    if abs(al) * h * h < 1e-12 * max(abs(be) * h, abs(ga), 1e-300):
+        if be != 0:
+            roots.append(-ga / be)
+    else:
+        disc = be * be - 4.0 * al * ga
+        if disc < 0:
+            return None
+        sq = np.sqrt(disc)
+        qq = -0.5 * (be + (sq if be >= 0 else -sq))
+        if qq != 0:
+            roots += [qq / al, ga / qq]
+        else:
+            roots.append(0.0)
+    inside = [r for r in roots if -h <= r <= h]
+    if not inside:
+        return None
+    return tm + min(inside, key=abs)
+
+
+def _quantities(pc, p_ref, qc, q_ref, sp, s_fit: StructureFit, t_lo, t_hi):
+    t_i = gap_root(pc, p_ref, qc, q_ref, t_lo, t_hi)
+    if t_i is None:
+        return None
+    vm = 1e-3 * (2.0 * pc[0] * (t_i - p_ref) + pc[1])
+    vp = 1e-3 * (2.0 * qc[0] * (t_i - q_ref) + qc[1])
+    s = with_params(s_fit, sp) if sp is not None else s_fit
+    vs = float(s.velocity_ms(t_i))
+    return t_i, vm, vp, vs, -(vp - vs) / (vm - vs)
+
+
+def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) -> ImpactEstimate | None:
+    """Impact between fitted flights p (before) and q (after) with the paper's plain method, or None
+    when the parabolas do not meet inside the gap or the relative velocity does not reverse."""
+    t_lo, t_hi = p.t_end_s, q.t_start_s
+    sp0 = np.asarray(s_fit.params_ref, float)
+    base = _quantities(p.coef, p.t_ref_s, q.coef, q.t_ref_s, sp0, s_fit, t_lo, t_hi)
+    if base is None:
+        return None
+    t_i, vm, vp, vs, e = base
+    if (vm - vs) * (vp - vs) >= 0:
+        return None
+    # first-order propagation over x = [p.coef, q.coef, structure params]
+    x0 = np.concatenate([p.coef, q.coef, sp0])
+    scov = s_fit.cov_ref if s_fit.cov_ref is not None else np.zeros((4, 4))
+    cov = np.zeros((10, 10))
+    cov[:3, :3], cov[3:6, 3:6], cov[6:, 6:] = p.cov, q.cov, scov
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    jac = np.zeros((2, 10))
+    for j in range(10):
+        h = 1e-3 * sd[j] if sd[j] > 0 else 0.0
+        if h == 0.0:
+            continue
+        outs = []
+        for sgn in (1.0, -1.0):
+            x = x0.copy()
+            x[j] += sgn * h
+            r = _quantities(x[:3], p.t_ref_s, x[3:6], q.t_ref_s, x[6:], s_fit, t_lo - 1.0, t_hi + 1.0)
+            outs.append(r)
+        if outs[0] is None or outs[1] is None:
+            continue
+        jac[0, j] = (outs[0][0] - outs[1][0]) / (2 * h)
+        jac[1, j] = (outs[0][4] - outs[1][4]) / (2 * h)
+    var = jac @ cov @ jac.T
+    y_rel = float(p.position_mm(t_i) - s_fit.position_mm(t_i))
+    return ImpactEstimate(index, float(t_i), float(np.sqrt(max(var[0, 0], 0))), "top" if vm - vs > 0 else "bottom",
+                          float(e), float(np.sqrt(max(var[1, 1], 0))), float(vm), float(vp), float(vs), y_rel,
+                          p.index, q.index, "paper", s_fit)
+
+
+def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_mm: np.ndarray,
+                 y_plate_mm: float, accel_priors: tuple | None = None, noise_mm: float | None = None
+                 ) -> ImpactEstimate:
+    """Refit the two flights around ``est`` jointly, constrained to meet on the plate at relative position
+    ``y_plate_mm`` (mm, track coordinates). Starts from the paper estimate; returns a new estimate.
+
+    ``accel_priors`` = ((mu_p, tau_p), (mu_q, tau_q)): optional Gaussian priors on the quadratic coefficient
+    A (mm/s^2, half the acceleration) of each flight (mean and std over the recording's flights of the same
+    direction: empirical-Bayes shrinkage of the per-flight friction), weighted with the position noise
+    ``noise_mm``. Either prior may be None.
+    """
+    s_fit = est.structure
+    tp, yp = t_s[p.frames], y_mm[p.frames]
+    tq, yq = t_s[q.frames], y_mm[q.frames]
+    t0 = est.t_s
+
+    def model(th, sfit=s_fit):
+        ti, vm, am, vp, ap = th
+        ti = t0 + ti
+        y0 = float(sfit.position_mm(ti)) + y_plate_mm
+        dp, dq = tp - ti, tq - ti
+        return y0 + vm * dp + am * dp * dp, y0 + vp * dq + ap * dq * dq
+
+    priors = []
+    if accel_priors is not None and noise_mm:
+        for k, pr in zip((2, 4), accel_priors):
+            if pr is not None and pr[1] > 0:
+                priors.append((k, pr[0], noise_mm / pr[1]))
+
+    def resid(th):
+        mp, mq = model(th)
+        extra = [w * (th[k] - mu) for k, mu, w in priors]
+        return np.concatenate([mp - yp, mq - yq, extra])
+
+    th0 = np.array([0.0, est.v_ball_before_ms * 1e3, p.coef[0], est.v_ball_after_ms * 1e3, q.coef[0]])
+    res = least_squares(resid, th0, method="lm", x_scale=np.array([1e-4, 100.0, 1e3, 100.0, 1e3]),
+                        xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    th = res.x
+    r = res.fun[: tp.size + tq.size]
+    n = r.size
+    s2 = float(r @ r) / max(n - 5 + len(priors), 1)
+    try:
+        cov_th = s2 * np.linalg.inv(res.jac.T @ res.jac)
+    except np.linalg.LinAlgError:
+        cov_th = np.full((5, 5), np.nan)
+    t_i = t0 + th[0]
+    vm, vp = 1e-3 * th[1], 1e-3 * th[3]
+    vs = float(s_fit.velocity_ms(t_i))
+    e = -(vp - vs) / (vm - vs)
+    # gradient of e over theta (t_i enters through v_s only; v-, v+ are the values at t_i)
+    dvs_dt = float(s_fit.acceleration_ms2(t_i))
+    de_dvs = (vm - vp) / (vm - vs) ** 2
+    g_th = np.zeros(5)
+    g_th[0] = de_dvs * dvs_dt
+    g_th[1] = 1e-3 * (vp - vs) / (vm - vs) ** 2
+    g_th[3] = -1e-3 / (vm - vs)
+    var = float(g_th @ cov_th @ g_th)
+    # structure contribution (theta held fixed)
+    if s_fit.cov_ref is not None:
+        sp0 = np.asarray(s_fit.params_ref, float)
+        sd = np.sqrt(np.clip(np.diag(s_fit.cov_ref), 0, None))
+        gs = np.zeros(4)
+        for j in range(4):
+            if sd[j] == 0:
+                continue
+            h = 1e-3 * sd[j]
+            vals = []
+            for sgn in (1.0, -1.0):
+                sp = sp0.copy()
+                sp[j] += sgn * h
+                vs2 = float(with_params(s_fit, sp).velocity_ms(t_i))
+                vals.append(-(vp - vs2) / (vm - vs2))
+            gs[j] = (vals[0] - vals[1]) / (2 * h)
+        var += float(gs @ s_fit.cov_ref @ gs)
+    return ImpactEstimate(est.index, float(t_i), float(np.sqrt(max(cov_th[0, 0], 0))), est.plate, float(e),
+                          float(np.sqrt(max(var, 0))), float(vm), float(vp), vs,
+                          float(y_plate_mm), est.flight_before, est.flight_after, "joint", s_fit)
+
+
+def finite_difference_cor(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np.ndarray,
+                          t_impact_s: float) -> float | None:
+    """Baseline COR from central differences of the track around an impact at ``t_impact_s``.
+
+    With k the last frame before and k+1 the first after the impact: v- is the central difference at
+    frame k-1 (frames k-2, k), v+ at frame k+2 (frames k+1, k+3), for ball and structure alike.
+    Returns None when one of those frames is missing (NaN) or out of range.
+    """
+    k = int(np.searchsorted(t_s, t_impact_s)) - 1
+    if k - 2 < 0 or k + 3 >= t_s.size:
+        return None
+
+    def cd(y, i):
+        return 1e-3 * (y[i + 1] - y[i - 1]) / (t_s[i + 1] - t_s[i - 1])
+
+    vm, vsm = cd(ball_mm, k - 1), cd(structure_mm, k - 1)
+    vp, vsp = cd(ball_mm, k + 2), cd(structure_mm, k + 2)
+    e = -(vp - vsp) / (vm - vsm)
+    return float(e) if np.isfinite(e) else None

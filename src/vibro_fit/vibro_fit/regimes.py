@@ -1,0 +1,83 @@
+"""Classify the motion regime of the ball from the segmentation.
+
+Rules (per recording; counts are per excitation cycle, n_cycles = duration x frequency):
+- ``resting``: contact phases (clusters longer than an impact) cover more than half the record, or no
+  impact at all while the ball moves with the structure (ball - structure range < 10 % of 2b).
+- ``chattering``: more than 0.3 short flights (too few frames to fit) or same-plate re-impacts within a
+  quarter period per cycle.
+- ``two_impacts_per_cycle``: top and bottom impacts each 0.8..1.2 per cycle.
+- ``one_impact_per_cycle``: 0.8..1.2 impacts per cycle in total.
+- ``no_impacts`` / ``irregular`` otherwise.
+Only impacts between two free flights carry a COR (enforced by the streaming fitter).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Regime:
+    name: str
+    n_cycles: float
+    top_per_cycle: float
+    bottom_per_cycle: float
+    short_flights: int
+    contact_fraction: float
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "n_cycles": self.n_cycles, "top_per_cycle": self.top_per_cycle,
+                "bottom_per_cycle": self.bottom_per_cycle, "short_flights": self.short_flights,
+                "contact_fraction": self.contact_fraction, "notes": list(self.notes)}
+
+
+def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, short_flights,
+                    max_impact_frames: int, frame_dt_s: float, y_rel_range_mm: float, free_play_mm: float
+                    ) -> Regime:
+    """Regime from the impacts, contact clusters and short flights of a recording (see module rules)."""
+    n_cycles = max(duration_s * frequency_hz, 1e-9)
+    n_top = sum(1 for i in impacts if i.plate == "top")
+    n_bot = sum(1 for i in impacts if i.plate == "bottom")
+    contact_s = sum((c.n + 1) * frame_dt_s for c in clusters if c.n > max_impact_frames)
+    contact_fraction = contact_s / max(duration_s, 1e-12)
+    quarter = 0.25 / frequency_hz
+    rebounds = 0
+    for a, b in zip(impacts[:-1], impacts[1:]):
+        if a.plate == b.plate and b.t_s - a.t_s < quarter:
+            rebounds += 1
+    chatter = (len(short_flights) + rebounds) / n_cycles
+    notes: list[str] = []
+    top_pc, bot_pc = n_top / n_cycles, n_bot / n_cycles
+    if contact_fraction > 0.5:
+        name = "resting"
+        notes.append(f"ball in contact with a plate {100 * contact_fraction:.0f} % of the time")
+    elif not impacts and y_rel_range_mm < 0.2 * free_play_mm:
+        name = "resting"
+        notes.append(f"no impact and the ball moves with the structure (relative range {y_rel_range_mm:.3f} mm, "
+                     f"free play b = {free_play_mm:.3f} mm)")
+    elif chatter > 0.3:
+        name = "chattering"
+        notes.append(f"{len(short_flights)} short flights and {rebounds} quick same-plate re-impacts")
+    elif 0.8 <= top_pc <= 1.2 and 0.8 <= bot_pc <= 1.2:
+        name = "two_impacts_per_cycle"
+    elif 0.8 <= top_pc + bot_pc <= 1.2:
+        name = "one_impact_per_cycle"
+    elif not impacts:
+        name = "no_impacts"
+    else:
+        name = "irregular"
+    return Regime(name, float(n_cycles), float(top_pc), float(bot_pc), len(short_flights),
+                  float(contact_fraction), notes)
+
+
+def y_rel_range(ball_mm: np.ndarray, structure_mm: np.ndarray) -> float:
+    """Range (mm) of ball - structure over the finite samples (robust: 1st..99th percentile)."""
+    r = np.asarray(ball_mm) - np.asarray(structure_mm)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return 0.0
+    lo, hi = np.percentile(r, [1, 99])
+    return float(hi - lo)

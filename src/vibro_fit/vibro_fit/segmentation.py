@@ -1,0 +1,112 @@
+"""Segmentation of the ball track into free flights.
+
+Rule (documented, used by both :func:`vibro_fit.identify.identify` and the streaming fitter):
+
+An impact is a kink of the relative motion y_rel = ball - structure (a jump of the relative velocity
+at an extreme of y_rel). The structure's motion is smooth (a sine), so that kink is a kink of the ball
+track itself, which is cheaper to test frame by frame and does not need the structure fit:
+
+1. For every good frame j with good neighbours i < j < k, the ball acceleration is estimated from the
+   second divided difference acc_j = 2 [ (y_k - y_j)/(t_k - t_j) - (y_j - y_i)/(t_j - t_i) ] / (t_k - t_i).
+   In free flight acc_j = -g + F/m (a few % of g). An impact between frames k and k+1 makes the
+   estimates at k and k+1 jump by about dv/dt_frame (hundreds of m/s^2).
+2. Frame j is a *contact frame* when |acc_j + g| > max(k_sigma * sigma_acc_j, min_threshold_ms2), with
+   sigma_acc_j the noise of that estimate from the position noise sigma (itself from the median absolute
+   deviation of the second differences of the whole track, or of a warm-up window when streaming).
+   Frames next to an accelerometer impact time (the last before and the first after) are contact frames
+   too.
+3. Consecutive contact frames form a cluster. A cluster of at most ``max_impact_frames`` frames is an
+   impact (normally exactly the 2 frames next to the impact instant, which are excluded from the fits:
+   they are the frames whose exposure can overlap the contact and the blur); a longer cluster is a
+   contact phase (ball resting on or carried by a plate).
+4. The runs of frames between clusters are the flights. A flight with fewer than ``min_points`` frames is
+   reported, not fitted. A fitted flight is *free* when its parabola residual RMS is at most
+   ``rms_factor * sigma + rms_floor_mm`` and |2a + g| <= ``max_friction_g * g``; no COR is published
+   from a flight that is not free.
+5. Two flights whose parabolas do not reverse the relative velocity were split by a spurious cluster
+   (an outlier frame): they are merged and refitted.
+
+Defaults (:class:`SegmentationConfig`): k_sigma 6, min_threshold 3 m/s^2, max_impact_frames 4,
+min_points 6, rms_factor 3, rms_floor 0.002 mm, max_friction 0.5 g, g = 9.81 m/s^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .flight_fit import G_MS2
+
+
+@dataclass(frozen=True)
+class SegmentationConfig:
+    """Parameters of the segmentation rule (see module docstring)."""
+
+    k_sigma: float = 6.0
+    min_threshold_ms2: float = 3.0
+    max_impact_frames: int = 4
+    min_points: int = 6
+    rms_factor: float = 3.0
+    rms_floor_mm: float = 0.002
+    max_friction_g: float = 0.5
+    g_ms2: float = G_MS2
+
+
+def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray) -> float:
+    """Position noise sigma (mm) of a track from the MAD of its second differences (uniform steps only).
+
+    For white noise of std sigma, a second difference has std sqrt(6) sigma; MAD * 1.4826 estimates the
+    std robustly (impacts are a minority of frames).
+    """
+    t_s = np.asarray(t_s, float)
+    y_mm = np.asarray(y_mm, float)
+    ok = np.isfinite(y_mm)
+    idx = np.flatnonzero(ok)
+    if idx.size < 5:
+        return float("nan")
+    dt = float(np.median(np.diff(t_s)))
+    consec = (idx[2:] - idx[:-2]) == 2
+    d2 = y_mm[idx[2:]] - 2 * y_mm[idx[1:-1]] + y_mm[idx[:-2]]
+    d2 = d2[consec]
+    if d2.size < 3:
+        return float("nan")
+    # remove the free-flight gravity term before the MAD
+    d2 = d2 + 1e3 * G_MS2 * dt * dt
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def accel_estimate(t3: np.ndarray, y3_mm: np.ndarray) -> tuple[float, float]:
+    """Ball acceleration (m/s^2) at the middle of three samples, and the factor f such that the estimate's
+    noise std is f * sigma_mm (sigma in mm)."""
+    h1 = t3[1] - t3[0]
+    h2 = t3[2] - t3[1]
+    acc = 2.0 * ((y3_mm[2] - y3_mm[1]) / h2 - (y3_mm[1] - y3_mm[0]) / h1) / (h1 + h2)
+    fac = 2.0 / (h1 + h2) * np.sqrt(1 / h2 ** 2 + (1 / h1 + 1 / h2) ** 2 + 1 / h1 ** 2)
+    return 1e-3 * acc, 1e-3 * fac
+
+
+def plate_levels(impacts, free_play_mm: float | None = None) -> dict[str, float]:
+    """Relative position (ball - structure, mm, track coordinates) of each plate: median over the impacts.
+
+    DIC gives displacements only, so the track's ball - structure differs from the ball centre minus the
+    cavity centre by the constant c0 (their offset at frame 0). The ball centre is at +b at the top plate
+    and -b at the bottom one, so y_top = b - c0 and y_bottom = -b - c0. Returns "top"/"bottom" for the
+    plates that have impacts, ``offset_mm`` = c0 (both plates: -(y_top + y_bottom)/2, independent of b;
+    one plate: from the rig's ``free_play_mm``) and, with both plates, the measured free play
+    ``free_play_mm`` = (y_top - y_bottom)/2.
+    """
+    out: dict[str, float] = {}
+    for plate in ("top", "bottom"):
+        vals = [i.y_rel_mm for i in impacts if i.plate == plate]
+        if vals:
+            out[plate] = float(np.median(vals))
+    if "top" in out and "bottom" in out:
+        out["offset_mm"] = -0.5 * (out["top"] + out["bottom"])
+        out["free_play_mm"] = 0.5 * (out["top"] - out["bottom"])
+    elif free_play_mm is not None and "top" in out:
+        out["offset_mm"] = free_play_mm - out["top"]
+    elif free_play_mm is not None and "bottom" in out:
+        out["offset_mm"] = -free_play_mm - out["bottom"]
+    return out
