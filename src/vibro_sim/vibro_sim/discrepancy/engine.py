@@ -1,0 +1,261 @@
+"""``analyse_discrepancy``: baseline -> locate -> explain -> model and show (issue 6).
+
+Input: the results sections (``structure``, ``flights``, ``impacts`` as in results.json), the DIC track
+and the rig. Output: the contract's ``discrepancy`` block (baseline_deviation, findings[{effect,
+parameters, where, deviation_before, deviation_after}], final_deviation) plus extras: parameter
+uncertainties, the noise floors, the one-step errors before/after, the location of the baseline's
+mismatch, every tested candidate with its statistic.
+
+D (paper Eq. 18) is the full-run deviation: the model is simulated with vibro_sim's exact COR model
+(simulate_cor) from the measured state after the first impact that opens a fitted flight to the end of
+the track and compared with the measured ball displacement (the baseline: constant COR = the mean
+measured one, gravity only, pure sine structure, vertical). Each finding's deviation_before/after are
+D of the model without/with it, adding the findings in order (structure, flight terms, COR law).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from vibro_io.dictrack import DicTrack
+from vibro_io.rig import RigConfig
+
+from ..cor_model import simulate_cor
+from ..deviation import deviation
+from .data import Measured, difference_sigma, measured_from_sections
+from .fitting import fit_flights, fit_structure
+from .library import FLIGHT_TERMS, IMPACT_TERMS, UNEXPLAINED, FlightTerm
+from .locate import locate, structure_words
+from .model import FittedModel, fit_model, plate_levels
+from .onestep import OneStep, one_step
+from .select import select_cor, select_flights, select_structure
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FullRun:
+    t_s: np.ndarray
+    simulated_m: np.ndarray | None
+    measured_m: np.ndarray
+    deviation: float | None
+    error: str | None = None
+
+
+@dataclass
+class DiscrepancyRun:
+    """Everything the analysis computed: the contract document and arrays for figures."""
+
+    document: dict
+    measured: Measured | None = None
+    baseline: FittedModel | None = None
+    final: FittedModel | None = None
+    baseline_run: FullRun | None = None
+    final_run: FullRun | None = None
+    baseline_steps: OneStep | None = None
+    final_steps: OneStep | None = None
+    chain: list[tuple[str, FittedModel, FullRun]] = field(default_factory=list)
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def full_run(meas: Measured, model: FittedModel) -> FullRun:
+    """Simulate ``model`` over the recording from the measured state after the first impact that opens a
+    fitted flight; D against the measured ball (DIC frame)."""
+    t_all, y_all = meas.t_s, meas.ball_m
+    k0 = next((k for k, fl in enumerate(meas.flights) if fl.open_impact is not None), None)
+    if k0 is None:
+        return FullRun(t_all, None, y_all, None, "no flight opened by an impact")
+    fl = meas.flights[k0]
+    t_imp = dict(zip((int(i) for i in model.impacts.index), (float(t) for t in model.impacts.t_s)))
+    t0 = t_imp.get(int(fl.open_impact), fl.t_ref_s)
+    y_start, v_start = (float(x) for x in model.flights.state(k0, t0 - fl.t_ref_s))
+    keep = t_all >= t0
+    t, y = t_all[keep], y_all[keep]
+    if t.size < 2:
+        return FullRun(t, None, y, None, "too few frames after the first impact")
+    try:
+        lv = plate_levels(meas, model)
+        c0, b = lv["offset"], lv["free_play"]
+        S = model.motion
+        rel = y_start + c0 - float(S.position(t0))
+        rel = min(max(rel, -b * (1 - 1e-9)), b * (1 - 1e-9))
+        res = simulate_cor(S, model.cavity(meas, b), model.restitution_law(), model.force_law(),
+                           float(S.position(t0)) + rel, v_start, t0, float(t[-1]))
+        sim = np.asarray(res.sample(t), dtype=float) - c0
+        return FullRun(t, sim, y, float(deviation(t, sim, y)))
+    except Exception as exc:  # a model that cannot be simulated must not lose the analysis
+        log.warning("discrepancy full run of %s failed: %s", model.label(), exc)
+        return FullRun(t, None, y, None, f"{type(exc).__name__}: {exc}")
+
+
+def _cor_noise(meas: Measured) -> float:
+    stds = [i.cor_std for i in meas.impacts if i.cor_std > 0]
+    return float(np.median(stds)) if stds else 0.0
+
+
+def _flight_where(meas: Measured, steps: OneStep, model_after: FittedModel, term: FlightTerm,
+                  cor_noise: float) -> str:
+    """Where a flight term shows: the extra acceleration it adds on each kind of flight, and the
+    before-model's mismatch location."""
+    words = locate(steps, cor_noise, stages=("flights",))["text"]
+    extra = {}
+    for k, fl in enumerate(meas.flights):
+        u, v = model_after.flights.grids[k]
+        c = model_after.flights.coef_of(term.effect)
+        a = c * term.basis(v, meas.mass_kg)
+        extra.setdefault(fl.direction, []).append(float(np.mean(a)))
+    parts = [f"{'towards the top plate' if d == 'up' else 'towards the bottom plate'} {np.mean(v):+.3f} m/s^2"
+             for d, v in sorted(extra.items(), reverse=True)]
+    return f"{words}; {term.effect} adds a mean acceleration of " + ", ".join(parts)
+
+
+def _cor_where(meas: Measured, steps: OneStep, model_after: FittedModel, cor_noise: float) -> str:
+    words = locate(steps, cor_noise, stages=("impacts",))["text"]
+    imp = model_after.impacts
+    parts = []
+    for p in ("top", "bottom"):
+        sel = imp.plate == p
+        if sel.any():
+            parts.append(f"{p}: COR {np.mean(imp.cor[sel]):.3f} +- {np.std(imp.cor[sel]):.3f} at "
+                         f"{np.mean(imp.speed[sel]):.3f} m/s")
+    return f"{words}; measured " + ", ".join(parts)
+
+
+def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig,
+                    flight_terms: tuple[FlightTerm, ...] = FLIGHT_TERMS, cor_terms=("asymmetric_restitution",
+                                                                                     "velocity_dependent_restitution"),
+                    harmonics: bool = True) -> DiscrepancyRun:
+    """The whole analysis (see the module docstring). ``flight_terms``/``cor_terms``/``harmonics``
+    restrict the library (tests use this to check that an effect outside it is reported unexplained)."""
+    meas = measured_from_sections(sections, track, rig)
+    cor_noise = _cor_noise(meas)
+    sig_f = difference_sigma([(f.t_s, f.y_m) for f in meas.flights], 3)
+    sig_s = difference_sigma([(meas.t_s, meas.structure_m)], 5)
+    if not math.isfinite(sig_f) or sig_f <= 0:
+        sig_f = difference_sigma([(meas.t_s, meas.ball_m)], 5)
+    notes = list(meas.notes)
+
+    # baseline ---------------------------------------------------------------------------------
+    base = fit_model(meas)
+    base_run = full_run(meas, base)
+    base_steps = one_step(meas, base, sig_f)
+    where_base = locate(base_steps, cor_noise)
+    s1 = fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz, (1,))
+
+    # explain: stage by stage --------------------------------------------------------------------
+    if harmonics:
+        s_fit, s_stage = select_structure(meas, sig_s)
+    else:
+        s_fit, s_stage = s1, None
+    if flight_terms:
+        f_fit, f_stage = select_flights(meas, sig_f, tuple(flight_terms))
+    else:
+        f_fit, f_stage = fit_flights(meas), None
+    pre_cor = fit_model(meas, structure=s_fit, flights=f_fit)
+    kind, _, c_stage = select_cor(pre_cor.impacts, cor_noise)
+    if kind not in cor_terms:
+        kind = "none"
+        c_stage.chosen = ()
+
+    # model and show: the chain of models, one finding at a time ----------------------------------------
+    chain: list[tuple[str, FittedModel, FullRun]] = [("baseline", base, base_run)]
+    findings: list[dict] = []
+    current = base
+    current_run = base_run
+    current_steps = base_steps
+
+    def add(effect: str, model: FittedModel, params: dict, stds: dict, where: str, extra: dict | None = None):
+        nonlocal current, current_run, current_steps
+        run = full_run(meas, model)
+        steps = one_step(meas, model, sig_f)
+        findings.append({"effect": effect, "parameters": params, "parameters_std": stds, "where": where,
+                         "deviation_before": _num(current_run.deviation), "deviation_after": _num(run.deviation),
+                         "one_step_before": current_steps.summary(), "one_step_after": steps.summary(),
+                         **(extra or {})})
+        chain.append((effect, model, run))
+        current, current_run, current_steps = model, run, steps
+
+    if s_stage is not None and s_stage.chosen:
+        m = fit_model(meas, structure=s_fit, flights=fit_flights(meas))
+        mot = s_fit.motion()
+        amps = s_fit.harmonic_amplitudes()
+        params = {"h2_ratio": float(mot.h2_ratio), "h3_ratio": float(mot.h3_ratio)}
+        sd = s_fit.sigma * math.sqrt(2.0 / s_fit.n_points) / max(mot.amplitude_m, 1e-12)
+        stds = {"h2_ratio": sd if 2 in amps else None, "h3_ratio": sd if 3 in amps else None}
+        where = structure_words(s1.residual, meas.t_s, sig_s, s1.frequency_hz) + "; " + \
+            locate(current_steps, cor_noise, stages=("impacts",))["text"]
+        add("structure_harmonics", m, params, stds, where,
+            {"phases_rad": {"h2_phase_rad": float(mot.h2_phase_rad), "h3_phase_rad": float(mot.h3_phase_rad)}})
+    if f_stage is not None and f_stage.chosen:
+        chosen_terms = [t for t in flight_terms if t.effect in f_stage.chosen]
+        for j, term in enumerate(chosen_terms):
+            fset = f_fit if j == len(chosen_terms) - 1 else fit_flights(meas, tuple(chosen_terms[:j + 1]))
+            m = fit_model(meas, structure=current.structure, flights=fset)
+            idx = fset.names.index(term.effect)
+            params, stds = term.contract_parameters(float(fset.coefs[idx]), float(math.sqrt(fset.cov[idx, idx])),
+                                                    meas.mass_kg, meas.g_ms2)
+            where = _flight_where(meas, current_steps, m, term, cor_noise)
+            add(term.effect, m, params, stds, where)
+    if kind != "none":
+        m = fit_model(meas, structure=current.structure, flights=current.flights, cor_kind=kind)
+        term = next(t for t in IMPACT_TERMS if t.effect == kind)
+        params, stds = term.contract_parameters(m.cor.coefs, m.cor.cov)
+        where = _cor_where(meas, current_steps, m, cor_noise)
+        extra = {"alternatives": list(c_stage.alternatives)} if c_stage.alternatives else {}
+        if c_stage.notes:
+            extra["note"] = "; ".join(c_stage.notes)
+        add(kind, m, params, stds, where, extra)
+
+    # whatever is left: unexplained -----------------------------------------------------------------
+    final_loc = locate(current_steps, cor_noise)
+    leftovers = []
+    if s_stage is not None and s_stage.unexplained:
+        leftovers.append(f"structure track misfit {s_stage.residual_ratio:.1f}x its noise floor after "
+                         f"{current.label()}")
+    if f_stage is not None and f_stage.unexplained:
+        leftovers.append(final_loc["words"][0] if final_loc["words"] else "flights")
+    elif f_stage is None:
+        ratio = math.sqrt(current.flights.sse / max(current.flights.n_points, 1)) / sig_f
+        if ratio > 1.5:
+            leftovers.append(final_loc["words"][0] if final_loc["words"] else "flights")
+    if leftovers:
+        findings.append({"effect": UNEXPLAINED, "parameters": {}, "where": "; ".join(leftovers),
+                         "deviation_before": _num(current_run.deviation),
+                         "deviation_after": _num(current_run.deviation)})
+
+    stages = {}
+    for st in (s_stage, f_stage, c_stage):
+        if st is None:
+            continue
+        stages[st.name] = {"chosen": list(st.chosen), "residual_x_noise": _num(st.residual_ratio),
+                           "unexplained": st.unexplained, "notes": st.notes,
+                           "candidates": [d.to_dict() for d in st.decisions]}
+    doc = {
+        "baseline_deviation": _num(base_run.deviation),
+        "findings": findings,
+        "final_deviation": _num(current_run.deviation),
+        "model": current.label(),
+        "noise_floor": {"ball_mm_per_frame": _num(sig_f * 1e3), "structure_mm_per_frame": _num(sig_s * 1e3),
+                        "cor": _num(cor_noise)},
+        "one_step": {"baseline": base_steps.summary(), "final": current_steps.summary()},
+        "location": {k: v for k, v in where_base.items() if k != "words"},
+        "stages": stages,
+        "notes": notes + [f"{name}: {r.error}" for name, _, r in chain if r.error],
+    }
+    return DiscrepancyRun(doc, meas, base, current, base_run, current_run, base_steps, current_steps, chain)
+
+
+def analyse_discrepancy(results_sections: Mapping[str, Any], track: DicTrack, rig: RigConfig) -> dict:
+    """The contract's ``discrepancy`` block (plus extras) for one recording; see the module docstring."""
+    return run_discrepancy(results_sections, track, rig).document

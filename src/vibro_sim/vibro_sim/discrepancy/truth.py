@@ -1,0 +1,111 @@
+"""Scoring against a synthetic recording's truth file (for ``vibro prove``, the benchmark and tests).
+
+The analysis never reads the truth: only :mod:`.prove` and the tests call these functions, after the
+analysis has written its results.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..cor_model import simulate_cor
+from ..deviation import deviation
+from ..forces import Coulomb, NoForce, Quadratic, Viscous
+from ..params import BallCavity
+from ..restitution import Constant, PerPlate, VelocityDependent
+from ..structure import StructureMotion
+from .data import Measured
+
+BASELINE_COR = 0.7  # the synthetic rig's baseline COR (vibro_sim.synth.scenario.BASELINE_COR)
+
+# effect -> its main parameter (scored against the 15 % goal)
+MAIN_PARAMETER = {"coulomb_friction": "force_n", "viscous_drag": "coefficient_ns_per_m",
+                  "quadratic_drag": "coefficient_ns2_per_m2", "asymmetric_restitution": "cor_top",
+                  "velocity_dependent_restitution": "slope_s_per_m", "gravity_tilt": "tilt_deg",
+                  "structure_harmonics": "h2_ratio"}
+
+
+def true_effects(truth: Mapping[str, Any]) -> dict[str, dict[str, float]]:
+    """{effect: parameters} of a truth mapping ('none' dropped)."""
+    return {e["effect"]: dict(e.get("parameters", {})) for e in truth.get("effects", []) if e["effect"] != "none"}
+
+
+def main_parameter(effect: str, params: Mapping[str, float]) -> str:
+    """The parameter scored for ``effect`` (harmonics: the larger ratio)."""
+    if effect == "structure_harmonics" and params.get("h2_ratio", 0.0) < params.get("h3_ratio", 0.0):
+        return "h3_ratio"
+    return MAIN_PARAMETER[effect]
+
+
+def true_model_run(meas: Measured, truth: Mapping[str, Any], t0_s: float, t_end_s: float | None = None):
+    """(t, simulated ball mm since frame 0, D): the true model (truth effects and parameters without
+    random COR scatter, true structure, free play and ball offset) simulated from the true state after
+    the truth impact nearest ``t0_s`` and scored against the measured ball track over the same window."""
+    eff = true_effects(truth)
+    st = truth["structure"]
+    y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
+    S = StructureMotion(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
+                        st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
+                        st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
+    b = float(truth["free_play_mm"]) * 1e-3
+    c0 = float(truth["ball_offset_mm"]) * 1e-3
+    cav = BallCavity(mass_kg=float(truth.get("ball_mass_kg", meas.mass_kg)), free_play_m=b,
+                     tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0))
+    if "asymmetric_restitution" in eff:
+        law = PerPlate(eff["asymmetric_restitution"]["cor_top"], eff["asymmetric_restitution"]["cor_bottom"])
+    elif "velocity_dependent_restitution" in eff:
+        p = eff["velocity_dependent_restitution"]
+        law = VelocityDependent(p["cor_at_zero"], p["slope_s_per_m"])
+    else:
+        law = Constant(BASELINE_COR)
+    force = NoForce()
+    if "coulomb_friction" in eff:
+        force = Coulomb(eff["coulomb_friction"]["force_n"])
+    elif "viscous_drag" in eff:
+        force = Viscous(eff["viscous_drag"]["coefficient_ns_per_m"])
+    elif "quadratic_drag" in eff:
+        force = Quadratic(eff["quadratic_drag"]["coefficient_ns2_per_m2"])
+    imps = truth["impacts"]
+    if not imps:
+        raise ValueError("truth has no impacts")
+    j = int(np.argmin([abs(i["t"] - t0_s) for i in imps]))
+    ti = float(imps[j]["t"])
+    side = 1.0 if imps[j]["plate"] == "top" else -1.0
+    y0 = float(S.position(ti)) + side * b * (1 - 1e-9)
+    t_end = meas.t_last_s if t_end_s is None else t_end_s
+    res = simulate_cor(S, cav, law, force, y0, float(imps[j]["v_ball_after"]), ti, t_end)
+    keep = (meas.t_s >= ti) & (meas.t_s <= t_end)
+    t = meas.t_s[keep]
+    sim = np.asarray(res.sample(t), dtype=float) - c0
+    return t, sim * 1e3, float(deviation(t, sim, meas.ball_m[keep]))
+
+
+def score_case(doc: Mapping[str, Any], truth: Mapping[str, Any]) -> dict:
+    """Compare one ``discrepancy`` block with the truth: which effects were found, missed, spurious;
+    relative error of each found effect's main parameter."""
+    true = true_effects(truth)
+    found = {f["effect"]: f.get("parameters", {}) for f in doc.get("findings", [])}
+    out = {"true": sorted(true), "found": sorted(found), "correct": [], "missed": [], "spurious": [],
+           "parameter_errors": {}}
+    for name, params in true.items():
+        if name in found:
+            out["correct"].append(name)
+            key = main_parameter(name, params)
+            tv, fv = params.get(key), found[name].get(key)
+            if tv is not None and fv is not None and tv != 0:
+                out["parameter_errors"][name] = {"parameter": key, "true": tv, "found": fv,
+                                                 "relative_error": abs(fv - tv) / abs(tv)}
+        else:
+            out["missed"].append(name)
+    out["spurious"] = sorted(set(found) - set(true))
+    out["exact"] = not out["missed"] and not out["spurious"]
+    return out
+
+
+def relative(a: float | None, b: float | None) -> float | None:
+    if a is None or b is None or not math.isfinite(a) or not math.isfinite(b) or b == 0:
+        return None
+    return a / b
