@@ -41,64 +41,37 @@ def cavity_offset_mm(ident, rig: RigConfig) -> float:
 
 
 def replay_models(ident, track: DicTrack, rig: RigConfig) -> dict:
-    """Simulate the COR and Hertz models with the identified parameters (vibro_sim.replay); D (Eq. 18)
-    of each against the measured ball displacement (track coordinates, mm since frame 0).
+    """Simulate the COR and Hertz models with the identified parameters; D (Eq. 18) of each against the
+    measured ball displacement (track coordinates, mm since frame 0). Same core as the simulator node:
+    :mod:`vibro_sim.measured`.
 
     Returns {"t_s", "measured_mm", "curves": {name: mm}, "deviations": {name: D}, "errors": {name: msg}}.
     """
-    from vibro_sim.deviation import deviation
+    from vibro_sim.measured import FlightSummary, ImpactSummary, StructureSine, replay_and_score, replay_inputs
     from vibro_sim.params import BallCavity
-    from vibro_sim.replay import ReplayInputs, simulate_measured
-    from vibro_sim.structure import StructureMotion
 
     out = {"t_s": None, "measured_mm": None, "curves": {}, "deviations": {}, "errors": {}}
-    free = [f for f in ident.flights if f.is_free]
-    if not free or not ident.impacts:
-        out["errors"]["all"] = "no free flight or no impact: nothing to replay"
-        return out
-    fl0 = free[0]
     s = ident.structure
-    # the fitted sine, in track coordinates (m); c0 moves the ball track into the cavity frame
-    structure = StructureMotion(s.amplitude_mm * 1e-3, s.frequency_hz, s.phase_rad, s.offset_mm * 1e-3)
-    cavity = BallCavity(mass_kg=rig.ball.mass_kg, radius_m=0.5e-3 * rig.ball.diameter_mm,
-                        free_play_m=1e-3 * rig.free_play_mm, ball_E_pa=rig.ball.youngs_modulus_pa,
-                        ball_nu=rig.ball.poisson_ratio, plate_E_pa=rig.structure.youngs_modulus_pa,
-                        plate_nu=rig.structure.poisson_ratio)
+    flights = [FlightSummary(f.t_start_s, f.t_end_s, *f.abs_coefficients(), f.friction_n(ident.mass_kg)[0], f.is_free)
+               for f in ident.flights]
+    impacts = [ImpactSummary(i.t_s, i.plate, i.cor) for i in ident.impacts]
     c0 = cavity_offset_mm(ident, rig)
-    b = rig.free_play_mm
-    t0 = fl0.t_start_s
-    y_rel0 = float(fl0.position_mm(t0)) + c0 - float(s.position_mm(t0))
-    y_rel0 = float(np.clip(y_rel0, -0.999 * b, 0.999 * b))
-    v_rel0 = float(fl0.velocity_ms(t0)) - float(s.velocity_ms(t0))
-    by_index = {f.index: f for f in ident.flights}
-
-    def force(k):
-        f = by_index.get(k)
-        return f.friction_n(ident.mass_kg)[0] if f is not None and f.is_free else 0.0
-
-    imps = ident.impacts
-    # flight i ends with impact i; one more flight after the last impact
-    forces = [force(i.flight_before) for i in imps] + [force(imps[-1].flight_after)]
-    good = track.good & (track.t_s >= t0)
-    t = track.t_s[good]
-    meas = track.ball_mm[good]
-    out["t_s"], out["measured_mm"] = t, meas
+    good = track.good
     try:
-        inputs = ReplayInputs(structure, [i.t_s for i in imps], [i.plate for i in imps], [i.cor for i in imps],
-                              forces, t_start_s=float(t0), y_rel_m=1e-3 * y_rel0, v_rel_ms=v_rel0,
-                              t_end_s=float(t[-1]))
+        inputs = replay_inputs(StructureSine(s.amplitude_mm, s.frequency_hz, s.phase_rad, s.offset_mm), flights,
+                               impacts, c0, rig.free_play_mm, float(track.t_s[good][-1]))
     except ValueError as exc:
         out["errors"]["all"] = str(exc)
         return out
-    for name in ("cor_model", "hertz_model"):
-        try:
-            y_m, _ = simulate_measured(inputs, cavity, t, models=(name,))[name]
-            y = 1e3 * y_m - c0
-            out["curves"][name] = y
-            out["deviations"][name] = float(deviation(t, y, meas))
-        except Exception as exc:  # a model failure must not lose the identification
-            log.warning("%s replay failed: %s", name, exc)
-            out["errors"][name] = str(exc)
+    scores = replay_and_score(inputs, BallCavity.from_rig(rig), track.t_s[good], track.ball_mm[good], c0)
+    for name, score in scores.items():
+        if "error" in score:
+            log.warning("%s replay failed: %s", name, score["error"])
+            out["errors"][name] = score["error"]
+            continue
+        out["t_s"], out["measured_mm"] = score["t_s"], score["measured_mm"]
+        out["curves"][name] = score["ball_mm"]
+        out["deviations"][name] = score["deviation"]
     return out
 
 
@@ -131,6 +104,8 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     from vibro_fit.identify import identify
     from vibro_fit.report import write_figures, write_html
     from vibro_fit.results import results_document, write_csv_tables, write_json
+    from vibro_sim.discrepancy.engine import discrepancy_for_results
+    from vibro_sim.discrepancy.figures import write_discrepancy_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -151,14 +126,20 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
                       "hertz_model": {"deviation": dev.get("hertz_model")}}
         for name, msg in sim["errors"].items():
             ident.warnings.append(f"simulation {name}: {msg}")
-        d0 = dev.get("cor_model")
-        discrepancy = {"baseline_deviation": d0, "findings": [], "final_deviation": d0}
-        doc = results_document(ident, str(recording_dir), simulation, discrepancy)
+        doc = results_document(ident, str(recording_dir), simulation)
+        bar.set_description("discrepancy")
+        doc["discrepancy"], disc_run, disc_error = discrepancy_for_results(doc, track, rig)
+        if disc_error:
+            doc["warnings"].append(disc_error)
         write_json(out / "results.json", doc)
         write_csv_tables(ident, out)
         if report:
             bar.set_description("report")
             figs = write_figures(track, ident, out, sim)
+            if disc_run is not None:
+                fig = write_discrepancy_figure(disc_run, out / "discrepancy.png")
+                if fig is not None:
+                    figs["discrepancy"] = fig
             write_html(doc, figs, out / "report.html")
         bar.update(1)
     finally:

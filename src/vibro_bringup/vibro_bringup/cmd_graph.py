@@ -44,7 +44,7 @@ class GraphSummary:
     dic_frames: int = 0
     dic_lost: int = 0
     lost_reasons: dict[str, int] = field(default_factory=dict)
-    impacts: list = field(default_factory=list)
+    impacts: dict = field(default_factory=dict)  # index -> latest ImpactEstimate (final replaces streamed)
     deviations: dict[str, float] = field(default_factory=dict)
     findings: list = field(default_factory=list)
     finished: dict[str, bool] = field(default_factory=dict)
@@ -90,61 +90,103 @@ class GraphRun:
                     proc.wait()
 
 
-def _monitor(run: GraphRun, until_streams: tuple[str, ...], timeout_s: float, with_accel: bool) -> bool:
-    """Spin a monitor node until every stream in ``until_streams`` is finished; False on timeout/death."""
-    import rclpy
+class Monitor:
+    """An in-process node that checks the graph is wired before data flows, then watches it."""
 
-    from vibro_io import topics
-    from vibro_io.node_support import RESULTS_QOS, STREAM_QOS
-    from vibro_msgs.msg import DicFrame, DiscrepancyFinding, ImpactEstimate, SimulationResult, StreamStatus
+    def __init__(self, run: GraphRun):
+        import rclpy
 
-    s = run.summary
-    rclpy.init()
-    node = rclpy.create_node("vibro_graph_monitor")
+        from vibro_io import topics
+        from vibro_io.node_support import RESULTS_QOS, STREAM_QOS
+        from vibro_msgs.msg import DicFrame, DiscrepancyFinding, ImpactEstimate, SimulationResult, StreamStatus
 
-    def on_status(m: StreamStatus) -> None:
-        if m.stream == "frames":
-            s.frames_announced = max(s.frames_announced, int(m.items_sent + m.items_lost))
-            s.frames_unreadable = max(s.frames_unreadable, int(m.items_lost))
-        if m.finished:
-            s.finished[m.stream] = True
+        self.run = run
+        s = self.summary = run.summary
+        rclpy.init()
+        self.node = node = rclpy.create_node("vibro_graph_monitor")
 
-    def on_dic(m: DicFrame) -> None:
-        if m.frame_index in s.dic_indices:
-            return
-        s.dic_indices.add(int(m.frame_index))
-        s.dic_frames += 1
-        if m.lost:
-            s.dic_lost += 1
-            reason = m.status or "lost"
-            s.lost_reasons[reason] = s.lost_reasons.get(reason, 0) + 1
+        def on_status(m: StreamStatus) -> None:
+            if m.stream == "frames":
+                s.frames_announced = max(s.frames_announced, int(m.items_sent + m.items_lost))
+                s.frames_unreadable = max(s.frames_unreadable, int(m.items_lost))
+            if m.finished:
+                s.finished[m.stream] = True
 
-    node.create_subscription(StreamStatus, topics.STATUS.name, on_status, RESULTS_QOS)
-    node.create_subscription(DicFrame, topics.DIC.name, on_dic, STREAM_QOS)
-    node.create_subscription(ImpactEstimate, topics.IMPACTS.name, s.impacts.append, RESULTS_QOS)
-    node.create_subscription(SimulationResult, topics.SIMULATION.name,
-                             lambda m: s.deviations.__setitem__(m.model, m.deviation), RESULTS_QOS)
-    node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
-    deadline = time.monotonic() + timeout_s
-    ok = False
-    try:
+        def on_dic(m: DicFrame) -> None:
+            if m.frame_index in s.dic_indices:
+                return
+            s.dic_indices.add(int(m.frame_index))
+            s.dic_frames += 1
+            if m.lost:
+                s.dic_lost += 1
+                reason = m.status or "lost"
+                s.lost_reasons[reason] = s.lost_reasons.get(reason, 0) + 1
+
+        node.create_subscription(StreamStatus, topics.STATUS.name, on_status, RESULTS_QOS)
+        node.create_subscription(DicFrame, topics.DIC.name, on_dic, STREAM_QOS)
+        node.create_subscription(ImpactEstimate, topics.IMPACTS.name,
+                                 lambda m: s.impacts.__setitem__(m.index, m), RESULTS_QOS)
+        node.create_subscription(SimulationResult, topics.SIMULATION.name,
+                                 lambda m: s.deviations.__setitem__(m.model, m.deviation), RESULTS_QOS)
+        node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
+
+    def spin(self, seconds: float) -> None:
+        import rclpy
+
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(self.node, timeout_sec=0.05)
+
+    def wait_wired(self, expected: dict[str, tuple[int, int]], timeout_s: float) -> bool:
+        """Wait until each topic has at least (publishers, subscribers) matched, as this node sees them."""
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.05)
+            self.spin(0.1)
+            if all(self.node.count_publishers(t) >= p and self.node.count_subscribers(t) >= n
+                   for t, (p, n) in expected.items()):
+                self.spin(0.5)  # let the nodes' own discovery settle too
+                return True
+            if self.run.died():
+                return False
+        return False
+
+    def watch(self, until_streams: tuple[str, ...], timeout_s: float) -> bool:
+        """Spin until every stream in ``until_streams`` is finished; False on timeout or a dead node."""
+        s = self.summary
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.spin(0.05)
             if all(s.finished.get(k) for k in until_streams):
-                ok = True
-                break
-            dead = run.died()
+                self.spin(1.0)  # collect stragglers
+                return True
+            dead = self.run.died()
             if dead:
-                print(f"vibro graph: node(s) {', '.join(dead)} exited early; see {run.logs[dead[0]]}",
+                print(f"vibro graph: node(s) {', '.join(dead)} exited early; see {self.run.logs[dead[0]]}",
                       file=sys.stderr)
-                break
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:  # collect stragglers
-            rclpy.spin_once(node, timeout_sec=0.05)
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-    return ok
+                return False
+        return False
+
+    def close(self) -> None:
+        import rclpy
+
+        self.node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+def expected_wiring(names: set[str]) -> dict[str, tuple[int, int]]:
+    """(publishers, subscribers) each topic must have before the sources start (the monitor counts as one)."""
+    from vibro_io import topics
+
+    def n(*nodes: str) -> int:
+        return sum(1 for x in nodes if x in names)
+
+    return {
+        topics.FRAMES.name: (0, n("dic_tracker", "recorder")),
+        topics.DIC.name: (n("dic_tracker"), 1 + n("trajectory_fitter", "simulator", "recorder")),
+        topics.ACCEL.name: (0, n("impact_detector", "trajectory_fitter", "recorder")),
+        topics.IMPACTS.name: (n("trajectory_fitter"), 1 + n("simulator", "recorder")),
+    }
 
 
 def print_summary(s: GraphSummary, bag: Path) -> None:
@@ -158,7 +200,7 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
         print(f"  lost x{never}: no DIC result ever published")
     print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
     for plate in ("bottom", "top"):
-        cors = [m.cor for m in s.impacts if m.plate == plate and math.isfinite(m.cor)]
+        cors = [m.cor for m in s.impacts.values() if m.plate == plate and math.isfinite(m.cor)]
         if cors:
             mean = sum(cors) / len(cors)
             std = math.sqrt(sum((c - mean) ** 2 for c in cors) / max(1, len(cors) - 1))
@@ -205,17 +247,26 @@ def run(args: argparse.Namespace) -> int:
         log_dir.mkdir(exist_ok=True)
         graph = GraphRun(recording.path, bag, params_file, env)
         t0 = time.monotonic()
+        monitor = None
+        ok = False
         try:
+            monitor = Monitor(graph)
             for spec in available:
                 if spec.role != "source":
                     graph.start(spec, log_dir)
-            time.sleep(1.0)
+            if not monitor.wait_wired(expected_wiring(names), 120.0):
+                dead = graph.died()
+                raise RecordingError("the graph did not come up: " + (
+                    f"node(s) {', '.join(dead)} exited; see {graph.logs[dead[0]]}" if dead
+                    else "topics not matched within 120 s"))
             for spec in available:
                 if spec.role == "source":
                     graph.start(spec, log_dir)
-            ok = _monitor(graph, until, args.timeout_s, with_accel)
+            ok = monitor.watch(until, args.timeout_s)
         finally:
             graph.stop()
+            if monitor is not None:
+                monitor.close()
         elapsed = time.monotonic() - t0
     print(f"graph: {len(available)} nodes, {elapsed:.1f} s, logs in {log_dir}")
     print_summary(graph.summary, bag)

@@ -50,7 +50,7 @@ class Recorder(Node):
 
     def close(self) -> None:
         self.writer.close()
-        self.get_logger().info(f"closed {self.writer.path}: {self.writer.message_count} messages")
+        print(f"recorder: closed {self.writer.path}: {self.writer.message_count} messages", file=sys.stderr)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -30,7 +30,10 @@ RESULTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
 #: A live camera driver's image_raw (best effort, shallow).
 SENSOR_QOS = qos_profile_sensor_data
 
-QOS_BY_KIND = {"stream": STREAM_QOS, "results": RESULTS_QOS, "sensor": SENSOR_QOS}
+#: ROS defaults (reliable, volatile, depth 10), e.g. /diagnostics as every ROS tool publishes it.
+DEFAULT_QOS = QoSProfile(depth=10)
+
+QOS_BY_KIND = {"stream": STREAM_QOS, "results": RESULTS_QOS, "sensor": SENSOR_QOS, "default": DEFAULT_QOS}
 
 
 def declare(node: Node, name: str, default: Any, description: str, read_only: bool = True) -> Any:

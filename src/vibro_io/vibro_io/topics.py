@@ -12,7 +12,7 @@ from dataclasses import dataclass
 class Topic:
     name: str
     msg_type: str  # ROS type name, package/msg/Type
-    qos: str       # "stream" (reliable, flow-controlled), "results" (reliable, transient local), "sensor"
+    qos: str       # "stream" (reliable, flow-controlled), "results" (reliable, transient local), "sensor", "default"
     publisher: str
     description: str
 
@@ -37,7 +37,7 @@ DISCREPANCY = Topic("vibro/discrepancy", "vibro_msgs/msg/DiscrepancyFinding", "r
                     "physics the baseline model left out, with parameters and D before/after")
 STATUS = Topic("vibro/status", "vibro_msgs/msg/StreamStatus", "results", "every node",
                "items sent/lost per stream and end-of-stream markers")
-DIAGNOSTICS = Topic("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "results", "every node",
+DIAGNOSTICS = Topic("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
                     "health: rate, lag, dropped/lost counts")
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,

@@ -1,0 +1,189 @@
+"""ROS node ``trajectory_fitter``: DIC frames (+ accelerometer blocks) in; structure motion, flights and
+per-impact COR out.
+
+While frames stream in, :class:`vibro_fit.streaming.StreamingFitter` publishes each impact
+estimate as soon as the flight after it has been fitted (one flight of latency) and each
+closed flight. When the tracker (and the accelerometer source) announce the end of their
+streams, the node runs :func:`vibro_fit.identify.identify` on everything received, the very
+function ``vibro analyze`` calls, and publishes the final structure motion, flights and
+impacts; a final estimate replaces the streamed one with the same index. So the graph's
+results equal the offline CLI's on the same recording.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+from rclpy.node import Node
+
+from vibro_io import topics
+from vibro_io.accel import AccelData
+from vibro_io.dictrack import DicTrack, FrameTrack
+from vibro_io.errors import RecordingError
+from vibro_io.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
+                                   stamp_from_seconds)
+from vibro_io.rig import load_rig
+from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
+
+from .flight_fit import FlightFit
+from .identify import METHODS, identify
+from .impacts import ImpactEstimate as Estimate
+from .streaming import StreamingFitter
+
+
+def flight_message(fl: FlightFit, mass_kg: float) -> FreeFlight:
+    a, b, c = fl.abs_coefficients()
+    f_n, f_std = fl.friction_n(mass_kg)
+    msg = FreeFlight(index=fl.index, t_start_s=fl.t_start_s, t_end_s=fl.t_end_s, a_mm_per_s2=a, b_mm_per_s=b,
+                     c_mm=c, direction=fl.direction or "", friction_n=f_n if fl.is_free else math.nan,
+                     friction_std_n=f_std if fl.is_free else math.nan, rms_residual_mm=fl.rms_residual_mm,
+                     points_used=int(fl.n_points), fitted=bool(fl.fitted and fl.is_free), note=fl.reason or "")
+    stamp_from_seconds(msg.header, fl.t_end_s)
+    return msg
+
+
+def impact_message(est: Estimate) -> ImpactEstimate:
+    msg = ImpactEstimate(index=est.index, t_s=est.t_s, t_std_s=est.t_std_s, plate=est.plate, cor=est.cor,
+                         cor_std=est.cor_std, v_ball_before_m_per_s=est.v_ball_before_ms,
+                         v_ball_after_m_per_s=est.v_ball_after_ms, v_structure_m_per_s=est.v_structure_ms,
+                         flight_before=est.flight_before, flight_after=est.flight_after)
+    stamp_from_seconds(msg.header, est.t_s)
+    return msg
+
+
+class TrajectoryFitter(Node):
+    def __init__(self) -> None:
+        super().__init__("trajectory_fitter")
+        rig_file = declare(self, "rig_file", "", "rig.yaml of the recording")
+        self.method = declare(self, "method", "paper", f"impact method: {' or '.join(METHODS)}")
+        self.use_accel = bool(declare(self, "use_accelerometers", True,
+                                      "wait for vibro/accel and refine impacts with the accelerometers"))
+        weights = declare(self, "weights", "none", "flight fit weights: none or dic_valid")
+        if not rig_file:
+            raise RecordingError("trajectory_fitter: parameter 'rig_file' is required")
+        if self.method not in METHODS:
+            raise RecordingError(f"trajectory_fitter: parameter 'method' must be one of {METHODS}")
+        if weights not in ("none", "dic_valid"):
+            raise RecordingError("trajectory_fitter: parameter 'weights' must be none or dic_valid")
+        self.weights = None if weights == "none" else weights
+        self.rig = load_rig(rig_file)
+        self.stream = StreamingFitter(self.rig.excitation.frequency_hz,
+                                      method="paper" if self.method == "joint" else self.method)
+        self.rows: list[FrameTrack] = []
+        self.blocks: dict[int, AccelBlock] = {}
+        self.dic_announced: int | None = None
+        self.accel_announced: int | None = None
+        self.done_final = False
+        self.health = Health(self)
+        self.health.rate_counter = "frames"
+        self.status = StatusPublisher(self, "impacts")
+        self.pub_structure = self.create_publisher(StructureMotion, topics.STRUCTURE.name, RESULTS_QOS)
+        self.pub_flights = self.create_publisher(FreeFlight, topics.FLIGHTS.name, RESULTS_QOS)
+        self.pub_impacts = self.create_publisher(ImpactEstimate, topics.IMPACTS.name, RESULTS_QOS)
+        self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
+        if self.use_accel:
+            self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, STREAM_QOS)
+        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+
+    # ---------------------------------------------------------------- streaming
+    def _on_dic(self, msg: DicFrame) -> None:
+        k = int(msg.frame_index)
+        expected = len(self.rows)
+        if k < expected:
+            self.health.count("duplicate_frames")
+            return
+        if k > expected:  # frames the tracker never answered (e.g. it restarted): a visible gap
+            self.health.count("gap_frames", k - expected)
+            self.health.warn(f"no DIC result for frames {expected}..{k - 1}")
+            self.get_logger().warning(f"no DIC result for frames {expected}..{k - 1}; treated as lost")
+            for gap in range(expected, k):
+                t = self.rig.camera.frame_time_s(gap)
+                self._push(FrameTrack(gap, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True))
+        self._push(FrameTrack(k, msg.t_s, msg.ball_mm, msg.structure_mm, msg.ball_valid_points,
+                              msg.structure_valid_points, float(msg.ball_mean_zncc), float(msg.structure_mean_zncc),
+                              bool(msg.lost)))
+        self._maybe_finish()
+
+    def _push(self, row: FrameTrack) -> None:
+        self.rows.append(row)
+        self.health.count("frames")
+        for est in self.stream.push(row):
+            self.pub_impacts.publish(impact_message(est))
+            self.health.count("streamed_impacts")
+        for fl in self.stream.pop_flights():
+            self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg))
+
+    def _on_block(self, msg: AccelBlock) -> None:
+        self.blocks[int(msg.block_index)] = msg
+        self._maybe_finish()
+
+    def _on_status(self, msg: StreamStatus) -> None:
+        if msg.finished and msg.stream == "dic":
+            self.dic_announced = int(msg.items_sent)
+        elif msg.finished and msg.stream == "accel":
+            self.accel_announced = int(msg.items_sent)
+        self._maybe_finish()
+
+    # ---------------------------------------------------------------- final pass
+    def _ready(self) -> bool:
+        if self.dic_announced is None or len(self.rows) < self.dic_announced:
+            return False
+        if self.use_accel and self.rig.accelerometers is not None:
+            return self.accel_announced is not None and len(self.blocks) >= self.accel_announced
+        return True
+
+    def _accel(self) -> AccelData | None:
+        if not self.use_accel or not self.blocks:
+            return None
+        order = sorted(self.blocks)
+        missing = sorted(set(range(order[-1] + 1)) - set(order))
+        if missing:
+            self.health.warn(f"accelerometer blocks missing: {missing[:5]}")
+            self.get_logger().warning(f"accelerometer blocks missing ({len(missing)}): impacts there are not seen")
+        t = np.concatenate([b.t_start_s + np.arange(len(b.upper_ms2)) / b.sample_rate_hz
+                            for b in (self.blocks[i] for i in order)])
+        up = np.concatenate([np.asarray(self.blocks[i].upper_ms2) for i in order])
+        lo = np.concatenate([np.asarray(self.blocks[i].lower_ms2) for i in order])
+        return AccelData(t, up, lo)
+
+    def _maybe_finish(self) -> None:
+        if self.done_final or not self._ready():
+            return
+        self.done_final = True
+        for est in self.stream.finish():
+            self.pub_impacts.publish(impact_message(est))
+        track = DicTrack.from_frames(self.rows)
+        try:
+            ident = identify(track, self.rig, self._accel(), method=self.method, weights=self.weights)
+        except RecordingError as exc:
+            self.health.error(str(exc))
+            self.get_logger().error(f"identification failed: {exc}")
+            self.status.publish(0, 0, True)
+            return
+        s = ident.structure
+        sd = np.sqrt(np.clip(np.diag(s.cov), 0, None)) if s.cov is not None else np.full(4, math.nan)
+        smsg = StructureMotion(amplitude_mm=s.amplitude_mm, frequency_hz=s.frequency_hz, phase_rad=s.phase_rad,
+                               offset_mm=s.offset_mm, amplitude_std_mm=float(sd[0]), frequency_std_hz=float(sd[1]),
+                               phase_std_rad=float(sd[2]), offset_std_mm=float(sd[3]),
+                               rms_residual_mm=s.rms_residual_mm, frames_used=int(s.n_points),
+                               ball_offset_mm=float(ident.plate_levels.get("offset_mm", 0.0)))
+        self.pub_structure.publish(smsg)
+        for fl in ident.flights:
+            self.pub_flights.publish(flight_message(fl, ident.mass_kg))
+        for est in ident.impacts:
+            self.pub_impacts.publish(impact_message(est))
+        for w in ident.warnings:
+            self.get_logger().warning(w)
+        self.status.publish(len(ident.impacts), 0, True)
+        self.get_logger().info(f"final: {len(ident.flights)} flights, {len(ident.impacts)} impacts, "
+                               f"regime {ident.regime.name}")
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(TrajectoryFitter, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
