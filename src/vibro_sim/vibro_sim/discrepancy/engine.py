@@ -69,6 +69,22 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
+def jsonable(obj):
+    """Plain JSON types: numpy scalars/arrays to Python, non-finite floats to None."""
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    return obj
+
+
 def full_run(meas: Measured, model: FittedModel) -> FullRun:
     """Simulate ``model`` over the recording from the measured state after the first impact that opens a
     fitted flight; D against the measured ball (DIC frame)."""
@@ -246,6 +262,7 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
         "findings": findings,
         "final_deviation": _num(current_run.deviation),
         "model": current.label(),
+        "replay_start_s": _num(base_run.t_s[0]) if base_run.t_s.size else None,
         "noise_floor": {"ball_mm_per_frame": _num(sig_f * 1e3), "structure_mm_per_frame": _num(sig_s * 1e3),
                         "cor": _num(cor_noise)},
         "one_step": {"baseline": base_steps.summary(), "final": current_steps.summary()},
@@ -253,9 +270,24 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
         "stages": stages,
         "notes": notes + [f"{name}: {r.error}" for name, _, r in chain if r.error],
     }
-    return DiscrepancyRun(doc, meas, base, current, base_run, current_run, base_steps, current_steps, chain)
+    return DiscrepancyRun(jsonable(doc), meas, base, current, base_run, current_run, base_steps, current_steps, chain)
 
 
 def analyse_discrepancy(results_sections: Mapping[str, Any], track: DicTrack, rig: RigConfig) -> dict:
     """The contract's ``discrepancy`` block (plus extras) for one recording; see the module docstring."""
     return run_discrepancy(results_sections, track, rig).document
+
+
+def discrepancy_for_results(doc: Mapping[str, Any], track: DicTrack, rig: RigConfig
+                            ) -> tuple[dict, DiscrepancyRun | None, str | None]:
+    """For ``vibro analyze``: (discrepancy block, run or None, error message or None) from a results
+    document. A recording the analysis cannot handle (too few flights, a model that fails) gives the
+    baseline-only block with an ``error`` key instead of losing the identification."""
+    try:
+        run = run_discrepancy(doc, track, rig)
+        return run.document, run, None
+    except Exception as exc:  # noqa: BLE001 - reported, never fatal for the identification
+        log.warning("discrepancy analysis failed: %s", exc)
+        d0 = (doc.get("simulation") or {}).get("cor_model", {}).get("deviation")
+        msg = f"discrepancy analysis failed: {type(exc).__name__}: {exc}"
+        return {"baseline_deviation": d0, "findings": [], "final_deviation": d0, "error": msg}, None, msg

@@ -116,8 +116,9 @@ def _grid(fl: FlightData, extend_s: float = 0.0) -> np.ndarray:
 
 
 def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = FIXED_POINT_PASSES,
-                g_ms2: float | None = None) -> FlightModelFit:
-    """Fit the flights with gravity (``g_ms2``, default the measured data's g) plus ``terms``."""
+                g_ms2: float | None = None, fixed_coefs: Sequence[float] | None = None) -> FlightModelFit:
+    """Fit the flights with gravity (``g_ms2``, default the measured data's g) plus ``terms``;
+    ``fixed_coefs`` imposes the terms' coefficients (only the flight states are fitted then)."""
     g = meas.g_ms2 if g_ms2 is None else g_ms2
     terms = tuple(terms)
     p = len(terms)
@@ -145,7 +146,9 @@ def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = 
             locals_.append((L, r, phi_m))
         X = np.vstack(Xp) if p else np.zeros((sum(x.shape[0] for x in Xp), 0))
         R = np.concatenate(rp)
-        if p:
+        if p and fixed_coefs is not None:
+            coefs = np.asarray(fixed_coefs, dtype=float)
+        elif p:
             scale = np.sqrt(np.sum(X ** 2, axis=0))
             scale[scale == 0] = 1.0
             sol, _ = nnls(X / scale, R)
