@@ -20,7 +20,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "simulator = vibro_sim.simulator_node:main"
+            "simulator = vibro_sim.simulator_node:main",
+            "discrepancy = vibro_sim.discrepancy_node:main",
         ],
     },
 )

@@ -18,6 +18,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of the draws")
     p.add_argument("--out", default=None, help="work directory (recordings, results, proof.json); default: temp")
     p.add_argument("--frames", type=int, default=500, help="frames per recording (1000 fps; default 500)")
+    p.add_argument("--pairs", type=float, default=0.0, metavar="P",
+                   help="probability that an effect case gets a second, compatible effect (default 0)")
     p.add_argument("--no-sindy", action="store_true", help="skip the PySINDy comparison")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -26,8 +28,12 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from .prove import format_summary, prove
 
+    if not 0.0 <= args.pairs <= 1.0:
+        from vibro_io.errors import RecordingError
+
+        raise RecordingError(f"--pairs must be in [0, 1], got {args.pairs}")
     res = prove(args.cases, args.seed, args.out, args.frames, sindy=not args.no_sindy,
-                progress=not args.no_progress and sys.stderr.isatty())
+                progress=not args.no_progress and sys.stderr.isatty(), pairs=args.pairs)
     print(format_summary(res["vibro"], "vibro discrepancy analysis"))
     if "sindy" in res:
         print(format_summary(res["sindy"], f"PySINDy {res['settings']['pysindy']} on the same data"))

@@ -89,8 +89,18 @@ def draw_effect(family: str, rng: np.random.Generator) -> dict:
     raise ValueError(f"unknown effect family {family!r}")
 
 
-def draw_cases(n: int, seed: int, frames: int) -> list[CaseSpec]:
-    """``n`` cases: families in shuffled cycles of the 7 effects + control; everything else drawn."""
+_FORCES = ("coulomb_friction", "viscous_drag", "quadratic_drag")
+_RESTITUTION = ("asymmetric_restitution", "velocity_dependent_restitution")
+
+
+def _compatible(a: str, b: str) -> bool:
+    """The synthetic rig takes at most one force law and one COR law."""
+    return a != b and not (a in _FORCES and b in _FORCES) and not (a in _RESTITUTION and b in _RESTITUTION)
+
+
+def draw_cases(n: int, seed: int, frames: int, pairs: float = 0.0) -> list[CaseSpec]:
+    """``n`` cases: families in shuffled cycles of the 7 effects + control; everything else drawn. With
+    probability ``pairs`` an effect case gets a second, compatible effect (family label "a+b")."""
     rng = np.random.default_rng(seed)
     fams: list[str] = []
     while len(fams) < n:
@@ -99,7 +109,14 @@ def draw_cases(n: int, seed: int, frames: int) -> list[CaseSpec]:
         fams += cycle
     out = []
     for i, fam in enumerate(fams[:n]):
-        out.append(CaseSpec(i, fam, draw_effect(fam, rng), int(rng.integers(0, 2 ** 31 - 1)),
+        effects = draw_effect(fam, rng)
+        label = fam
+        if fam != CONTROL and pairs > 0 and rng.random() < pairs:
+            other = [f for f in EFFECTS if _compatible(fam, f)]
+            second = str(rng.choice(other))
+            effects.update(draw_effect(second, rng))
+            label = f"{fam}+{second}"
+        out.append(CaseSpec(i, label, effects, int(rng.integers(0, 2 ** 31 - 1)),
                             float(rng.uniform(20.0, 24.0)), float(rng.uniform(25.0, 32.0)),
                             float(rng.uniform(1.0, 4.0)), frames))
     return out
@@ -185,8 +202,9 @@ def summarize(rows: list[dict], who: str = "vibro") -> dict:
             continue
         sc = part["score"]
         found = sc["found"] or [CONTROL]
-        for f in found:
-            conf[r["family"]][f if f in labels else "unexplained"] += 1
+        for t in (sc["true"] or [CONTROL]):
+            for f in found:
+                conf[t][f if f in labels else "unexplained"] += 1
         if r["family"] == CONTROL:
             n_ctrl += 1
             n_ctrl_clean += int(not sc["found"])
@@ -241,7 +259,7 @@ def format_summary(s: dict, title: str) -> str:
 
 
 def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: int = 500, sindy: bool = True,
-          progress: bool = False) -> dict:
+          progress: bool = False, pairs: float = 0.0) -> dict:
     """Run the proof; returns {"rows", "vibro", "sindy", "settings"}; writes proof.json into ``out``."""
     import tempfile
 
@@ -253,13 +271,13 @@ def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: 
         raise RecordingError(f"--frames must be >= 200 (enough flights to fit), got {frames}")
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="vibro_prove_"))
     work.mkdir(parents=True, exist_ok=True)
-    specs = draw_cases(cases, seed, frames)
+    specs = draw_cases(cases, seed, frames, pairs)
     rows = []
     for spec in tqdm(specs, desc="prove", unit="case", disable=not progress, file=sys.stderr):
         rows.append(run_case(spec, work, sindy))
     from .sindy_baseline import available
 
-    result = {"settings": {"cases": cases, "seed": seed, "frames": frames, "work_dir": str(work),
+    result = {"settings": {"cases": cases, "seed": seed, "frames": frames, "pairs": pairs, "work_dir": str(work),
                            "pysindy": available() if sindy else None},
               "goals": GOALS, "vibro": summarize(rows, "vibro"), "rows": rows}
     if sindy and available():
