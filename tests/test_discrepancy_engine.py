@@ -150,6 +150,11 @@ def test_effect_outside_the_library_is_unexplained():
     run = run_discrepancy(sections, track, rig, flight_terms=(CoulombFriction(), GravityTilt()))
     effects = [f["effect"] for f in run.document["findings"]]
     assert "unexplained" in effects  # Coulomb alone cannot take the speed dependence
+    # structure harmonics without the harmonic term: the structure track itself is the located mismatch
+    sections, track, rig, _ = make_case({"structure_harmonics": {"h2_ratio": 0.03, "h3_ratio": 0.01}}, seed=15)
+    doc = run_discrepancy(sections, track, rig, harmonics=False).document
+    un = [f for f in doc["findings"] if f["effect"] == "unexplained"]
+    assert len(un) == 1 and "structure" in un[0]["where"] and "noise floor" in un[0]["where"]
 
 
 def test_contract_block_shape(analysed):
@@ -174,3 +179,15 @@ def test_bad_input_is_named():
         analyse_discrepancy(bad, track, rig)
     with pytest.raises(RecordingError, match="DicTrack"):
         analyse_discrepancy(sections, np.zeros(3), rig)
+
+
+def test_figure_and_report_section(analysed, tmp_path):
+    from vibro_fit.report import discrepancy_html
+    from vibro_sim.discrepancy.figures import write_discrepancy_figure
+
+    run, _ = analysed["coulomb_friction"]
+    path = write_discrepancy_figure(run, tmp_path / "discrepancy.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
+    html = discrepancy_html(run.document)
+    assert "coulomb_friction" in html and "force_n" in html and "&rarr;" in html
+    assert "No finding" in discrepancy_html({"baseline_deviation": 1e-4, "findings": [], "final_deviation": 1e-4})

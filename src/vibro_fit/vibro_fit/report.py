@@ -197,6 +197,34 @@ def _img(path: Path) -> str:
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
 
 
+def discrepancy_html(disc: dict) -> str:
+    """The discrepancy section: D before/after, where the baseline disagrees, findings with parameters."""
+    e = html.escape
+
+    def pct(v):
+        return "n/a" if v is None else f"{100.0 * v:.3f} %"
+
+    rows = []
+    for f in disc.get("findings", []):
+        stds = f.get("parameters_std") or {}
+        params = ", ".join(f"{k} = {v:.4g}" + (f" &plusmn; {stds[k]:.2g}" if stds.get(k) is not None else "")
+                           for k, v in f.get("parameters", {}).items()) or "&ndash;"
+        alt = f"<br><i>indistinguishable here from: {e(', '.join(f['alternatives']))}</i>" if f.get("alternatives") \
+            else ""
+        rows.append(f"<tr><td><b>{e(f.get('effect', ''))}</b>{alt}</td><td>{params}</td>"
+                    f"<td>{pct(f.get('deviation_before'))} &rarr; {pct(f.get('deviation_after'))}</td>"
+                    f"<td>{e(str(f.get('where', '')))}</td></tr>")
+    table = ("<table><tr><th>effect</th><th>parameters (SI)</th><th>D before &rarr; after</th><th>where</th></tr>"
+             + "".join(rows) + "</table>") if rows else "<p>No finding: the baseline model explains the recording " \
+        "to within the measurement noise.</p>"
+    loc = (disc.get("location") or {}).get("text", "")
+    err = f"<p><b>{e(disc['error'])}</b></p>" if disc.get("error") else ""
+    return (f"<h2>Discrepancy analysis (baseline: constant COR, gravity only, pure sine, vertical)</h2>{err}"
+            f"<p>D baseline {pct(disc.get('baseline_deviation'))}, final {pct(disc.get('final_deviation'))}"
+            f" (model: {e(str(disc.get('model', 'baseline')))}).</p>"
+            + (f"<p>Where the baseline disagrees: {e(loc)}</p>" if loc else "") + table)
+
+
 def write_html(results: dict, figures: dict[str, Path], path: str | Path) -> Path:
     """One self-contained HTML page: summary tables, warnings, figures (inlined)."""
     e = html.escape
@@ -218,7 +246,9 @@ def write_html(results: dict, figures: dict[str, Path], path: str | Path) -> Pat
     titles = {"displacements": "Displacements with fits and impact instants", "cor": "COR per impact",
               "friction": "Friction per flight", "accelerometer_spectrum": "Accelerometer spectrum",
               "histogram_qq": "Histogram and normal Q-Q", "simulated_vs_measured": "Simulated vs measured"}
+    titles["discrepancy"] = "Discrepancy: residual before/after and where the mismatch was"
     figs = "".join(f"<h2>{e(titles.get(k, k))}</h2>{_img(p)}" for k, p in figures.items())
+    disc_html = discrepancy_html(results.get("discrepancy") or {})
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>vibro report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
@@ -228,6 +258,7 @@ td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
 <h2>Structure (Eq. 2)</h2><table>{rows}</table>
 <h2>COR per plate (Table 2)</h2><table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>{cor_rows}</table>
 <h2>Simulation deviation D (Eq. 18)</h2><table>{sim_rows}</table>
+{disc_html}
 <h2>Warnings</h2><ul>{warns}</ul>
 {figs}
 </body></html>"""
