@@ -250,12 +250,16 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
         add("structure_harmonics", m, params, stds, where,
             {"phases_rad": {"h2_phase_rad": float(mot.h2_phase_rad), "h3_phase_rad": float(mot.h3_phase_rad)}})
     if f_stage is not None and f_stage.chosen:
-        chosen_terms = [t for t in flight_terms if t.effect in f_stage.chosen]
+        # add the terms in the order of what each explains alone (the chain's D), parameters and their
+        # uncertainties from the fit with all chosen terms
+        single = {d.label: d.statistic for d in f_stage.decisions}
+        chosen_terms = sorted((t for t in flight_terms if t.effect in f_stage.chosen),
+                              key=lambda t: -single.get(t.effect, 0.0))
         for j, term in enumerate(chosen_terms):
             fset = f_fit if j == len(chosen_terms) - 1 else fit_flights(meas, tuple(chosen_terms[:j + 1]))
             m = fit_model(meas, structure=current.structure, flights=fset)
-            idx = fset.names.index(term.effect)
-            params, stds = term.contract_parameters(float(fset.coefs[idx]), float(math.sqrt(fset.cov[idx, idx])),
+            idx = f_fit.names.index(term.effect)
+            params, stds = term.contract_parameters(float(f_fit.coefs[idx]), float(math.sqrt(f_fit.cov[idx, idx])),
                                                     meas.mass_kg, meas.g_ms2)
             where = _flight_where(meas, current_steps, m, term, cor_noise)
             add(term.effect, m, params, stds, where)

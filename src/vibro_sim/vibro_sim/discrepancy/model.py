@@ -32,10 +32,11 @@ class FittedModel:
     impacts: ImpactSet
     cor: CorModelFit
     g_ms2: float
+    fixed_motion: StructureMotion | None = None   # a known structure motion (the true model in proofs)
 
     @property
     def motion(self) -> StructureMotion:
-        return self.structure.motion()
+        return self.fixed_motion if self.fixed_motion is not None else self.structure.motion()
 
     @property
     def tilt_deg(self) -> float:

@@ -83,6 +83,55 @@ def true_model_run(meas: Measured, truth: Mapping[str, Any], t0_s: float, t_end_
     return t, sim * 1e3, float(deviation(t, sim, meas.ball_m[keep]))
 
 
+def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
+    """The true model (laws and parameters of the truth, COR scatter left out, true structure motion in
+    the DIC frame) with the flight states and plate levels measured from the recording the same way the
+    analysis measures them: each flight fitted with the true force law (coefficients fixed)."""
+    from .fitting import CorModelFit, fit_flights, fit_structure, recompute_impacts
+    from .library import FLIGHT_TERMS
+    from .model import FittedModel
+
+    eff = true_effects(truth)
+    st = truth["structure"]
+    y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
+    S = StructureMotion(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
+                        st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
+                        st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
+    g = float(truth.get("gravity_ms2", meas.g_ms2))
+    values = {}
+    if "coulomb_friction" in eff:
+        values["coulomb_friction"] = eff["coulomb_friction"]["force_n"]
+    if "viscous_drag" in eff:
+        values["viscous_drag"] = eff["viscous_drag"]["coefficient_ns_per_m"]
+    if "quadratic_drag" in eff:
+        values["quadratic_drag"] = eff["quadratic_drag"]["coefficient_ns2_per_m2"]
+    if "gravity_tilt" in eff:
+        values["gravity_tilt"] = g * (1.0 - math.cos(math.radians(eff["gravity_tilt"]["tilt_deg"])))
+    terms = tuple(t for t in FLIGHT_TERMS if t.effect in values)
+    flights = fit_flights(meas, terms, g_ms2=g, fixed_coefs=[values[t.effect] for t in terms]) if terms else \
+        fit_flights(meas, g_ms2=g)
+    if "asymmetric_restitution" in eff:
+        kind = "asymmetric_restitution"
+        coefs = [eff[kind]["cor_top"], eff[kind]["cor_bottom"]]
+    elif "velocity_dependent_restitution" in eff:
+        kind = "velocity_dependent_restitution"
+        coefs = [eff[kind]["cor_at_zero"], eff[kind]["slope_s_per_m"]]
+    else:
+        kind, coefs = "none", [BASELINE_COR]
+    c = np.asarray(coefs, dtype=float)
+    cor = CorModelFit(kind, c, np.zeros((c.size, c.size)), 0.0, 0, 1, np.zeros(0))
+    structure = fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz, (1,))  # unused: motion fixed
+    return FittedModel(structure, flights, recompute_impacts(meas, flights, S), cor, g, fixed_motion=S)
+
+
+def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
+    """Full run of :func:`true_fitted_model` exactly as the analysis replays its own model: D of the true
+    model on the same noisy data (the goal's reference)."""
+    from .engine import full_run
+
+    return full_run(meas, true_fitted_model(meas, truth))
+
+
 def score_case(doc: Mapping[str, Any], truth: Mapping[str, Any]) -> dict:
     """Compare one ``discrepancy`` block with the truth: which effects were found, missed, spurious;
     relative error of each found effect's main parameter."""
