@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
-# The built-in example: synthesize a rig recording with a concealed effect, analyse it,
-# and say where the report is. Runs whatever stages exist in this checkout.
+# The built-in example: synthesize a rig recording with a concealed effect, run the ROS node
+# graph on it (recorded to an MCAP bag), analyse it offline, and say where the report is.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 OUT="${1:-demo}"
 cd "$ROOT"
-has() { ./vibro --help | grep -qE "^    $1 "; }
+rm -rf "$OUT/rec" "$OUT/rec.truth.json" "$OUT/analysis" "$OUT/bag" "$OUT/bag.logs"
 mkdir -p "$OUT"
-if has synth && has analyze; then
-  rm -rf "$OUT/rec" "$OUT/rec.truth.json" "$OUT/analysis"
-  ./vibro synth --out "$OUT/rec" --seed 7 --effect coulomb_friction --param force_n=2.0e-4
-  ./vibro analyze "$OUT/rec" --out "$OUT/analysis"
-  echo "demo: report at $OUT/analysis/report.html (truth of the synthetic run: $OUT/rec.truth.json)"
-else
-  echo "demo: synth/analyze not available yet; validating the committed fixture recording"
-  ./vibro info tests/fixtures/tiny_recording
-fi
+echo "== 1/3 synthesize a 1.5 s, 1500-frame rig recording (concealed effect: Coulomb friction on the guide rods)"
+./vibro synth --out "$OUT/rec" --seed 7 --effect coulomb_friction --param force_n=1.5e-4
+echo "== 2/3 run the node graph (separate processes over DDS), recorded to $OUT/bag"
+./vibro graph "$OUT/rec" --bag "$OUT/bag"
+echo "== 3/3 offline analysis of the same recording"
+./vibro analyze "$OUT/rec" --out "$OUT/analysis"
+echo
+echo "demo: report     $OUT/analysis/report.html"
+echo "demo: results    $OUT/analysis/results.json   (from the bag: ./vibro results $OUT/bag)"
+echo "demo: truth      $OUT/rec.truth.json (what the synthetic rig really did; the analysis never reads it)"

@@ -33,7 +33,7 @@ def test_graph_results_equal_the_offline_cli(recording: Path, tmp_path: Path) ->
     bag = tmp_path / "bags" / "run"
     graph = _vibro("graph", str(recording), "--bag", str(bag))
     assert graph.returncode == 0, graph.stdout + graph.stderr
-    assert "frames in 300 / tracked 300 / lost 0" in graph.stdout
+    assert "frames in 300 / tracked 300 / lost 0" in graph.stdout, graph.stdout
     offline = _vibro("analyze", str(recording), "--out", str(tmp_path / "an"), "--no-progress", "--no-report")
     assert offline.returncode == 0, offline.stderr
     extracted = _vibro("results", str(bag), "--out", str(tmp_path / "bagres"))

@@ -1,7 +1,7 @@
 """``vibro results <bag>``: the results.json of a recorded graph run, rebuilt from its messages.
 
-The last message with a given index wins (the fitter's final estimates replace the
-streamed ones). Keys and units follow docs/recording-format.md.
+Flights and impacts marked ``final`` (the fitter's end-of-stream pass) replace the streamed
+previews; a bag cut short keeps the streamed ones. Keys and units follow docs/recording-format.md.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ def results_from_bag(bag: str | Path) -> dict:
     impacts: dict[int, object] = {}
     simulation: dict[str, object] = {}
     findings: dict[int, object] = {}
+    final_flights: dict[int, object] = {}
+    final_impacts: dict[int, object] = {}
     wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
               topics.DISCREPANCY.name}
     for m in read_messages(bag, wanted):
@@ -38,9 +40,9 @@ def results_from_bag(bag: str | Path) -> dict:
         if m.topic == topics.STRUCTURE.name:
             structure = msg
         elif m.topic == topics.FLIGHTS.name:
-            flights[msg.index] = msg
+            (final_flights if msg.final else flights)[msg.index] = msg
         elif m.topic == topics.IMPACTS.name:
-            impacts[msg.index] = msg
+            (final_impacts if msg.final else impacts)[msg.index] = msg
         elif m.topic == topics.SIMULATION.name:
             simulation[msg.model] = msg
         else:
@@ -48,6 +50,9 @@ def results_from_bag(bag: str | Path) -> dict:
     if structure is None:
         raise RecordingError(f"{bag}: no {topics.STRUCTURE.name} message: the fitter never finished in this bag")
     from vibro_fit.statistics import cor_summary
+
+    if final_impacts or final_flights:  # the fitter finished: its final pass replaces the streamed previews
+        flights, impacts = final_flights, final_impacts
 
     imp = [impacts[k] for k in sorted(impacts)]
     d_cor = simulation["cor_model"].deviation if "cor_model" in simulation else None

@@ -44,10 +44,12 @@ class GraphSummary:
     dic_frames: int = 0
     dic_lost: int = 0
     lost_reasons: dict[str, int] = field(default_factory=dict)
-    impacts: dict = field(default_factory=dict)  # index -> latest ImpactEstimate (final replaces streamed)
+    impacts: dict = field(default_factory=dict)  # index -> streamed ImpactEstimate
+    final_impacts: dict = field(default_factory=dict)  # index -> final ImpactEstimate (replaces streamed)
     deviations: dict[str, float] = field(default_factory=dict)
     findings: list = field(default_factory=list)
     finished: dict[str, bool] = field(default_factory=dict)
+    counts: dict[str, tuple[int, int]] = field(default_factory=dict)  # stream -> (items sent, items lost)
     dic_indices: set = field(default_factory=set)
 
 
@@ -109,6 +111,7 @@ class Monitor:
             if m.stream == "frames":
                 s.frames_announced = max(s.frames_announced, int(m.items_sent + m.items_lost))
                 s.frames_unreadable = max(s.frames_unreadable, int(m.items_lost))
+            s.counts[m.stream] = (int(m.items_sent), int(m.items_lost))
             if m.finished:
                 s.finished[m.stream] = True
 
@@ -125,7 +128,8 @@ class Monitor:
         node.create_subscription(StreamStatus, topics.STATUS.name, on_status, RESULTS_QOS)
         node.create_subscription(DicFrame, topics.DIC.name, on_dic, STREAM_QOS)
         node.create_subscription(ImpactEstimate, topics.IMPACTS.name,
-                                 lambda m: s.impacts.__setitem__(m.index, m), RESULTS_QOS)
+                                 lambda m: (s.final_impacts if m.final else s.impacts).__setitem__(m.index, m),
+                                 RESULTS_QOS)
         node.create_subscription(SimulationResult, topics.SIMULATION.name,
                                  lambda m: s.deviations.__setitem__(m.model, m.deviation), RESULTS_QOS)
         node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
@@ -190,9 +194,12 @@ def expected_wiring(names: set[str]) -> dict[str, tuple[int, int]]:
 
 
 def print_summary(s: GraphSummary, bag: Path) -> None:
-    tracked = s.dic_frames - s.dic_lost
-    never = max(0, s.frames_announced - s.dic_frames)
-    print(f"frames in {s.frames_announced} / tracked {tracked} / lost {s.dic_lost + never}"
+    # the tracker's own end-of-stream count is authoritative (one DicFrame per frame slot);
+    # the monitor's view of vibro/dic only adds the reasons
+    published, lost = s.counts.get("dic", (s.dic_frames, s.dic_lost))
+    tracked = published - lost
+    never = max(0, s.frames_announced - published)
+    print(f"frames in {s.frames_announced} / tracked {tracked} / lost {lost + never}"
           + (f" (unreadable at the source: {s.frames_unreadable})" if s.frames_unreadable else ""))
     for reason, n in sorted(s.lost_reasons.items(), key=lambda kv: -kv[1]):
         print(f"  lost x{n}: {reason}")
@@ -200,7 +207,7 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
         print(f"  lost x{never}: no DIC result ever published")
     print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
     for plate in ("bottom", "top"):
-        cors = [m.cor for m in s.impacts.values() if m.plate == plate and math.isfinite(m.cor)]
+        cors = [m.cor for m in (s.final_impacts or s.impacts).values() if m.plate == plate and math.isfinite(m.cor)]
         if cors:
             mean = sum(cors) / len(cors)
             std = math.sqrt(sum((c - mean) ** 2 for c in cors) / max(1, len(cors) - 1))
@@ -271,8 +278,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"graph: {len(available)} nodes, {elapsed:.1f} s, logs in {log_dir}")
     print_summary(graph.summary, bag)
     if not ok:
-        print("vibro graph: the graph did not finish (timeout or a node died); the bag holds what was recorded",
-              file=sys.stderr)
+        waiting = [k for k in until if not graph.summary.finished.get(k)]
+        print("vibro graph: the graph did not finish (timeout or a node died); streams not finished: "
+              f"{', '.join(waiting) or 'none'}; the bag holds what was recorded", file=sys.stderr)
         return 1
     return 0
 

@@ -18,7 +18,7 @@ from sensor_msgs.msg import Image
 from vibro_io import topics
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
+from vibro_io.node_support import (RESULTS_QOS, SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
                                    seconds_from_stamp, stamp_from_seconds)
 from vibro_io.rig import check_rois_in_image, load_rig
 from vibro_msgs.msg import DicFrame, StreamStatus
@@ -76,7 +76,7 @@ class DicTrackerNode(Node):
         self.status = StatusPublisher(self, "dic")
         self.pub = self.create_publisher(DicFrame, topics.DIC.name, STREAM_QOS)
         self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
-        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, 10)
+        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
         self.create_timer(1.0, self._report)
 
     def _index_of(self, msg: Image) -> int:

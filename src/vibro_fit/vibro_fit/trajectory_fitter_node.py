@@ -3,7 +3,7 @@ per-impact COR out.
 
 While frames stream in, :class:`vibro_fit.streaming.StreamingFitter` publishes each impact
 estimate as soon as the flight after it has been fitted (one flight of latency) and each
-closed flight. When the tracker (and the accelerometer source) announce the end of their
+closed flight (``final = false``). When the tracker (and the accelerometer source) announce the end of their
 streams, the node runs :func:`vibro_fit.identify.identify` on everything received, the very
 function ``vibro analyze`` calls, and publishes the final structure motion, flights and
 impacts; a final estimate replaces the streamed one with the same index. So the graph's
@@ -33,22 +33,23 @@ from .impacts import ImpactEstimate as Estimate
 from .streaming import StreamingFitter
 
 
-def flight_message(fl: FlightFit, mass_kg: float) -> FreeFlight:
+def flight_message(fl: FlightFit, mass_kg: float, final: bool = False) -> FreeFlight:
     a, b, c = fl.abs_coefficients()
     f_n, f_std = fl.friction_n(mass_kg)
     msg = FreeFlight(index=fl.index, t_start_s=fl.t_start_s, t_end_s=fl.t_end_s, a_mm_per_s2=a, b_mm_per_s=b,
                      c_mm=c, direction=fl.direction or "", friction_n=f_n if fl.is_free else math.nan,
                      friction_std_n=f_std if fl.is_free else math.nan, rms_residual_mm=fl.rms_residual_mm,
-                     points_used=int(fl.n_points), fitted=bool(fl.fitted and fl.is_free), note=fl.reason or "")
+                     points_used=int(fl.n_points), fitted=bool(fl.fitted and fl.is_free), note=fl.reason or "",
+                     final=final)
     stamp_from_seconds(msg.header, fl.t_end_s)
     return msg
 
 
-def impact_message(est: Estimate) -> ImpactEstimate:
+def impact_message(est: Estimate, final: bool = False) -> ImpactEstimate:
     msg = ImpactEstimate(index=est.index, t_s=est.t_s, t_std_s=est.t_std_s, plate=est.plate, cor=est.cor,
                          cor_std=est.cor_std, v_ball_before_m_per_s=est.v_ball_before_ms,
                          v_ball_after_m_per_s=est.v_ball_after_ms, v_structure_m_per_s=est.v_structure_ms,
-                         flight_before=est.flight_before, flight_after=est.flight_after)
+                         flight_before=est.flight_before, flight_after=est.flight_after, final=final)
     stamp_from_seconds(msg.header, est.t_s)
     return msg
 
@@ -79,6 +80,7 @@ class TrajectoryFitter(Node):
         self.health = Health(self)
         self.health.rate_counter = "frames"
         self.status = StatusPublisher(self, "impacts")
+        self.flights_status = StatusPublisher(self, "flights")
         self.pub_structure = self.create_publisher(StructureMotion, topics.STRUCTURE.name, RESULTS_QOS)
         self.pub_flights = self.create_publisher(FreeFlight, topics.FLIGHTS.name, RESULTS_QOS)
         self.pub_impacts = self.create_publisher(ImpactEstimate, topics.IMPACTS.name, RESULTS_QOS)
@@ -160,6 +162,7 @@ class TrajectoryFitter(Node):
         except RecordingError as exc:
             self.health.error(str(exc))
             self.get_logger().error(f"identification failed: {exc}")
+            self.flights_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
             return
         s = ident.structure
@@ -171,11 +174,12 @@ class TrajectoryFitter(Node):
                                ball_offset_mm=float(ident.plate_levels.get("offset_mm", 0.0)))
         self.pub_structure.publish(smsg)
         for fl in ident.flights:
-            self.pub_flights.publish(flight_message(fl, ident.mass_kg))
+            self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True))
         for est in ident.impacts:
-            self.pub_impacts.publish(impact_message(est))
+            self.pub_impacts.publish(impact_message(est, final=True))
         for w in ident.warnings:
             self.get_logger().warning(w)
+        self.flights_status.publish(len(ident.flights), 0, True)
         self.status.publish(len(ident.impacts), 0, True)
         self.get_logger().info(f"final: {len(ident.flights)} flights, {len(ident.impacts)} impacts, "
                                f"regime {ident.regime.name}")

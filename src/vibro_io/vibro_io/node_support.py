@@ -99,17 +99,28 @@ class Health:
 
 
 class StatusPublisher:
-    """Publishes :class:`StreamStatus` for one stream (items sent/lost, finished)."""
+    """Publishes :class:`StreamStatus` for one stream (items sent/lost, finished).
+
+    Once finished, the last status is repeated every second, so a subscriber whose queue
+    overflowed or that matched late still learns that the stream has ended.
+    """
 
     def __init__(self, node: Node, stream: str):
         self._node = node
         self._stream = stream
+        self._last: tuple[int, int, bool] | None = None
         self._pub = node.create_publisher(StreamStatus, topics.STATUS.name, RESULTS_QOS)
+        node.create_timer(1.0, self._repeat)
 
     def publish(self, sent: int, lost: int, finished: bool) -> None:
+        self._last = (int(sent), int(lost), bool(finished))
         msg = StreamStatus(stream=self._stream, items_sent=sent, items_lost=lost, finished=finished)
         msg.header.stamp = self._node.get_clock().now().to_msg()
         self._pub.publish(msg)
+
+    def _repeat(self) -> None:
+        if self._last is not None and self._last[2]:
+            self.publish(*self._last)
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:

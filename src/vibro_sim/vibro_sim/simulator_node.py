@@ -1,8 +1,8 @@
 """ROS node ``simulator``: replay the identified run through the COR and Hertz models, publish D.
 
-Collects the fitter's structure motion, free flights and impact estimates and the
-measured ball displacement (vibro/dic); when the fitter announces the end of its
-stream it runs :func:`vibro_sim.measured.replay_and_score` (the same core as
+Collects the fitter's structure motion, final free flights and impact estimates and the
+measured ball displacement (vibro/dic); once the fitter's end-of-stream statuses say how
+many final flights and impacts there are and they have all arrived, it runs :func:`vibro_sim.measured.replay_and_score` (the same core as
 ``vibro analyze``) and publishes one SimulationResult per model, then its own
 end-of-stream status.
 """
@@ -46,28 +46,49 @@ class Simulator(Node):
         self.impacts: dict[int, ImpactEstimate] = {}
         self.ball: dict[int, tuple[float, float]] = {}
         self.ran = False
+        self.announced: dict[str, int] = {}
         self.health = Health(self)
         self.status = StatusPublisher(self, "simulation")
         self.pub = self.create_publisher(SimulationResult, topics.SIMULATION.name, RESULTS_QOS)
         self.create_subscription(StructureMotion, topics.STRUCTURE.name, self._on_structure, RESULTS_QOS)
-        self.create_subscription(FreeFlight, topics.FLIGHTS.name,
-                                 lambda m: self.flights.__setitem__(m.index, m), RESULTS_QOS)
-        self.create_subscription(ImpactEstimate, topics.IMPACTS.name,
-                                 lambda m: self.impacts.__setitem__(m.index, m), RESULTS_QOS)
+        self.create_subscription(FreeFlight, topics.FLIGHTS.name, self._on_flight, RESULTS_QOS)
+        self.create_subscription(ImpactEstimate, topics.IMPACTS.name, self._on_impact, RESULTS_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
         self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
 
     def _on_structure(self, msg: StructureMotion) -> None:
         self.structure = msg
+        self._maybe_run()
+
+    def _on_flight(self, msg: FreeFlight) -> None:
+        if msg.final:  # streamed flights are previews; the final fit is what gets simulated
+            self.flights[msg.index] = msg
+            self._maybe_run()
+
+    def _on_impact(self, msg: ImpactEstimate) -> None:
+        if msg.final:
+            self.impacts[msg.index] = msg
+            self._maybe_run()
 
     def _on_dic(self, msg: DicFrame) -> None:
         if not msg.lost:
             self.ball[int(msg.frame_index)] = (msg.t_s, msg.ball_mm)
 
     def _on_status(self, msg: StreamStatus) -> None:
-        if msg.stream == "impacts" and msg.finished and not self.ran:
-            self.ran = True
-            self.simulate()
+        if msg.stream in ("impacts", "flights") and msg.finished:
+            self.announced[msg.stream] = int(msg.items_sent)
+            self._maybe_run()
+
+    def _maybe_run(self) -> None:
+        """Simulate once every final flight and impact the fitter announced has arrived (any order)."""
+        if self.ran or len(self.announced) < 2:
+            return
+        if len(self.impacts) < self.announced["impacts"] or len(self.flights) < self.announced["flights"]:
+            return
+        if self.structure is None and self.announced["impacts"] > 0:
+            return
+        self.ran = True
+        self.simulate()
 
     def simulate(self) -> None:
         s = self.structure
