@@ -39,7 +39,13 @@ demo: setup
 test: setup
 	@. scripts/env.sh && $(PY) -m pytest -q $(PYTEST_ARGS) tests
 
-bench: setup
+BENCH_STAMP := $(VENV)/.bench-$(shell cat requirements-bench.txt | sha256sum | cut -c1-16)
+
+$(BENCH_STAMP): requirements-bench.txt | $(PY)
+	$(PY) -m pip install --disable-pip-version-check -q -r requirements-bench.txt
+	rm -f $(VENV)/.bench-* && touch $@
+
+bench: setup $(BENCH_STAMP)
 	@. scripts/env.sh && for b in bench/bench_*.py; do echo "== $$b"; $(PY) $$b || exit 1; done
 
 clean:
