@@ -189,7 +189,7 @@ def expected_wiring(names: set[str]) -> dict[str, tuple[int, int]]:
         topics.FRAMES.name: (0, n("dic_tracker", "recorder")),
         topics.DIC.name: (n("dic_tracker"), 1 + n("trajectory_fitter", "simulator", "recorder")),
         topics.ACCEL.name: (0, n("impact_detector", "trajectory_fitter", "recorder")),
-        topics.IMPACTS.name: (n("trajectory_fitter"), 1 + n("simulator", "recorder")),
+        topics.IMPACTS.name: (n("trajectory_fitter"), 1 + n("simulator", "discrepancy", "recorder")),
     }
 
 
@@ -245,7 +245,8 @@ def run(args: argparse.Namespace) -> int:
         available = [s for s in available if s.name not in ("accel_source", "impact_detector")]
     names = {s.name for s in available}
     until = tuple(k for k, node in (("frames", "frame_source"), ("dic", "dic_tracker"),
-                                    ("impacts", "trajectory_fitter"), ("simulation", "simulator"))
+                                    ("impacts", "trajectory_fitter"), ("simulation", "simulator"),
+                                    ("discrepancy", "discrepancy"))
                   if node in names)
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
         params = node_parameters(recording.path, bag, args.params, with_accel)

@@ -26,6 +26,7 @@ NODES: tuple[NodeSpec, ...] = (
     NodeSpec("impact_detector", "vibro_fit", "impact_detector", "vibro_fit.impact_detector_node", "processing"),
     NodeSpec("trajectory_fitter", "vibro_fit", "trajectory_fitter", "vibro_fit.trajectory_fitter_node", "processing"),
     NodeSpec("simulator", "vibro_sim", "simulator", "vibro_sim.simulator_node", "processing"),
+    NodeSpec("discrepancy", "vibro_sim", "discrepancy", "vibro_sim.discrepancy_node", "processing"),
     NodeSpec("frame_source", "vibro_dic", "frame_source", "vibro_dic.frame_source_node", "source"),
     NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source"),
 )
@@ -50,7 +51,7 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
     rec = Path(recording).resolve()
     params.setdefault("frame_source", {})["recording"] = str(rec)
     params.setdefault("accel_source", {})["recording"] = str(rec)
-    for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector"):
+    for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector", "discrepancy"):
         params.setdefault(name, {})["rig_file"] = str(rec / "rig.yaml")
     params["trajectory_fitter"]["use_accelerometers"] = with_accel
     if bag is not None:
