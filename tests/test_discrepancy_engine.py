@@ -194,3 +194,17 @@ def test_figure_and_report_section(analysed, tmp_path):
     html = discrepancy_html(run.document)
     assert "coulomb_friction" in html and "force_n" in html and "&rarr;" in html
     assert "No finding" in discrepancy_html({"baseline_deviation": 1e-4, "findings": [], "final_deviation": 1e-4})
+
+
+def test_pair_when_one_is_not_enough():
+    # Coulomb friction and a tilt together: neither alone explains the flights (friction flips sign with
+    # the direction, the tilt does not), the pair does; both parameters within the engine-test bound
+    effects = {"coulomb_friction": {"force_n": 1.0e-4}, "gravity_tilt": {"tilt_deg": 20.0}}
+    sections, track, rig, truth = make_case(effects, seed=71)
+    doc = run_discrepancy(sections, track, rig).document
+    found = {f["effect"]: f for f in doc["findings"]}
+    assert set(found) == set(effects), doc["stages"]["flights"]
+    for name, key in (("coulomb_friction", "force_n"), ("gravity_tilt", "tilt_deg")):
+        f, tv = found[name], effects[name][key]
+        assert abs(f["parameters"][key] - tv) <= 5 * f["parameters_std"][key] + 0.01 * tv
+    assert doc["stages"]["flights"]["residual_x_noise"] < 1.3

@@ -210,9 +210,11 @@ def summarize(rows: list[dict], who: str = "vibro") -> dict:
             errors += 1
             continue
         sc = part["score"]
-        found = sc["found"] or [CONTROL]
+        true_set = set(sc["true"])
         for t in (sc["true"] or [CONTROL]):
-            for f in found:
+            # a pair case's row for t: t if found, plus anything found that is not true ('none': missed)
+            mine = [f for f in sc["found"] if f == t or f not in true_set] or [CONTROL]
+            for f in mine:
                 conf[t][f if f in labels else "unexplained"] += 1
         if r["family"] == CONTROL:
             n_ctrl += 1
