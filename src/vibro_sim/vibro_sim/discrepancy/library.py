@@ -13,7 +13,6 @@ acceleration g (1 - cos tilt) in m/s^2). Impact terms are linear COR laws e = X(
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 

@@ -10,8 +10,6 @@ speed) or its predicted time misses by more than ``IMPACT_FLAG`` x (2 sigma / re
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .onestep import OneStep
