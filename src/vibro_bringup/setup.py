@@ -23,6 +23,7 @@ setup(
     entry_points={
         "console_scripts": [
             "recorder = vibro_bringup.recorder_node:main",
+            "bag_source = vibro_bringup.bag_source_node:main",
             "vibro = vibro_bringup.cli:main",
         ],
     },

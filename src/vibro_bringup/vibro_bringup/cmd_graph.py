@@ -76,10 +76,11 @@ class GraphRun:
     def died(self) -> list[str]:
         """Non-source nodes that exited on their own (a source exits when done)."""
         roles = {s.name: s.role for s in NODES}
-        return [n for n, p in self.procs.items() if p.poll() is not None and roles[n] != "source"]
+        return [n for n, p in self.procs.items() if p.poll() is not None and roles.get(n, "source") != "source"]
 
     def stop(self) -> None:
-        order = [s.name for s in NODES if s.role == "source"] + \
+        roles = {s.name: s.role for s in NODES}
+        order = [n for n in self.procs if roles.get(n, "source") == "source"] + \
                 [s.name for s in NODES if s.role == "processing"] + ["recorder"]
         for name in order:
             proc = self.procs.get(name)
@@ -141,13 +142,15 @@ class Monitor:
         while time.monotonic() < end:
             rclpy.spin_once(self.node, timeout_sec=0.05)
 
-    def wait_wired(self, expected: dict[str, tuple[int, int]], timeout_s: float) -> bool:
-        """Wait until each topic has at least (publishers, subscribers) matched, as this node sees them."""
+    def wait_wired(self, expected: dict[str, tuple[set[str], set[str]]], timeout_s: float) -> bool:
+        """Wait until, for each topic, the named nodes are seen publishing and subscribing to it."""
         deadline = time.monotonic() + timeout_s
+        node = self.node
         while time.monotonic() < deadline:
             self.spin(0.1)
-            if all(self.node.count_publishers(t) >= p and self.node.count_subscribers(t) >= n
-                   for t, (p, n) in expected.items()):
+            if all(pubs <= {i.node_name for i in node.get_publishers_info_by_topic(t)}
+                   and subs <= {i.node_name for i in node.get_subscriptions_info_by_topic(t)}
+                   for t, (pubs, subs) in expected.items()):
                 self.spin(0.5)  # let the nodes' own discovery settle too
                 return True
             if self.run.died():
@@ -178,18 +181,20 @@ class Monitor:
             rclpy.shutdown()
 
 
-def expected_wiring(names: set[str]) -> dict[str, tuple[int, int]]:
-    """(publishers, subscribers) each topic must have before the sources start (the monitor counts as one)."""
+def expected_wiring(names: set[str]) -> dict[str, tuple[set[str], set[str]]]:
+    """(publisher nodes, subscriber nodes) each topic must show before the sources start."""
     from vibro_io import topics
 
-    def n(*nodes: str) -> int:
-        return sum(1 for x in nodes if x in names)
+    def only(*nodes: str) -> set[str]:
+        return {x for x in nodes if x in names}
 
     return {
-        topics.FRAMES.name: (0, n("dic_tracker", "recorder")),
-        topics.DIC.name: (n("dic_tracker"), 1 + n("trajectory_fitter", "simulator", "recorder")),
-        topics.ACCEL.name: (0, n("impact_detector", "trajectory_fitter", "recorder")),
-        topics.IMPACTS.name: (n("trajectory_fitter"), 1 + n("simulator", "discrepancy", "recorder")),
+        topics.FRAMES.name: (set(), only("dic_tracker", "recorder")),
+        topics.DIC.name: (only("dic_tracker"), only("trajectory_fitter", "simulator", "discrepancy", "recorder")),
+        topics.ACCEL.name: (set(), only("impact_detector", "trajectory_fitter", "recorder")),
+        topics.IMPACTS.name: (only("trajectory_fitter"), only("simulator", "discrepancy", "recorder")),
+        topics.STATUS.name: (set(), only("dic_tracker", "trajectory_fitter", "simulator", "discrepancy",
+                                         "impact_detector")),
     }
 
 
@@ -226,64 +231,84 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     print(f"bag: {bag}")
 
 
-def run(args: argparse.Namespace) -> int:
-    recording = open_recording(args.recording)  # validate before starting anything
-    bag = Path(args.bag)
-    if bag.exists():
-        raise RecordingError(f"{bag}: already exists; choose a new bag name")
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ)
-    if args.domain_id is not None:
-        env["ROS_DOMAIN_ID"] = str(args.domain_id)
-        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
-    with_accel = recording.has_accel
-    available = [s for s in NODES if _importable(s.module)]
-    missing = [s.name for s in NODES if s not in available]
+def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, params_base: str | None,
+                  timeout_s: float, env: dict[str, str], extra_params: dict | None = None) -> tuple[bool, GraphSummary, Path]:
+    """Start the processing nodes, check the wiring, start ``sources``, watch until done, stop all.
+
+    ``rig_dir`` holds the rig.yaml (and, for the file sources, the recording). Returns
+    (finished, summary, log folder).
+    """
+    processing = [s for s in NODES if s.role != "source" and _importable(s.module)]
+    missing = [s.name for s in NODES if s.role != "source" and s not in processing]
     if missing:
         print(f"vibro graph: nodes not available in this checkout: {', '.join(missing)}", file=sys.stderr)
     if not with_accel:
-        available = [s for s in available if s.name not in ("accel_source", "impact_detector")]
-    names = {s.name for s in available}
-    until = tuple(k for k, node in (("frames", "frame_source"), ("dic", "dic_tracker"),
-                                    ("impacts", "trajectory_fitter"), ("simulation", "simulator"),
-                                    ("discrepancy", "discrepancy"))
-                  if node in names)
+        processing = [s for s in processing if s.name != "impact_detector"]
+    names = {s.name for s in processing} | {s.name for s in sources}
+    until = ("frames",) + tuple(k for k, node in (("dic", "dic_tracker"), ("impacts", "trajectory_fitter"),
+                                                  ("simulation", "simulator"), ("discrepancy", "discrepancy"))
+                                if node in names)
+    wiring_names = names
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
-        params = node_parameters(recording.path, bag, args.params, with_accel)
+        params = node_parameters(rig_dir, bag, params_base, with_accel)
+        for node, values in (extra_params or {}).items():
+            params.setdefault(node, {}).update(values)
         params_file = write_params_file(params, Path(tmp) / "params.yaml")
         log_dir = bag.parent / f"{bag.name}.logs"
         log_dir.mkdir(exist_ok=True)
-        graph = GraphRun(recording.path, bag, params_file, env)
-        t0 = time.monotonic()
+        graph = GraphRun(rig_dir, bag, params_file, env)
         monitor = None
         ok = False
         try:
             monitor = Monitor(graph)
-            for spec in available:
-                if spec.role != "source":
-                    graph.start(spec, log_dir)
-            if not monitor.wait_wired(expected_wiring(names), 120.0):
+            for spec in processing:
+                graph.start(spec, log_dir)
+            if not monitor.wait_wired(expected_wiring(wiring_names), 120.0):
                 dead = graph.died()
                 raise RecordingError("the graph did not come up: " + (
                     f"node(s) {', '.join(dead)} exited; see {graph.logs[dead[0]]}" if dead
                     else "topics not matched within 120 s"))
-            for spec in available:
-                if spec.role == "source":
-                    graph.start(spec, log_dir)
-            ok = monitor.watch(until, args.timeout_s)
+            for spec in sources:
+                graph.start(spec, log_dir)
+            ok = monitor.watch(until, timeout_s)
         finally:
             graph.stop()
             if monitor is not None:
                 monitor.close()
-        elapsed = time.monotonic() - t0
-    print(f"graph: {len(available)} nodes, {elapsed:.1f} s, logs in {log_dir}")
-    print_summary(graph.summary, bag)
     if not ok:
         waiting = [k for k in until if not graph.summary.finished.get(k)]
         print("vibro graph: the graph did not finish (timeout or a node died); streams not finished: "
               f"{', '.join(waiting) or 'none'}; the bag holds what was recorded", file=sys.stderr)
-        return 1
-    return 0
+    return ok, graph.summary, log_dir
+
+
+def prepare_environment(domain_id: int | None) -> dict[str, str]:
+    env = dict(os.environ)
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+        os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    return env
+
+
+def new_bag_path(bag: str | Path) -> Path:
+    bag = Path(bag)
+    if bag.exists():
+        raise RecordingError(f"{bag}: already exists; choose a new bag name")
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    return bag
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = open_recording(args.recording)  # validate before starting anything
+    bag = new_bag_path(args.bag)
+    env = prepare_environment(args.domain_id)
+    sources = [s for s in NODES if s.role == "source" and (recording.has_accel or s.name != "accel_source")]
+    t0 = time.monotonic()
+    ok, summary, log_dir = execute_graph(recording.path, bag, sources, with_accel=recording.has_accel,
+                                         params_base=args.params, timeout_s=args.timeout_s, env=env)
+    print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
+    print_summary(summary, bag)
+    return 0 if ok else 1
 
 
 def _importable(module: str) -> bool:

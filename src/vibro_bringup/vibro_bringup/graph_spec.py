@@ -31,6 +31,9 @@ NODES: tuple[NodeSpec, ...] = (
     NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source"),
 )
 
+#: Replaces frame_source and accel_source when a recorded bag is replayed (``vibro replay``).
+BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringup.bag_source_node", "source")
+
 
 
 def default_params_file() -> Path:
@@ -51,7 +54,7 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
     rec = Path(recording).resolve()
     params.setdefault("frame_source", {})["recording"] = str(rec)
     params.setdefault("accel_source", {})["recording"] = str(rec)
-    for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector", "discrepancy"):
+    for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector", "discrepancy", "recorder"):
         params.setdefault(name, {})["rig_file"] = str(rec / "rig.yaml")
     params["trajectory_fitter"]["use_accelerometers"] = with_accel
     if bag is not None:

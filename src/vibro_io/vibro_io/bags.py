@@ -90,7 +90,8 @@ class _FlushingFile:
 class BagWriter:
     """Write a rosbag2 (MCAP storage) directory; messages are serialized CDR bytes."""
 
-    def __init__(self, path: str | Path, *, chunk_size: int = 512 * 1024, metadata_every_s: float = 1.0):
+    def __init__(self, path: str | Path, *, chunk_size: int = 512 * 1024, metadata_every_s: float = 1.0,
+                 custom_data: dict[str, str] | None = None):
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f"{self.path}: already exists; choose a new bag name")
@@ -105,6 +106,7 @@ class BagWriter:
         self.t_min = 2**63 - 1
         self.t_max = 0
         self._metadata_every_s = metadata_every_s
+        self.custom_data = dict(custom_data or {})
         self._last_metadata = 0.0
         self.write_metadata()
 
@@ -144,7 +146,7 @@ class BagWriter:
         self._last_metadata = time.monotonic()
         write_metadata(self.path, self.file_name, list(self.topics.values()),
                        self.t_min if self.topics and self.message_count else 0,
-                       max(0, self.t_max - self.t_min) if self.message_count else 0)
+                       max(0, self.t_max - self.t_min) if self.message_count else 0, self.custom_data)
 
     def close(self) -> None:
         self._writer.finish()
@@ -152,7 +154,8 @@ class BagWriter:
         self.write_metadata()
 
 
-def write_metadata(bag: Path, file_name: str, topics: list, start_ns: int, duration_ns: int) -> None:
+def write_metadata(bag: Path, file_name: str, topics: list, start_ns: int, duration_ns: int,
+                   custom_data: dict[str, str] | None = None) -> None:
     count = sum(t.count for t in topics)
     info = {
         "version": 9,
@@ -171,12 +174,24 @@ def write_metadata(bag: Path, file_name: str, topics: list, start_ns: int, durat
         "compression_mode": "",
         "files": [{"path": file_name, "starting_time": {"nanoseconds_since_epoch": int(start_ns)},
                    "duration": {"nanoseconds": int(duration_ns)}, "message_count": count}],
-        "custom_data": None,
+        "custom_data": custom_data or None,
         "ros_distro": ROS_DISTRO,
     }
     tmp = bag / "metadata.yaml.tmp"
     tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False), encoding="utf-8")
     tmp.replace(bag / "metadata.yaml")
+
+
+def read_custom_data(bag: str | Path) -> dict[str, str]:
+    """The ``custom_data`` strings of a bag's metadata.yaml (empty when none)."""
+    path = Path(bag) / "metadata.yaml"
+    if not path.is_file():
+        raise BagError(f"{bag}: no metadata.yaml (not a rosbag2 directory)")
+    try:
+        info = yaml.safe_load(path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+    except (yaml.YAMLError, KeyError, TypeError) as exc:
+        raise BagError(f"{path}: not a rosbag2 metadata file ({exc})") from None
+    return dict(info.get("custom_data") or {})
 
 
 @dataclass

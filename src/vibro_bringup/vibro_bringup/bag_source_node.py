@@ -1,0 +1,105 @@
+"""ROS node ``bag_source``: republish a bag's raw topics (frames, accelerometer blocks) for a replay.
+
+Messages go out as recorded (serialized CDR, no re-encoding). Frames are flow-controlled
+like ``frame_source`` (never more than ``window`` ahead of the tracker's DicFrames), so a
+replay loses nothing; accelerometer blocks go out in order. End-of-stream statuses
+"frames" and "accel" carry the counts, as the live sources' do.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+from rclpy.task import Future
+from sensor_msgs.msg import Image
+
+from vibro_io import topics
+from vibro_io.bags import read_custom_data, read_messages
+from vibro_io.errors import RecordingError
+from vibro_io.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
+from vibro_io.rig import parse_rig
+from vibro_msgs.msg import AccelBlock, DicFrame
+
+
+class BagSource(Node):
+    def __init__(self) -> None:
+        super().__init__("bag_source")
+        bag = declare(self, "bag", "", "bag directory recorded by vibro graph")
+        self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker"))
+        self.linger_s = float(declare(self, "linger_s", 3.0, "seconds to wait for the last acknowledgements"))
+        if not bag:
+            raise RecordingError("bag_source: parameter 'bag' is required")
+        rig_text = read_custom_data(bag).get("vibro.rig_yaml")
+        if not rig_text:
+            raise RecordingError(f"{bag}: the bag's metadata holds no rig.yaml (custom_data 'vibro.rig_yaml')")
+        import yaml
+
+        self.camera = parse_rig(yaml.safe_load(rig_text), f"{bag} (recorded rig.yaml)").camera
+        raw = list(read_messages(bag, {topics.FRAMES.name, topics.ACCEL.name}))
+        self.frames = [m.data for m in raw if m.topic == topics.FRAMES.name]
+        self.accel = [m.data for m in raw if m.topic == topics.ACCEL.name]
+        if not self.frames:
+            raise RecordingError(f"{bag}: no {topics.FRAMES.name} messages to replay")
+        self.sent = 0
+        self.last_index_acked = -1
+        self.done = Future()
+        self._started = False
+        self._last_progress = time.monotonic()
+        self.health = Health(self)
+        self.health.rate_counter = "published"
+        self.frames_status = StatusPublisher(self, "frames")
+        self.accel_status = StatusPublisher(self, "accel")
+        self.pub_frames = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
+        self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name, STREAM_QOS)
+        self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
+        self.create_timer(0.01, self._tick)
+        self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")
+
+    def _on_ack(self, msg: DicFrame) -> None:
+        self.last_index_acked = max(self.last_index_acked, int(msg.frame_index))
+        self._last_progress = time.monotonic()
+        self._send_until_index(self.last_index_acked + self.window)
+
+    def _send_until_index(self, limit: int) -> None:
+        while self.sent < len(self.frames) and self._indices[self.sent] <= limit:
+            self.pub_frames.publish(self.frames[self.sent])
+            self.sent += 1
+            self.health.count("published")
+        if self.sent == len(self.frames):
+            self.frames_status.publish(self.sent, 0, True)
+
+    def _tick(self) -> None:
+        if self.done.done():
+            return
+        if not self._started:
+            if self.pub_frames.get_subscription_count() < 1:
+                return
+            self._started = True
+            # frame numbers from the stamps, as the tracker computes them (k = (t - t0_s) * fps)
+            self._indices = [int(round((seconds_from_stamp(deserialize_message(d, Image).header)
+                                        - self.camera.t0_s) * self.camera.fps)) for d in self.frames]
+            for data in self.accel:
+                self.pub_accel.publish(data)
+            self.accel_status.publish(len(self.accel), 0, True)
+            self._send_until_index(self.window - 1)
+            return
+        if self.sent < len(self.frames):
+            if time.monotonic() - self._last_progress > self.linger_s:  # tracker silent: push on
+                self._send_until_index(self._indices[self.sent] + self.window)
+                self._last_progress = time.monotonic()
+            return
+        if self.last_index_acked >= self._indices[-1] or time.monotonic() - self._last_progress > self.linger_s:
+            self.frames_status.publish(self.sent, 0, True)
+            self.get_logger().info(f"done: {self.sent} frames, {len(self.accel)} accelerometer blocks replayed")
+            self.done.set_result(True)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(BagSource, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
