@@ -76,7 +76,8 @@ def test_graph_refuses_bad_input_before_starting(tmp_path: Path, recording: Path
 
 def test_replaying_a_bag_reproduces_its_results(recording: Path, tmp_path: Path) -> None:
     bag = tmp_path / "orig"
-    assert _vibro("graph", str(recording), "--bag", str(bag)).returncode == 0
+    orig = _vibro("graph", str(recording), "--bag", str(bag), "--timeout-s", "150")
+    assert orig.returncode == 0, orig.stdout + orig.stderr
     replay = _vibro("replay", str(bag), "--out", str(tmp_path / "re"))
     assert replay.returncode == 0, replay.stdout + replay.stderr
     assert "frames in 300 / tracked 300 / lost 0" in replay.stdout, replay.stdout

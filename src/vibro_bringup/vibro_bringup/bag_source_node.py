@@ -19,7 +19,7 @@ from sensor_msgs.msg import Image
 from vibro_io import topics
 from vibro_io.bags import read_custom_data, read_messages
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
+from vibro_io.node_support import RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
 from vibro_io.rig import parse_rig
 from vibro_msgs.msg import AccelBlock, DicFrame
 
@@ -53,7 +53,7 @@ class BagSource(Node):
         self.frames_status = StatusPublisher(self, "frames")
         self.accel_status = StatusPublisher(self, "accel")
         self.pub_frames = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
-        self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name, STREAM_QOS)
+        self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")

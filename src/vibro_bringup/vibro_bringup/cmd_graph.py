@@ -69,8 +69,8 @@ class GraphRun:
         log = log_dir / f"{spec.name}.log"
         self.logs[spec.name] = log
         self.procs[spec.name] = subprocess.Popen(
-            [sys.executable, "-m", spec.module, "--ros-args", "--params-file", str(self.params_file),
-             "-r", f"__node:={spec.name}"],
+            [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
+             str(self.params_file), "-r", f"__node:={spec.name}"],
             stdout=log.open("w"), stderr=subprocess.STDOUT, env=self.env)
 
     def died(self) -> list[str]:
@@ -78,7 +78,9 @@ class GraphRun:
         roles = {s.name: s.role for s in NODES}
         return [n for n, p in self.procs.items() if p.poll() is not None and roles.get(n, "source") != "source"]
 
-    def stop(self) -> None:
+    def stop(self, grace_s: float = 20.0) -> list[str]:
+        """SIGINT every node still running (sources first, recorder last); SIGKILL what has not exited
+        after ``grace_s``. Returns the names of nodes that had to be killed."""
         roles = {s.name: s.role for s in NODES}
         order = [n for n in self.procs if roles.get(n, "source") == "source"] + \
                 [s.name for s in NODES if s.role == "processing"] + ["recorder"]
@@ -86,11 +88,22 @@ class GraphRun:
             proc = self.procs.get(name)
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-                try:
-                    proc.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+        deadline = time.monotonic() + grace_s
+        killed = []
+        for name in order:
+            proc = self.procs.get(name)
+            if proc is None:
+                continue
+            try:
+                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+                killed.append(name)
+        if killed:
+            print(f"vibro graph: {', '.join(killed)} did not stop within {grace_s:g} s of SIGINT and was killed",
+                  file=sys.stderr)
+        return killed
 
 
 class Monitor:
@@ -163,6 +176,8 @@ class Monitor:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             self.spin(0.05)
+            if s.finished.get("dic"):  # the tracker only finishes after the frame source did
+                s.finished["frames"] = True
             if all(s.finished.get(k) for k in until_streams):
                 self.spin(1.0)  # collect stragglers
                 return True
@@ -203,9 +218,14 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     # the monitor's view of vibro/dic only adds the reasons
     published, lost = s.counts.get("dic", (s.dic_frames, s.dic_lost))
     tracked = published - lost
-    never = max(0, s.frames_announced - published)
-    print(f"frames in {s.frames_announced} / tracked {tracked} / lost {lost + never}"
-          + (f" (unreadable at the source: {s.frames_unreadable})" if s.frames_unreadable else ""))
+    announced = s.frames_announced
+    note = f" (unreadable at the source: {s.frames_unreadable})" if s.frames_unreadable else ""
+    if announced == 0 and published:
+        # the source's own count did not reach this monitor; the tracker answers every frame slot
+        announced = published
+        note += " (frame count from the tracker: the source's status was not received)"
+    never = max(0, announced - published)
+    print(f"frames in {announced} / tracked {tracked} / lost {lost + never}{note}")
     for reason, n in sorted(s.lost_reasons.items(), key=lambda kv: -kv[1]):
         print(f"  lost x{n}: {reason}")
     if never:

@@ -16,7 +16,7 @@ from rclpy.task import Future
 
 from vibro_io import topics
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_io.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import AccelBlock
 
@@ -46,7 +46,7 @@ class AccelSource(Node):
         self.health = Health(self)
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel")
-        self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, STREAM_QOS)
+        self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
         self.create_timer(0.005, self._tick)
         self.get_logger().info(f"{len(data)} samples at {self.rate_hz:.0f} Hz in {len(self.starts)} blocks")
 

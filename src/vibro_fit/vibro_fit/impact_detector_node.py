@@ -15,7 +15,7 @@ from rclpy.node import Node
 
 from vibro_io import topics
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
+from vibro_io.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, run_node,
                                    stamp_from_seconds)
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
@@ -55,7 +55,7 @@ class ImpactDetector(Node):
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel_impacts")
         self.pub = self.create_publisher(AccelImpact, topics.ACCEL_IMPACTS.name, RESULTS_QOS)
-        self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, STREAM_QOS)
+        self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, RESULTS_QOS)
         self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
 
     def _publish(self, impacts: list[Impact]) -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 
 import numpy as np
 from rclpy.node import Node
@@ -62,6 +63,9 @@ class TrajectoryFitter(Node):
         self.use_accel = bool(declare(self, "use_accelerometers", True,
                                       "wait for vibro/accel and refine impacts with the accelerometers"))
         weights = declare(self, "weights", "none", "flight fit weights: none or dic_valid")
+        self.stream_wait_s = float(declare(self, "stream_wait_s", 5.0,
+                                           "after a stream is announced finished, wait this long for missing "
+                                           "items, then finish without them (they are reported lost)"))
         if not rig_file:
             raise RecordingError("trajectory_fitter: parameter 'rig_file' is required")
         if self.method not in METHODS:
@@ -77,6 +81,7 @@ class TrajectoryFitter(Node):
         self.dic_announced: int | None = None
         self.accel_announced: int | None = None
         self.done_final = False
+        self._announced_at: float | None = None
         self.health = Health(self)
         self.health.rate_counter = "frames"
         self.status = StatusPublisher(self, "impacts")
@@ -86,8 +91,9 @@ class TrajectoryFitter(Node):
         self.pub_impacts = self.create_publisher(ImpactEstimate, topics.IMPACTS.name, RESULTS_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
         if self.use_accel:
-            self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, STREAM_QOS)
+            self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, RESULTS_QOS)
         self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+        self.create_timer(0.5, self._maybe_finish)
 
     # ---------------------------------------------------------------- streaming
     def _on_dic(self, msg: DicFrame) -> None:
@@ -130,10 +136,27 @@ class TrajectoryFitter(Node):
 
     # ---------------------------------------------------------------- final pass
     def _ready(self) -> bool:
-        if self.dic_announced is None or len(self.rows) < self.dic_announced:
+        """Every announced frame and block has arrived, or the wait for stragglers has run out."""
+        need_accel = self.use_accel and self.rig.accelerometers is not None
+        if self.dic_announced is None or (need_accel and self.accel_announced is None):
             return False
-        if self.use_accel and self.rig.accelerometers is not None:
-            return self.accel_announced is not None and len(self.blocks) >= self.accel_announced
+        complete = len(self.rows) >= self.dic_announced and (
+            not need_accel or len(self.blocks) >= self.accel_announced)
+        if complete:
+            return True
+        if self._announced_at is None:
+            self._announced_at = time.monotonic()
+        if time.monotonic() - self._announced_at < self.stream_wait_s:
+            return False
+        missing_frames = max(0, self.dic_announced - len(self.rows))
+        missing_blocks = max(0, (self.accel_announced or 0) - len(self.blocks)) if need_accel else 0
+        msg = (f"streams ended but {missing_frames} DIC frame(s) and {missing_blocks} accelerometer block(s) "
+               f"never arrived after {self.stream_wait_s:g} s; finishing without them")
+        self.health.warn(msg)
+        self.get_logger().warning(msg)
+        for gap in range(len(self.rows), self.dic_announced):  # the missing tail, as lost rows
+            t = self.rig.camera.frame_time_s(gap)
+            self._push(FrameTrack(gap, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True))
         return True
 
     def _accel(self) -> AccelData | None:

@@ -123,6 +123,22 @@ class StatusPublisher:
             self.publish(*self._last)
 
 
+def flush_publishers(node: Node, timeout_s: float = 3.0) -> None:
+    """Wait (bounded) until subscribers acknowledged what this node published, so that a node that
+    ends by itself does not take its last messages (e.g. an end-of-stream status) with it."""
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + timeout_s
+    for pub in list(node.publishers):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        try:
+            pub.wait_for_all_acked(Duration(seconds=left))
+        except Exception:  # best effort: a publisher without reliable readers has nothing to wait for
+            pass
+
+
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, spin the node until SIGINT/SIGTERM or until it is done, then shut down cleanly.
 
@@ -156,6 +172,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             close = getattr(node, "close", None)
             if close is not None:
                 close()
+            if rclpy.ok():
+                flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

@@ -21,7 +21,7 @@ FRAMES = Topic("vibro/frames", "sensor_msgs/msg/Image", "stream", "frame_source"
                "camera frames, mono8/mono16, stamp = t0_s + k/fps (remap to a camera driver's image_raw)")
 DIC = Topic("vibro/dic", "vibro_msgs/msg/DicFrame", "stream", "dic_tracker",
             "per-frame ball and structure displacement (mm, + up), valid points, ZNCC, lost flag")
-ACCEL = Topic("vibro/accel", "vibro_msgs/msg/AccelBlock", "stream", "accel_source",
+ACCEL = Topic("vibro/accel", "vibro_msgs/msg/AccelBlock", "results", "accel_source",
               "blocks of upper/lower plate accelerations (m/s^2)")
 ACCEL_IMPACTS = Topic("vibro/accel_impacts", "vibro_msgs/msg/AccelImpact", "results", "impact_detector",
                       "impacts detected in the accelerometers (time, plate, peak, spectrum peaks)")
