@@ -30,6 +30,9 @@ class BagSource(Node):
         bag = declare(self, "bag", "", "bag directory recorded by vibro graph")
         self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker"))
         self.linger_s = float(declare(self, "linger_s", 3.0, "seconds to wait for the last acknowledgements"))
+        self.min_subscribers = int(declare(self, "wait_for_subscribers", 2,
+                                           "start once this many subscribers match the frames topic "
+                                           "(dic_tracker + recorder)"))
         if not bag:
             raise RecordingError("bag_source: parameter 'bag' is required")
         rig_text = read_custom_data(bag).get("vibro.rig_yaml")
@@ -75,7 +78,7 @@ class BagSource(Node):
         if self.done.done():
             return
         if not self._started:
-            if self.pub_frames.get_subscription_count() < 1:
+            if self.pub_frames.get_subscription_count() < self.min_subscribers:
                 return
             self._started = True
             # frame numbers from the stamps, as the tracker computes them (k = (t - t0_s) * fps)

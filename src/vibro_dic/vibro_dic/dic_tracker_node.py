@@ -134,7 +134,9 @@ class DicTrackerNode(Node):
     def finished(self) -> bool:
         """Every image the frame source announced has been tracked."""
         src = self.frames_finished
-        return src is not None and self.received >= src.items_sent
+        # every image announced arrived, or every frame slot up to the last has been answered
+        return src is not None and (self.received >= src.items_sent
+                                    or self.next_index >= src.items_sent + src.items_lost)
 
     def _maybe_finish(self) -> None:
         if self.finished:
