@@ -13,7 +13,7 @@ import json
 
 import pytest
 
-from vibro_sim.discrepancy.cli import main
+from vibro_bringup.cli import main
 from vibro_sim.discrepancy.prove import FAMILIES, draw_cases, prove
 
 

@@ -42,25 +42,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"   case {r['case']} ({r['family']}): analyze failed: {r['error']}")
     print(f"wrote {res['settings']['work_dir']}/proof.json")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Standalone entry (``python -m vibro_sim.discrepancy.cli prove ...``) until the lead lists this module
-    in vibro_bringup.cli.SUBCOMMAND_MODULES."""
-    parser = argparse.ArgumentParser(prog="vibro")
-    register(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 1
-    from vibro_io.errors import RecordingError
-
-    try:
-        return int(args.func(args) or 0)
-    except RecordingError as exc:
-        print(f"vibro {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
