@@ -11,16 +11,15 @@ core as ``vibro analyze``) and publishes one DiscrepancyFinding per finding, the
 from __future__ import annotations
 
 import sys
-import time
 
 from rclpy.node import Node
 
 from vibro_io import topics
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node, \
-    stamp_from_seconds
+from vibro_io.fit_results import FinalFitResults
+from vibro_io.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.rig import load_rig
-from vibro_msgs.msg import DicFrame, DiscrepancyFinding, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
+from vibro_msgs.msg import DiscrepancyFinding
 
 from .discrepancy import analyse_discrepancy
 from .discrepancy.from_messages import sections_from_messages, track_from_messages
@@ -53,82 +52,35 @@ class Discrepancy(Node):
         if not rig_file:
             raise RecordingError("discrepancy: parameter 'rig_file' is required")
         self.rig = load_rig(rig_file)
-        self.structure: StructureMotion | None = None
-        self.flights: dict[int, FreeFlight] = {}
-        self.impacts: dict[int, ImpactEstimate] = {}
-        self.frames: dict[int, DicFrame] = {}
-        self.announced: dict[str, int] = {}
-        self.simulation_done = False
-        self.last_dic = time.monotonic()
         self.ran = False
         self.health = Health(self)
         self.status = StatusPublisher(self, "discrepancy")
         self.pub = self.create_publisher(DiscrepancyFinding, topics.DISCREPANCY.name, RESULTS_QOS)
-        self.create_subscription(StructureMotion, topics.STRUCTURE.name, self._on_structure, RESULTS_QOS)
-        self.create_subscription(FreeFlight, topics.FLIGHTS.name, self._on_flight, RESULTS_QOS)
-        self.create_subscription(ImpactEstimate, topics.IMPACTS.name, self._on_impact, RESULTS_QOS)
-        self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
-        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
-        self.create_timer(0.5, self._maybe_run)
-
-    def _on_structure(self, msg: StructureMotion) -> None:
-        self.structure = msg
-        self._maybe_run()
-
-    def _on_flight(self, msg: FreeFlight) -> None:
-        if msg.final:
-            self.flights[msg.index] = msg
-            self._maybe_run()
-
-    def _on_impact(self, msg: ImpactEstimate) -> None:
-        if msg.final:
-            self.impacts[msg.index] = msg
-            self._maybe_run()
-
-    def _on_dic(self, msg: DicFrame) -> None:
-        self.frames[int(msg.frame_index)] = msg
-        self.last_dic = time.monotonic()
-        self._maybe_run()
-
-    def _on_status(self, msg: StreamStatus) -> None:
-        if msg.stream in ("impacts", "flights", "dic") and msg.finished:
-            self.announced[msg.stream] = int(msg.items_sent)
-        if msg.stream == "simulation" and msg.finished:
-            self.simulation_done = True
-        self._maybe_run()
+        self.results = FinalFitResults(self, self._maybe_run, self.dic_wait_s)
 
     def _maybe_run(self) -> None:
-        if self.ran or "impacts" not in self.announced or "flights" not in self.announced:
+        if self.ran or (self.wait_for_simulation and "simulation" not in self.results.finished):
             return
-        if self.wait_for_simulation and not self.simulation_done:
-            return
-        if "dic" in self.announced:
-            if len(self.frames) < self.announced["dic"]:
-                return
-        elif time.monotonic() - self.last_dic < self.dic_wait_s:
-            return
-        if len(self.impacts) < self.announced["impacts"] or len(self.flights) < self.announced["flights"]:
-            return
-        if self.structure is None and self.announced["impacts"] > 0:
-            return
-        self.ran = True
-        self.analyse()
+        if self.results.complete():
+            self.ran = True
+            self.analyse()
 
     def analyse(self) -> None:
-        if self.structure is None or not self.frames or not self.flights:
+        r = self.results
+        if r.structure is None or not r.frames or not r.flights:
             self.health.warn("nothing to analyse (no structure fit, flights or DIC frames received)")
             self.get_logger().warning("nothing to analyse: no structure fit, flight or DIC frame received")
             self.status.publish(0, 0, True)
             return
         try:
-            sections = sections_from_messages(self.structure, self.flights.values(), self.impacts.values())
-            doc = analyse_discrepancy(sections, track_from_messages(self.frames.values()), self.rig)
+            sections = sections_from_messages(r.structure, r.flights.values(), r.impacts.values())
+            doc = analyse_discrepancy(sections, track_from_messages(r.frames.values()), self.rig)
         except RecordingError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"discrepancy analysis not possible: {exc}")
             self.status.publish(0, 0, True)
             return
-        t_last = max(float(m.t_s) for m in self.frames.values())
+        t_last = max(float(m.t_s) for m in r.frames.values())
         for k, f in enumerate(doc["findings"]):
             msg = finding_message(k, f)
             stamp_from_seconds(msg.header, t_last)
