@@ -13,13 +13,11 @@ import numpy as np
 
 from ..cor_model import simulate_cor
 from ..deviation import deviation
-from ..forces import Coulomb, NoForce, Quadratic, Viscous
 from ..params import BallCavity
-from ..restitution import Constant, PerPlate, VelocityDependent
 from ..structure import StructureMotion
+from ..synth.scenario import BASELINE_COR, effect_laws
 from .data import Measured
 
-BASELINE_COR = 0.7  # the synthetic rig's baseline COR (vibro_sim.synth.scenario.BASELINE_COR)
 
 # effect -> its main parameter (scored against the 15 % goal)
 MAIN_PARAMETER = {"coulomb_friction": "force_n", "viscous_drag": "coefficient_ns_per_m",
@@ -54,20 +52,7 @@ def true_model_run(meas: Measured, truth: Mapping[str, Any], t0_s: float, t_end_
     c0 = float(truth["ball_offset_mm"]) * 1e-3
     cav = BallCavity(mass_kg=float(truth.get("ball_mass_kg", meas.mass_kg)), free_play_m=b,
                      tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0))
-    if "asymmetric_restitution" in eff:
-        law = PerPlate(eff["asymmetric_restitution"]["cor_top"], eff["asymmetric_restitution"]["cor_bottom"])
-    elif "velocity_dependent_restitution" in eff:
-        p = eff["velocity_dependent_restitution"]
-        law = VelocityDependent(p["cor_at_zero"], p["slope_s_per_m"])
-    else:
-        law = Constant(BASELINE_COR)
-    force = NoForce()
-    if "coulomb_friction" in eff:
-        force = Coulomb(eff["coulomb_friction"]["force_n"])
-    elif "viscous_drag" in eff:
-        force = Viscous(eff["viscous_drag"]["coefficient_ns_per_m"])
-    elif "quadratic_drag" in eff:
-        force = Quadratic(eff["quadratic_drag"]["coefficient_ns2_per_m2"])
+    law, force = effect_laws(eff)  # without the random COR scatter
     imps = truth["impacts"]
     if not imps:
         raise ValueError("truth has no impacts")

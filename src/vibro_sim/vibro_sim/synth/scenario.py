@@ -221,23 +221,34 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                         free_play_m=0.5e-3 * (cfg.gap_mm - cfg.ball_diameter_mm),
                         tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
+    law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
+    return Models(structure, cavity, law, force)
+
+
+def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None
+                ) -> tuple[RestitutionLaw, ForceLaw]:
+    """The COR law and flight force law of a set of contract effects ({name: parameters}, SI).
+
+    The baseline is a constant COR and no force. ``scatter_seed`` draws the asymmetric case's
+    per-impact COR scatter (``cor_sigma``); None leaves the scatter out (the deterministic law).
+    """
     law: RestitutionLaw = Constant(BASELINE_COR)
-    if "asymmetric_restitution" in eff:
-        p = eff["asymmetric_restitution"]
+    if "asymmetric_restitution" in effects:
+        p = effects["asymmetric_restitution"]
         law = PerPlate(p["cor_top"], p["cor_bottom"])
-        if p["cor_sigma"] > 0:
-            law = Scattered(law, p["cor_sigma"], seed=cfg.seed + 7919)
-    elif "velocity_dependent_restitution" in eff:
-        p = eff["velocity_dependent_restitution"]
+        if scatter_seed is not None and p.get("cor_sigma", 0.0) > 0:
+            law = Scattered(law, p["cor_sigma"], seed=scatter_seed)
+    elif "velocity_dependent_restitution" in effects:
+        p = effects["velocity_dependent_restitution"]
         law = VelocityDependent(p["cor_at_zero"], p["slope_s_per_m"])
     force: ForceLaw = NoForce()
-    if "coulomb_friction" in eff:
-        force = Coulomb(eff["coulomb_friction"]["force_n"])
-    elif "viscous_drag" in eff:
-        force = Viscous(eff["viscous_drag"]["coefficient_ns_per_m"])
-    elif "quadratic_drag" in eff:
-        force = Quadratic(eff["quadratic_drag"]["coefficient_ns2_per_m2"])
-    return Models(structure, cavity, law, force)
+    if "coulomb_friction" in effects:
+        force = Coulomb(effects["coulomb_friction"]["force_n"])
+    elif "viscous_drag" in effects:
+        force = Viscous(effects["viscous_drag"]["coefficient_ns_per_m"])
+    elif "quadratic_drag" in effects:
+        force = Quadratic(effects["quadratic_drag"]["coefficient_ns2_per_m2"])
+    return law, force
 
 
 def effects_truth(cfg: SynthConfig) -> list[dict[str, Any]]:
