@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import pytest
 
 HERE = Path(__file__).resolve().parent
 
@@ -51,13 +54,31 @@ def test_frames_cross_dds_and_a_corrupt_frame_is_a_visible_gap(tiny_recording: P
     assert tracker.returncode == 0 and "Traceback" not in tracker_err
 
 
-def test_nodes_stop_cleanly_on_sigterm(tiny_recording: Path, ros_domain: str) -> None:
-    tracker = _start("-m", "vibro_dic.dic_tracker_node", "--ros-args",
-                     "-p", f"rig_file:={tiny_recording / 'rig.yaml'}")
+@pytest.mark.parametrize("executor", ["events", "single"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_nodes_stop_cleanly_on_sigint_and_sigterm(tiny_recording: Path, ros_domain: str, executor: str,
+                                                 sig: signal.Signals) -> None:
+    # rclpy 7.1's EventsExecutor.spin() never returns after SIGINT; run_node must still stop
+    tracker = subprocess.Popen([sys.executable, "-m", "vibro_dic.dic_tracker_node", "--ros-args",
+                                "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env={**os.environ, "VIBRO_EXECUTOR": executor})
     time.sleep(2.0)
-    tracker.send_signal(signal.SIGTERM)
-    _, err = tracker.communicate(timeout=20)
+    tracker.send_signal(sig)
+    try:
+        _, err = tracker.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        tracker.kill()
+        pytest.fail(f"dic_tracker ({executor} executor) did not stop within 20 s of {sig.name}")
     assert tracker.returncode == 0 and "Traceback" not in err
+
+
+def test_unknown_executor_is_one_clear_line(tiny_recording: Path, ros_domain: str) -> None:
+    res = subprocess.run([sys.executable, "-m", "vibro_dic.dic_tracker_node", "--ros-args",
+                          "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"], capture_output=True, text=True,
+                         timeout=30, env={**os.environ, "VIBRO_EXECUTOR": "turbo"})
+    assert res.returncode == 2
+    assert "VIBRO_EXECUTOR='turbo'" in res.stderr and "Traceback" not in res.stderr
 
 
 def test_missing_parameter_is_one_clear_line(ros_domain: str) -> None:

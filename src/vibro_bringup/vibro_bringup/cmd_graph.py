@@ -118,8 +118,12 @@ class Monitor:
 
         self.run = run
         s = self.summary = run.summary
+        from vibro_io.node_support import make_executor
+
         rclpy.init()
         self.node = node = rclpy.create_node("vibro_graph_monitor")
+        self.executor = make_executor()
+        self.executor.add_node(node)
 
         def on_status(m: StreamStatus) -> None:
             if m.stream == "frames":
@@ -149,11 +153,9 @@ class Monitor:
         node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
 
     def spin(self, seconds: float) -> None:
-        import rclpy
-
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            rclpy.spin_once(self.node, timeout_sec=0.05)
+            self.executor.spin_once(timeout_sec=0.05)
 
     def wait_wired(self, expected: dict[str, tuple[set[str], set[str]]], timeout_s: float) -> bool:
         """Wait until, for each topic, the named nodes are seen publishing and subscribing to it."""
@@ -191,6 +193,7 @@ class Monitor:
     def close(self) -> None:
         import rclpy
 
+        self.executor.shutdown()
         self.node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
