@@ -144,3 +144,27 @@ def test_missing_bag_is_named(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(BagError, match="no .mcap file"):
         list(read_messages(tmp_path / "empty"))
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd", "none"])
+def test_every_chunk_compression_reads_back_with_both_readers(tmp_path: Path, compression: str) -> None:
+    from rclpy.serialization import deserialize_message, serialize_message
+    from vibro_msgs.msg import StreamStatus
+
+    writer = BagWriter(tmp_path / "b", chunk_size=2048, compression=compression)
+    writer.add_topic("vibro/status", "vibro_msgs/msg/StreamStatus")
+    for i in range(300):
+        writer.write("vibro/status", i, serialize_message(StreamStatus(stream="frames", items_sent=i)))
+    writer.close()
+    ours = [deserialize_message(m.data, StreamStatus).items_sent for m in read_messages(tmp_path / "b")]
+    with open(tmp_path / "b" / "b_0.mcap", "rb") as handle:
+        plain = [len(m.data) for _, _, m in make_reader(handle).iter_messages()]
+    with AnyReader([tmp_path / "b"]) as reader:
+        via_rosbags = [reader.deserialize(raw, conn.msgtype).items_sent for conn, _, raw in reader.messages()]
+    assert ours == via_rosbags == list(range(300)) and len(plain) == 300
+
+
+def test_unknown_chunk_compression_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match="chunk compression 'gzip'"):
+        BagWriter(tmp_path / "b", compression="gzip")
+    assert not (tmp_path / "b").exists()

@@ -30,6 +30,8 @@ class Recorder(Node):
         bag = declare(self, "bag", "", "bag directory to create (rosbag2, MCAP storage)")
         chunk_kb = int(declare(self, "chunk_kb", 512, "MCAP chunk size (KiB); a kill loses at most one chunk"))
         exclude = list(declare(self, "exclude_topics", [""], "topics not to record (e.g. vibro/frames)"))
+        compression = declare(self, "compression", "lz4",
+                              "MCAP chunk compression: lz4 (fast), zstd (smaller, ~3x the CPU) or none")
         rig_file = declare(self, "rig_file", "", "rig.yaml stored in the bag's metadata (custom_data) for replay")
         if not bag:
             raise RecordingError("recorder: parameter 'bag' is required")
@@ -38,7 +40,8 @@ class Recorder(Node):
             from pathlib import Path
 
             custom["vibro.rig_yaml"] = Path(rig_file).read_text(encoding="utf-8")
-        self.writer = BagWriter(bag, chunk_size=chunk_kb * 1024, custom_data=custom)
+        self.writer = BagWriter(bag, chunk_size=chunk_kb * 1024, custom_data=custom,
+                                compression=compression)
         self.health = Health(self)
         self.health.rate_counter = "recorded"
         for topic in topics.ALL_TOPICS:

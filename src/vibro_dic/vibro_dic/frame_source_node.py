@@ -108,6 +108,7 @@ class FrameSource(Node):
                 return
             self._started_at = time.monotonic()
             self._last_progress = self._started_at
+            self.get_logger().info(f"streaming: {self.pub.get_subscription_count()} subscribers matched")
         if not self.exhausted:
             if self.rate_hz > 0:
                 due = int((time.monotonic() - self._started_at) * self.rate_hz) + 1
