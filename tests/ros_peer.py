@@ -58,10 +58,14 @@ def to_plain(msg) -> dict:
         value = getattr(msg, name)
         if ftype == "std_msgs/Header":
             out[name] = [value.stamp.sec, value.stamp.nanosec, value.frame_id]
+        elif ftype.startswith("sequence<") and "/" in ftype:  # nested messages
+            out[name] = [to_plain(v) for v in value]
         elif ftype.startswith("sequence<"):
             out[name] = [float(v) if isinstance(v, float) or hasattr(v, "dtype") else v for v in list(value)]
         elif isinstance(value, float):
             out[name] = float(value)
+        elif isinstance(value, bytes) and len(value) == 1:  # a `byte` field
+            out[name] = value[0]
         else:
             out[name] = value
     return out

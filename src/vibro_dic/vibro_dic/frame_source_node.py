@@ -85,6 +85,7 @@ class FrameSource(Node):
                 self.sent += 1
                 self.last_index_sent = frame.index
                 self.health.count("published")
+                self.health.observe(frame.t_s)
                 return True
             self.lost += 1
             self.health.count("unreadable")

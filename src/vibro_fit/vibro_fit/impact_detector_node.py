@@ -79,6 +79,7 @@ class ImpactDetector(Node):
         t = msg.t_start_s + np.arange(n) / msg.sample_rate_hz
         self._publish(self.detector.push_block(t, msg.upper_ms2, msg.lower_ms2))
         self.health.count("blocks")
+        self.health.observe(msg.t_start_s + n / msg.sample_rate_hz)
         self._maybe_finish()
 
     def _on_status(self, msg: StreamStatus) -> None:

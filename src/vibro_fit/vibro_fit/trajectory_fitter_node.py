@@ -112,6 +112,7 @@ class TrajectoryFitter(Node):
         self._push(FrameTrack(k, msg.t_s, msg.ball_mm, msg.structure_mm, msg.ball_valid_points,
                               msg.structure_valid_points, float(msg.ball_mean_zncc), float(msg.structure_mean_zncc),
                               bool(msg.lost)))
+        self.health.observe(msg.t_s)
         self._maybe_finish()
 
     def _push(self, row: FrameTrack) -> None:

@@ -69,11 +69,33 @@ class Health:
         self._last_count = 0
         self._last_time = self._start
         self.rate_counter = "processed"
+        self._first: tuple[float, float] | None = None  # (monotonic s, data stamp s) of the first item
+        self._last: tuple[float, float] | None = None
         self._pub = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS.name, 10)
         node.create_timer(1.0, self.publish)
 
     def count(self, key: str, n: int = 1) -> None:
         self.counters[key] = self.counters.get(key, 0) + n
+
+    def observe(self, stamp_s: float) -> None:
+        """Note that an item stamped ``stamp_s`` (data clock: camera or DAQ time, s) was just processed.
+
+        Reported as ``lag_s`` = wall time elapsed between the first and the latest item minus
+        the data time elapsed between them: 0 when the node keeps pace with the data's own
+        clock (real time), growing by (1 - rate/real-time rate) s per s when it falls behind,
+        negative when it runs faster (replay as fast as possible).
+        """
+        now = time.monotonic()
+        if self._first is None:
+            self._first = (now, stamp_s)
+        self._last = (now, stamp_s)
+
+    @property
+    def lag_s(self) -> float:
+        """Lag behind the data clock (see :meth:`observe`); NaN before the first item."""
+        if self._first is None or self._last is None:
+            return float("nan")
+        return (self._last[0] - self._first[0]) - (self._last[1] - self._first[1])
 
     def warn(self, message: str) -> None:
         self.level = max(self.level, DiagnosticStatus.WARN)
@@ -92,6 +114,7 @@ class Health:
                                   message=self.message, hardware_id=self._hardware_id)
         values = {f"{k}_count": str(v) for k, v in self.counters.items()}
         values["rate_hz"] = f"{rate:.1f}"
+        values["lag_s"] = f"{self.lag_s:.4f}"
         values.update({k: str(v) for k, v in self.values.items()})
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
