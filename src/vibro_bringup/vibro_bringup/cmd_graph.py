@@ -18,11 +18,12 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from vibro_io.errors import RecordingError
 from vibro_io.recording import open_recording
 
-from .graph_spec import NODES, NodeSpec, node_parameters, write_params_file
+from .graph_spec import NODES, NodeSpec, node_parameters, write_params_file, write_reference_frame
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
     p.add_argument("--timeout-s", type=float, default=900.0, help="give up after this many seconds")
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
+    p.add_argument("--respawn", type=int, default=2, metavar="N",
+                   help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
     p.set_defaults(func=run)
 
 
@@ -51,13 +54,19 @@ class GraphSummary:
     finished: dict[str, bool] = field(default_factory=dict)
     counts: dict[str, tuple[int, int]] = field(default_factory=dict)  # stream -> (items sent, items lost)
     dic_indices: set = field(default_factory=set)
+    restarts: dict[str, int] = field(default_factory=dict)  # node -> times restarted mid-run
+    accel_span_s: list = field(default_factory=list)  # [first, last] accelerometer sample time (DAQ clock, s)
+    accel_impacts_s: dict = field(default_factory=dict)  # index -> accelerometer impact time (DAQ clock, s)
+    camera: object = None  # rig.yaml's CameraConfig (frame times for the coverage note)
 
 
 class GraphRun:
     """Processes of one graph run plus an in-process monitor node."""
 
-    def __init__(self, recording: Path, bag: Path, params_file: Path, env: dict[str, str]):
+    def __init__(self, recording: Path, bag: Path, params_file: Path, env: dict[str, str], respawn: int = 2):
         self.recording = recording
+        self.respawn = max(0, int(respawn))
+        self.specs: dict[str, NodeSpec] = {}
         self.bag = bag
         self.params_file = params_file
         self.env = env
@@ -65,13 +74,35 @@ class GraphRun:
         self.logs: dict[str, Path] = {}
         self.summary = GraphSummary()
 
-    def start(self, spec: NodeSpec, log_dir: Path) -> None:
+    def start(self, spec: NodeSpec, log_dir: Path, append: bool = False) -> None:
         log = log_dir / f"{spec.name}.log"
         self.logs[spec.name] = log
-        self.procs[spec.name] = subprocess.Popen(
-            [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
-             str(self.params_file), "-r", f"__node:={spec.name}"],
-            stdout=log.open("w"), stderr=subprocess.STDOUT, env=self.env)
+        self.specs[spec.name] = spec
+        with log.open("a" if append else "w") as out:  # the child keeps its own descriptor
+            self.procs[spec.name] = subprocess.Popen(
+                [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
+                 str(self.params_file), "-r", f"__node:={spec.name}"],
+                stdout=out, stderr=subprocess.STDOUT, env=self.env)
+
+    def supervise(self) -> list[str]:
+        """Restart processing nodes that died mid-run (like a launch file's ``respawn=True``, at most
+        ``respawn`` times each, same params file, log appended); return the dead nodes not restarted."""
+        given_up = []
+        for name in self.died():
+            spec = self.specs.get(name)
+            done = self.summary.restarts.get(name, 0)
+            if spec is None or spec.role != "processing" or done >= self.respawn:
+                given_up.append(name)
+                continue
+            code = self.procs[name].returncode
+            self.summary.restarts[name] = done + 1
+            log = self.logs[name]
+            with log.open("a") as out:
+                out.write(f"\n--- vibro graph: {name} exited with {code}; restarted "
+                          f"({done + 1}/{self.respawn}) ---\n")
+            self.start(spec, log.parent, append=True)
+            print(f"{name} exited with {code}; restarted ({done + 1}/{self.respawn})", file=sys.stderr, flush=True)
+        return given_up
 
     def died(self) -> list[str]:
         """Non-source nodes that exited on their own (a source exits when done)."""
@@ -82,8 +113,17 @@ class GraphRun:
         """SIGINT every node still running (sources first, recorder last); SIGKILL what has not exited
         after ``grace_s``. Returns the names of nodes that had to be killed."""
         roles = {s.name: s.role for s in NODES}
-        order = [n for n in self.procs if roles.get(n, "source") == "source"] + \
-                [s.name for s in NODES if s.role == "processing"] + ["recorder"]
+        sources = [n for n in self.procs if roles.get(n, "source") == "source"]
+        order = sources + [s.name for s in NODES if s.role == "processing"] + ["recorder"]
+        if self.summary.finished.get("frames"):
+            # a finished source exits by itself once its last messages are acknowledged (bounded by
+            # node_support.flush_publishers); a SIGINT in that flush would only abort it with a traceback
+            settle = time.monotonic() + 5.0
+            for name in sources:
+                try:
+                    self.procs[name].wait(timeout=max(0.1, settle - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    pass
         for name in order:
             proc = self.procs.get(name)
             if proc is not None and proc.poll() is None:
@@ -114,7 +154,8 @@ class Monitor:
 
         from vibro_io import topics
         from vibro_io.node_support import RESULTS_QOS, STREAM_QOS
-        from vibro_msgs.msg import DicFrame, DiscrepancyFinding, ImpactEstimate, SimulationResult, StreamStatus
+        from vibro_msgs.msg import (AccelBlock, AccelImpact, DicFrame, DiscrepancyFinding, ImpactEstimate,
+                                    SimulationResult, StreamStatus)
 
         self.run = run
         s = self.summary = run.summary
@@ -152,6 +193,19 @@ class Monitor:
                                  lambda m: s.deviations.__setitem__(m.model, m.deviation), RESULTS_QOS)
         node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
 
+        def on_block(m: AccelBlock) -> None:  # only the time span: frames that stop early are reported
+            t0, t1 = m.t_start_s, m.t_start_s + (len(m.upper_ms2) - 1) / m.sample_rate_hz
+            s.accel_span_s = [min(t0, s.accel_span_s[0]), max(t1, s.accel_span_s[1])] if s.accel_span_s else [t0, t1]
+
+        node.create_subscription(AccelBlock, topics.ACCEL.name, on_block, RESULTS_QOS)
+        node.create_subscription(AccelImpact, topics.ACCEL_IMPACTS.name,
+                                 lambda m: s.accel_impacts_s.__setitem__(int(m.index), float(m.t_s)), RESULTS_QOS)
+        try:
+            from vibro_io.rig import load_rig
+            s.camera = load_rig(Path(run.recording) / "rig.yaml").camera
+        except (RecordingError, OSError):
+            s.camera = None
+
     def spin(self, seconds: float) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -183,9 +237,11 @@ class Monitor:
             if all(s.finished.get(k) for k in until_streams):
                 self.spin(1.0)  # collect stragglers
                 return True
-            dead = self.run.died()
+            dead = self.run.supervise()
             if dead:
-                print(f"vibro graph: node(s) {', '.join(dead)} exited early; see {self.run.logs[dead[0]]}",
+                print(f"vibro graph: node(s) {', '.join(dead)} exited early"
+                      f"{' (restarts used up)' if any(self.run.summary.restarts.get(n) for n in dead) else ''}; "
+                      f"see {self.run.logs[dead[0]]}",
                       file=sys.stderr)
                 return False
         return False
@@ -218,8 +274,10 @@ def expected_wiring(names: set[str]) -> dict[str, tuple[set[str], set[str]]]:
 
 def print_summary(s: GraphSummary, bag: Path) -> None:
     # the tracker's own end-of-stream count is authoritative (one DicFrame per frame slot);
-    # the monitor's view of vibro/dic only adds the reasons
-    published, lost = s.counts.get("dic", (s.dic_frames, s.dic_lost))
+    # the monitor's view of vibro/dic only adds the reasons. A restarted tracker only counts what it
+    # answered itself, so after a restart the union of the frame indices seen on vibro/dic counts.
+    restarted = s.restarts.get("dic_tracker", 0)
+    published, lost = (s.dic_frames, s.dic_lost) if restarted else s.counts.get("dic", (s.dic_frames, s.dic_lost))
     tracked = published - lost
     announced = s.frames_announced
     note = f" (unreadable at the source: {s.frames_unreadable})" if s.frames_unreadable else ""
@@ -232,7 +290,19 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     for reason, n in sorted(s.lost_reasons.items(), key=lambda kv: -kv[1]):
         print(f"  lost x{n}: {reason}")
     if never:
-        print(f"  lost x{never}: no DIC result ever published")
+        why = (f" (dic_tracker restarted {restarted}x mid-run: frames sent while it was down)"
+               if restarted else "")
+        print(f"  lost x{never}: no DIC result ever published{why}")
+    for node, n in sorted(s.restarts.items()):
+        print(f"restarted: {node} x{n}")
+    if s.accel_span_s and s.camera is not None and announced > 0:
+        from vibro_fit.coverage import frame_coverage
+
+        cam = s.camera
+        cov = frame_coverage([cam.frame_time_s(0), cam.frame_time_s(announced - 1)], s.accel_span_s,
+                             sorted(s.accel_impacts_s.values()), None, 1.0 / cam.fps)
+        if cov.message():
+            print(f"note: {cov.message()}")
     print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
     for plate in ("bottom", "top"):
         cors = [m.cor for m in (s.final_impacts or s.impacts).values() if m.plate == plate and math.isfinite(m.cor)]
@@ -255,11 +325,13 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
 
 
 def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, params_base: str | None,
-                  timeout_s: float, env: dict[str, str], extra_params: dict | None = None) -> tuple[bool, GraphSummary, Path]:
+                  timeout_s: float, env: dict[str, str], extra_params: dict | None = None, respawn: int = 2,
+                  reference: Callable[[Path], Path | None] | None = None) -> tuple[bool, GraphSummary, Path]:
     """Start the processing nodes, check the wiring, start ``sources``, watch until done, stop all.
 
     ``rig_dir`` holds the rig.yaml (and, for the file sources, the recording). Returns
-    (finished, summary, log folder).
+    (finished, summary, log folder). ``reference(folder)`` writes frame 0 as an image file into the
+    run's temporary folder for dic_tracker's ``reference_image``; ``respawn``: restarts allowed per node.
     """
     processing = [s for s in NODES if s.role != "source" and _importable(s.module)]
     missing = [s.name for s in NODES if s.role != "source" and s not in processing]
@@ -273,13 +345,18 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
                                 if node in names)
     wiring_names = names
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
-        params = node_parameters(rig_dir, bag, params_base, with_accel)
+        ref_png = reference(Path(tmp)) if reference is not None else None
+        params = node_parameters(rig_dir, bag, params_base, with_accel, reference_image=ref_png)
+        # the tracker holds its results until every vibro/dic reader (this monitor too) has matched, so that
+        # a tracker restarted mid-run loses frames only visibly, never for one reader alone
+        dic_readers = {"trajectory_fitter", "simulator", "discrepancy", "recorder", "frame_source", "bag_source"}
+        params.setdefault("dic_tracker", {})["wait_for_subscribers"] = 1 + len(names & dic_readers)
         for node, values in (extra_params or {}).items():
             params.setdefault(node, {}).update(values)
         params_file = write_params_file(params, Path(tmp) / "params.yaml")
         log_dir = bag.parent / f"{bag.name}.logs"
         log_dir.mkdir(exist_ok=True)
-        graph = GraphRun(rig_dir, bag, params_file, env)
+        graph = GraphRun(rig_dir, bag, params_file, env, respawn)
         monitor = None
         ok = False
         try:
@@ -327,8 +404,12 @@ def run(args: argparse.Namespace) -> int:
     env = prepare_environment(args.domain_id)
     sources = [s for s in NODES if s.role == "source" and (recording.has_accel or s.name != "accel_source")]
     t0 = time.monotonic()
-    ok, summary, log_dir = execute_graph(recording.path, bag, sources, with_accel=recording.has_accel,
-                                         params_base=args.params, timeout_s=args.timeout_s, env=env)
+    if args.respawn < 0:
+        raise RecordingError(f"--respawn must be >= 0, got {args.respawn}")
+    ok, summary, log_dir = execute_graph(
+        recording.path, bag, sources, with_accel=recording.has_accel, params_base=args.params,
+        timeout_s=args.timeout_s, env=env, respawn=args.respawn,
+        reference=lambda folder: write_reference_frame(recording.path, folder / "reference_frame0.png"))
     print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     return 0 if ok else 1

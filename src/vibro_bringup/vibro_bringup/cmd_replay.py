@@ -17,7 +17,7 @@ from vibro_io.errors import RecordingError
 
 from .bag_results import results_from_bag
 from .cmd_graph import execute_graph, new_bag_path, prepare_environment, print_summary
-from .graph_spec import BAG_SOURCE
+from .graph_spec import BAG_SOURCE, reference_from_bag
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,6 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
     p.add_argument("--timeout-s", type=float, default=900.0, help="give up after this many seconds")
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
+    p.add_argument("--respawn", type=int, default=2, metavar="N",
+                   help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
     p.set_defaults(func=run)
 
 
@@ -45,7 +47,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, params_base=args.params,
                                          timeout_s=args.timeout_s, env=env,
-                                         extra_params={"bag_source": {"bag": str(source_bag.resolve())}})
+                                         extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
+                                         respawn=max(0, args.respawn),
+                                         reference=lambda folder: reference_from_bag(
+                                             source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     if ok:

@@ -46,9 +46,56 @@ def default_params_file() -> Path:
     return Path(get_package_share_directory("vibro_bringup")) / "config" / "vibro.yaml"
 
 
+def write_reference_frame(recording: str | Path, out_png: str | Path) -> Path | None:
+    """Write frame 0 of ``recording`` (frames/ or video.avi) to ``out_png`` (lossless PNG, 8 or 16 bit).
+
+    Returns the PNG path, or None when frame 0 cannot be read (the tracker then falls back
+    to the first image it receives). The tracker uses it as its DIC reference, so a tracker
+    restarted mid-run measures displacement since frame 0.
+    """
+    import cv2
+
+    from vibro_io.frames import FrameSequence, find_frames_source
+    from vibro_io.rig import load_rig
+
+    rec = Path(recording)
+    seq = FrameSequence(find_frames_source(rec), load_rig(rec / "rig.yaml").camera)
+    first = next(iter(seq), None)
+    if first is None or first.index != 0 or not first.ok:
+        return None
+    out_png = Path(out_png)
+    if not cv2.imwrite(str(out_png), first.image):
+        return None
+    return out_png
+
+
+def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Path) -> Path | None:
+    """Write the recorded ``vibro/frames`` image of frame 0 (index from its stamp and rig.yaml's camera)
+    to ``out_png``; None when the bag holds no frame 0."""
+    import cv2
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Image
+
+    from vibro_dic.dic_tracker_node import image_array
+    from vibro_io import topics
+    from vibro_io.bags import read_messages
+    from vibro_io.node_support import seconds_from_stamp
+    from vibro_io.rig import load_rig
+
+    cam = load_rig(rig_yaml).camera
+    for m in read_messages(bag, {topics.FRAMES.name}):
+        msg = deserialize_message(m.data, Image)
+        if int(round((seconds_from_stamp(msg.header) - cam.t0_s) * cam.fps)) != 0:
+            continue
+        out_png = Path(out_png)
+        return out_png if cv2.imwrite(str(out_png), image_array(msg)) else None
+    return None
+
+
 def node_parameters(recording: str | Path, bag: str | Path | None, base: str | Path | None = None,
-                    with_accel: bool = True) -> dict[str, dict[str, Any]]:
-    """Parameters per node for one run: the defaults file, then the recording and bag paths."""
+                    with_accel: bool = True, reference_image: str | Path | None = None) -> dict[str, dict[str, Any]]:
+    """Parameters per node for one run: the defaults file, then the recording and bag paths, and
+    ``reference_image`` (frame 0 as an image file) for dic_tracker when given."""
     data = yaml.safe_load(Path(base or default_params_file()).read_text(encoding="utf-8")) or {}
     params = {name: dict(block.get("ros__parameters", {})) for name, block in data.items()}
     rec = Path(recording).resolve()
@@ -57,6 +104,8 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
     for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector", "discrepancy", "recorder"):
         params.setdefault(name, {})["rig_file"] = str(rec / "rig.yaml")
     params["trajectory_fitter"]["use_accelerometers"] = with_accel
+    if reference_image is not None:
+        params["dic_tracker"]["reference_image"] = str(Path(reference_image).resolve())
     if bag is not None:
         params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
     return params

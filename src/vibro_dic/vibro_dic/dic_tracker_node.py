@@ -3,13 +3,16 @@
 The frame index comes from the image stamp (k = round((t - t0_s) * fps)), as with a live
 camera. A missing index (a frame dropped or unreadable upstream) is answered with a lost
 DicFrame, so the gap is visible downstream and the frame source's flow control keeps going.
-The first image received is the DIC reference (frame 0 of the mesh, ROIs from rig.yaml).
+The DIC reference (ROIs from rig.yaml) is the image file named by the parameter
+``reference_image`` (``vibro graph`` sets it to frame 0 of the recording, so a tracker that
+is restarted mid-run still measures displacement since frame 0), else the first image received.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import time
 
 import numpy as np
 from rclpy.node import Node
@@ -20,6 +23,7 @@ from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_io.node_support import (RESULTS_QOS, SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
                                    seconds_from_stamp, stamp_from_seconds)
+from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
 from vibro_msgs.msg import DicFrame, StreamStatus
 
@@ -62,11 +66,27 @@ class DicTrackerNode(Node):
         self.zncc_min = float(declare(self, "zncc_min", 0.6, "a mesh point below this ZNCC is rejected"))
         live = bool(declare(self, "live_camera", False,
                             "true: best-effort sensor QoS for a camera driver's image_raw"))
+        self.min_subscribers = int(declare(
+            self, "wait_for_subscribers", 0,
+            "hold the results until this many subscribers match vibro/dic, so that none of them misses "
+            "the first ones (a tracker restarted mid-run); 0 = publish at once"))
+        self.wait_limit_s = float(declare(self, "wait_for_subscribers_s", 10.0,
+                                          "publish anyway after holding results this long (s)"))
+        reference = declare(self, "reference_image", "",
+                            "image file (PNG/TIFF) of frame 0, the DIC reference; empty = the first image received")
         if not rig_file:
             raise RecordingError("dic_tracker: parameter 'rig_file' is required")
         if self.method not in METHODS:
             raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
         self.rig = load_rig(rig_file)
+        self.reference_file = str(reference)
+        self.reference: np.ndarray | None = None
+        if self.reference_file:
+            try:
+                self.reference = read_image(self.reference_file)
+                check_rois_in_image(self.rig, *self.reference.shape)
+            except RecordingError as exc:
+                raise RecordingError(f"dic_tracker: parameter 'reference_image': {exc}") from None
         self.tracker: DicTracker | None = None
         self.next_index = 0
         self.published = self.lost = self.received = 0
@@ -75,9 +95,39 @@ class DicTrackerNode(Node):
         self.health.rate_counter = "tracked"
         self.status = StatusPublisher(self, "dic")
         self.pub = self.create_publisher(DicFrame, topics.DIC.name, STREAM_QOS)
-        self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
         self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+        self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
         self.create_timer(1.0, self._report)
+        self._held: list[DicFrame] = []  # results kept back until vibro/dic has its subscribers
+        self._released = self.min_subscribers <= 0
+        self._held_since: float | None = None
+        self._matched_at: float | None = None
+        if not self._released:
+            self.create_timer(0.05, self._check_subscribers)
+
+    def _check_subscribers(self) -> None:
+        """Release held results once ``wait_for_subscribers`` readers matched vibro/dic (0.3 s ago, so their
+        side has matched too), or once results have been held for ``wait_for_subscribers_s``."""
+        if self._released:
+            return
+        now = time.monotonic()
+        if self.pub.get_subscription_count() >= self.min_subscribers:
+            self._matched_at = self._matched_at or now
+            if now - self._matched_at < 0.3:
+                return
+        else:
+            self._matched_at = None
+            if self._held_since is None or now - self._held_since < self.wait_limit_s:
+                return
+            msg = (f"only {self.pub.get_subscription_count()} of {self.min_subscribers} subscribers matched "
+                   f"vibro/dic after {self.wait_limit_s:g} s; publishing anyway")
+            self.health.warn(msg)
+            self.get_logger().warning(msg)
+        self._released = True
+        for msg in self._held:
+            self.pub.publish(msg)
+        self._held.clear()
+        self._maybe_finish()
 
     def _index_of(self, msg: Image) -> int:
         cam = self.rig.camera
@@ -85,7 +135,13 @@ class DicTrackerNode(Node):
 
     def _publish(self, row: FrameTrack, status: str = "") -> None:
         mesh = (len(self.tracker.ball.points), len(self.tracker.structure.points)) if self.tracker else (0, 0)
-        self.pub.publish(dic_message(row, mesh, status))
+        msg = dic_message(row, mesh, status)
+        if self._released:
+            self.pub.publish(msg)
+        else:
+            self._held.append(msg)
+            self._held_since = self._held_since or time.monotonic()
+            self._check_subscribers()
         self.published += 1
         if row.lost:
             self.lost += 1
@@ -103,12 +159,7 @@ class DicTrackerNode(Node):
         try:
             image = image_array(msg)
             if self.tracker is None:
-                check_rois_in_image(self.rig, *image.shape)
-                self.tracker = DicTracker(image, self.rig.dic, self.rig.camera.mm_per_px,
-                                          method=self.method, zncc_min=self.zncc_min)
-                if k != 0:
-                    self.get_logger().warning(f"first image is frame {k}; it is the DIC reference")
-                self.next_index = k
+                self._start_tracker(k, image)
         except RecordingError as exc:
             self.health.error(str(exc))
             self.get_logger().error(f"frame {k}: {exc}")
@@ -122,8 +173,29 @@ class DicTrackerNode(Node):
         row = self.tracker.track_image(k, t, image)
         reasons = "; ".join(r.reason for r in self.tracker.last_results.values() if r.lost and r.reason)
         self._publish(row, reasons)
+        self.health.observe(t)
         self.next_index = k + 1
         self._maybe_finish()
+
+    def _start_tracker(self, k: int, image: np.ndarray) -> None:
+        """Build the DicTracker on the reference file (checked against this first image) or on ``image``."""
+        if self.reference is not None:
+            ref = self.reference
+            if ref.shape != image.shape or ref.dtype != image.dtype:
+                raise RecordingError(
+                    f"reference_image {self.reference_file}: {ref.shape[1]}x{ref.shape[0]} {ref.dtype} does not "
+                    f"match the incoming images ({image.shape[1]}x{image.shape[0]} {image.dtype})")
+            if k != 0:
+                self.get_logger().warning(f"first image received is frame {k}; displacements are measured "
+                                          f"against frame 0 from {self.reference_file}")
+        else:
+            check_rois_in_image(self.rig, *image.shape)
+            ref = image
+            if k != 0:
+                self.get_logger().warning(f"first image is frame {k}; it is the DIC reference")
+        self.tracker = DicTracker(ref, self.rig.dic, self.rig.camera.mm_per_px,
+                                  method=self.method, zncc_min=self.zncc_min)
+        self.next_index = k
 
     def _on_status(self, msg: StreamStatus) -> None:
         if msg.stream == "frames" and msg.finished:
@@ -139,12 +211,12 @@ class DicTrackerNode(Node):
                                     or self.next_index >= src.items_sent + src.items_lost)
 
     def _maybe_finish(self) -> None:
-        if self.finished:
+        if self.finished and self._released:
             self.status.publish(self.published, self.lost, True)
 
     def _report(self) -> None:
         self.health.values["frames_lost"] = self.lost
-        self.status.publish(self.published, self.lost, self.finished)
+        self.status.publish(self.published, self.lost, self.finished and self._released)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,6 +18,7 @@ from vibro_io.errors import RecordingError
 from vibro_io.rig import RigConfig
 
 from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
+from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
 from .impacts import ImpactEstimate, joint_impact
 from .regimes import Regime, classify_regime, y_rel_range
@@ -51,6 +52,7 @@ class Identification:
     clock_offset: ClockOffset | None = None
     warnings: list[str] = field(default_factory=list)
     weights: str = "none"
+    coverage: FrameCoverage | None = None  # filmed interval vs accelerometer record (with accel only)
 
 
 def track_rows(track: DicTrack):
@@ -149,6 +151,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     sf = run_streaming(track, f_nom, noise, method, cfg, weights=weights)
     accel_res = None
     offset = None
+    coverage = None
     if accel is not None:
         accel_res = analyse_accel(accel, structure.frequency_hz, highpass_hz=highpass_hz)
         warnings += accel_res.warnings
@@ -161,6 +164,10 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         else:
             warnings.append("accelerometer impacts could not be matched to DIC impacts: clock offset unknown, "
                             "segmentation from DIC only")
+        coverage = frame_coverage(t, accel.t_s, [i.t_s for i in accel_res.impacts],
+                                  offset.offset_s if offset is not None else None, 1.0 / rig.camera.fps)
+        if coverage.message():
+            warnings.append(coverage.message())
     impacts = list(sf.impacts)
     levels = plate_levels(impacts, rig.free_play_mm)
     if method == "joint":
@@ -201,4 +208,4 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         warnings.append(f"regime: {regime.name} ({'; '.join(regime.notes) or 'see regime counts'})")
     return Identification(structure, list(sf.flights), impacts, friction, cor_summary(impacts), regime, levels,
                           float(noise), method, rig.ball.mass_kg, list(sf.short_flights), list(sf.clusters),
-                          accel_res, offset, warnings, weights or "none")
+                          accel_res, offset, warnings, weights or "none", coverage)

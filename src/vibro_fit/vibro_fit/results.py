@@ -120,6 +120,10 @@ def identification_sections(ident: Identification) -> dict:
                          "dominant_frequencies_hz": [_num(f) for f in i.dominant_frequencies_hz],
                          "clipped": bool(i.clipped)} for i in acc.impacts],
         }
+        if getattr(ident, "coverage", None) is not None:
+            out["accelerometers"]["coverage"] = {k: (_num(v) if isinstance(v, float) else
+                                                     [_num(x) for x in v] if isinstance(v, list) else v)
+                                                 for k, v in ident.coverage.to_dict().items()}
     return out
 
 

@@ -220,6 +220,14 @@ class StreamingFitter:
             return out
         self._check_free(fl)
         prev = self._last_flight
+        if prev is not None and self._lost_between(prev, fl) > 0 and \
+                int(fl.frames[0]) - int(prev.frames[-1]) - 1 > self.cfg.max_impact_frames:
+            # frames without DIC between the two flights, more than one impact's contact frames: the
+            # ball may have struck several times unseen; pairing these parabolas would invent one impact
+            self.rejected.append(
+                f"no impact between flights {prev.index} and {fl.index} (t {prev.t_end_s:.4f}..{fl.t_start_s:.4f} s): "
+                f"{self._lost_between(prev, fl)} frames in between have no DIC result; impacts there are not identified")
+            prev = None
         if (prev is not None and prev.is_free and fl.is_free and cluster_before is not None
                 and cluster_before.n <= self.cfg.max_impact_frames):
             est = self._impact(prev, fl)
@@ -240,6 +248,12 @@ class StreamingFitter:
         self._n_flight += 1
         self._last_flight = fl
         return out
+
+    def _lost_between(self, p: FlightFit, q: FlightFit) -> int:
+        """Frames between the end of flight ``p`` and the start of ``q`` that are lost (no usable DIC)."""
+        lo, hi = int(p.frames[-1]), int(q.frames[0])
+        usable = bisect.bisect_left(self.good_frames, hi) - bisect.bisect_right(self.good_frames, lo)
+        return (hi - lo - 1) - usable
 
     def _fit(self, index: int, frames: np.ndarray) -> FlightFit:
         """Fit a flight on global frame indices, building arrays over its span only (bounded cost)."""

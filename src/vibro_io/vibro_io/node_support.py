@@ -226,12 +226,14 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         # a callback that ran while SIGINT/SIGTERM was shutting the context down: clean stop
     finally:
         if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            if rclpy.ok():
-                flush_publishers(node)
-            node.destroy_node()
+            flush = (lambda: flush_publishers(node)) if rclpy.ok() else None
+            for step in (getattr(node, "close", None), flush, node.destroy_node):
+                if step is None:
+                    continue
+                try:
+                    step()
+                except KeyboardInterrupt:  # SIGINT while cleaning up (e.g. a finished source flushing): go on
+                    pass
         if rclpy.ok():
             rclpy.shutdown()
     return code
