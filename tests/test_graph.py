@@ -88,6 +88,9 @@ def test_replaying_a_bag_reproduces_its_results(recording: Path, tmp_path: Path)
     assert len(a["impacts"]) == len(b["impacts"]) > 0
     assert all(abs(x["cor"] - y["cor"]) < 1e-9 for x, y in zip(a["impacts"], b["impacts"]))
     assert abs(a["simulation"]["cor_model"]["deviation"] - b["simulation"]["cor_model"]["deviation"]) < 1e-9
+    # every node of both runs stopped cleanly: no Python traceback in any node's log
+    for log in [*(tmp_path / "orig.logs").glob("*.log"), *(tmp_path / "re").rglob("*.log")]:
+        assert "Traceback" not in log.read_text(), log
 
 
 def test_replay_refuses_a_bag_without_a_rig(tmp_path: Path) -> None:

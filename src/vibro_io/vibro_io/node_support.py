@@ -6,6 +6,7 @@ This is the only vibro_io module that imports rclpy; the algorithm modules never
 from __future__ import annotations
 
 import os
+import signal
 import time
 from typing import Any, Callable
 
@@ -198,6 +199,20 @@ def spin_until_done(executor, done=None, slice_s: float = 0.5) -> None:
         executor.spin_until_future_complete(done, timeout_sec=slice_s)
 
 
+_stop_signals: list[int] = []
+
+
+def _note_stop(signum: int, _frame) -> None:
+    """Python-level SIGINT/SIGTERM handler, called after rclpy's own (which shuts the context down):
+    remember the stop instead of raising KeyboardInterrupt in the middle of a callback."""
+    _stop_signals.append(signum)
+
+
+def stop_requested() -> bool:
+    """A SIGINT or SIGTERM has been received by this process."""
+    return bool(_stop_signals)
+
+
 def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, spin the node until SIGINT/SIGTERM or until it is done, then shut down cleanly.
 
@@ -207,6 +222,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """
     from .errors import RecordingError
 
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _note_stop)  # before rclpy.init, whose handlers chain to these
     rclpy.init(args=args)
     node = None
     code = 0
@@ -221,7 +238,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         rclpy.logging.get_logger("vibro").error(str(exc))
         code = 2
     except Exception:
-        if rclpy.ok():
+        if rclpy.ok() and not stop_requested():
             raise
         # a callback that ran while SIGINT/SIGTERM was shutting the context down: clean stop
     finally:
