@@ -13,6 +13,8 @@ Measured in one run, so ratios are comparable on a noisy machine:
   recorder stamped them in the bag), and each node's CPU time in that window, in
   ms/frame, sampled from /proc; the sum against the cores available says whether the graph is
   CPU-bound;
+- the same graph on the same frames stored as uncompressed TIFF (PNG decoding is the largest
+  single cost);
 - baseline: ``vibro analyze`` (DIC + identification + simulation) on the same recording.
 
 Writes bench/results/graph.json.
@@ -24,7 +26,6 @@ import argparse
 import json
 import os
 import re
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -161,10 +162,26 @@ def run_graph(rec: Path, bag: Path, env: dict[str, str]) -> dict:
             "frame_accounting": next(l for l in res.stdout.splitlines() if l.startswith("frames in"))}
 
 
+def tiff_copy(rec: Path, out: Path) -> Path:
+    """The same recording with its frames as uncompressed TIFF (what many high-speed cameras write)."""
+    import shutil
+
+    import cv2
+
+    (out / "frames").mkdir(parents=True)
+    for name in ("rig.yaml", "accel.csv"):
+        if (rec / name).exists():
+            shutil.copy(rec / name, out / name)
+    for png in sorted((rec / "frames").glob("*.png")):
+        image = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(out / "frames" / f"{png.stem}.tif"), image, [cv2.IMWRITE_TIFF_COMPRESSION, 1])
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--frames", type=int, default=1500)
-    parser.add_argument("--repeats", type=int, default=2, help="graph runs per executor (median reported)")
+    parser.add_argument("--repeats", type=int, default=2, help="graph runs per executor (the upper-median run is reported in detail, all runs listed)")
     args = parser.parse_args()
     from vibro_sim.synth import SynthConfig, synthesize
 
@@ -184,6 +201,10 @@ def main() -> int:
             best = sorted(runs, key=lambda r: r["frames_per_s"])[len(runs) // 2]
             best["frames_per_s_all_runs"] = [r["frames_per_s"] for r in runs]
             result[f"graph_{executor}_executor"] = best
+        tiff = tiff_copy(rec, Path(tmp) / "rec_tiff")
+        result["tiff_read_decode_ms"] = stage_costs(tiff, n=100)["png_read_decode_ms"]
+        result["graph_events_executor_tiff_frames"] = run_graph(tiff, Path(tmp) / "bag_tiff",
+                                                                dict(env, VIBRO_EXECUTOR="events"))
         t = time.perf_counter()
         subprocess.run([*VIBRO, "analyze", str(rec), "--out", str(Path(tmp) / "an"), "--no-progress", "--no-report"],
                        check=True, capture_output=True, env=env)
@@ -207,6 +228,10 @@ def main() -> int:
               f"{100 * g['cpu_utilisation_of_cores']:.0f} % of {os.cpu_count()} cores")
         for node, ms in g["cpu_ms_per_frame"].items():
             print(f"    {node:26s} {ms:6.2f} ms/frame")
+    g = result["graph_events_executor_tiff_frames"]
+    print(f"graph, events executor, the same frames as uncompressed TIFF (read + decode "
+          f"{result['tiff_read_decode_ms']:.2f} ms/frame): {g['frames_per_s']:.0f} frames/s; "
+          f"CPU {g['cpu_ms_per_frame_total']:.2f} ms/frame summed over nodes")
     print(f"vibro analyze: {result['analyze_frames_per_s']:.0f} frames/s end to end")
     print(f"events/single executor {result['events_vs_single_executor_ratio']:.2f}x; "
           f"graph/analyze {result['graph_vs_analyze_ratio']:.2f}x; {result['frame_accounting']}")
