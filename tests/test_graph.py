@@ -101,3 +101,11 @@ def test_replay_refuses_a_bag_without_a_rig(tmp_path: Path) -> None:
     w.close()
     res = _vibro("replay", str(tmp_path / "plain"))
     assert res.returncode == 2 and "holds no rig.yaml" in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize("command", ["graph", "replay"])
+def test_graph_run_options_are_validated(command: str, tmp_path: Path) -> None:
+    target = [str(tmp_path / "rec"), "--bag", str(tmp_path / "bag")] if command == "graph" else [str(tmp_path / "bag")]
+    for option, value, expect in (("--respawn", "-1", "must be >= 0"), ("--timeout-s", "0", "must be > 0")):
+        res = _vibro(command, *target, option, value, timeout=60)
+        assert res.returncode == 2 and f"argument {option}: {expect}" in res.stderr and "Traceback" not in res.stderr

@@ -30,12 +30,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("graph", help="run the ROS node graph on a recording and record it to a bag")
     p.add_argument("recording", help="recording directory")
     p.add_argument("--bag", required=True, help="bag directory to create, e.g. bags/run1")
-    p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
-    p.add_argument("--timeout-s", type=float, default=900.0, help="give up after this many seconds")
-    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
-    p.add_argument("--respawn", type=int, default=2, metavar="N",
-                   help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
+    add_run_options(p)
     p.set_defaults(func=run)
+
+
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """Options every command that runs the node graph takes (vibro graph, vibro replay)."""
+    p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
+    p.add_argument("--timeout-s", type=_positive_float, default=900.0, help="give up after this many seconds")
+    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
+    p.add_argument("--respawn", type=_non_negative_int, default=2, metavar="N",
+                   help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
 
 
 @dataclass
@@ -113,17 +132,8 @@ class GraphRun:
         """SIGINT every node still running (sources first, recorder last); SIGKILL what has not exited
         after ``grace_s``. Returns the names of nodes that had to be killed."""
         roles = {s.name: s.role for s in NODES}
-        sources = [n for n in self.procs if roles.get(n, "source") == "source"]
-        order = sources + [s.name for s in NODES if s.role == "processing"] + ["recorder"]
-        if self.summary.finished.get("frames"):
-            # a finished source exits by itself once its last messages are acknowledged (bounded by
-            # node_support.flush_publishers); a SIGINT in that flush would only abort it with a traceback
-            settle = time.monotonic() + 5.0
-            for name in sources:
-                try:
-                    self.procs[name].wait(timeout=max(0.1, settle - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    pass
+        order = [n for n in self.procs if roles.get(n, "source") == "source"] + \
+                [s.name for s in NODES if s.role == "processing"] + ["recorder"]
         for name in order:
             proc = self.procs.get(name)
             if proc is not None and proc.poll() is None:
@@ -153,14 +163,12 @@ class Monitor:
         import rclpy
 
         from vibro_io import topics
-        from vibro_io.node_support import RESULTS_QOS, STREAM_QOS
+        from vibro_io.node_support import RESULTS_QOS, STREAM_QOS, make_executor
         from vibro_msgs.msg import (AccelBlock, AccelImpact, DicFrame, DiscrepancyFinding, ImpactEstimate,
                                     SimulationResult, StreamStatus)
 
         self.run = run
         s = self.summary = run.summary
-        from vibro_io.node_support import make_executor
-
         rclpy.init()
         self.node = node = rclpy.create_node("vibro_graph_monitor")
         self.executor = make_executor()
@@ -404,8 +412,6 @@ def run(args: argparse.Namespace) -> int:
     env = prepare_environment(args.domain_id)
     sources = [s for s in NODES if s.role == "source" and (recording.has_accel or s.name != "accel_source")]
     t0 = time.monotonic()
-    if args.respawn < 0:
-        raise RecordingError(f"--respawn must be >= 0, got {args.respawn}")
     ok, summary, log_dir = execute_graph(
         recording.path, bag, sources, with_accel=recording.has_accel, params_base=args.params,
         timeout_s=args.timeout_s, env=env, respawn=args.respawn,

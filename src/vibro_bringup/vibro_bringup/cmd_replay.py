@@ -16,7 +16,7 @@ from vibro_io.bags import read_custom_data
 from vibro_io.errors import RecordingError
 
 from .bag_results import results_from_bag
-from .cmd_graph import execute_graph, new_bag_path, prepare_environment, print_summary
+from .cmd_graph import add_run_options, execute_graph, new_bag_path, prepare_environment, print_summary
 from .graph_spec import BAG_SOURCE, reference_from_bag
 
 
@@ -24,11 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="re-run the processing nodes on a recorded bag's raw topics")
     p.add_argument("bag", help="bag directory recorded by vibro graph")
     p.add_argument("--out", help="output folder (default: <bag>.replay): bag/ and results.json")
-    p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
-    p.add_argument("--timeout-s", type=float, default=900.0, help="give up after this many seconds")
-    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
-    p.add_argument("--respawn", type=int, default=2, metavar="N",
-                   help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
+    add_run_options(p)
     p.set_defaults(func=run)
 
 
@@ -48,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, params_base=args.params,
                                          timeout_s=args.timeout_s, env=env,
                                          extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
-                                         respawn=max(0, args.respawn),
+                                         respawn=args.respawn,
                                          reference=lambda folder: reference_from_bag(
                                              source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")

@@ -165,8 +165,8 @@ def flush_publishers(node: Node, timeout_s: float = 3.0) -> None:
 
 
 #: Executors a node can spin in (environment variable ``VIBRO_EXECUTOR``). ``events`` (rclpy's
-#: EventsExecutor, C++) costs about 0.02 ms per small message against 0.3 ms for the
-#: SingleThreadedExecutor (bench/bench_executor.py); ``single`` is the conservative fallback.
+#: EventsExecutor, C++) halves the graph's CPU per frame against the SingleThreadedExecutor
+#: (bench/bench_graph.py measures both, per node); ``single`` is the conservative fallback.
 EXECUTORS = ("events", "single")
 
 
@@ -242,15 +242,13 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             raise
         # a callback that ran while SIGINT/SIGTERM was shutting the context down: clean stop
     finally:
-        if node is not None:
-            flush = (lambda: flush_publishers(node)) if rclpy.ok() else None
-            for step in (getattr(node, "close", None), flush, node.destroy_node):
-                if step is None:
-                    continue
-                try:
-                    step()
-                except KeyboardInterrupt:  # SIGINT while cleaning up (e.g. a finished source flushing): go on
-                    pass
+        if node is not None:  # a stop signal during this cleanup is only noted (_note_stop), never raised
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            if rclpy.ok():
+                flush_publishers(node)
+            node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
     return code
