@@ -38,16 +38,21 @@ def main_parameter(effect: str, params: Mapping[str, float]) -> str:
     return MAIN_PARAMETER[effect]
 
 
+def true_structure(truth: Mapping[str, Any]) -> StructureMotion:
+    """The truth's structure motion (m, s) in the DIC frame: displacement since frame 0."""
+    st = truth["structure"]
+    y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
+    return StructureMotion(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
+                           st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
+                           st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
+
+
 def true_model_run(meas: Measured, truth: Mapping[str, Any], t0_s: float, t_end_s: float | None = None):
     """(t, simulated ball mm since frame 0, D): the true model (truth effects and parameters without
     random COR scatter, true structure, free play and ball offset) simulated from the true state after
     the truth impact nearest ``t0_s`` and scored against the measured ball track over the same window."""
     eff = true_effects(truth)
-    st = truth["structure"]
-    y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
-    S = StructureMotion(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
-                        st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
-                        st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
+    S = true_structure(truth)
     b = float(truth["free_play_mm"]) * 1e-3
     c0 = float(truth["ball_offset_mm"]) * 1e-3
     cav = BallCavity(mass_kg=float(truth.get("ball_mass_kg", meas.mass_kg)), free_play_m=b,
@@ -77,11 +82,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     from .model import FittedModel
 
     eff = true_effects(truth)
-    st = truth["structure"]
-    y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
-    S = StructureMotion(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
-                        st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
-                        st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
+    S = true_structure(truth)
     g = float(truth.get("gravity_ms2", meas.g_ms2))
     values = {}
     if "coulomb_friction" in eff:
