@@ -82,6 +82,7 @@ class TrajectoryFitter(Node):
         self.accel_announced: int | None = None
         self.done_final = False
         self._announced_at: float | None = None
+        self._last_block_at = 0.0
         self.health = Health(self)
         self.health.rate_counter = "frames"
         self.status = StatusPublisher(self, "impacts")
@@ -126,6 +127,7 @@ class TrajectoryFitter(Node):
 
     def _on_block(self, msg: AccelBlock) -> None:
         self.blocks[int(msg.block_index)] = msg
+        self._last_block_at = time.monotonic()
         self._maybe_finish()
 
     def _on_status(self, msg: StreamStatus) -> None:
@@ -139,20 +141,27 @@ class TrajectoryFitter(Node):
     def _ready(self) -> bool:
         """Every announced frame and block has arrived, or the wait for stragglers has run out."""
         need_accel = self.use_accel and self.rig.accelerometers is not None
-        if self.dic_announced is None or (need_accel and self.accel_announced is None):
+        if self.dic_announced is None:
             return False
         complete = len(self.rows) >= self.dic_announced and (
-            not need_accel or len(self.blocks) >= self.accel_announced)
+            not need_accel or (self.accel_announced is not None and len(self.blocks) >= self.accel_announced))
         if complete:
             return True
+        # the DIC stream has ended: wait (bounded) for stragglers, and for the accelerometer source's
+        # end-of-stream status, which a source that has already exited cannot repeat
         if self._announced_at is None:
             self._announced_at = time.monotonic()
-        if time.monotonic() - self._announced_at < self.stream_wait_s:
+        quiet_since = max(self._announced_at, self._last_block_at)  # accelerometer blocks still flowing: wait
+        if time.monotonic() - quiet_since < self.stream_wait_s:
             return False
         missing_frames = max(0, self.dic_announced - len(self.rows))
         missing_blocks = max(0, (self.accel_announced or 0) - len(self.blocks)) if need_accel else 0
         msg = (f"streams ended but {missing_frames} DIC frame(s) and {missing_blocks} accelerometer block(s) "
                f"never arrived after {self.stream_wait_s:g} s; finishing without them")
+        if need_accel and self.accel_announced is None:
+            msg = (f"the DIC stream ended but the accelerometer end-of-stream status never arrived after "
+                   f"{self.stream_wait_s:g} s; finishing with the {len(self.blocks)} block(s) received "
+                   f"and {missing_frames} DIC frame(s) missing")
         self.health.warn(msg)
         self.get_logger().warning(msg)
         for gap in range(len(self.rows), self.dic_announced):  # the missing tail, as lost rows
