@@ -27,7 +27,9 @@ def test_frames_cross_dds_and_a_corrupt_frame_is_a_visible_gap(tiny_recording: P
     shutil.copytree(tiny_recording, rec)
     (rec / "frames" / "000002.png").write_bytes(b"not a png")
     echo = _start(str(HERE / "ros_echo.py"), "vibro_msgs/msg/DicFrame", "vibro/dic", "--count", "5", "--seconds", "60")
-    tracker = _start("-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p", f"rig_file:={rec / 'rig.yaml'}")
+    # the tracker holds its results until both readers (this echo, frame_source's acknowledgements) have matched
+    tracker = _start("-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p", f"rig_file:={rec / 'rig.yaml'}",
+                     "-p", "wait_for_subscribers:=2")
     try:
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
