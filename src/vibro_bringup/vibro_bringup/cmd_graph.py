@@ -128,19 +128,31 @@ class GraphRun:
         roles = {s.name: s.role for s in NODES}
         return [n for n, p in self.procs.items() if p.poll() is not None and roles.get(n, "source") != "source"]
 
-    def stop(self, grace_s: float = 20.0) -> list[str]:
-        """SIGINT every node still running (sources first, recorder last); SIGKILL what has not exited
-        after ``grace_s``. Returns the names of nodes that had to be killed."""
+    def stop(self, grace_s: float = 20.0, drain_s: float = 1.0) -> list[str]:
+        """SIGINT every node still running, sources first; the recorder only once the others have exited
+        and ``drain_s`` has passed, so it takes their last messages (final results) before closing the bag.
+        SIGKILL what has not exited after ``grace_s``. Returns the names of nodes that had to be killed."""
         roles = {s.name: s.role for s in NODES}
-        order = [n for n in self.procs if roles.get(n, "source") == "source"] + \
-                [s.name for s in NODES if s.role == "processing"] + ["recorder"]
-        for name in order:
+        others = [n for n in self.procs if roles.get(n, "source") == "source"] + \
+                 [s.name for s in NODES if s.role == "processing"]
+        deadline = time.monotonic() + grace_s
+        killed = self._interrupt(others, deadline)
+        if self.procs.get("recorder") is not None and self.procs["recorder"].poll() is None:
+            time.sleep(drain_s)
+        killed += self._interrupt(["recorder"], deadline)
+        if killed:
+            print(f"vibro graph: {', '.join(killed)} did not stop within {grace_s:g} s of SIGINT and was killed",
+                  file=sys.stderr)
+        return killed
+
+    def _interrupt(self, names: list[str], deadline: float) -> list[str]:
+        """SIGINT ``names`` (those still running), wait for them until ``deadline``, SIGKILL the rest."""
+        for name in names:
             proc = self.procs.get(name)
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + grace_s
         killed = []
-        for name in order:
+        for name in names:
             proc = self.procs.get(name)
             if proc is None:
                 continue
@@ -150,9 +162,6 @@ class GraphRun:
                 proc.kill()
                 proc.wait()
                 killed.append(name)
-        if killed:
-            print(f"vibro graph: {', '.join(killed)} did not stop within {grace_s:g} s of SIGINT and was killed",
-                  file=sys.stderr)
         return killed
 
 
