@@ -9,7 +9,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 DEPS_STAMP := $(VENV)/.deps-$(shell cat requirements.txt | sha256sum | cut -c1-16)
 PTH := $(VENV)/lib/python3.11/site-packages/vibro_src.pth
-PACKAGES := vibro_io vibro_dic vibro_fit vibro_sim vibro_bringup
+PACKAGES := vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_eval vibro_bringup
 DEMO_DIR ?= demo
 PYTEST_ARGS ?=
 
@@ -27,7 +27,7 @@ $(DEPS_STAMP): requirements.txt | $(PY)
 
 # Development install of the ament_python packages: their source folders on sys.path
 # (a lab PC uses `colcon build` instead; see README).
-$(PTH): | $(PY)
+$(PTH): Makefile | $(PY)
 	@for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done > $@
 
 msgs: $(DEPS_STAMP)

@@ -23,7 +23,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from vibro_sim.discrepancy.prove import GOALS, format_summary, prove  # noqa: E402
+from vibro_eval.prove import GOALS, format_summary, prove  # noqa: E402
 
 
 def ratio(a, b):

@@ -120,7 +120,7 @@ def stage_costs(rec: Path, n: int = 300) -> dict[str, float]:
 
 def streaming_window(bag: Path) -> tuple[float, float, int]:
     """(first frame, last DicFrame) receive times in the bag (s, wall clock) and the frame count."""
-    from vibro_io.bags import read_messages
+    from vibro_ros.bags import read_messages
 
     frames = [m.timestamp_ns for m in read_messages(bag) if m.topic == "vibro/frames"]
     dic = [m.timestamp_ns for m in read_messages(bag) if m.topic == "vibro/dic"]

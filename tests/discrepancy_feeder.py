@@ -24,8 +24,8 @@ def main() -> int:
     case = json.loads(open(args.case, encoding="utf-8").read())
 
     import rclpy
-    from vibro_io import topics
-    from vibro_io.node_support import RESULTS_QOS, STREAM_QOS
+    from vibro_ros import topics
+    from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS
     from vibro_msgs.msg import DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
     rclpy.init()

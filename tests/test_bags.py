@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 
-from vibro_io.bags import BagError, BagWriter, read_messages
+from vibro_ros.bags import BagError, BagWriter, read_messages
 
 HERE = Path(__file__).resolve().parent
 

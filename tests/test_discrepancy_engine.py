@@ -16,7 +16,7 @@ from discrepancy_cases import make_case
 from vibro_io.errors import RecordingError
 from vibro_sim.discrepancy import EFFECTS, analyse_discrepancy, run_discrepancy
 from vibro_sim.discrepancy.library import CoulombFriction, GravityTilt
-from vibro_sim.discrepancy.truth import main_parameter, score_case, true_model_measured_run, true_model_run
+from vibro_eval.truth import main_parameter, score_case, true_model_measured_run, true_model_run
 
 # (effects, seed): every family once, parameters away from the synth defaults (concealed: the engine
 # is never told); controls with different seeds (phase) and noise levels.
@@ -79,7 +79,7 @@ def test_each_effect_identified_with_its_parameter(analysed, name):
 def test_final_deviation_close_to_the_true_models(analysed, name):
     # goal: D after within 1.5x of the D the true model reaches on the same noisy data: the true laws and
     # parameters replayed exactly like the analysis replays its own model, from the state measured after
-    # the same first impact (vibro_sim.discrepancy.truth.true_model_measured_run)
+    # the same first impact (vibro_eval.truth.true_model_measured_run)
     run, truth = analysed[name]
     d_true = true_model_measured_run(run.measured, truth).deviation
     # and the true model from the true state (an oracle: no measurement error in the initial state)

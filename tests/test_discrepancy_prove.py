@@ -14,7 +14,7 @@ import json
 import pytest
 
 from vibro_bringup.cli import main
-from vibro_sim.discrepancy.prove import FAMILIES, draw_cases, prove
+from vibro_eval.prove import FAMILIES, draw_cases, prove
 
 
 @pytest.fixture(scope="module")

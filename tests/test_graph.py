@@ -94,7 +94,7 @@ def test_replaying_a_bag_reproduces_its_results(recording: Path, tmp_path: Path)
 
 
 def test_replay_refuses_a_bag_without_a_rig(tmp_path: Path) -> None:
-    from vibro_io.bags import BagWriter
+    from vibro_ros.bags import BagWriter
 
     w = BagWriter(tmp_path / "plain")
     w.add_topic("vibro/status", "vibro_msgs/msg/StreamStatus")

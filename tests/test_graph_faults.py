@@ -83,7 +83,7 @@ def _params(tmp: Path, rate_hz: float) -> Path:
 
 
 def _dic_frames(bag: Path) -> dict[int, object]:
-    from vibro_io.bags import deserialize, make_typestore, read_messages
+    from vibro_ros.bags import deserialize, make_typestore, read_messages
 
     store = make_typestore()
     return {int(m.frame_index): m for m in (deserialize(x, store) for x in read_messages(bag, {"vibro/dic"}))}

@@ -11,8 +11,8 @@ import json
 import math
 from pathlib import Path
 
-from vibro_io import topics
-from vibro_io.bags import deserialize, make_typestore, read_messages
+from vibro_ros import topics
+from vibro_ros.bags import deserialize, make_typestore, read_messages
 from vibro_io.errors import RecordingError
 
 SCHEMA = "vibro.results/1"

@@ -16,10 +16,10 @@ from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from sensor_msgs.msg import Image
 
-from vibro_io import topics
-from vibro_io.bags import read_custom_data, read_messages
+from vibro_ros import topics
+from vibro_ros.bags import read_custom_data, read_messages
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
+from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
 from vibro_io.rig import parse_rig
 from vibro_msgs.msg import AccelBlock, DicFrame
 

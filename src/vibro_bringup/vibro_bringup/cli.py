@@ -23,7 +23,7 @@ SUBCOMMAND_MODULES = (
     "vibro_bringup.cmd_graph",
     "vibro_bringup.bag_results",
     "vibro_bringup.cmd_replay",
-    "vibro_sim.discrepancy.cli",
+    "vibro_eval.cli",
 )
 
 

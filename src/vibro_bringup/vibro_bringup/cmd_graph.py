@@ -171,8 +171,8 @@ class Monitor:
     def __init__(self, run: GraphRun):
         import rclpy
 
-        from vibro_io import topics
-        from vibro_io.node_support import RESULTS_QOS, STREAM_QOS, make_executor
+        from vibro_ros import topics
+        from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, make_executor
         from vibro_msgs.msg import (AccelBlock, AccelImpact, DicFrame, DiscrepancyFinding, ImpactEstimate,
                                     SimulationResult, StreamStatus)
 
@@ -274,7 +274,7 @@ class Monitor:
 
 def expected_wiring(names: set[str]) -> dict[str, tuple[set[str], set[str]]]:
     """(publisher nodes, subscriber nodes) each topic must show before the sources start."""
-    from vibro_io import topics
+    from vibro_ros import topics
 
     def only(*nodes: str) -> set[str]:
         return {x for x in nodes if x in names}

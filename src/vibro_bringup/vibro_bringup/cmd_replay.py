@@ -12,7 +12,7 @@ import json
 import time
 from pathlib import Path
 
-from vibro_io.bags import read_custom_data
+from vibro_ros.bags import read_custom_data
 from vibro_io.errors import RecordingError
 
 from .bag_results import results_from_bag

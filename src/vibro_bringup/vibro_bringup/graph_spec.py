@@ -77,9 +77,9 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
     from sensor_msgs.msg import Image
 
     from vibro_dic.dic_tracker_node import image_array
-    from vibro_io import topics
-    from vibro_io.bags import read_messages
-    from vibro_io.node_support import seconds_from_stamp
+    from vibro_ros import topics
+    from vibro_ros.bags import read_messages
+    from vibro_ros.node_support import seconds_from_stamp
     from vibro_io.rig import load_rig
 
     cam = load_rig(rig_yaml).camera

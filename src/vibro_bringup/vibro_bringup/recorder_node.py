@@ -12,10 +12,10 @@ import sys
 
 from rclpy.node import Node
 
-from vibro_io import topics
-from vibro_io.bags import BagWriter
+from vibro_ros import topics
+from vibro_ros.bags import BagWriter
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import QOS_BY_KIND, Health, declare, run_node
+from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node
 
 
 def message_class(ros_type: str):

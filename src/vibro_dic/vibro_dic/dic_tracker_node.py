@@ -18,10 +18,10 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
-from vibro_io import topics
+from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import (RESULTS_QOS, SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
+from vibro_ros.node_support import (RESULTS_QOS, SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
                                    seconds_from_stamp, stamp_from_seconds)
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig

@@ -16,9 +16,9 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Image
 
-from vibro_io import topics
+from vibro_ros import topics
 from vibro_io.frames import Frame
-from vibro_io.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import DicFrame
 

@@ -14,9 +14,9 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.task import Future
 
-from vibro_io import topics
+from vibro_ros import topics
 from vibro_io.errors import RecordingError
-from vibro_io.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import AccelBlock
 

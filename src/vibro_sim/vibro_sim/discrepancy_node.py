@@ -14,10 +14,10 @@ import sys
 
 from rclpy.node import Node
 
-from vibro_io import topics
+from vibro_ros import topics
 from vibro_io.errors import RecordingError
-from vibro_io.fit_results import FinalFitResults
-from vibro_io.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.fit_results import FinalFitResults
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import DiscrepancyFinding
 

@@ -1,7 +1,7 @@
 """ROS node ``simulator``: replay the identified run through the COR and Hertz models, publish D.
 
 Collects the fitter's structure motion, final free flights and impact estimates and the
-measured ball displacement (vibro/dic) with :class:`vibro_io.fit_results.FinalFitResults`;
+measured ball displacement (vibro/dic) with :class:`vibro_ros.fit_results.FinalFitResults`;
 once everything the fitter and the tracker announced has arrived, it runs :func:`vibro_sim.measured.replay_and_score` (the same core as
 ``vibro analyze``) and publishes one SimulationResult per model, then its own
 end-of-stream status.
@@ -14,10 +14,10 @@ import sys
 import numpy as np
 from rclpy.node import Node
 
-from vibro_io import topics
+from vibro_ros import topics
 from vibro_io.errors import RecordingError
-from vibro_io.fit_results import FinalFitResults
-from vibro_io.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.fit_results import FinalFitResults
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import SimulationResult
 

@@ -172,7 +172,7 @@ EXECUTORS = ("events", "single")
 
 def make_executor():
     """The executor named by ``VIBRO_EXECUTOR`` (default ``events``); RecordingError for an unknown name."""
-    from .errors import RecordingError
+    from vibro_io.errors import RecordingError
 
     kind = os.environ.get("VIBRO_EXECUTOR", "events") or "events"
     if kind == "events":
@@ -220,7 +220,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     its result. Bad input raised while building the node (``RecordingError``) is logged
     as one line and gives exit code 2.
     """
-    from .errors import RecordingError
+    from vibro_io.errors import RecordingError
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _note_stop)  # before rclpy.init, whose handlers chain to these

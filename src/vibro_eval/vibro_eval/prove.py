@@ -48,7 +48,7 @@ import numpy as np
 
 from vibro_io.errors import RecordingError
 
-from .library import EFFECTS
+from vibro_sim.discrepancy.library import EFFECTS
 
 CONTROL = "none"
 FAMILIES = EFFECTS + (CONTROL,)
@@ -142,8 +142,8 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     from vibro_io.dictrack import read_dic_csv
     from vibro_io.rig import load_rig
 
-    from ..synth import SynthConfig, synthesize, truth_path
-    from .data import measured_from_sections
+    from vibro_sim.synth import SynthConfig, synthesize, truth_path
+    from vibro_sim.discrepancy.data import measured_from_sections
     from .truth import relative, score_case, true_model_measured_run, true_model_run
 
     rec = work / f"case{spec.index:03d}"

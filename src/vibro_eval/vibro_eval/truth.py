@@ -11,12 +11,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..cor_model import simulate_cor
-from ..deviation import deviation
-from ..params import BallCavity
-from ..structure import StructureMotion
-from ..synth.scenario import BASELINE_COR, effect_laws
-from .data import Measured
+from vibro_sim.cor_model import simulate_cor
+from vibro_sim.deviation import deviation
+from vibro_sim.params import BallCavity
+from vibro_sim.structure import StructureMotion
+from vibro_sim.synth.scenario import BASELINE_COR, effect_laws
+from vibro_sim.discrepancy.data import Measured
 
 
 # effect -> its main parameter (scored against the 15 % goal)
@@ -77,9 +77,9 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     """The true model (laws and parameters of the truth, COR scatter left out, true structure motion in
     the DIC frame) with the flight states and plate levels measured from the recording the same way the
     analysis measures them: each flight fitted with the true force law (coefficients fixed)."""
-    from .fitting import CorModelFit, fit_flights, fit_structure, recompute_impacts
-    from .library import FLIGHT_TERMS
-    from .model import FittedModel
+    from vibro_sim.discrepancy.fitting import CorModelFit, fit_flights, fit_structure, recompute_impacts
+    from vibro_sim.discrepancy.library import FLIGHT_TERMS
+    from vibro_sim.discrepancy.model import FittedModel
 
     eff = true_effects(truth)
     S = true_structure(truth)
@@ -113,7 +113,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
 def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
     """Full run of :func:`true_fitted_model` exactly as the analysis replays its own model: D of the true
     model on the same noisy data (the goal's reference)."""
-    from .engine import full_run
+    from vibro_sim.discrepancy.engine import full_run
 
     return full_run(meas, true_fitted_model(meas, truth))
 

@@ -23,7 +23,7 @@ from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message, Schema
 from mcap.writer import CompressionType, Writer
 
-from .errors import RecordingError
+from vibro_io.errors import RecordingError
 
 log = logging.getLogger(__name__)
 

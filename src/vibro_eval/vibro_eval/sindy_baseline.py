@@ -23,11 +23,11 @@ import warnings
 
 import numpy as np
 
-from .data import Measured
-from .engine import full_run, jsonable
-from .fitting import fit_flights, fit_structure
-from .library import FLIGHT_TERMS
-from .model import FittedModel, fit_model
+from vibro_sim.discrepancy.data import Measured
+from vibro_sim.discrepancy.engine import full_run, jsonable
+from vibro_sim.discrepancy.fitting import fit_flights, fit_structure
+from vibro_sim.discrepancy.library import FLIGHT_TERMS
+from vibro_sim.discrepancy.model import FittedModel, fit_model
 
 THRESHOLDS = {"flight_ms2": 0.7, "cor": 0.11, "harmonic_m": 5e-8}  # calibrate() on 4 controls (2026-11-21)
 SAVGOL = {"window_length": 7, "polyorder": 3}

@@ -1,4 +1,4 @@
-"""``vibro prove``: blind proof of the discrepancy analysis (see :mod:`vibro_sim.discrepancy.prove`)."""
+"""``vibro prove``: blind proof of the discrepancy analysis (see :mod:`vibro_eval.prove`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ def register(sub) -> None:
         description="Synthesize recordings with randomly drawn effects (and controls), run 'vibro analyze' on "
                     "each recording directory only, score the discrepancy findings against the truth files: "
                     "confusion matrix, parameter errors, D before/after vs the true model's D; PySINDy side by "
-                    "side when installed. Ranges: see vibro_sim/discrepancy/prove.py.")
+                    "side when installed. Ranges: see vibro_eval/prove.py.")
     p.add_argument("--cases", type=int, default=8, help="number of recordings (default 8: each effect + a control)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the draws")
     p.add_argument("--out", default=None, help="work directory (recordings, results, proof.json); default: temp")
