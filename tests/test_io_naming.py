@@ -102,6 +102,7 @@ def test_missing_first_frame_keeps_the_time_origin_and_warns(synth, tmp_path, ca
     (["cam1_f0.png", "cam2_f1.png", "cam3_f2.png"], r"two numbers change across the frame names"),
     (["img_0.png", "img_1.png", "frame_2.png"], r"img_0.png and frame_2.png differ in more than one number"),
     (["00.png", "01.png", "1.png"], r"01.png and 1.png both carry frame number 1"),
+    ([f"t{1000 * k}.png" for k in range(12)], r"frame numbers run from 0 to 11000 but only 12 files exist"),
 ])
 def test_ambiguous_names_are_refused_saying_how_to_name(synth, tmp_path, capsys, names, problem) -> None:
     src, _ = synth

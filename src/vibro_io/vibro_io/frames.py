@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .errors import FrameError
-from .frame_names import frame_numbers
+from .frame_names import NAMING_RULE, frame_numbers
 from .paths import inside_recording
 from .rig import CameraConfig
 
@@ -122,7 +122,13 @@ class FrameSequence:
         """Place files by the frame number in their names; None marks a dropped frame."""
         numbers = frame_numbers(files)
         self.first_index = lo = min(numbers)
-        slots: list[Path | None] = [None] * (max(numbers) - lo + 1)
+        n_slots = max(numbers) - lo + 1
+        if n_slots > 2 * len(files):
+            raise FrameError(
+                f"{files[0].parent}: frame numbers run from {lo} to {max(numbers)} but only {len(files)} files "
+                f"exist: more than half the frames would be dropped; the number that changes across the names "
+                f"must count frames (not a time stamp or a step of more than 1); {NAMING_RULE}")
+        slots: list[Path | None] = [None] * n_slots
         for n, path in zip(numbers, files):
             slots[n - lo] = path
         folder = files[0].parent
