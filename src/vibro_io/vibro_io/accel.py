@@ -48,6 +48,20 @@ def _ends_with_newline(path: Path) -> bool:
         return handle.read(1) in (b"\n", b"\r")
 
 
+def _parse_row(path: Path, line_no: int, row: list[str], idx: list[int], last_t: float
+               ) -> tuple[float, float, float]:
+    """(t_s, upper, lower) of one CSV row; :class:`AccelError` naming the line if bad or not after ``last_t``."""
+    try:
+        values = tuple(float(row[i]) for i in idx)
+    except (ValueError, IndexError):
+        raise AccelError(f"{path}: line {line_no}: non-numeric or missing value in {row!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise AccelError(f"{path}: line {line_no}: non-finite value in {row!r}")
+    if values[0] <= last_t:
+        raise AccelError(f"{path}: line {line_no}: time {values[0]} s does not increase (previous {last_t} s)")
+    return values  # type: ignore[return-value]
+
+
 def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None = None) -> AccelData:
     """Read an accelerometer CSV; refuses non-numeric or non-increasing times naming the line.
 
@@ -77,30 +91,23 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
                 shown = shown if len(shown) <= 200 else shown[:200] + " ..."
                 raise AccelError(f"{path}: line 1: column '{name}' not found (header: {shown})")
             idx.append(header.index(name))
+        rows: list[tuple[float, float, float]] = []
+        pending: tuple[int, list[str]] | None = None  # held back: the last line may be cut short
         try:
-            lines = [(line_no, row) for line_no, row in enumerate(reader, start=2)
-                     if row and not all(not c.strip() for c in row)]
+            for line_no, row in enumerate(reader, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                if pending is not None:
+                    rows.append(_parse_row(path, *pending, idx, rows[-1][0] if rows else -math.inf))
+                pending = (line_no, row)
         except (UnicodeDecodeError, csv.Error) as exc:
-            raise AccelError(f"{path}: not a UTF-8 CSV ({exc})") from None
-    if lines and not complete_last_line:
-        line_no, row = lines.pop()
-        log.warning("%s: line %d: last line has no line end (the writer stopped mid-line?); dropped, "
-                    "%d complete rows kept", path, line_no, len(lines))
-    rows: list[tuple[float, float, float]] = []
-    last_t = -math.inf
-    for line_no, row in lines:
-        try:
-            values = tuple(float(row[i]) for i in idx)
-        except (ValueError, IndexError):
-            raise AccelError(f"{path}: line {line_no}: non-numeric or missing value in {row!r}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise AccelError(f"{path}: line {line_no}: non-finite value in {row!r}")
-        if values[0] <= last_t:
-            raise AccelError(
-                f"{path}: line {line_no}: time {values[0]} s does not increase (previous {last_t} s)"
-            )
-        last_t = values[0]
-        rows.append(values)  # type: ignore[arg-type]
+            raise AccelError(f"{path}: line {reader.line_num}: not a UTF-8 CSV ({exc})") from None
+    if pending is not None:
+        if complete_last_line:
+            rows.append(_parse_row(path, *pending, idx, rows[-1][0] if rows else -math.inf))
+        else:
+            log.warning("%s: line %d: last line has no line end (the writer stopped mid-line?); dropped, "
+                        "%d complete rows kept", path, pending[0], len(rows))
     if len(rows) < 2:
         raise AccelError(f"{path}: fewer than 2 samples")
     data = np.asarray(rows, dtype=float)

@@ -115,7 +115,7 @@ class FrameSequence:
             raise FrameError(f"{folder}: no .png/.tif/.tiff frame files")
         if root is not None:
             for path in files:
-                inside_recording(root, path, f"frame file {path.name}")
+                inside_recording(root, path.relative_to(root), f"frame file {path.name}")
         return files
 
     def _number_slots(self, files: list[Path]) -> list[Path | None]:
@@ -219,8 +219,8 @@ def find_frames_source(recording: str | Path) -> Path:
     """
     recording = Path(recording)
     if (recording / "frames").is_dir():
-        return inside_recording(recording, recording / "frames", "frames folder")
+        return inside_recording(recording, "frames", "frames folder")
     videos = sorted(p for p in recording.glob("video.*") if p.suffix.lower() in VIDEO_SUFFIXES)
     if videos:
-        return inside_recording(recording, videos[0], "video file")
+        return inside_recording(recording, videos[0].name, "video file")
     raise FrameError(f"{recording}: no frames/ folder and no video.avi")

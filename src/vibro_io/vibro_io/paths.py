@@ -23,24 +23,21 @@ def relative_name_problem(name: str) -> str | None:
     return None
 
 
-def inside_recording(recording: str | Path, path: str | Path, what: str) -> Path:
-    """``path`` (relative to ``recording``, or already joined to it) if it resolves inside ``recording``.
+def inside_recording(recording: str | Path, relative: str | Path, what: str) -> Path:
+    """``recording / relative`` if it resolves inside the ``recording`` directory; else :class:`RecordingError`.
 
-    ``what`` says where the name comes from (e.g. ``"rig.yaml: key 'accelerometers.file'"``)
-    and opens the :class:`RecordingError` message. Symlinks are followed: one that leads
-    outside the recording directory is refused like an absolute path.
+    ``relative`` is a name relative to the recording directory. ``what`` says where the name
+    comes from (e.g. ``"rig.yaml: key 'accelerometers.file'"``) and opens the message.
+    Symlinks are followed: one that leads outside the recording is refused like an absolute path.
     """
     recording = Path(recording)
-    path = Path(path)
-    relative = path.relative_to(recording) if path.is_relative_to(recording) else path
     problem = relative_name_problem(str(relative))
     if problem is not None:
         raise RecordingError(
             f"{what} names {relative}, {problem}: files of a recording are named relative to its "
             f"directory {recording} and must lie inside it")
-    root = recording.resolve()
     target = (recording / relative).resolve()
-    if not target.is_relative_to(root):
+    if not target.is_relative_to(recording.resolve()):
         raise RecordingError(
             f"{what} names {relative}, which leads outside the recording directory {recording} "
             f"(a symlink to {target}); copy the file into the recording instead")
