@@ -164,6 +164,7 @@ class _RigLoader(yaml.SafeLoader):
                 continue
             self.check_unique_keys(value_node, name)
 
+
 _RigLoader.yaml_implicit_resolvers = {
     k: [r for r in v if r[0] != "tag:yaml.org,2002:float"]
     for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
