@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -77,10 +78,18 @@ def test_dropped_frame_leaves_a_visible_gap(tiny_recording: Path, tmp_path: Path
     assert frames[4].t_s == pytest.approx(0.25 + 4e-3)  # times follow the frame number, not the file count
 
 
-def test_frames_of_differing_size_are_refused(tiny_recording: Path, tmp_path: Path) -> None:
+def test_frame_of_differing_size_is_unreadable_and_many_refuse(tiny_recording: Path, tmp_path: Path) -> None:
+    # One frame of another size is lost like a corrupt one, its error naming file, size and expected size;
+    # the other frames still stream. (It used to stop the whole recording.)
     rec_dir = _copy(tiny_recording, tmp_path / "rec")
     cv2.imwrite(str(rec_dir / "frames" / "000004.png"), np.zeros((100, 96), np.uint8))
-    with pytest.raises(FrameError, match=r"000004.png \(frame 4\): frame size 96x100 differs from frame 0 \(96x128\)"):
+    frames = list(open_recording(rec_dir).frames)
+    assert [f.ok for f in frames] == [True, True, True, True, False]
+    assert re.search(r"frame 4: .*000004.png: frame size 96x100 px differs from the expected 96x128 px",
+                     frames[4].error)
+    # a second unreadable frame of five (40 % > 5 %) refuses the recording
+    (rec_dir / "frames" / "000002.png").write_bytes(b"\x89PNG\r\n\x1a\n broken")
+    with pytest.raises(FrameError, match=r"2 of 5 frames are unreadable \(more than 5%\); the recording is refused"):
         list(open_recording(rec_dir).frames)
 
 

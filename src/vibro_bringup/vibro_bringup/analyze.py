@@ -19,10 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from vibro_io.accel import load_accel
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
 from vibro_io.errors import RecordingError
-from vibro_io.recording import open_recording
+from vibro_io.recording import load_recording_accel, open_recording
 from vibro_io.rig import RigConfig, load_rig
 
 log = logging.getLogger(__name__)
@@ -84,10 +83,7 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
             raise RecordingError(f"{rec_dir}: not a recording directory")
         rig = load_rig(rec_dir / "rig.yaml")
         track = read_dic_csv(track_csv)
-        accel = None
-        if rig.accelerometers is not None:
-            accel = load_accel(rec_dir / rig.accelerometers.file, rig.accelerometers)
-        return rig, track, accel
+        return rig, track, load_recording_accel(rec_dir, rig)
     from vibro_dic.tracker import track_recording
 
     rec = open_recording(rec_dir)

@@ -1,9 +1,10 @@
 """Stream a recording's frames from ``frames/`` (PNG/TIFF) or a video, one at a time.
 
-Frames are never all held in memory. Frame k is at ``t0_s + k / fps``. A frame
-file that is missing from a numbered sequence (a dropped frame) or fails to decode
-is yielded as a :class:`Frame` with ``image=None`` and an ``error`` naming it, so
-that the gap stays visible downstream.
+Frames are never all held in memory. Frame k is at ``t0_s + k / fps``, k being the
+frame number in the file name (:mod:`.frame_names`). A frame file that is missing
+from the numbered sequence (a dropped frame), fails to decode, or differs in size or
+pixel type from the first frame is yielded as a :class:`Frame` with ``image=None`` and
+an ``error`` naming it, so that the gap stays visible downstream.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import cv2
 import numpy as np
 
 from .errors import FrameError
+from .frame_names import NAMING_RULE, frame_numbers
+from .paths import inside_recording
 from .rig import CameraConfig
 
 log = logging.getLogger(__name__)
@@ -34,6 +37,7 @@ class Frame:
     image: np.ndarray | None
     source: str
     error: str | None = None
+    dropped: bool = False  # True: no file for this frame number (the camera dropped it)
 
     @property
     def ok(self) -> bool:
@@ -63,21 +67,32 @@ def read_image(path: str | Path) -> np.ndarray:
     return _to_gray(image, str(path))
 
 
+MAX_UNREADABLE_FRACTION = 0.05  # more unreadable frames than this (and more than one) refuse the recording
+
+
 class FrameSequence:
     """Frames of a recording, read lazily from an image folder or a video file.
 
-    ``len()`` is the number of frame slots (including dropped ones); ``shape`` and
-    ``dtype`` are those of frame 0, which every other frame must match.
+    In a folder, each file's frame number comes from its name (:mod:`.frame_names`);
+    frame k is at ``t0_s + k / fps``. ``first_index`` is the lowest number present (0
+    unless frame 0 is missing) and ``len()`` the number of frame slots from there to the
+    last frame, dropped ones included. ``shape`` and ``dtype`` are those of the first
+    frame; a frame of another size or pixel type is yielded as unreadable (``ok`` False,
+    ``error`` naming file, size and expected size), like a frame that fails to decode.
+    When more than :data:`MAX_UNREADABLE_FRACTION` of the slots (and more than one frame)
+    turn out unreadable, iteration raises :class:`FrameError`: the recording is refused.
+    ``root``, when given, is the recording directory every frame file must resolve inside.
     """
 
-    def __init__(self, source: str | Path, camera: CameraConfig):
+    def __init__(self, source: str | Path, camera: CameraConfig, root: str | Path | None = None):
         self.source = Path(source)
         self.camera = camera
+        self.first_index = 0
         if self.source.is_dir():
-            self._files = self._list_files(self.source)
+            self._files = self._list_files(self.source, root)
             self._slots = self._number_slots(self._files)
             self._count = len(self._slots)
-            first = read_image(self._files[0])
+            first = read_image(self._slots[0])
         elif self.source.is_file():
             self._files, self._slots = [], []
             cap = self._open_video()
@@ -91,31 +106,40 @@ class FrameSequence:
             raise FrameError(f"{self.source}: no such frames folder or video file")
         self.shape: tuple[int, int] = first.shape  # (rows, cols)
         self.dtype = first.dtype
+        self.max_unreadable = max(1, int(MAX_UNREADABLE_FRACTION * self._count))
 
     @staticmethod
-    def _list_files(folder: Path) -> list[Path]:
-        files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    def _list_files(folder: Path, root: str | Path | None) -> list[Path]:
+        files = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
         if not files:
             raise FrameError(f"{folder}: no .png/.tif/.tiff frame files")
+        if root is not None:
+            for path in files:
+                inside_recording(root, path.relative_to(root), f"frame file {path.name}")
         return files
 
-    @staticmethod
-    def _number_slots(files: list[Path]) -> list[Path | None]:
-        """Place files by their number when all names are integers; None marks a dropped frame."""
-        stems = [p.stem for p in files]
-        if not all(s.isdigit() for s in stems):
-            return list(files)
-        numbers = [int(s) for s in stems]
-        if len(set(numbers)) != len(numbers):
-            raise FrameError(f"{files[0].parent}: two frame files share one frame number")
-        first = numbers[0]
-        slots: list[Path | None] = [None] * (numbers[-1] - first + 1)
+    def _number_slots(self, files: list[Path]) -> list[Path | None]:
+        """Place files by the frame number in their names; None marks a dropped frame."""
+        numbers = frame_numbers(files)
+        self.first_index = lo = min(numbers)
+        n_slots = max(numbers) - lo + 1
+        if n_slots > 2 * len(files):
+            raise FrameError(
+                f"{files[0].parent}: frame numbers run from {lo} to {max(numbers)} but only {len(files)} files "
+                f"exist: more than half the frames would be dropped; the number that changes across the names "
+                f"must count frames (not a time stamp or a step of more than 1); {NAMING_RULE}")
+        slots: list[Path | None] = [None] * n_slots
         for n, path in zip(numbers, files):
-            slots[n - first] = path
-        missing = [i for i, p in enumerate(slots) if p is None]
+            slots[n - lo] = path
+        folder = files[0].parent
+        if lo > 0:
+            log.warning("%s: frame 0 is missing: the first frame file present, %s, is frame %d (at t0_s + %d/fps, "
+                        "the time origin is kept); displacements are measured from frame %d, not frame 0",
+                        folder, slots[0].name, lo, lo, lo)
+        missing = [lo + i for i, p in enumerate(slots) if p is None]
         if missing:
             log.warning("%s: %d frame file(s) missing (dropped frames), first at index %d",
-                        files[0].parent, len(missing), missing[0])
+                        folder, len(missing), missing[0])
         return slots
 
     def _open_video(self) -> cv2.VideoCapture:
@@ -127,34 +151,42 @@ class FrameSequence:
     def __len__(self) -> int:
         return self._count
 
-    def _check(self, image: np.ndarray, where: str) -> np.ndarray:
+    def _mismatch(self, image: np.ndarray, where: str) -> str | None:
+        """Why ``image`` does not match the first frame (size, pixel type), or None."""
         if image.shape != self.shape:
-            raise FrameError(
-                f"{where}: frame size {image.shape[1]}x{image.shape[0]} differs from frame 0 "
-                f"({self.shape[1]}x{self.shape[0]}); frames of differing size are refused"
-            )
+            return (f"{where}: frame size {image.shape[1]}x{image.shape[0]} px differs from the expected "
+                    f"{self.shape[1]}x{self.shape[0]} px (the first frame's); frame treated as unreadable")
         if image.dtype != self.dtype:
-            raise FrameError(f"{where}: pixel type {image.dtype} differs from frame 0 ({self.dtype})")
-        return image
+            return (f"{where}: pixel type {image.dtype} differs from the expected {self.dtype} "
+                    f"(the first frame's); frame treated as unreadable")
+        return None
 
     def __iter__(self) -> Iterator[Frame]:
-        if self._slots:
-            yield from self._iter_files()
-        else:
-            yield from self._iter_video()
+        frames = self._iter_files() if self._slots else self._iter_video()
+        unreadable: list[str] = []
+        for frame in frames:
+            if not frame.ok and not frame.dropped:
+                unreadable.append(frame.error or f"frame {frame.index}")
+                if len(unreadable) > self.max_unreadable:
+                    raise FrameError(
+                        f"{self.source}: {len(unreadable)} of {self._count} frames are unreadable (more than "
+                        f"{MAX_UNREADABLE_FRACTION:.0%}); the recording is refused; first: {unreadable[0]}")
+            yield frame
 
     def _iter_files(self) -> Iterator[Frame]:
-        for k, path in enumerate(self._slots):
+        for pos, path in enumerate(self._slots):
+            k = self.first_index + pos
             t = self.camera.frame_time_s(k)
             if path is None:
-                yield Frame(k, t, None, str(self.source), f"frame {k}: file missing (dropped frame)")
+                yield Frame(k, t, None, str(self.source), f"frame {k}: file missing (dropped frame)", dropped=True)
                 continue
             try:
                 image = read_image(path)
             except FrameError as exc:
                 yield Frame(k, t, None, str(path), f"frame {k}: {exc}")
                 continue
-            yield Frame(k, t, self._check(image, f"{path} (frame {k})"), str(path))
+            problem = self._mismatch(image, f"frame {k}: {path}")
+            yield Frame(k, t, None if problem else image, str(path), problem)
 
     def _iter_video(self) -> Iterator[Frame]:
         cap = self._open_video()
@@ -165,7 +197,14 @@ class FrameSequence:
                 if not ok:
                     break
                 where = f"{self.source} frame {k}"
-                yield Frame(k, self.camera.frame_time_s(k), self._check(_to_gray(image, where), where), where)
+                t = self.camera.frame_time_s(k)
+                try:
+                    gray = _to_gray(image, where)
+                except FrameError as exc:
+                    yield Frame(k, t, None, where, str(exc))
+                else:
+                    problem = self._mismatch(gray, where)
+                    yield Frame(k, t, None if problem else gray, where, problem)
                 k += 1
             if k < self._count:
                 log.warning("%s: video ended after %d of %d announced frames", self.source, k, self._count)
@@ -174,11 +213,14 @@ class FrameSequence:
 
 
 def find_frames_source(recording: str | Path) -> Path:
-    """The frames/ folder of a recording, else its video file; :class:`FrameError` if neither."""
+    """The frames/ folder of a recording, else its video file; :class:`FrameError` if neither.
+
+    Either must resolve inside the recording directory (a symlink leading out is refused).
+    """
     recording = Path(recording)
     if (recording / "frames").is_dir():
-        return recording / "frames"
+        return inside_recording(recording, "frames", "frames folder")
     videos = sorted(p for p in recording.glob("video.*") if p.suffix.lower() in VIDEO_SUFFIXES)
     if videos:
-        return videos[0]
+        return inside_recording(recording, videos[0].name, "video file")
     raise FrameError(f"{recording}: no frames/ folder and no video.avi")

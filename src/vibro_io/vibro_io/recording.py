@@ -8,6 +8,7 @@ from pathlib import Path
 from .accel import AccelData, load_accel
 from .errors import RecordingError
 from .frames import FrameSequence, find_frames_source
+from .paths import inside_recording
 from .rig import RigConfig, check_rois_in_image, load_rig
 
 
@@ -25,10 +26,31 @@ class Recording:
 
     def load_accel(self) -> AccelData | None:
         """The accelerometer samples, or None for a video-only recording."""
-        cfg = self.rig.accelerometers
-        if cfg is None:
-            return None
-        return load_accel(self.path / cfg.file, cfg)
+        return load_recording_accel(self.path, self.rig)
+
+
+def accel_file(recording: str | Path, rig: RigConfig) -> Path | None:
+    """The accelerometer file rig.yaml names (None if none), checked to lie inside ``recording``."""
+    cfg = rig.accelerometers
+    if cfg is None:
+        return None
+    recording = Path(recording)
+    path = inside_recording(recording, cfg.file, f"{recording / 'rig.yaml'}: key 'accelerometers.file'")
+    if not path.is_file():
+        raise RecordingError(
+            f"{recording / 'rig.yaml'}: key 'accelerometers.file' names {cfg.file}, which is not in {recording}")
+    return path
+
+
+def load_recording_accel(recording: str | Path, rig: RigConfig) -> AccelData | None:
+    """The samples of the recording's accelerometer file (None for a video-only recording).
+
+    The file must lie inside ``recording``; its sample rate is checked against the camera's fps.
+    """
+    path = accel_file(recording, rig)
+    if path is None:
+        return None
+    return load_accel(path, rig.accelerometers, camera_fps=rig.camera.fps)
 
 
 def open_recording(path: str | Path) -> Recording:
@@ -37,11 +59,7 @@ def open_recording(path: str | Path) -> Recording:
     if not path.is_dir():
         raise RecordingError(f"{path}: not a recording directory")
     rig = load_rig(path / "rig.yaml")
-    frames = FrameSequence(find_frames_source(path), rig.camera)
+    frames = FrameSequence(find_frames_source(path), rig.camera, root=path)
     check_rois_in_image(rig, *frames.shape)
-    if rig.accelerometers is not None and not (path / rig.accelerometers.file).is_file():
-        raise RecordingError(
-            f"{path / 'rig.yaml'}: key 'accelerometers.file' names {rig.accelerometers.file}, "
-            f"which is not in {path}"
-        )
+    accel_file(path, rig)
     return Recording(path=path, rig=rig, frames=frames)

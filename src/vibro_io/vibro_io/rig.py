@@ -16,6 +16,7 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import RigError
+from .paths import relative_name_problem
 
 log = logging.getLogger(__name__)
 
@@ -121,8 +122,47 @@ _FLOAT_RE = re.compile(
 )
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A mapping key written twice in one YAML mapping."""
+
+
 class _RigLoader(yaml.SafeLoader):
-    """SafeLoader that reads scientific notation without a dot as a float."""
+    """SafeLoader that reads scientific notation without a dot as a float and refuses duplicate keys.
+
+    PyYAML keeps the last of two equal keys in a mapping without a word; a rig.yaml with
+    ``fps:`` twice would silently use the second. Every mapping, at any depth, is checked.
+    """
+
+    def get_single_data(self) -> Any:
+        node = self.get_single_node()
+        if node is None:
+            return None
+        self.check_unique_keys(node, "")
+        return self.construct_document(node)
+
+    def check_unique_keys(self, node: yaml.Node, path: str) -> None:
+        """Raise :class:`DuplicateKeyError` for a mapping key that appears twice (lines are 1-based)."""
+        if isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                self.check_unique_keys(item, f"{path}[{i}]")
+            return
+        if not isinstance(node, yaml.MappingNode):
+            return
+        first_line: dict[Any, int] = {}
+        for key_node, value_node in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            name = f"{path}.{key}" if path else str(key)
+            line = key_node.start_mark.line + 1
+            try:
+                if key in first_line:
+                    raise DuplicateKeyError(f"key '{name}' appears twice, on lines {first_line[key]} and {line}; "
+                                            "keep one (YAML would silently use the last)")
+                first_line[key] = line
+            except TypeError:  # an unhashable key: the constructor reports it
+                continue
+            self.check_unique_keys(value_node, name)
 
 
 _RigLoader.yaml_implicit_resolvers = {
@@ -139,11 +179,11 @@ _SCHEMA: dict[str, dict[str, str]] = {
     "excitation": {"frequency_hz": "pos"},
     "dic": {"subset_px": "odd", "mesh_step_px": "posint", "ball_roi": "roi", "structure_roi": "roi"},
 }
-_ACCEL_SCHEMA = {"file": "str", "time_column": "str", "upper_column": "str", "lower_column": "str"}
+_ACCEL_SCHEMA = {"file": "relpath", "time_column": "str", "upper_column": "str", "lower_column": "str"}
 
 
 def load_yaml(path: str | Path) -> Any:
-    """Parse a YAML file with the rig loader (scientific notation read as numbers)."""
+    """Parse a YAML file with the rig loader (scientific notation read as numbers, duplicate keys refused)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -153,8 +193,10 @@ def load_yaml(path: str | Path) -> Any:
         raise RigError(f"{path}: cannot read ({exc})") from None
     try:
         return yaml.load(text, Loader=_RigLoader)
+    except DuplicateKeyError as exc:
+        raise RigError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
-        raise RigError(f"{path}: not valid YAML ({exc})") from None
+        raise RigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
 
 
 def load_rig(path: str | Path) -> RigConfig:
@@ -166,9 +208,12 @@ def _check(value: Any, kind: str, where: str) -> Any:
     def fail(expect: str) -> RigError:
         return RigError(f"{where}: expected {expect}, got {value!r}")
 
-    if kind == "str":
+    if kind in ("str", "relpath"):
         if not isinstance(value, str) or not value.strip():
             raise fail("a non-empty string")
+        problem = relative_name_problem(value) if kind == "relpath" else None
+        if problem is not None:
+            raise fail(f"a file name relative to the recording directory, inside it (not {problem})")
         return value
     if kind == "roi":
         if not isinstance(value, (list, tuple)) or len(value) != 4:
