@@ -1,21 +1,35 @@
 """ROS node ``recorder``: every vibro topic, as received (serialized CDR), into a rosbag2/MCAP bag.
 
-Writes chunk by chunk and rewrites metadata.yaml every second, so a killed recorder
-leaves a bag readable up to its last chunk. Stops cleanly (index + final metadata) on
-SIGINT/SIGTERM.
+As ``ros2 bag record`` does: a topic is subscribed once a publisher of it is discovered,
+with the QoS that matches every publisher (best effort if any is best effort, e.g. a
+camera driver; transient local only if all are, so late results still arrive), and the
+bag stores the fully qualified name and the offered profiles. A publisher discovered
+later that the subscription cannot match gets a companion subscription (logged).
+Finishes a chunk at least once a second and rewrites metadata.yaml every second, so a
+killed recorder leaves a bag readable up to its last chunk (``vibro bag reindex`` then
+indexes it). Stops cleanly (index + final metadata) on SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+import time
 
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vibro_ros import topics
+from vibro_ros.adaptive_qos import ResultsSubscription, discovered_offers, publishers_identified
 from vibro_ros.bags import BagWriter
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node
+from vibro_ros.qos_format import adapt_request_to_offers
+
+#: How often the recorder looks for publishers of the topics it does not record yet (s), as rosbag2.
+DISCOVERY_S = 0.1
+#: How long to wait for a discovered publisher's node name (to recognise vibro's own publishers) (s).
+NAME_WAIT_S = 2.0
 
 
 def message_class(ros_type: str):
@@ -44,14 +58,37 @@ class Recorder(Node):
                                 compression=compression)
         self.health = Health(self)
         self.health.rate_counter = "recorded"
-        for topic in topics.ALL_TOPICS:
-            if topic.name in exclude:
+        #: fully qualified name -> topic, until a publisher of it is discovered
+        self.pending = {self.resolve_topic_name(t.name): t for t in topics.ALL_TOPICS
+                        if t.name not in exclude and self.resolve_topic_name(t.name) not in exclude}
+        self.subscriptions_by_topic: dict[str, ResultsSubscription] = {}
+        self._first_seen: dict[str, float] = {}
+        self.create_timer(DISCOVERY_S, self._discover)
+        self.create_timer(0.2, self.writer.flush_if_due)
+        self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag} as their publishers appear")
+
+    def _discover(self) -> None:
+        for name, topic in list(self.pending.items()):
+            if not self.count_publishers(name):
                 continue
-            self.writer.add_topic(topic.name, topic.msg_type)
-            self.create_subscription(message_class(topic.msg_type), topic.name,
-                                     lambda data, name=topic.name: self._on_message(name, data),
-                                     QOS_BY_KIND.get(topic.qos, 10), raw=True)
-        self.get_logger().info(f"recording {len(self.writer.topics)} topics to {bag}")
+            now = time.monotonic()
+            if not publishers_identified(self, name) and now - self._first_seen.setdefault(name, now) < NAME_WAIT_S:
+                continue  # history/depth of vibro's own publishers are recognised by node name
+            declared = QOS_BY_KIND[topic.qos]
+            offers = discovered_offers(self, name, declared, topic.nodes)
+            if not offers:
+                continue
+            reliability, durability = adapt_request_to_offers(offers)
+            request = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(declared.depth), 10),
+                                 reliability=ReliabilityPolicy[reliability.upper()],
+                                 durability=DurabilityPolicy[durability.upper()])
+            self.writer.add_topic(name, topic.msg_type, offers)
+            self.subscriptions_by_topic[name] = ResultsSubscription(
+                self, message_class(topic.msg_type), name, lambda data, n=name: self._on_message(n, data),
+                request, raw=True)
+            del self.pending[name]
+            self.get_logger().info(f"recording {name} ({reliability}, {durability}; "
+                                   f"{len(offers)} publisher(s))")
 
     def _on_message(self, topic: str, data: bytes) -> None:
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)

@@ -10,19 +10,22 @@ Two needs, one DDS rule (a transient-local reader never matches a volatile write
   so a volatile publisher is rejected in every start order (tests/test_bags_qos.py).
   :class:`ResultsSubscription` keeps a transient-local reader (late-joiner history) and,
   once a publisher it cannot match is discovered, adds a volatile (best-effort if needed)
-  reader that matches everyone; a sample both readers get (same writer timestamp and
-  sequence number) is delivered once.
+  reader that matches everyone; a sample both readers get is delivered once (recognised by
+  its serialized bytes: rclpy's EventsExecutor cannot hand message info, i.e. writer
+  timestamp and sequence number, to a callback).
 - the recorder requests, per topic, what rosbag2's recorder requests
   (:func:`vibro_ros.qos_format.adapt_request_to_offers`) and stores the offered profiles.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections import OrderedDict
 from typing import Any, Callable
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 
 from .qos_format import profile_dict as _profile_dict
 
@@ -62,6 +65,16 @@ def discovered_offers(node: Node, topic: str, declared: QoSProfile | None = None
     return offers
 
 
+#: node name rmw reports for an endpoint whose node is not known yet (its ros_discovery_info lags DDS discovery)
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
+
+
+def publishers_identified(node: Node, topic: str) -> bool:
+    """Whether the node of every discovered publisher of ``topic`` is known by name yet."""
+    return all(info.node_name not in ("", UNKNOWN_NODE_NAME)
+               for info in node.get_publishers_info_by_topic(node.resolve_topic_name(topic)))
+
+
 def matches(request: QoSProfile, offer: dict[str, Any]) -> bool:
     """Whether a reader with ``request`` matches a writer offering ``offer`` (reliability, durability)."""
     if request.reliability == ReliabilityPolicy.RELIABLE and offer["reliability"] != "reliable":
@@ -74,10 +87,13 @@ def matches(request: QoSProfile, offer: dict[str, Any]) -> bool:
 class ResultsSubscription:
     """A transient-local subscription that also hears volatile and best-effort publishers.
 
-    ``callback(msg)`` gets each sample once. ``profile`` is the transient-local request
-    (vibro's RESULTS_QOS); the companion reader, added when a publisher it cannot match is
-    discovered, has the same depth, volatile durability, and best effort if any such
-    publisher is best effort.
+    ``callback(msg)`` gets each sample once (``raw``: its serialized bytes). ``profile`` is
+    the request (vibro's RESULTS_QOS, or the recorder's adapted one); the companion reader,
+    added when a publisher the request cannot match is discovered, has the same depth,
+    volatile durability, and best effort if any publisher is best effort. While two readers
+    run, a sample byte-identical to one of the last ``2 * depth`` (at least 1000) is taken
+    for the second copy and dropped; vibro's messages carry stamps and indices, so two
+    distinct ones are never identical.
     """
 
     def __init__(self, node: Node, msg_type, topic: str, callback: Callable[[Any], None], profile: QoSProfile,
@@ -88,9 +104,9 @@ class ResultsSubscription:
         self._callback = callback
         self._profile = profile
         self._raw = raw
-        self._seen: OrderedDict[tuple[int, int], None] = OrderedDict()
+        self._seen: OrderedDict[bytes, None] = OrderedDict()
         self._keep = max(2 * int(profile.depth), 1000)
-        self.subscriptions = [node.create_subscription(msg_type, topic, self._on_message, profile, raw=raw)]
+        self.subscriptions = [node.create_subscription(msg_type, topic, self._on_message, profile, raw=True)]
         self.companion_profile: QoSProfile | None = None
         self._timer = node.create_timer(POLL_S, self._check_publishers)
 
@@ -98,14 +114,14 @@ class ResultsSubscription:
     def topic_name(self) -> str:
         return self.subscriptions[0].topic_name
 
-    def _on_message(self, msg, info) -> None:
-        key = (int(info["source_timestamp"]), int(info["publication_sequence_number"] or 0))
-        if key in self._seen:  # the same writer's sample, already delivered by the other reader
+    def _on_message(self, data: bytes) -> None:
+        key = hashlib.blake2b(data, digest_size=16).digest()
+        if key in self._seen and len(self.subscriptions) > 1:  # the other reader's copy of this sample
             return
         self._seen[key] = None
         if len(self._seen) > self._keep:
             self._seen.popitem(last=False)
-        self._callback(msg)
+        self._callback(data if self._raw else deserialize_message(data, self._msg_type))
 
     def _check_publishers(self) -> None:
         offers = discovered_offers(self._node, self._topic)
@@ -124,7 +140,7 @@ class ResultsSubscription:
             f"{', '.join(sorted({o['reliability'] + '/' + o['durability'] for o in strangers}))}; "
             f"also subscribing {companion.reliability.name.lower()}/volatile")
         self.subscriptions.append(self._node.create_subscription(
-            self._msg_type, self._topic, self._on_message, companion, raw=self._raw))
+            self._msg_type, self._topic, self._on_message, companion, raw=True))
         if self.companion_profile is not None:  # upgrade reliable -> best effort: the old companion goes
             self._node.destroy_subscription(self.subscriptions.pop(1))
         self.companion_profile = companion
