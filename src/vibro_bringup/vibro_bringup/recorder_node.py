@@ -1,10 +1,12 @@
 """ROS node ``recorder``: every vibro topic, as received (serialized CDR), into a rosbag2/MCAP bag.
 
-As ``ros2 bag record`` does: a topic is subscribed once a publisher of it is discovered,
-with the QoS that matches every publisher (best effort if any is best effort, e.g. a
-camera driver; transient local only if all are, so late results still arrive), and the
-bag stores the fully qualified name and the offered profiles. A publisher discovered
-later that the subscription cannot match gets a companion subscription (logged).
+Every topic is subscribed at start with the topic table's profile (sources wait for the
+recorder), and, as ``ros2 bag record`` adapts its request, a publisher that profile cannot
+match (a best-effort camera driver, a volatile replay of a result topic) gets a companion
+reader that matches it (:class:`vibro_ros.adaptive_qos.ResultsSubscription`): nothing
+offered is left unrecorded, and transient-local results still arrive late. The bag stores
+fully qualified names and, per topic, the profiles its publishers offered (discovered when
+its first publisher appears; messages are held until then).
 Finishes a chunk at least once a second and rewrites metadata.yaml every second, so a
 killed recorder leaves a bag readable up to its last chunk (``vibro bag reindex`` then
 indexes it). Stops cleanly (index + final metadata) on SIGINT/SIGTERM.
@@ -17,7 +19,6 @@ import sys
 import time
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from vibro_ros import topics
 from vibro_ros.adaptive_qos import ResultsSubscription, discovered_offers, publishers_identified
@@ -58,43 +59,55 @@ class Recorder(Node):
                                 compression=compression)
         self.health = Health(self)
         self.health.rate_counter = "recorded"
-        #: fully qualified name -> topic, until a publisher of it is discovered
+        #: fully qualified name -> topic, until its publishers are discovered and its channel is written
         self.pending = {self.resolve_topic_name(t.name): t for t in topics.ALL_TOPICS
                         if t.name not in exclude and self.resolve_topic_name(t.name) not in exclude}
-        self.subscriptions_by_topic: dict[str, ResultsSubscription] = {}
+        self._held: dict[str, list[tuple[int, bytes]]] = {name: [] for name in self.pending}
         self._first_seen: dict[str, float] = {}
+        # subscribed at once with the topic table's profile, so sources waiting for the recorder see it;
+        # a publisher that profile cannot match (best-effort camera, volatile replay) gets a companion reader
+        self.subscriptions_by_topic = {
+            name: ResultsSubscription(self, message_class(t.msg_type), name,
+                                      lambda data, n=name: self._on_message(n, data), QOS_BY_KIND[t.qos], raw=True)
+            for name, t in self.pending.items()}
         self.create_timer(DISCOVERY_S, self._discover)
         self.create_timer(0.2, self.writer.flush_if_due)
-        self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag} as their publishers appear")
+        self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag}")
 
-    def _discover(self) -> None:
+    def _discover(self, final: bool = False) -> None:
+        """Write the channel of each topic whose publishers are discovered, with their offered profiles."""
         for name, topic in list(self.pending.items()):
-            if not self.count_publishers(name):
+            if not final:
+                if not self.count_publishers(name):
+                    continue
+                now = time.monotonic()
+                if not publishers_identified(self, name) and now - self._first_seen.setdefault(name, now) < NAME_WAIT_S:
+                    continue  # history/depth of vibro's own publishers are recognised by their node name
+            elif not self._held[name]:
                 continue
-            now = time.monotonic()
-            if not publishers_identified(self, name) and now - self._first_seen.setdefault(name, now) < NAME_WAIT_S:
-                continue  # history/depth of vibro's own publishers are recognised by node name
-            declared = QOS_BY_KIND[topic.qos]
-            offers = discovered_offers(self, name, declared, topic.nodes)
-            if not offers:
-                continue
-            reliability, durability = adapt_request_to_offers(offers)
-            request = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(int(declared.depth), 10),
-                                 reliability=ReliabilityPolicy[reliability.upper()],
-                                 durability=DurabilityPolicy[durability.upper()])
+            offers = discovered_offers(self, name, QOS_BY_KIND[topic.qos], topic.nodes)
             self.writer.add_topic(name, topic.msg_type, offers)
-            self.subscriptions_by_topic[name] = ResultsSubscription(
-                self, message_class(topic.msg_type), name, lambda data, n=name: self._on_message(n, data),
-                request, raw=True)
             del self.pending[name]
-            self.get_logger().info(f"recording {name} ({reliability}, {durability}; "
-                                   f"{len(offers)} publisher(s))")
+            for stamp_ns, data in self._held.pop(name):
+                self._write(name, stamp_ns, data)
+            reliability, durability = adapt_request_to_offers(offers)
+            self.get_logger().info(f"recording {name}: {len(offers)} publisher(s), matched as {reliability}, "
+                                   f"{durability}")
 
     def _on_message(self, topic: str, data: bytes) -> None:
-        self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+        stamp_ns = self.get_clock().now().nanoseconds
+        held = self._held.get(topic)
+        if held is not None:  # channel not written yet: its publishers' QoS is still being discovered
+            held.append((stamp_ns, data))
+        else:
+            self._write(topic, stamp_ns, data)
+
+    def _write(self, topic: str, stamp_ns: int, data: bytes) -> None:
+        self.writer.write(topic, stamp_ns, data)
         self.health.count("recorded")
 
     def close(self) -> None:
+        self._discover(final=True)  # messages received before their publishers were identified
         self.writer.close()
         print(f"recorder: closed {self.writer.path}: {self.writer.message_count} messages", file=sys.stderr)
 
