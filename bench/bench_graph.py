@@ -122,8 +122,8 @@ def streaming_window(bag: Path) -> tuple[float, float, int]:
     """(first frame, last DicFrame) receive times in the bag (s, wall clock) and the frame count."""
     from vibro_ros.bags import read_messages
 
-    frames = [m.timestamp_ns for m in read_messages(bag) if m.topic == "vibro/frames"]
-    dic = [m.timestamp_ns for m in read_messages(bag) if m.topic == "vibro/dic"]
+    frames = [m.timestamp_ns for m in read_messages(bag, {"vibro/frames"})]
+    dic = [m.timestamp_ns for m in read_messages(bag, {"vibro/dic"})]
     return min(frames) / 1e9, max(dic) / 1e9, len(frames)
 
 

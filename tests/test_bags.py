@@ -60,7 +60,7 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
         by_topic: dict[str, list] = {}
         for conn, _, raw in reader.messages():
             by_topic.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
-    frames, dic = by_topic["vibro/frames"], by_topic["vibro/dic"]
+    frames, dic = by_topic["/vibro/frames"], by_topic["/vibro/dic"]  # fully qualified, as rosbag2 records
     assert len(frames) == 5 and len(dic) == 5
     assert frames[0].encoding == "mono8" and (frames[0].height, frames[0].width) == (128, 96)
     # the fixture moves its lower half 2 px = 0.1 mm down per frame
@@ -74,11 +74,11 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
         assert schemas["vibro_msgs/msg/DicFrame"].encoding == "ros2msg"
         assert b"float64 ball_mm" in schemas["vibro_msgs/msg/DicFrame"].data
         assert all(c.message_encoding == "cdr" for c in summary.channels.values())
-        counted = sum(1 for _ in mreader.iter_messages(topics=["vibro/dic"]))
+        counted = sum(1 for _ in mreader.iter_messages(topics=["/vibro/dic"]))
     assert counted == 5
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["storage_identifier"] == "mcap" and meta["version"] == 9
-    assert {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}["vibro/dic"] == 5
+    assert {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}["/vibro/dic"] == 5
 
 
 def test_killed_recorder_leaves_a_readable_bag(tiny_recording: Path, tmp_path: Path, ros_domain: str,
@@ -98,7 +98,7 @@ def test_killed_recorder_leaves_a_readable_bag(tiny_recording: Path, tmp_path: P
         recorder.kill()  # SIGKILL: no chance to write the MCAP index or final metadata
         recorder.communicate(timeout=30)
     with caplog.at_level(logging.WARNING):
-        blocks = [m for m in read_messages(bag) if m.topic == "vibro/accel"]
+        blocks = list(read_messages(bag, {"vibro/accel"}))
     assert "truncated" in caplog.text
     # at most one 1 KiB chunk (a handful of ~150-byte messages) may be lost; most must survive
     assert 200 <= len(blocks) <= 250

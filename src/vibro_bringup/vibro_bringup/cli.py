@@ -23,6 +23,7 @@ SUBCOMMAND_MODULES = (
     "vibro_bringup.cmd_graph",
     "vibro_bringup.bag_results",
     "vibro_bringup.cmd_replay",
+    "vibro_bringup.cmd_bag",
     "vibro_eval.cli",
 )
 

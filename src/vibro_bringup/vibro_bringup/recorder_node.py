@@ -1,21 +1,36 @@
 """ROS node ``recorder``: every vibro topic, as received (serialized CDR), into a rosbag2/MCAP bag.
 
-Writes chunk by chunk and rewrites metadata.yaml every second, so a killed recorder
-leaves a bag readable up to its last chunk. Stops cleanly (index + final metadata) on
-SIGINT/SIGTERM.
+Every topic is subscribed at start with the topic table's profile (sources wait for the
+recorder), and, as ``ros2 bag record`` adapts its request, a publisher that profile cannot
+match (a best-effort camera driver, a volatile replay of a result topic) gets a companion
+reader that matches it (:class:`vibro_ros.adaptive_qos.ResultsSubscription`): nothing
+offered is left unrecorded, and transient-local results still arrive late. The bag stores
+fully qualified names and, per topic, the profiles its publishers offered (discovered when
+its first publisher appears; messages are held until then).
+Finishes a chunk at least once a second and rewrites metadata.yaml every second, so a
+killed recorder leaves a bag readable up to its last chunk (``vibro bag reindex`` then
+indexes it). Stops cleanly (index + final metadata) on SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+import time
 
 from rclpy.node import Node
 
 from vibro_ros import topics
+from vibro_ros.adaptive_qos import ResultsSubscription, discovered_offers, publishers_identified
 from vibro_ros.bags import BagWriter
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node
+from vibro_ros.qos_format import adapt_request_to_offers
+
+#: How often the recorder looks for publishers of the topics it does not record yet (s), as rosbag2.
+DISCOVERY_S = 0.1
+#: How long to wait for a discovered publisher's node name (to recognise vibro's own publishers) (s).
+NAME_WAIT_S = 2.0
 
 
 def message_class(ros_type: str):
@@ -44,20 +59,55 @@ class Recorder(Node):
                                 compression=compression)
         self.health = Health(self)
         self.health.rate_counter = "recorded"
-        for topic in topics.ALL_TOPICS:
-            if topic.name in exclude:
+        #: fully qualified name -> topic, until its publishers are discovered and its channel is written
+        self.pending = {self.resolve_topic_name(t.name): t for t in topics.ALL_TOPICS
+                        if t.name not in exclude and self.resolve_topic_name(t.name) not in exclude}
+        self._held: dict[str, list[tuple[int, bytes]]] = {name: [] for name in self.pending}
+        self._first_seen: dict[str, float] = {}
+        # subscribed at once with the topic table's profile, so sources waiting for the recorder see it;
+        # a publisher that profile cannot match (best-effort camera, volatile replay) gets a companion reader
+        self.subscriptions_by_topic = {
+            name: ResultsSubscription(self, message_class(t.msg_type), name,
+                                      lambda data, n=name: self._on_message(n, data), QOS_BY_KIND[t.qos], raw=True)
+            for name, t in self.pending.items()}
+        self.create_timer(DISCOVERY_S, self._discover)
+        self.create_timer(0.2, self.writer.flush_if_due)
+        self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag}")
+
+    def _discover(self, final: bool = False) -> None:
+        """Write the channel of each topic whose publishers are discovered, with their offered profiles."""
+        for name, topic in list(self.pending.items()):
+            if not final:
+                if not self.count_publishers(name):
+                    continue
+                now = time.monotonic()
+                if not publishers_identified(self, name) and now - self._first_seen.setdefault(name, now) < NAME_WAIT_S:
+                    continue  # history/depth of vibro's own publishers are recognised by their node name
+            elif not self._held[name]:
                 continue
-            self.writer.add_topic(topic.name, topic.msg_type)
-            self.create_subscription(message_class(topic.msg_type), topic.name,
-                                     lambda data, name=topic.name: self._on_message(name, data),
-                                     QOS_BY_KIND.get(topic.qos, 10), raw=True)
-        self.get_logger().info(f"recording {len(self.writer.topics)} topics to {bag}")
+            offers = discovered_offers(self, name, QOS_BY_KIND[topic.qos], topic.nodes)
+            self.writer.add_topic(name, topic.msg_type, offers)
+            del self.pending[name]
+            for stamp_ns, data in self._held.pop(name):
+                self._write(name, stamp_ns, data)
+            reliability, durability = adapt_request_to_offers(offers)
+            self.get_logger().info(f"recording {name}: {len(offers)} publisher(s), matched as {reliability}, "
+                                   f"{durability}")
 
     def _on_message(self, topic: str, data: bytes) -> None:
-        self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+        stamp_ns = self.get_clock().now().nanoseconds
+        held = self._held.get(topic)
+        if held is not None:  # channel not written yet: its publishers' QoS is still being discovered
+            held.append((stamp_ns, data))
+        else:
+            self._write(topic, stamp_ns, data)
+
+    def _write(self, topic: str, stamp_ns: int, data: bytes) -> None:
+        self.writer.write(topic, stamp_ns, data)
         self.health.count("recorded")
 
     def close(self) -> None:
+        self._discover(final=True)  # messages received before their publishers were identified
         self.writer.close()
         print(f"recorder: closed {self.writer.path}: {self.writer.message_count} messages", file=sys.stderr)
 

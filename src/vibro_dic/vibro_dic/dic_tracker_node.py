@@ -21,7 +21,8 @@ from sensor_msgs.msg import Image
 from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
-from vibro_ros.node_support import (RESULTS_QOS, SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
+from vibro_ros.adaptive_qos import results_subscription
+from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
                                    seconds_from_stamp, stamp_from_seconds)
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
@@ -95,7 +96,7 @@ class DicTrackerNode(Node):
         self.health.rate_counter = "tracked"
         self.status = StatusPublisher(self, "dic")
         self.pub = self.create_publisher(DicFrame, topics.DIC.name, STREAM_QOS)
-        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+        results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
         self.create_timer(1.0, self._report)
         self._held: list[DicFrame] = []  # results kept back until vibro/dic has its subscribers

@@ -15,6 +15,7 @@ from rclpy.node import Node
 
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
+from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, run_node,
                                    stamp_from_seconds)
 from vibro_io.rig import load_rig
@@ -55,8 +56,8 @@ class ImpactDetector(Node):
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel_impacts")
         self.pub = self.create_publisher(AccelImpact, topics.ACCEL_IMPACTS.name, RESULTS_QOS)
-        self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, RESULTS_QOS)
-        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+        results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block)
+        results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
 
     def _publish(self, impacts: list[Impact]) -> None:
         for impact in impacts:

@@ -23,6 +23,7 @@ from vibro_ros import topics
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
+from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
                                    stamp_from_seconds)
 from vibro_io.rig import load_rig
@@ -92,8 +93,8 @@ class TrajectoryFitter(Node):
         self.pub_impacts = self.create_publisher(ImpactEstimate, topics.IMPACTS.name, RESULTS_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
         if self.use_accel:
-            self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, RESULTS_QOS)
-        self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+            results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block)
+        results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_timer(0.5, self._maybe_finish)
 
     # ---------------------------------------------------------------- streaming

@@ -27,6 +27,10 @@ from . import topics
 STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                         reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 #: Results: reliable and transient-local, so a recorder or fitter that joins late still gets them.
+#: Publishers use it as is; subscribers use :func:`vibro_ros.adaptive_qos.results_subscription`,
+#: which also hears a volatile or best-effort publisher of the topic (a replay tool, a driver):
+#: a transient-local reader alone rejects those, and rmw's BEST_AVAILABLE durability, fixed when
+#: the subscription is created, turns transient local in a fresh process and rejects them too.
 RESULTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
                          reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: A live camera driver's image_raw (best effort, shallow).

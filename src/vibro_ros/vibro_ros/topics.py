@@ -1,6 +1,8 @@
 """Topic names of the vibro graph: one definition for the nodes, launch files, recorder and docs.
 
-Names are relative (no leading slash) so that a launch namespace or a remap moves them.
+Names are relative (no leading slash) so that a launch namespace or a remap moves them; a
+bag holds them fully qualified, as rosbag2 records them (``/vibro/frames``, or
+``/lab1/vibro/frames`` under namespace ``/lab1``): see :func:`vibro_ros.bags.matching_name`.
 """
 
 from __future__ import annotations
@@ -15,26 +17,29 @@ class Topic:
     qos: str       # "stream" (reliable, flow-controlled), "results" (reliable, transient local), "sensor", "default"
     publisher: str
     description: str
+    #: node names that publish it with the ``qos`` kind's profile (empty: any vibro node)
+    nodes: tuple[str, ...] = ()
 
 
 FRAMES = Topic("vibro/frames", "sensor_msgs/msg/Image", "stream", "frame_source",
-               "camera frames, mono8/mono16, stamp = t0_s + k/fps (remap to a camera driver's image_raw)")
+               "camera frames, mono8/mono16, stamp = t0_s + k/fps (remap to a camera driver's image_raw)",
+               ("frame_source", "bag_source"))
 DIC = Topic("vibro/dic", "vibro_msgs/msg/DicFrame", "stream", "dic_tracker",
-            "per-frame ball and structure displacement (mm, + up), valid points, ZNCC, lost flag")
+            "per-frame ball and structure displacement (mm, + up), valid points, ZNCC, lost flag", ("dic_tracker",))
 ACCEL = Topic("vibro/accel", "vibro_msgs/msg/AccelBlock", "results", "accel_source",
-              "blocks of upper/lower plate accelerations (m/s^2)")
+              "blocks of upper/lower plate accelerations (m/s^2)", ("accel_source", "bag_source"))
 ACCEL_IMPACTS = Topic("vibro/accel_impacts", "vibro_msgs/msg/AccelImpact", "results", "impact_detector",
-                      "impacts detected in the accelerometers (time, plate, peak, spectrum peaks)")
+                      "impacts detected in the accelerometers (time, plate, peak, spectrum peaks)", ("impact_detector",))
 STRUCTURE = Topic("vibro/structure", "vibro_msgs/msg/StructureMotion", "results", "trajectory_fitter",
-                  "fitted structure sine (Eq. 2, 13)")
+                  "fitted structure sine (Eq. 2, 13)", ("trajectory_fitter",))
 FLIGHTS = Topic("vibro/flights", "vibro_msgs/msg/FreeFlight", "results", "trajectory_fitter",
-                "fitted free flights (Eq. 3, 14) with friction (Eq. 17)")
+                "fitted free flights (Eq. 3, 14) with friction (Eq. 17)", ("trajectory_fitter",))
 IMPACTS = Topic("vibro/impacts", "vibro_msgs/msg/ImpactEstimate", "results", "trajectory_fitter",
-                "one estimate per impact (Eq. 15, 16), one flight after it happened")
+                "one estimate per impact (Eq. 15, 16), one flight after it happened", ("trajectory_fitter",))
 SIMULATION = Topic("vibro/simulation", "vibro_msgs/msg/SimulationResult", "results", "simulator",
-                   "simulated trajectory and deviation D (Eq. 18) per model")
+                   "simulated trajectory and deviation D (Eq. 18) per model", ("simulator",))
 DISCREPANCY = Topic("vibro/discrepancy", "vibro_msgs/msg/DiscrepancyFinding", "results", "discrepancy",
-                    "physics the baseline model left out, with parameters and D before/after")
+                    "physics the baseline model left out, with parameters and D before/after", ("discrepancy",))
 STATUS = Topic("vibro/status", "vibro_msgs/msg/StreamStatus", "results", "every node",
                "items sent/lost per stream and end-of-stream markers")
 DIAGNOSTICS = Topic("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
