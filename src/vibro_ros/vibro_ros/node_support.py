@@ -218,13 +218,24 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
     A node that ends by itself has a ``done`` attribute (an ``rclpy.task.Future``) and sets
     its result. Bad input raised while building the node (``RecordingError``) is logged
-    as one line and gives exit code 2.
+    as one line and gives exit code 2. ``--help`` (before ``--ros-args``) prints the node's usage
+    and gives 0 without starting it; any other non-ROS argument gives 2 (``node_help``).
+    ``factory`` is the node class (its source gives the usage).
     """
+    import sys
+
     from vibro_io.errors import RecordingError
+
+    from .node_help import handle_command_line
+
+    argv = list(sys.argv if args is None else args)
+    handled = handle_command_line(factory, argv) if isinstance(factory, type) else None
+    if handled is not None:
+        return handled
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _note_stop)  # before rclpy.init, whose handlers chain to these
-    rclpy.init(args=args)
+    rclpy.init(args=argv)
     node = None
     code = 0
     try:

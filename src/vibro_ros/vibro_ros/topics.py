@@ -1,6 +1,8 @@
 """Topic names of the vibro graph: one definition for the nodes, launch files, recorder and docs.
 
-Names are relative (no leading slash) so that a launch namespace or a remap moves them.
+Names are relative (no leading slash) so that a launch namespace or a remap moves them
+(``-r __ns:=/lab1`` gives /lab1/vibro/...), except /diagnostics, which is absolute: diagnostic
+aggregators and lab tools read it at the root whatever the namespace of the graph.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ DISCREPANCY = Topic("vibro/discrepancy", "vibro_msgs/msg/DiscrepancyFinding", "r
                     "physics the baseline model left out, with parameters and D before/after")
 STATUS = Topic("vibro/status", "vibro_msgs/msg/StreamStatus", "results", "every node",
                "items sent/lost per stream and end-of-stream markers")
-DIAGNOSTICS = Topic("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
+DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
                     "health: rate, lag, dropped/lost counts")
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
