@@ -57,7 +57,8 @@ def seconds_from_stamp(header: Header) -> float:
 
 
 class Health:
-    """Counts and rates a node reports on /diagnostics once a second."""
+    """Counts and rates a node reports on /diagnostics once a second, and once more when it stops
+    (:func:`run_node`). /diagnostics is absolute: it stays at the root under a namespace."""
 
     def __init__(self, node: Node, hardware_id: str = "vibro"):
         self._node = node
@@ -258,6 +259,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             if close is not None:
                 close()
             if rclpy.ok():
+                health = getattr(node, "health", None)
+                if isinstance(health, Health):  # the final counts, also of a node that ran < 1 s
+                    health.publish()
                 flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
