@@ -178,3 +178,16 @@ def test_vibro_cli_works_without_the_evaluation_harness(monkeypatch: pytest.Monk
     monkeypatch.setitem(sys.modules, "vibro_eval", None)  # import vibro_eval -> ModuleNotFoundError
     commands = cli.build_parser()._subparsers._group_actions[0].choices
     assert "prove" not in commands and {"graph", "analyze", "results", "replay"} <= set(commands)
+
+
+def test_a_node_refuses_an_unknown_argument_with_one_line() -> None:
+    """`impact_detector --threshold 3` (meant as a parameter) must not start a node that ignores it."""
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "vibro_fit.impact_detector_node", "--threshold", "3"],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert res.stderr.strip().splitlines() == [
+        "vibro_fit.impact_detector_node: error: unknown argument(s) --threshold 3 (ROS arguments go after "
+        "--ros-args; see --help)"]
