@@ -261,7 +261,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             if rclpy.ok():
                 health = getattr(node, "health", None)
                 if isinstance(health, Health):  # the final counts, also of a node that ran < 1 s
-                    health.publish()
+                    try:
+                        health.publish()
+                    except Exception:  # best effort, like the flush below: the context may be going down
+                        pass
                 flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
