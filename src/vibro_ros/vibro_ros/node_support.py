@@ -45,14 +45,17 @@ def declare(node: Node, name: str, default: Any, description: str, read_only: bo
 
 
 def stamp_from_seconds(header: Header, t_s: float) -> Header:
-    """Set ``header.stamp`` to ``t_s`` seconds (camera or DAQ time)."""
-    sec = int(t_s // 1)
-    header.stamp.sec = sec
-    header.stamp.nanosec = int(round((t_s - sec) * 1e9)) % 1_000_000_000
+    """Set ``header.stamp`` to ``t_s`` seconds (camera or DAQ time), rounded to the nearest ns.
+
+    A fraction that rounds up to a whole second carries into ``sec`` (0.9999999999 s is 1 s 0 ns,
+    not 0 s 0 ns, which would put the item one second early).
+    """
+    header.stamp.sec, header.stamp.nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
     return header
 
 
 def seconds_from_stamp(header: Header) -> float:
+    """``header.stamp`` in seconds (inverse of :func:`stamp_from_seconds` to within 0.5 ns)."""
     return header.stamp.sec + header.stamp.nanosec * 1e-9
 
 
