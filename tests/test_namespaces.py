@@ -63,6 +63,7 @@ def _stop(procs: list[subprocess.Popen]) -> dict[int, str]:
 def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
         tiny_recording: Path, tmp_path: Path, ros_domain: str) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import Image
     from vibro_msgs.msg import DicFrame
     from vibro_ros.node_support import STREAM_QOS
 
@@ -76,16 +77,23 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
     with Probe() as probe:
         diagnostics = probe.subscribe(DiagnosticArray, "/diagnostics")
         dic = {ns: probe.subscribe(DicFrame, f"{ns}/vibro/dic", STREAM_QOS) for ns in labs}
+        frames = {ns: probe.subscribe(Image, f"{ns}/vibro/frames", STREAM_QOS) for ns in labs}
         for ns, (rec, _, zncc_min) in labs.items():
             # the params file as `vibro graph` writes it, applied to namespaced nodes
             params = node_parameters(rec, None)
             params["dic_tracker"].update(zncc_min=zncc_min, wait_for_subscribers=2)  # frame_source + probe
-            params["frame_source"]["wait_for_subscribers"] = 1
+            # tracker + probe (as the recorder in a real graph): the source, which lives < 1 s here,
+            # starts once the probe is known, so its /diagnostics reach the probe too
+            params["frame_source"]["wait_for_subscribers"] = 2
             params_file = write_params_file(params, tmp_path / f"params{ns.replace('/', '_')}.yaml")
             procs.append(_start_node("vibro_dic.dic_tracker_node", ns, params_file))
             procs.append(_start_node("vibro_dic.frame_source_node", ns, params_file))
         try:
             streamed = probe.spin_until(lambda: all(len(dic[ns]) >= n for ns, (_, n, _) in labs.items()), 90)
+            # every node reports on the root /diagnostics, named by its full name (a source that ran
+            # < 1 s reports once, as it stops)
+            expected_names = {f"{ns}/{node}" for ns in labs for node in ("dic_tracker", "frame_source")}
+            probe.spin_until(lambda: expected_names <= {s.name for m in diagnostics for s in m.status}, 30)
             probe.spin(1.0)  # anything a leak would add arrives by now
             names = {s.name for msg in diagnostics for s in msg.status}
             got_params = {ns: probe.get_parameters(f"{ns}/dic_tracker", ["zncc_min", "rig_file"]) for ns in labs}
@@ -97,10 +105,10 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
     for ns, (rec, n_frames, zncc_min) in labs.items():
         # each tracker saw only its own source's frames: a leak would add /lab1's frames 3, 4 to /lab2
         assert [m.frame_index for m in dic[ns]] == list(range(n_frames)), ns
+        assert len(frames[ns]) == n_frames, ns
         assert not any(m.lost for m in dic[ns]), ns
         # the params file applied under the namespace (a bare `dic_tracker:` key would not)
         assert got_params[ns] == {"zncc_min": zncc_min, "rig_file": str((rec / "rig.yaml").resolve())}
-        # every node reports on the root /diagnostics, named by its full name
         assert {f"{ns}/dic_tracker", f"{ns}/frame_source"} <= names, names
     assert "/diagnostics" in all_topics and not {"/lab1/diagnostics", "/lab2/diagnostics"} & all_topics
     # the running tracker's topics are its --help listing moved into the namespace
