@@ -73,10 +73,10 @@ def recording(tmp_path_factory) -> Path:
 
 
 def _params(tmp: Path, rate_hz: float) -> Path:
-    from vibro_bringup.graph_spec import default_params_file
+    from vibro_bringup.graph_spec import default_params_file, params_file_key
 
     data = yaml.safe_load(default_params_file().read_text())
-    data["frame_source"]["ros__parameters"]["rate_hz"] = rate_hz
+    data[params_file_key("frame_source")]["ros__parameters"]["rate_hz"] = rate_hz
     path = tmp / "params.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

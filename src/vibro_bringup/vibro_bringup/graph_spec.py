@@ -36,6 +36,27 @@ BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringu
 
 
 
+#: Params-file key prefix matching a node name in any namespace (rcl's ``/**`` wildcard), so a
+#: graph started under ``-r __ns:=/lab1`` still gets its parameters.
+ANY_NAMESPACE = "/**/"
+
+
+def params_file_key(node_name: str) -> str:
+    """The params-file key of ``node_name`` in any namespace: ``/**/<node_name>``."""
+    return ANY_NAMESPACE + node_name
+
+
+def node_name_of_key(key: str, source: str | Path = "params file") -> str:
+    """The node name of a params-file key (``/**/name``, or a bare ``name``/``/name``);
+    RecordingError naming ``source`` for keys this graph cannot map to one of its nodes."""
+    from vibro_io.errors import RecordingError
+
+    name = key[len(ANY_NAMESPACE):] if key.startswith(ANY_NAMESPACE) else key.removeprefix("/")
+    if not name.isidentifier():
+        raise RecordingError(f"{source}: key {key!r}: expected /**/<node name> (e.g. /**/dic_tracker)")
+    return name
+
+
 def default_params_file() -> Path:
     """config/vibro.yaml of the source tree, else of the installed package's share/ folder."""
     here = Path(__file__).resolve().parents[1] / "config" / "vibro.yaml"
@@ -96,8 +117,9 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
                     with_accel: bool = True, reference_image: str | Path | None = None) -> dict[str, dict[str, Any]]:
     """Parameters per node for one run: the defaults file, then the recording and bag paths, and
     ``reference_image`` (frame 0 as an image file) for dic_tracker when given."""
-    data = yaml.safe_load(Path(base or default_params_file()).read_text(encoding="utf-8")) or {}
-    params = {name: dict(block.get("ros__parameters", {})) for name, block in data.items()}
+    base = Path(base or default_params_file())
+    data = yaml.safe_load(base.read_text(encoding="utf-8")) or {}
+    params = {node_name_of_key(key, base): dict(block.get("ros__parameters", {})) for key, block in data.items()}
     rec = Path(recording).resolve()
     params.setdefault("frame_source", {})["recording"] = str(rec)
     params.setdefault("accel_source", {})["recording"] = str(rec)
@@ -112,8 +134,8 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
 
 
 def write_params_file(params: dict[str, dict[str, Any]], path: str | Path) -> Path:
-    """Write a ROS 2 parameters YAML (``node: ros__parameters: {...}``)."""
+    """Write a ROS 2 parameters YAML (``/**/node: ros__parameters: {...}``: applies in any namespace)."""
     path = Path(path)
-    path.write_text(yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=False),
-                    encoding="utf-8")
+    path.write_text(yaml.safe_dump({params_file_key(n): {"ros__parameters": p} for n, p in params.items()},
+                                   sort_keys=False), encoding="utf-8")
     return path

@@ -49,19 +49,23 @@ def declare(node: Node, name: str, default: Any, description: str, read_only: bo
 
 
 def stamp_from_seconds(header: Header, t_s: float) -> Header:
-    """Set ``header.stamp`` to ``t_s`` seconds (camera or DAQ time)."""
-    sec = int(t_s // 1)
-    header.stamp.sec = sec
-    header.stamp.nanosec = int(round((t_s - sec) * 1e9)) % 1_000_000_000
+    """Set ``header.stamp`` to ``t_s`` seconds (camera or DAQ time), rounded to the nearest ns.
+
+    A fraction that rounds up to a whole second carries into ``sec`` (0.9999999999 s is 1 s 0 ns,
+    not 0 s 0 ns, which would put the item one second early).
+    """
+    header.stamp.sec, header.stamp.nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
     return header
 
 
 def seconds_from_stamp(header: Header) -> float:
+    """``header.stamp`` in seconds (inverse of :func:`stamp_from_seconds` to within 0.5 ns)."""
     return header.stamp.sec + header.stamp.nanosec * 1e-9
 
 
 class Health:
-    """Counts and rates a node reports on /diagnostics once a second."""
+    """Counts and rates a node reports on /diagnostics once a second, and once more when it stops
+    (:func:`run_node`). /diagnostics is absolute: it stays at the root under a namespace."""
 
     def __init__(self, node: Node, hardware_id: str = "vibro"):
         self._node = node
@@ -222,13 +226,24 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
     A node that ends by itself has a ``done`` attribute (an ``rclpy.task.Future``) and sets
     its result. Bad input raised while building the node (``RecordingError``) is logged
-    as one line and gives exit code 2.
+    as one line and gives exit code 2. ``--help`` (before ``--ros-args``) prints the node's usage
+    and gives 0 without starting it; any other non-ROS argument gives 2 (``node_help``).
+    ``factory`` is the node class (its source gives the usage).
     """
+    import sys
+
     from vibro_io.errors import RecordingError
+
+    from .node_help import handle_command_line
+
+    argv = list(sys.argv if args is None else args)
+    handled = handle_command_line(factory, argv) if isinstance(factory, type) else None
+    if handled is not None:
+        return handled
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _note_stop)  # before rclpy.init, whose handlers chain to these
-    rclpy.init(args=args)
+    rclpy.init(args=argv)
     node = None
     code = 0
     try:
@@ -251,6 +266,12 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             if close is not None:
                 close()
             if rclpy.ok():
+                health = getattr(node, "health", None)
+                if isinstance(health, Health):  # the final counts, also of a node that ran < 1 s
+                    try:
+                        health.publish()
+                    except Exception:  # best effort, like the flush below: the context may be going down
+                        pass
                 flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():

@@ -1,8 +1,10 @@
 """Topic names of the vibro graph: one definition for the nodes, launch files, recorder and docs.
 
-Names are relative (no leading slash) so that a launch namespace or a remap moves them; a
-bag holds them fully qualified, as rosbag2 records them (``/vibro/frames``, or
-``/lab1/vibro/frames`` under namespace ``/lab1``): see :func:`vibro_ros.bags.matching_name`.
+Names are relative (no leading slash) so that a launch namespace or a remap moves them
+(``-r __ns:=/lab1`` gives /lab1/vibro/...), except /diagnostics, which is absolute: diagnostic
+aggregators and lab tools read it at the root whatever the namespace of the graph. A bag holds
+the names fully qualified, as rosbag2 records them (``/vibro/frames``, or ``/lab1/vibro/frames``
+under namespace ``/lab1``): see :func:`vibro_ros.bags.matching_name`.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ DISCREPANCY = Topic("vibro/discrepancy", "vibro_msgs/msg/DiscrepancyFinding", "r
                     "physics the baseline model left out, with parameters and D before/after", ("discrepancy",))
 STATUS = Topic("vibro/status", "vibro_msgs/msg/StreamStatus", "results", "every node",
                "items sent/lost per stream and end-of-stream markers")
-DIAGNOSTICS = Topic("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
+DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
                     "health: rate, lag, dropped/lost counts")
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
