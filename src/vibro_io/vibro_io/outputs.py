@@ -102,11 +102,13 @@ def _check_writable(folder: Path, label: Path) -> None:
 
 def _make_folder(folder: Path, label: Path) -> None:
     if folder.exists() and not folder.is_dir():
-        raise OutputError(f"{label}: {folder} exists and is not a folder")
+        raise OutputError(f"{label}: {folder} exists and is not a folder" if folder != label
+                          else f"{label}: exists and is not a folder")
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputError(f"{label}: cannot create the folder {folder} ({_reason(exc)})") from exc
+        where = "" if folder == label else f" {folder}"
+        raise OutputError(f"{label}: cannot create the folder{where} ({_reason(exc)})") from exc
 
 
 def prepare_output_dir(path: str | Path, *, overwrite: bool, owned: Iterable[str], command: str,
