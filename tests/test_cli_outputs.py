@@ -301,6 +301,18 @@ def test_results_refuses_then_overwrites(result_bag, tmp_path, capsys):
     assert not temp_leftovers(tmp_path)
 
 
+def test_results_beside_its_bag(result_bag, tmp_path):
+    # vibro graph rec --bag DIR/bag; vibro results DIR/bag --out DIR: the bag and its logs are inputs, kept
+    work = tmp_path / "w"
+    shutil.copytree(result_bag, work / "bag")
+    (work / "bag.logs").mkdir()
+    (work / "bag.logs" / "recorder.log").write_text("log")
+    before = snapshot(work)
+    assert main(["results", str(work / "bag"), "--out", str(work)]) == 0
+    assert json.loads((work / "results.json").read_text())["structure"]["amplitude_mm"] == 1.5
+    assert {k: v for k, v in snapshot(work).items() if k != "results.json"} == before
+
+
 def test_results_and_replay_bad_out_paths(result_bag, tmp_path, capsys):
     a_file = tmp_path / "a_file"
     a_file.write_text("x")

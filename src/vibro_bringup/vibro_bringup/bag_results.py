@@ -110,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
     doc = results_from_bag(args.bag)
     text = json.dumps(doc, indent=2) + "\n"
     if args.out:
-        out = prepare_results_path(args.out, args.overwrite, [Path(args.bag)])
+        bag = Path(args.bag)  # the bag and its graph logs may sit in --out: inputs, kept
+        out = prepare_results_path(args.out, args.overwrite, [bag, bag.parent / f"{bag.name}.logs"])
         atomic_write_text(out, text)
         print(f"wrote {out}")
     else:
