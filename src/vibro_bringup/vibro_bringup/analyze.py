@@ -19,8 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from vibro_dic.cli import DIC_CSV
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
 from vibro_io.errors import RecordingError
+from vibro_io.outputs import atomic_path, prepare_output_dir
 from vibro_io.recording import load_recording_accel, open_recording
 from vibro_io.rig import RigConfig, load_rig
 
@@ -74,42 +76,78 @@ def replay_models(ident, track: DicTrack, rig: RigConfig) -> dict:
     return out
 
 
+DISCREPANCY_PNG = "discrepancy.png"
+
+
+def analyze_outputs() -> tuple[str, ...]:
+    """Every file ``vibro analyze`` may write into its output folder (what ``--overwrite`` replaces)."""
+    from vibro_fit.report import FIGURE_FILES, REPORT_HTML
+    from vibro_fit.results import CSV_TABLES, RESULTS_JSON
+
+    return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *FIGURE_FILES.values(), DISCREPANCY_PNG, REPORT_HTML)
+
+
 def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, progress: bool, dic_method: str,
-                out_dir: Path):
-    """(rig, track, accel) from a recording: DIC unless ``track_csv`` is given (then frames are not read)."""
+                out_dir: Path, overwrite: bool = False):
+    """(rig, track, accel) from a recording: DIC unless ``track_csv`` is given (then frames are not read).
+
+    The inputs are opened (and validated) before ``out_dir`` is prepared (:func:`prepare_output_dir`);
+    with DIC the track is written to ``out_dir/dic.csv``."""
     rec_dir = Path(recording_dir)
+    inputs = [rec_dir] + ([Path(track_csv)] if track_csv is not None else [])
     if track_csv is not None:
         if not rec_dir.is_dir():
             raise RecordingError(f"{rec_dir}: not a recording directory")
         rig = load_rig(rec_dir / "rig.yaml")
         track = read_dic_csv(track_csv)
-        return rig, track, load_recording_accel(rec_dir, rig)
+        accel = load_recording_accel(rec_dir, rig)
+        prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
+        return rig, track, accel
     from vibro_dic.tracker import track_recording
 
     rec = open_recording(rec_dir)
+    accel = rec.load_accel()
+    prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
     rows = list(track_recording(rec, method=dic_method, progress=progress))
-    write_dic_csv(out_dir / "dic.csv", rows)
-    return rec.rig, DicTrack.from_frames(rows), rec.load_accel()
+    with atomic_path(out_dir / DIC_CSV) as tmp:
+        write_dic_csv(tmp, rows)
+    return rec.rig, DicTrack.from_frames(rows), accel
+
+
+class _NoFigure(Exception):
+    """The discrepancy run had nothing to plot (its temporary file is discarded)."""
+
+
+def _write_discrepancy_figure(disc_run, path: Path) -> Path | None:
+    from vibro_sim.discrepancy.figures import write_discrepancy_figure
+
+    try:
+        with atomic_path(path) as tmp:
+            if write_discrepancy_figure(disc_run, tmp) is None:
+                raise _NoFigure
+    except _NoFigure:
+        return None
+    return path
 
 
 def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progress: bool = True,
                       method: str = "paper", track_csv: str | Path | None = None, dic_method: str = "icgn",
-                      report: bool = True, weights: str | None = None) -> dict:
+                      report: bool = True, weights: str | None = None, overwrite: bool = False) -> dict:
     """Run the whole analysis; writes results.json, flights.csv, impacts.csv, PNG figures and report.html
-    into ``out_dir`` (created). Returns the results mapping."""
+    into ``out_dir`` (created; refused when it holds anything but this run's inputs, unless ``overwrite``:
+    see :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically. Returns the results
+    mapping."""
     from vibro_fit.identify import identify
-    from vibro_fit.report import write_figures, write_html
-    from vibro_fit.results import results_document, write_csv_tables, write_json
+    from vibro_fit.report import REPORT_HTML, write_figures, write_html
+    from vibro_fit.results import RESULTS_JSON, results_document, write_csv_tables, write_json
     from vibro_sim.discrepancy.engine import discrepancy_for_results
-    from vibro_sim.discrepancy.figures import write_discrepancy_figure
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     bar = _bar(4, progress, "analyze")
     try:
         bar.set_description("DIC" if track_csv is None else "read track")
         rig, track, accel = load_inputs(recording_dir, track_csv, progress=progress, dic_method=dic_method,
-                                        out_dir=out)
+                                        out_dir=out, overwrite=overwrite)
         bar.update(1)
         bar.set_description("identify")
         ident = identify(track, rig, accel=accel, method=method, weights=weights)
@@ -127,16 +165,16 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         doc["discrepancy"], disc_run, disc_error = discrepancy_for_results(doc, track, rig)
         if disc_error:
             doc["warnings"].append(disc_error)
-        write_json(out / "results.json", doc)
+        write_json(out / RESULTS_JSON, doc)
         write_csv_tables(ident, out)
         if report:
             bar.set_description("report")
             figs = write_figures(track, ident, out, sim)
             if disc_run is not None:
-                fig = write_discrepancy_figure(disc_run, out / "discrepancy.png")
+                fig = _write_discrepancy_figure(disc_run, out / DISCREPANCY_PNG)
                 if fig is not None:
                     figs["discrepancy"] = fig
-            write_html(doc, figs, out / "report.html")
+            write_html(doc, figs, out / REPORT_HTML)
         bar.update(1)
     finally:
         bar.close()

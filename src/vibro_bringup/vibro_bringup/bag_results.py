@@ -14,6 +14,7 @@ from pathlib import Path
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
 from vibro_io.errors import RecordingError
+from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
 
 SCHEMA = "vibro.results/1"
 
@@ -86,20 +87,33 @@ def results_from_bag(bag: str | Path) -> dict:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("results", help="extract results.json from a recorded graph bag")
     p.add_argument("bag", help="bag directory (rosbag2, MCAP storage)")
-    p.add_argument("--out", help="write results.json here (default: print it)")
+    p.add_argument("--out", help="write results.json into this folder (created; must be empty unless "
+                                 "--overwrite), or to this file if the name ends in .json (default: print it)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the results.json of an earlier 'vibro results' in --out")
     p.set_defaults(func=run)
+
+
+def prepare_results_path(out: str | Path, overwrite: bool, inputs: list[Path]) -> Path:
+    """Where ``vibro results --out OUT`` writes: OUT itself if it ends in .json, else OUT/results.json
+    (OUT prepared by :func:`vibro_io.outputs.prepare_output_dir`)."""
+    from vibro_fit.results import RESULTS_JSON
+
+    out = Path(out)
+    if out.suffix == ".json":
+        return prepare_output_file(out, overwrite=overwrite)
+    prepare_output_dir(out, overwrite=overwrite, owned=(RESULTS_JSON,), command="results", inputs=inputs)
+    return out / RESULTS_JSON
 
 
 def run(args: argparse.Namespace) -> int:
     doc = results_from_bag(args.bag)
-    text = json.dumps(doc, indent=2)
+    text = json.dumps(doc, indent=2) + "\n"
     if args.out:
-        out = Path(args.out)
-        if out.suffix != ".json":
-            out.mkdir(parents=True, exist_ok=True)
-            out = out / "results.json"
-        out.write_text(text + "\n", encoding="utf-8")
+        bag = Path(args.bag)  # the bag and its graph logs may sit in --out: inputs, kept
+        out = prepare_results_path(args.out, args.overwrite, [bag, bag.parent / f"{bag.name}.logs"])
+        atomic_write_text(out, text)
         print(f"wrote {out}")
     else:
-        print(text)
+        print(text, end="")
     return 0

@@ -11,7 +11,9 @@ from vibro_fit.identify import METHODS
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("analyze", help="track, identify, simulate; write results.json, CSVs and report.html")
     p.add_argument("recording", help="recording directory (rig.yaml, frames/ or video, accel.csv)")
-    p.add_argument("--out", required=True, help="output directory (created)")
+    p.add_argument("--out", required=True, help="output folder (created; must be empty unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the outputs of an earlier 'vibro analyze' in --out (refused if it holds other files)")
     p.add_argument("--method", choices=METHODS, default="paper",
                    help="COR method: paper (Eq. 15-16, default) or joint (flights constrained to meet on the "
                         "plate, friction shrunk towards the recording's mean)")
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     progress = not args.no_progress and sys.stderr.isatty()
     doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,
                             track_csv=args.track, dic_method=args.dic_method, report=not args.no_report,
-                            weights=args.weights)
+                            weights=args.weights, overwrite=args.overwrite)
     summ = doc["cor_summary"]
     sim = doc["simulation"]
 

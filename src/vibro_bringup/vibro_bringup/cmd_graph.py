@@ -48,11 +48,28 @@ def _positive_float(text: str) -> float:
     return value
 
 
+MAX_DOMAIN_ID = 232  # Fast DDS on Linux, default port mapping: higher ids give ports above 65535
+
+
+def _domain_id(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer 0-{MAX_DOMAIN_ID}, got {text!r}") from None
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"must be 0-{MAX_DOMAIN_ID}, got {value}")
+    return value
+
+
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """Options every command that runs the node graph takes (vibro graph, vibro replay)."""
     p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
     p.add_argument("--timeout-s", type=_positive_float, default=900.0, help="give up after this many seconds")
-    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for this run (default: inherited)")
+    p.add_argument("--domain-id", type=_domain_id, metavar="ID",
+                   help=f"ROS_DOMAIN_ID for this run, 0-{MAX_DOMAIN_ID} (the ROS 2 range for Fast DDS on Linux "
+                        "with default ports; default: inherited)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the bag and logs (and, for replay, the outputs) of an earlier run of this command")
     p.add_argument("--respawn", type=_non_negative_int, default=2, metavar="N",
                    help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
 
@@ -407,17 +424,26 @@ def prepare_environment(domain_id: int | None) -> dict[str, str]:
     return env
 
 
-def new_bag_path(bag: str | Path) -> Path:
+def bag_outputs(name: str) -> tuple[str, ...]:
+    """What a graph run writes for the bag ``name`` (patterns relative to its folder): the bag, its logs."""
+    return (f"{name}/metadata.yaml", f"{name}/metadata.yaml.tmp", f"{name}/*.mcap", f"{name}.logs/*.log")
+
+
+def new_bag_path(bag: str | Path, overwrite: bool = False) -> Path:
+    """A bag path free for the recorder, and its log folder ``<bag>.logs`` (refused if either exists,
+    unless ``overwrite`` and they look like a graph run's: then removed); the parent is created and
+    must be writable."""
+    from vibro_io.outputs import prepare_output_entries
+
     bag = Path(bag)
-    if bag.exists():
-        raise RecordingError(f"{bag}: already exists; choose a new bag name")
-    bag.parent.mkdir(parents=True, exist_ok=True)
+    prepare_output_entries(bag.parent, (bag.name, f"{bag.name}.logs"), overwrite=overwrite,
+                           owned=bag_outputs(bag.name), command="graph")
     return bag
 
 
 def run(args: argparse.Namespace) -> int:
     recording = open_recording(args.recording)  # validate before starting anything
-    bag = new_bag_path(args.bag)
+    bag = new_bag_path(args.bag, args.overwrite)
     env = prepare_environment(args.domain_id)
     sources = [s for s in NODES if s.role == "source" and (recording.has_accel or s.name != "accel_source")]
     t0 = time.monotonic()

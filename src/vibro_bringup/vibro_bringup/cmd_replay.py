@@ -14,16 +14,21 @@ from pathlib import Path
 
 from vibro_ros.bags import read_custom_data
 from vibro_io.errors import RecordingError
+from vibro_io.outputs import atomic_write_text, prepare_output_dir
 
 from .bag_results import results_from_bag
-from .cmd_graph import add_run_options, execute_graph, new_bag_path, prepare_environment, print_summary
+from .cmd_graph import add_run_options, bag_outputs, execute_graph, new_bag_path, prepare_environment, print_summary
 from .graph_spec import BAG_SOURCE, reference_from_bag
+
+REPLAY_BAG = "bag"
+REPLAY_OUTPUTS = ("rig.yaml", "results.json", *bag_outputs(REPLAY_BAG))  # what --overwrite may replace
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="re-run the processing nodes on a recorded bag's raw topics")
     p.add_argument("bag", help="bag directory recorded by vibro graph")
-    p.add_argument("--out", help="output folder (default: <bag>.replay): bag/ and results.json")
+    p.add_argument("--out", help="output folder (default: <bag>.replay): rig.yaml, bag/, bag.logs/ and results.json; "
+                                 "created; must be empty unless --overwrite")
     add_run_options(p)
     p.set_defaults(func=run)
 
@@ -35,9 +40,12 @@ def run(args: argparse.Namespace) -> int:
         raise RecordingError(f"{source_bag}: the bag holds no rig.yaml (metadata custom_data 'vibro.rig_yaml'); "
                              "it was not recorded by vibro graph")
     out = Path(args.out) if args.out else source_bag.parent / f"{source_bag.name}.replay"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "rig.yaml").write_text(rig_text, encoding="utf-8")
-    bag = new_bag_path(out / "bag")
+    if (out / REPLAY_BAG).resolve() == source_bag.resolve():
+        raise RecordingError(f"{out}: the replay writes its own bag to {out / REPLAY_BAG}, which is the source bag; "
+                             "choose another --out")
+    prepare_output_dir(out, overwrite=args.overwrite, owned=REPLAY_OUTPUTS, command="replay", inputs=[source_bag])
+    atomic_write_text(out / "rig.yaml", rig_text)
+    bag = new_bag_path(out / REPLAY_BAG)
     env = prepare_environment(args.domain_id)
     with_accel = "accelerometers:" in rig_text
     t0 = time.monotonic()
@@ -52,6 +60,6 @@ def run(args: argparse.Namespace) -> int:
     if ok:
         doc = results_from_bag(bag)
         doc["recording"] = str(source_bag)
-        (out / "results.json").write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        atomic_write_text(out / "results.json", json.dumps(doc, indent=2) + "\n")
         print(f"results: {out / 'results.json'}")
     return 0 if ok else 1

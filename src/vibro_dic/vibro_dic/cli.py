@@ -6,10 +6,9 @@ import argparse
 import json
 import logging
 import sys
-from pathlib import Path
 
 from vibro_io.dictrack import DicTrack, write_dic_csv
-from vibro_io.errors import RecordingError
+from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_io.recording import open_recording
 
 from .noise import DEFAULT_SPLIT_HZ, noise_study
@@ -17,11 +16,16 @@ from .tracker import METHODS, track_recording
 
 log = logging.getLogger(__name__)
 
+DIC_CSV = "dic.csv"  # the track file of "vibro track" and "vibro analyze"
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("track", help="DIC-track ball and structure; writes DIR/dic.csv")
     p.add_argument("recording", help="recording directory (rig.yaml + frames/ or video)")
-    p.add_argument("--out", required=True, help="output directory (created); dic.csv goes there")
+    p.add_argument("--out", required=True,
+                   help="output folder (created; must be empty unless --overwrite); dic.csv goes there")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the dic.csv of an earlier 'vibro track' in --out (refused if it holds other files)")
     _common(p)
     p.set_defaults(func=run_track)
 
@@ -29,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("recording", help="recording directory of a motionless rig")
     q.add_argument("--split-hz", type=float, default=DEFAULT_SPLIT_HZ,
                    help=f"low/high-frequency split (Hz, default {DEFAULT_SPLIT_HZ:g})")
-    q.add_argument("--json", help="also write the study to this JSON file")
+    q.add_argument("--json", help="also write the study to this JSON file (must not exist unless --overwrite)")
+    q.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     _common(q)
     q.set_defaults(func=run_noise)
 
@@ -65,13 +70,11 @@ class _Counter:
 
 def run_track(args: argparse.Namespace) -> int:
     rec = open_recording(args.recording)
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RecordingError(f"{out}: cannot create output directory ({exc})") from None
+    out = prepare_output_dir(args.out, overwrite=args.overwrite, owned=(DIC_CSV,), command="track",
+                             inputs=[rec.path])
     rows = _Counter(track_recording(rec, method=args.method, progress=_progress(args), zncc_min=args.zncc_min))
-    write_dic_csv(out / "dic.csv", rows)
+    with atomic_path(out / DIC_CSV) as tmp:
+        write_dic_csv(tmp, rows)
     lost = f" (first lost: {', '.join(map(str, rows.first_lost))})" if rows.lost else ""
     print(f"vibro track: {rows.n} frames in, {rows.n - rows.lost} tracked, {rows.lost} lost{lost} "
           f"-> {out / 'dic.csv'}")
@@ -80,6 +83,8 @@ def run_track(args: argparse.Namespace) -> int:
 
 def run_noise(args: argparse.Namespace) -> int:
     rec = open_recording(args.recording)
+    if args.json:
+        prepare_output_file(args.json, overwrite=args.overwrite)
     track = DicTrack.from_frames(track_recording(rec, method=args.method, progress=_progress(args),
                                                  zncc_min=args.zncc_min))
     study = noise_study(track, rec.rig.camera.fps, rec.rig.camera.mm_per_px, args.split_hz)
@@ -91,5 +96,5 @@ def run_noise(args: argparse.Namespace) -> int:
         print(f"{body:<10} {s['std_mm']:10.2e} {s['high_std_mm']:10.2e} {s['low_std_mm']:10.2e} "
               f"{s['peak_to_peak_mm']:10.2e} {s['std_px']:8.4f} {s['high_std_px']:8.4f} {s['low_std_px']:8.4f}")
     if args.json:
-        Path(args.json).write_text(json.dumps(study, indent=2), encoding="utf-8")
+        atomic_write_text(args.json, json.dumps(study, indent=2) + "\n")
     return 0

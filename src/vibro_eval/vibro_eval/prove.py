@@ -154,7 +154,7 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     synthesize(rec, cfg, overwrite=True, progress=False)
     t_synth = time.perf_counter() - t0
     t0 = time.perf_counter()
-    proc = subprocess.run(_vibro_command() + ["analyze", str(rec), "--out", str(out), "--no-progress"],
+    proc = subprocess.run(_vibro_command() + ["analyze", str(rec), "--out", str(out), "--no-progress", "--overwrite"],
                           capture_output=True, text=True)
     t_an = time.perf_counter() - t0
     row: dict[str, Any] = {"case": spec.index, "family": spec.family, "spec": asdict(spec),

@@ -13,7 +13,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("track", help="dic.csv written by 'vibro track'")
     p.add_argument("--rig", required=True, help="rig.yaml of the recording")
     p.add_argument("--accel", help="accelerometer CSV (columns as in rig.yaml's accelerometers block)")
-    p.add_argument("--out", required=True, help="output directory (results.json without simulation, CSVs)")
+    p.add_argument("--out", required=True,
+                   help="output folder (results.json without simulation, CSVs; created; must hold nothing but "
+                        "this run's inputs unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the outputs of an earlier 'vibro fit' in --out (refused if it holds other files)")
     p.add_argument("--weights", choices=("none", "dic_valid"), default="none",
                    help="flight-fit weights: none (paper) or dic_valid (by the number of valid DIC points)")
     p.add_argument("--method", choices=METHODS, default="paper", help="COR method (default paper)")
@@ -21,7 +25,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     q = sub.add_parser("summary", help="COR mean +- std per plate across recordings (paper Fig. 14)")
     q.add_argument("results", nargs="+", help="results.json files written by 'vibro analyze' or 'vibro fit'")
-    q.add_argument("--out", required=True, help="output PNG (a CSV table is written beside it)")
+    q.add_argument("--out", required=True,
+                   help="output figure, e.g. fig14.png (a CSV table is written beside it); must not exist "
+                        "unless --overwrite")
+    q.add_argument("--overwrite", action="store_true", help="replace an existing --out figure and its CSV")
     q.set_defaults(func=run_summary)
 
 
@@ -32,7 +39,9 @@ def run(args: argparse.Namespace) -> int:
     from vibro_io.rig import load_rig
 
     from .identify import identify
-    from .results import results_document, write_csv_tables, write_json
+    from vibro_io.outputs import prepare_output_dir
+
+    from .results import CSV_TABLES, RESULTS_JSON, results_document, write_csv_tables, write_json
 
     rig = load_rig(args.rig)
     track = read_dic_csv(args.track)
@@ -41,11 +50,12 @@ def run(args: argparse.Namespace) -> int:
         if rig.accelerometers is None:
             raise RecordingError(f"{args.rig}: --accel given but rig.yaml has no 'accelerometers' block (columns)")
         accel = load_accel(args.accel, rig.accelerometers)
+    inputs = [p for p in (args.track, args.rig, args.accel) if p]
+    out = prepare_output_dir(args.out, overwrite=args.overwrite, owned=(RESULTS_JSON, *CSV_TABLES), command="fit",
+                             inputs=inputs)
     ident = identify(track, rig, accel=accel, method=args.method, weights=args.weights)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     doc = results_document(ident, str(args.track))
-    write_json(out / "results.json", doc)
+    write_json(out / RESULTS_JSON, doc)
     write_csv_tables(ident, out)
     print(f"{len(ident.flights)} flights, {len(ident.impacts)} impacts, regime {ident.regime.name}; "
           f"written to {out}")
@@ -57,10 +67,18 @@ def run_summary(args: argparse.Namespace) -> int:
     import json
 
     from vibro_io.errors import RecordingError
+    from vibro_io.outputs import atomic_open, prepare_output_file
 
-    from .report import fig_errorbars
+    from .report import fig_errorbars, figure_formats
     from .statistics import errorbar_table
 
+    out = Path(args.out)
+    if out.suffix.lower().lstrip(".") not in figure_formats():
+        raise RecordingError(f"{out}: --out needs a figure file name ending in one of "
+                             f"{', '.join('.' + f for f in sorted(figure_formats()))}, e.g. fig14.png")
+    table = out.with_suffix(".csv")
+    for path in (out, table):
+        prepare_output_file(path, overwrite=args.overwrite)
     summaries = {}
     for path in args.results:
         try:
@@ -75,10 +93,8 @@ def run_summary(args: argparse.Namespace) -> int:
     rows = errorbar_table(summaries)
     if not rows:
         raise RecordingError("no COR in any of the results given")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     fig_errorbars(rows, out)
-    with out.with_suffix(".csv").open("w", newline="", encoding="utf-8") as fh:
+    with atomic_open(table, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
         w.writeheader()
         w.writerows(rows)

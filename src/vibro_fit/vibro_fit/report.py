@@ -18,11 +18,17 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vibro_io.dictrack import DicTrack  # noqa: E402
+from vibro_io.outputs import atomic_path, atomic_write_text  # noqa: E402
 
 from .identify import Identification  # noqa: E402
 from .statistics import normal_check  # noqa: E402
 
 PLATE_COLORS = {"top": "tab:red", "bottom": "tab:blue"}
+#: figure name -> file name, as write_figures writes them
+FIGURE_FILES = {"displacements": "displacements.png", "cor": "cor_per_impact.png",
+                "friction": "friction_per_flight.png", "accelerometer_spectrum": "accel_spectrum.png",
+                "histogram_qq": "cor_hist_qq.png", "simulated_vs_measured": "simulated_vs_measured.png"}
+REPORT_HTML = "report.html"
 
 
 def _legend(ax, **kw) -> None:
@@ -30,10 +36,20 @@ def _legend(ax, **kw) -> None:
         ax.legend(**kw)
 
 
+def figure_formats() -> set[str]:
+    """File name extensions (without the dot) a figure can be saved as."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    return set(FigureCanvasAgg.get_supported_filetypes())
+
+
 def _save(fig, path: Path) -> Path:
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -179,16 +195,17 @@ def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, s
     """Write the PNG figures into ``out_dir``; ``sim`` = {"t_s", "measured_mm", "curves": {name: mm},
     "deviations": {name: D}} for the simulated-vs-measured figure. Returns {name: path}."""
     out = Path(out_dir)
+    files = {name: out / file for name, file in FIGURE_FILES.items()}
     figs: dict[str, Path | None] = {
-        "displacements": fig_displacements(track, ident, out / "displacements.png"),
-        "cor": fig_cor(ident, out / "cor_per_impact.png"),
-        "friction": fig_friction(ident, out / "friction_per_flight.png"),
-        "accelerometer_spectrum": fig_accel(ident, out / "accel_spectrum.png"),
-        "histogram_qq": fig_hist_qq(ident, out / "cor_hist_qq.png"),
+        "displacements": fig_displacements(track, ident, files["displacements"]),
+        "cor": fig_cor(ident, files["cor"]),
+        "friction": fig_friction(ident, files["friction"]),
+        "accelerometer_spectrum": fig_accel(ident, files["accelerometer_spectrum"]),
+        "histogram_qq": fig_hist_qq(ident, files["histogram_qq"]),
     }
     if sim and sim.get("curves"):
         figs["simulated_vs_measured"] = fig_simulated(sim["t_s"], sim["measured_mm"], sim["curves"],
-                                                      sim.get("deviations", {}), out / "simulated_vs_measured.png")
+                                                      sim.get("deviations", {}), files["simulated_vs_measured"])
     return {k: v for k, v in figs.items() if v is not None}
 
 
@@ -262,6 +279,4 @@ td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
 <h2>Warnings</h2><ul>{warns}</ul>
 {figs}
 </body></html>"""
-    path = Path(path)
-    path.write_text(page, encoding="utf-8")
-    return path
+    return atomic_write_text(path, page)

@@ -15,9 +15,13 @@ from typing import Any
 
 import numpy as np
 
+from vibro_io.outputs import atomic_open, atomic_write_text
+
 from .identify import Identification
 
 SCHEMA = "vibro.results/1"
+RESULTS_JSON = "results.json"
+CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in this order
 
 
 def _num(x: Any) -> Any:
@@ -140,16 +144,17 @@ def results_document(ident: Identification, recording: str, simulation: dict | N
 
 
 def write_json(path: str | Path, doc: dict) -> None:
-    Path(path).write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+    """Write ``doc`` as JSON (NaN refused: the contract writes null), atomically."""
+    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
 def write_csv_tables(ident: Identification, out_dir: str | Path) -> list[Path]:
     """flights.csv, impacts.csv (same columns as results.json) in ``out_dir``; returns the paths."""
     out_dir = Path(out_dir)
     paths = []
-    for name, rows in (("flights.csv", flights_section(ident)), ("impacts.csv", impacts_section(ident))):
+    for name, rows in zip(CSV_TABLES, (flights_section(ident), impacts_section(ident))):
         path = out_dir / name
-        with path.open("w", newline="", encoding="utf-8") as fh:
+        with atomic_open(path, "w", newline="") as fh:
             if rows:
                 w = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
                 w.writeheader()

@@ -25,7 +25,7 @@ def register(sub) -> None:
                     "frames/, accel.csv) to --out, and the ground truth to OUT.truth.json beside it. "
                     "Effects and default parameters: " + _effects_help(),
     )
-    p.add_argument("--out", required=True, help="new recording directory")
+    p.add_argument("--out", required=True, help="new recording folder (created; must be empty unless --overwrite)")
     p.add_argument("--effect", action="append", metavar="NAME",
                    help=f"physics the baseline leaves out; repeatable ({', '.join(EFFECT_NAMES)})")
     p.add_argument("--param", action="append", metavar="KEY=VALUE",
@@ -43,7 +43,9 @@ def register(sub) -> None:
     p.add_argument("--drift", action="store_true", help="with --still: slow camera drift")
     p.add_argument("--tiff16", action="store_true", help="16-bit TIFF frames instead of 8-bit PNG")
     p.add_argument("--no-accel", action="store_true", help="video-only recording")
-    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out directory")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier synthetic recording in --out and its truth file (refused if --out "
+                        "holds other files)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,8 @@ import cv2
 import numpy as np
 
 from vibro_io.accel import AccelData, write_accel
+from vibro_io.outputs import (OutputError, atomic_path, atomic_write_text, prepare_output_dir,
+                              prepare_output_file)
 from vibro_io.rig import (AccelConfig, BallConfig, CameraConfig, DicConfig, ExcitationConfig, RigConfig,
                           Roi, StructureConfig, check_rois_in_image, write_rig)
 
@@ -37,18 +38,23 @@ def truth_path(out_dir: str | Path) -> Path:
     return out_dir.parent / (out_dir.name + ".truth.json")
 
 
+#: what a synthetic recording folder holds (what --overwrite may replace)
+RECORDING_OUTPUTS = ("rig.yaml", "accel.csv", "frames/*.png", "frames/*.tif")
+
+
 def _prepare_dir(out_dir: Path, overwrite: bool) -> None:
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise SynthError(f"--out {out_dir}: exists and is not a directory")
-        if any(out_dir.iterdir()):
-            if not overwrite:
-                raise SynthError(f"--out {out_dir}: directory is not empty (use --overwrite)")
-            shutil.rmtree(out_dir)
+    """An empty recording folder (an earlier synthetic recording only replaced with ``overwrite``), and
+    no truth file beside it (an earlier one removed with ``overwrite``, so it never outlives its frames)."""
+    tp = truth_path(out_dir)
     try:
-        (out_dir / "frames").mkdir(parents=True, exist_ok=True)
+        prepare_output_file(tp, overwrite=overwrite)
+        prepare_output_dir(out_dir, overwrite=overwrite, owned=RECORDING_OUTPUTS, command="synth")
+        tp.unlink(missing_ok=True)
+        (out_dir / "frames").mkdir()
+    except OutputError as exc:
+        raise SynthError(f"--out {exc}") from None
     except OSError as exc:
-        raise SynthError(f"--out {out_dir}: cannot create ({exc})") from None
+        raise SynthError(f"--out {out_dir}: cannot prepare ({exc.strerror or exc})") from None
 
 
 def _drift_mm(t: np.ndarray, cfg: SynthConfig, mm_per_px: float) -> np.ndarray:
@@ -107,18 +113,21 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
         path=str(out_dir / "rig.yaml"),
     )
     check_rois_in_image(rig, cfg.height_px, cfg.width_px)
-    write_rig(rig, out_dir / "rig.yaml")
 
     _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress)
 
     if cfg.accel:
         sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, float(t[0]), float(t[-1]),
                          cfg.accel_rate_hz, cfg.accel_noise_ms2, cfg.clock_offset_s, noise_rng)
-        write_accel(out_dir / "accel.csv", AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
+        with atomic_path(out_dir / "accel.csv") as tmp:
+            write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
 
     truth = _truth(cfg, models, traj, layout, phase, drift, rig)
-    tp = truth_path(out_dir)
-    tp.write_text(json.dumps(truth, indent=1), encoding="utf-8")
+    # rig.yaml last: a synth interrupted while writing frames leaves no rig.yaml, so the half-written folder
+    # is refused as a recording instead of being read as a shorter one
+    with atomic_path(out_dir / "rig.yaml") as tmp:
+        write_rig(rig, tmp)
+    atomic_write_text(truth_path(out_dir), json.dumps(truth, indent=1))
     return truth
 
 
