@@ -31,8 +31,10 @@ def run(args: argparse.Namespace) -> int:
     from vibro_io.errors import RecordingError
     from vibro_io.rig import load_rig
 
+    from vibro_model.codec import write_results
+
     from .identify import identify
-    from .results import results_document, write_csv_tables, write_json
+    from .results import results_model, write_csv_tables
 
     rig = load_rig(args.rig)
     track = read_dic_csv(args.track)
@@ -44,9 +46,9 @@ def run(args: argparse.Namespace) -> int:
     ident = identify(track, rig, accel=accel, method=args.method, weights=args.weights)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    doc = results_document(ident, str(args.track))
-    write_json(out / "results.json", doc)
-    write_csv_tables(ident, out)
+    doc = results_model(ident, str(args.track))
+    write_results(out / "results.json", doc)
+    write_csv_tables(doc, out)
     print(f"{len(ident.flights)} flights, {len(ident.impacts)} impacts, regime {ident.regime.name}; "
           f"written to {out}")
     return 0
@@ -54,22 +56,16 @@ def run(args: argparse.Namespace) -> int:
 
 def run_summary(args: argparse.Namespace) -> int:
     import csv
-    import json
 
     from vibro_io.errors import RecordingError
+    from vibro_model.codec import read_results
 
     from .report import fig_errorbars
     from .statistics import errorbar_table
 
     summaries = {}
     for path in args.results:
-        try:
-            doc = json.loads(Path(path).read_text(encoding="utf-8"))
-            summ = doc["cor_summary"]
-        except (OSError, ValueError) as exc:
-            raise RecordingError(f"{path}: cannot read results ({exc})") from None
-        except (KeyError, TypeError):
-            raise RecordingError(f"{path}: no 'cor_summary' section (not a vibro results.json)") from None
+        summ = read_results(path).cor_summary.to_dict()  # validated: errors name the file and the key
         label = Path(path).parent.name or Path(path).stem
         summaries[label] = summ
     rows = errorbar_table(summaries)
