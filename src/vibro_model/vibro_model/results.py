@@ -32,16 +32,16 @@ class StructureMotion:
 
     ``ball_offset_m``: ball centre minus cavity centre at frame 0 (from where the impacts happen)."""
 
-    amplitude_m: float | None
-    frequency_hz: float | None
-    phase_rad: float | None
-    offset_m: float | None
+    amplitude_m: float | None         # A (m)
+    frequency_hz: float | None        # f (Hz)
+    phase_rad: float | None           # phi (rad)
+    offset_m: float | None            # B (m), DIC frame: displacement since frame 0
     rms_residual_m: float | None = None
     amplitude_std_m: float | None = None
     frequency_std_hz: float | None = None
     phase_std_rad: float | None = None
     offset_std_m: float | None = None
-    n_points: int | None = None
+    n_points: int | None = None       # frames used in the fit
     ball_offset_m: float | None = None
 
     def to_dict(self) -> dict:
