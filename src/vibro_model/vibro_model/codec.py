@@ -73,7 +73,8 @@ class Fields:
         self.data = data
         self.where = where
 
-    def _get(self, key: str, required: bool) -> Any:
+    def value(self, key: str, required: bool) -> Any:
+        """The raw value of ``key`` (None when absent and not required)."""
         if key not in self.data:
             if required:
                 raise ResultsError(f"{self.where}.{key}: missing")
@@ -82,7 +83,7 @@ class Fields:
 
     def number(self, key: str, required: bool = True, nullable: bool = True) -> float | None:
         """A finite number (int or float, not bool), or None where null is allowed."""
-        value = self._get(key, required)
+        value = self.value(key, required)
         if value is None:
             if key in self.data and not nullable:
                 raise ResultsError(f"{self.where}.{key}: must be a number, got null")
@@ -92,7 +93,7 @@ class Fields:
         return float(value)
 
     def integer(self, key: str, required: bool = True, nullable: bool = False) -> int | None:
-        value = self._get(key, required)
+        value = self.value(key, required)
         if value is None and (nullable or key not in self.data):
             return None
         if isinstance(value, bool) or not isinstance(value, int):
@@ -100,7 +101,7 @@ class Fields:
         return int(value)
 
     def boolean(self, key: str, default: bool) -> bool:
-        value = self._get(key, False)
+        value = self.value(key, False)
         if value is None:
             return default
         if not isinstance(value, bool):
@@ -109,7 +110,7 @@ class Fields:
 
     def string(self, key: str, required: bool = True, choices: Sequence[str] | None = None,
                default: str | None = None) -> str | None:
-        value = self._get(key, required)
+        value = self.value(key, required)
         if value is None:
             return default
         if not isinstance(value, str):
@@ -119,12 +120,12 @@ class Fields:
         return value
 
     def mapping(self, key: str, required: bool = True) -> "Fields | None":
-        value = self._get(key, required)
+        value = self.value(key, required)
         return None if value is None else Fields(value, f"{self.where}.{key}")
 
     def rows(self, key: str, required: bool = True) -> list["Fields"]:
         """A list of mappings, each as :class:`Fields` named ``where.key[i]``."""
-        value = self._get(key, required)
+        value = self.value(key, required)
         if value is None:
             return []
         if not isinstance(value, list):

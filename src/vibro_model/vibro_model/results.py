@@ -197,7 +197,7 @@ class CorSummary:
     @classmethod
     def from_dict(cls, data: Any, where: str = "cor_summary") -> "CorSummary":
         f = Fields(data, where)
-        return cls(*(PlateCor.from_dict(f._get(p, True), f"{where}.{p}") for p in PLATES))
+        return cls(*(PlateCor.from_dict(f.value(p, True), f"{where}.{p}") for p in PLATES))
 
 
 @dataclass
@@ -367,17 +367,17 @@ class ResultsDocument:
         if schema != SCHEMA:
             raise ResultsError(f"{source}.schema: expected {SCHEMA!r}, got {schema!r}")
         complete = f.boolean("complete", True)
-        structure = f._get("structure", True)
+        structure = f.value("structure", True)
         if structure is None and complete:
             raise ResultsError(f"{source}.structure: null in a document marked complete")
-        warnings = f._get("warnings", False) or []
+        warnings = f.value("warnings", False) or []
         if not isinstance(warnings, list) or not all(isinstance(w, str) for w in warnings):
             raise ResultsError(f"{source}.warnings: must be a list of strings")
         return cls(f.string("recording"),
                    None if structure is None else StructureMotion.from_dict(structure, f"{source}.structure"),
                    [Flight.from_dict(r.data, r.where) for r in f.rows("flights")],
                    [Impact.from_dict(r.data, r.where) for r in f.rows("impacts")],
-                   CorSummary.from_dict(f._get("cor_summary", True), f"{source}.cor_summary"),
-                   Simulation.from_dict(f._get("simulation", True), f"{source}.simulation"),
-                   Discrepancy.from_dict(f._get("discrepancy", True), f"{source}.discrepancy"),
+                   CorSummary.from_dict(f.value("cor_summary", True), f"{source}.cor_summary"),
+                   Simulation.from_dict(f.value("simulation", True), f"{source}.simulation"),
+                   Discrepancy.from_dict(f.value("discrepancy", True), f"{source}.discrepancy"),
                    list(warnings), complete, f.extras(cls.KEYS))
