@@ -9,7 +9,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 DEPS_STAMP := $(VENV)/.deps-$(shell cat requirements.txt | sha256sum | cut -c1-16)
 PTH := $(VENV)/lib/python3.11/site-packages/vibro_src.pth
-PACKAGES := vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_eval vibro_bringup
+PACKAGES := vibro_model vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_eval vibro_bringup
 DEMO_DIR ?= demo
 PYTEST_ARGS ?=
 

@@ -23,17 +23,19 @@ def _start(*argv: str) -> subprocess.Popen:
 
 def test_sections_from_messages_roundtrip():
     # the node rebuilds the results sections from messages; the analysis must see the same flights/impacts
-    from types import SimpleNamespace as NS
+    from vibro_msgs.msg import FreeFlight, ImpactEstimate, StructureMotion
 
     sections, _, _, _ = make_case({}, seed=61, frames=200)
-    s = NS(**sections["structure"])
-    flights = [NS(index=f["index"], t_start_s=f["t_first_frame"], t_end_s=f["t_last_frame"], a_mm_per_s2=f["a"],
-                  b_mm_per_s=f["b"], c_mm=f["c"], direction=f["direction"], friction_n=f["friction_n"] or 0.0,
-                  fitted=f["free"]) for f in sections["flights"]]
-    impacts = [NS(index=i["index"], t_s=i["t"], plate=i["plate"], cor=i["cor"], cor_std=i["cor_std"],
-                  v_ball_before_m_per_s=i["v_ball_before"], v_ball_after_m_per_s=i["v_ball_after"],
-                  v_structure_m_per_s=i["v_structure"], flight_before=i["flight_before"],
-                  flight_after=i["flight_after"]) for i in sections["impacts"]]
+    st = sections["structure"]
+    s = StructureMotion(amplitude_mm=st["amplitude_mm"], frequency_hz=st["frequency_hz"], phase_rad=st["phase_rad"],
+                        offset_mm=st["offset_mm"], rms_residual_mm=st["rms_residual_mm"])
+    flights = [FreeFlight(index=f["index"], t_start_s=f["t_first_frame"], t_end_s=f["t_last_frame"], a_mm_per_s2=f["a"],
+                          b_mm_per_s=f["b"], c_mm=f["c"], direction=f["direction"], friction_n=f["friction_n"] or 0.0,
+                          fitted=f["free"]) for f in sections["flights"]]
+    impacts = [ImpactEstimate(index=i["index"], t_s=i["t"], plate=i["plate"], cor=i["cor"], cor_std=i["cor_std"],
+                              v_ball_before_m_per_s=i["v_ball_before"], v_ball_after_m_per_s=i["v_ball_after"],
+                              v_structure_m_per_s=i["v_structure"], flight_before=i["flight_before"],
+                              flight_after=i["flight_after"]) for i in sections["impacts"]]
     back = sections_from_messages(s, flights, impacts)
     for a, b in zip(back["flights"], sections["flights"]):
         assert a["t_start"] == b["t_start"] and a["t_end"] == b["t_end"] and a["free"] == b["free"]

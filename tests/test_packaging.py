@@ -12,7 +12,7 @@ import pytest
 from vibro_bringup.graph_spec import NODES
 
 SRC = Path(__file__).resolve().parents[1] / "src"
-PYTHON_PACKAGES = ["vibro_io", "vibro_ros", "vibro_eval", "vibro_dic", "vibro_fit", "vibro_sim", "vibro_bringup"]
+PYTHON_PACKAGES = ["vibro_model", "vibro_io", "vibro_ros", "vibro_eval", "vibro_dic", "vibro_fit", "vibro_sim", "vibro_bringup"]
 
 
 def console_scripts(pkg: str) -> dict[str, str]:

@@ -139,7 +139,9 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     mapping."""
     from vibro_fit.identify import identify
     from vibro_fit.report import REPORT_HTML, write_figures, write_html
-    from vibro_fit.results import RESULTS_JSON, results_document, write_csv_tables, write_json
+    from vibro_fit.results import RESULTS_JSON, results_model, write_csv_tables
+    from vibro_model.codec import write_results
+    from vibro_model.results import Discrepancy, Simulation
     from vibro_sim.discrepancy.engine import discrepancy_for_results
 
     out = Path(out_dir)
@@ -156,17 +158,18 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         sim = replay_models(ident, track, rig)
         bar.update(1)
         dev = sim["deviations"]
-        simulation = {"cor_model": {"deviation": dev.get("cor_model")},
-                      "hertz_model": {"deviation": dev.get("hertz_model")}}
         for name, msg in sim["errors"].items():
             ident.warnings.append(f"simulation {name}: {msg}")
-        doc = results_document(ident, str(recording_dir), simulation)
+        document = results_model(ident, str(recording_dir), Simulation.of_deviations(
+            {"cor_model": dev.get("cor_model"), "hertz_model": dev.get("hertz_model")}))
         bar.set_description("discrepancy")
-        doc["discrepancy"], disc_run, disc_error = discrepancy_for_results(doc, track, rig)
+        disc, disc_run, disc_error = discrepancy_for_results(document.to_dict(), track, rig)
+        document.discrepancy = Discrepancy.from_dict(disc)
         if disc_error:
-            doc["warnings"].append(disc_error)
-        write_json(out / RESULTS_JSON, doc)
-        write_csv_tables(ident, out)
+            document.warnings.append(disc_error)
+        write_results(out / RESULTS_JSON, document)
+        write_csv_tables(document, out)
+        doc = document.to_dict()
         if report:
             bar.set_description("report")
             figs = write_figures(track, ident, out, sim)
@@ -174,7 +177,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
                 fig = _write_discrepancy_figure(disc_run, out / DISCREPANCY_PNG)
                 if fig is not None:
                     figs["discrepancy"] = fig
-            write_html(doc, figs, out / REPORT_HTML)
+            write_html(document, figs, out / REPORT_HTML)
         bar.update(1)
     finally:
         bar.close()

@@ -1,87 +1,117 @@
 """``vibro results <bag>``: the results.json of a recorded graph run, rebuilt from its messages.
 
-Flights and impacts marked ``final`` (the fitter's end-of-stream pass) replace the streamed
-previews; a bag cut short keeps the streamed ones. Keys and units follow docs/recording-format.md.
+The messages become model types through :mod:`vibro_ros.convert` and the document is written by the one
+codec (:mod:`vibro_model.codec`), so a graph run's document has the keys and meanings of
+``vibro analyze``'s: flights' ``t_start``/``t_end`` are the impacts that open/close them (the first/last
+fitted frame in ``t_first_frame``/``t_last_frame``), ``free`` says whether a flight is free,
+``cor_statistics`` is computed from the impacts as analyze does.
+
+Flights and impacts marked ``final`` (the fitter's end-of-stream pass) replace the streamed previews with
+the same index. A bag is complete when every stream the fitter, simulator and discrepancy node announced
+finished (vibro/status) has all its items in the bag; otherwise (the recorder was killed, a node died)
+the document keeps what there is (streamed estimates where no final one arrived), says
+``"complete": false`` with a warning naming what is missing, and ``vibro results`` exits 1.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import math
+import sys
 from pathlib import Path
 
+from vibro_model.codec import results_text
+from vibro_model.results import Discrepancy, ResultsDocument, Simulation
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
 from vibro_io.errors import RecordingError
 from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
+from vibro_ros.convert import (finding_from_message, flight_from_message, impact_from_message,
+                               simulation_run_from_message, structure_from_message)
 
-SCHEMA = "vibro.results/1"
+#: end-of-stream statuses a complete graph run has, and the result topic each one counts
+EXPECTED_STREAMS = {"flights": topics.FLIGHTS.name, "impacts": topics.IMPACTS.name,
+                    "simulation": topics.SIMULATION.name, "discrepancy": topics.DISCREPANCY.name}
 
 
-def _num(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
+class BagResults:
+    """The result messages of one bag, sorted out: latest per index, finals apart from streamed previews."""
+
+    def __init__(self, bag: str | Path):
+        self.bag = str(bag)
+        self.structure = None
+        self.streamed: dict[str, dict[int, object]] = {topics.FLIGHTS.name: {}, topics.IMPACTS.name: {}}
+        self.final: dict[str, dict[int, object]] = {topics.FLIGHTS.name: {}, topics.IMPACTS.name: {}}
+        self.simulation: dict[str, object] = {}
+        self.findings: dict[int, object] = {}
+        self.finished: dict[str, int] = {}  # stream -> items the node announced at its end
+        store = make_typestore()
+        wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
+                  topics.DISCREPANCY.name, topics.STATUS.name}
+        for m in read_messages(bag, wanted):
+            msg = deserialize(m, store)
+            if m.topic == topics.STRUCTURE.name:
+                self.structure = msg
+            elif m.topic in self.final:
+                (self.final if msg.final else self.streamed)[m.topic][int(msg.index)] = msg
+            elif m.topic == topics.SIMULATION.name:
+                self.simulation[str(msg.model)] = msg
+            elif m.topic == topics.DISCREPANCY.name:
+                self.findings[int(msg.index)] = msg
+            elif msg.finished:
+                self.finished[str(msg.stream)] = int(msg.items_sent)
+
+    def received(self, stream: str) -> int:
+        topic = EXPECTED_STREAMS[stream]
+        if topic in self.final:
+            return len(self.final[topic])
+        return len(self.simulation) if stream == "simulation" else len(self.findings)
+
+    def missing(self) -> list[str]:
+        """What a complete run would hold and this bag does not, in plain words (empty: complete)."""
+        out = []
+        if self.structure is None:
+            out.append(f"no {topics.STRUCTURE.name} message (the fitter's final pass)")
+        for stream, topic in EXPECTED_STREAMS.items():
+            if stream not in self.finished:
+                out.append(f"no end-of-stream status '{stream}'")
+            elif self.received(stream) < self.finished[stream]:
+                out.append(f"{self.received(stream)} of the {self.finished[stream]} announced {topic} messages")
+        return out
+
+    def merged(self, topic: str) -> list:
+        """Final messages, and the streamed preview of every index without a final one."""
+        return list({**self.streamed[topic], **self.final[topic]}.values())
+
+
+def document_from_bag(bag: str | Path) -> ResultsDocument:
+    """The results document of a recorded graph run (``complete`` False when the bag is not whole)."""
+    from vibro_fit.results import cor_statistics_section
+
+    r = BagResults(bag)
+    missing = r.missing()
+    impacts = [impact_from_message(m) for m in r.merged(topics.IMPACTS.name)]
+    flights = [flight_from_message(m) for m in r.merged(topics.FLIGHTS.name)]
+    findings = [finding_from_message(r.findings[k]) for k in sorted(r.findings)]
+    warnings = []
+    if missing:
+        warnings.append(f"bag cut short: {'; '.join(missing)}; flights and impacts without a final estimate are "
+                        "the streamed ones")
+    if "discrepancy" in r.finished and not findings:
+        # the discrepancy node publishes findings only: with none, the baseline D is not in the bag
+        warnings.append("discrepancy: no finding published; the baseline D is not recorded in a bag "
+                        "(baseline_deviation and final_deviation are null)")
+    discrepancy = Discrepancy(findings[0].deviation_before if findings else None, findings,
+                              findings[-1].deviation_after if findings else None)
+    simulation = Simulation({name: simulation_run_from_message(m) for name, m in r.simulation.items()})
+    return ResultsDocument.build(
+        str(bag), None if r.structure is None else structure_from_message(r.structure), flights, impacts,
+        simulation=simulation, discrepancy=discrepancy, warnings=warnings, complete=not missing,
+        sections={"cor_statistics": cor_statistics_section(impacts)})
 
 
 def results_from_bag(bag: str | Path) -> dict:
-    """Read every result topic of a bag and assemble the contract's results mapping."""
-    store = make_typestore()
-    structure = None
-    flights: dict[int, object] = {}
-    impacts: dict[int, object] = {}
-    simulation: dict[str, object] = {}
-    findings: dict[int, object] = {}
-    final_flights: dict[int, object] = {}
-    final_impacts: dict[int, object] = {}
-    wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
-              topics.DISCREPANCY.name}
-    for m in read_messages(bag, wanted):
-        msg = deserialize(m, store)
-        if m.topic == topics.STRUCTURE.name:
-            structure = msg
-        elif m.topic == topics.FLIGHTS.name:
-            (final_flights if msg.final else flights)[msg.index] = msg
-        elif m.topic == topics.IMPACTS.name:
-            (final_impacts if msg.final else impacts)[msg.index] = msg
-        elif m.topic == topics.SIMULATION.name:
-            simulation[msg.model] = msg
-        else:
-            findings[msg.index] = msg
-    if structure is None:
-        raise RecordingError(f"{bag}: no {topics.STRUCTURE.name} message: the fitter never finished in this bag")
-    from vibro_fit.statistics import cor_summary
-
-    if final_impacts or final_flights:  # the fitter finished: its final pass replaces the streamed previews
-        flights, impacts = final_flights, final_impacts
-
-    imp = [impacts[k] for k in sorted(impacts)]
-    d_cor = simulation["cor_model"].deviation if "cor_model" in simulation else None
-    found = [findings[k] for k in sorted(findings)]
-    return {
-        "schema": SCHEMA,
-        "recording": str(bag),
-        "structure": {"amplitude_mm": structure.amplitude_mm, "frequency_hz": structure.frequency_hz,
-                      "phase_rad": structure.phase_rad, "offset_mm": structure.offset_mm,
-                      "rms_residual_mm": structure.rms_residual_mm, "ball_offset_mm": structure.ball_offset_mm},
-        "flights": [{"index": f.index, "t_start": f.t_start_s, "t_end": f.t_end_s, "a": f.a_mm_per_s2,
-                     "b": f.b_mm_per_s, "c": f.c_mm, "direction": f.direction or "up",
-                     "friction_n": _num(f.friction_n), "rms_residual_mm": _num(f.rms_residual_mm),
-                     "fitted": f.fitted} for f in (flights[k] for k in sorted(flights))],
-        "impacts": [{"index": i.index, "t": i.t_s, "plate": i.plate, "cor": i.cor, "cor_std": _num(i.cor_std),
-                     "v_ball_before": i.v_ball_before_m_per_s, "v_ball_after": i.v_ball_after_m_per_s,
-                     "v_structure": i.v_structure_m_per_s} for i in imp],
-        "cor_summary": cor_summary(imp),
-        "simulation": {name: {"deviation": simulation[name].deviation if name in simulation else None}
-                       for name in ("cor_model", "hertz_model")},
-        "discrepancy": {
-            "baseline_deviation": found[0].deviation_before if found else d_cor,
-            "findings": [{"effect": f.effect, "parameters": dict(zip(f.parameter_names, f.parameter_values)),
-                          "where": f.where, "deviation_before": f.deviation_before,
-                          "deviation_after": f.deviation_after} for f in found],
-            "final_deviation": found[-1].deviation_after if found else d_cor,
-        },
-    }
+    """The results.json mapping of a recorded graph run (see :func:`document_from_bag`)."""
+    return document_from_bag(bag).to_dict()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -107,8 +137,8 @@ def prepare_results_path(out: str | Path, overwrite: bool, inputs: list[Path]) -
 
 
 def run(args: argparse.Namespace) -> int:
-    doc = results_from_bag(args.bag)
-    text = json.dumps(doc, indent=2) + "\n"
+    doc = document_from_bag(args.bag)
+    text = results_text(doc)
     if args.out:
         bag = Path(args.bag)  # the bag and its graph logs may sit in --out: inputs, kept
         out = prepare_results_path(args.out, args.overwrite, [bag, bag.parent / f"{bag.name}.logs"])
@@ -116,4 +146,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {out}")
     else:
         print(text, end="")
+    if not doc.complete:
+        print(f"vibro results: error: {args.bag}: the run in this bag is incomplete ({doc.warnings[0]}); "
+              "the document is marked \"complete\": false", file=sys.stderr)
+        return 1
     return 0

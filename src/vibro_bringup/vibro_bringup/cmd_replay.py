@@ -8,15 +8,16 @@ DIR/results.json, so a replay can be compared with the original run.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from pathlib import Path
 
 from vibro_ros.bags import read_custom_data
 from vibro_io.errors import RecordingError
-from vibro_io.outputs import atomic_write_text, prepare_output_dir
+from vibro_io.outputs import prepare_output_dir
+from vibro_model.codec import write_results
 
-from .bag_results import results_from_bag
+from .bag_results import document_from_bag
 from .cmd_graph import add_run_options, bag_outputs, execute_graph, new_bag_path, prepare_environment, print_summary
 from .graph_spec import BAG_SOURCE, reference_from_bag
 
@@ -58,8 +59,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     if ok:
-        doc = results_from_bag(bag)
-        doc["recording"] = str(source_bag)
-        atomic_write_text(out / "results.json", json.dumps(doc, indent=2) + "\n")
+        doc = document_from_bag(bag)
+        doc.recording = str(source_bag)
+        write_results(out / "results.json", doc)
         print(f"results: {out / 'results.json'}")
+        if not doc.complete:
+            print(f"vibro replay: error: the replayed run is incomplete ({doc.warnings[0]}); results.json is "
+                  "marked \"complete\": false", file=sys.stderr)
+            return 1
     return 0 if ok else 1

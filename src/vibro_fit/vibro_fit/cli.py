@@ -38,10 +38,12 @@ def run(args: argparse.Namespace) -> int:
     from vibro_io.errors import RecordingError
     from vibro_io.rig import load_rig
 
+    from vibro_model.codec import write_results
+
     from .identify import identify
     from vibro_io.outputs import prepare_output_dir
 
-    from .results import CSV_TABLES, RESULTS_JSON, results_document, write_csv_tables, write_json
+    from .results import CSV_TABLES, RESULTS_JSON, results_model, write_csv_tables
 
     rig = load_rig(args.rig)
     track = read_dic_csv(args.track)
@@ -54,9 +56,9 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out, overwrite=args.overwrite, owned=(RESULTS_JSON, *CSV_TABLES), command="fit",
                              inputs=inputs)
     ident = identify(track, rig, accel=accel, method=args.method, weights=args.weights)
-    doc = results_document(ident, str(args.track))
-    write_json(out / RESULTS_JSON, doc)
-    write_csv_tables(ident, out)
+    doc = results_model(ident, str(args.track))
+    write_results(out / RESULTS_JSON, doc)
+    write_csv_tables(doc, out)
     print(f"{len(ident.flights)} flights, {len(ident.impacts)} impacts, regime {ident.regime.name}; "
           f"written to {out}")
     return 0
@@ -64,10 +66,10 @@ def run(args: argparse.Namespace) -> int:
 
 def run_summary(args: argparse.Namespace) -> int:
     import csv
-    import json
 
     from vibro_io.errors import RecordingError
     from vibro_io.outputs import atomic_open, prepare_output_file
+    from vibro_model.codec import read_results
 
     from .report import fig_errorbars, figure_formats
     from .statistics import errorbar_table
@@ -81,13 +83,7 @@ def run_summary(args: argparse.Namespace) -> int:
         prepare_output_file(path, overwrite=args.overwrite)
     summaries = {}
     for path in args.results:
-        try:
-            doc = json.loads(Path(path).read_text(encoding="utf-8"))
-            summ = doc["cor_summary"]
-        except (OSError, ValueError) as exc:
-            raise RecordingError(f"{path}: cannot read results ({exc})") from None
-        except (KeyError, TypeError):
-            raise RecordingError(f"{path}: no 'cor_summary' section (not a vibro results.json)") from None
+        summ = read_results(path).cor_summary.to_dict()  # validated: errors name the file and the key
         label = Path(path).parent.name or Path(path).stem
         summaries[label] = summ
     rows = errorbar_table(summaries)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-G_MS2 = 9.81  # gravity (m/s^2), the value vibro_sim uses
+from vibro_model.constants import G_MPS2 as G_MS2
 
 
 @dataclass

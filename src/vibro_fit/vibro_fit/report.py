@@ -19,6 +19,9 @@ import numpy as np  # noqa: E402
 
 from vibro_io.dictrack import DicTrack  # noqa: E402
 from vibro_io.outputs import atomic_path, atomic_write_text  # noqa: E402
+from vibro_model.codec import as_document  # noqa: E402
+from vibro_model.results import ResultsDocument  # noqa: E402
+from vibro_model.units import n_to_mn  # noqa: E402
 
 from .identify import Identification  # noqa: E402
 from .statistics import normal_check  # noqa: E402
@@ -110,7 +113,7 @@ def fig_friction(ident: Identification, path: Path) -> Path:
         fls = [f for f in ident.flights if f.is_free and f.direction == d]
         if fls:
             fr = [f.friction_n(ident.mass_kg) for f in fls]
-            ax.errorbar([f.index for f in fls], [1e3 * v for v, _ in fr], yerr=[1e3 * s for _, s in fr], fmt="s",
+            ax.errorbar([f.index for f in fls], [n_to_mn(v) for v, _ in fr], yerr=[n_to_mn(s) for _, s in fr], fmt="s",
                         ms=4, color=color, label=f"{d} flights")
     ax.axhline(0, color="0.5", lw=0.5)
     ax.set_xlabel("flight index")
@@ -242,9 +245,11 @@ def discrepancy_html(disc: dict) -> str:
             + (f"<p>Where the baseline disagrees: {e(loc)}</p>" if loc else "") + table)
 
 
-def write_html(results: dict, figures: dict[str, Path], path: str | Path) -> Path:
-    """One self-contained HTML page: summary tables, warnings, figures (inlined)."""
+def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: str | Path) -> Path:
+    """One self-contained HTML page: summary tables, warnings, figures (inlined). ``results``: the document,
+    or a results.json mapping (validated by the codec)."""
     e = html.escape
+    results = as_document(results).to_dict()
     s = results.get("structure", {})
     rows = "".join(f"<tr><td>{e(k)}</td><td>{v:.6g}</td></tr>" for k, v in s.items()
                    if isinstance(v, (int, float)))

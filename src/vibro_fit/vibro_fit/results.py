@@ -1,158 +1,137 @@
-"""Identification -> the results.json sections of the contract (/shared/recording-format.md) and CSV tables.
+"""Identification -> the results document (:mod:`vibro_model.results`) and CSV tables.
 
-Units: times s, positions mm, velocities m/s, forces N. Flight coefficients a, b, c are for
-Y[mm] = a t^2 + b t + c with t the absolute camera time (s). Only free flights carry a friction force
-(null otherwise) and only impacts between two free flights are listed.
+The types are SI inside; the contract's results.json (docs/recording-format.md: times s, positions mm,
+velocities m/s, forces N) is written by :func:`vibro_model.codec.write_results`. Flight coefficients
+a, b, c are for Y = a t^2 + b t + c with t the absolute camera time (s). Only free flights carry a
+friction force (null otherwise) and only impacts between two free flights are listed.
 """
 
 from __future__ import annotations
 
 import csv
-import json
-import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
-from vibro_io.outputs import atomic_open, atomic_write_text
+from vibro_model.codec import json_number, json_value, none_if_nan, write_results
+from vibro_model.results import Flight, Impact, ResultsDocument, Simulation, StructureMotion
+from vibro_model.units import mm_to_m
 
+from vibro_io.outputs import atomic_open
+
+from .flight_fit import FlightFit
 from .identify import Identification
+from .impacts import ImpactEstimate
+from .structure_fit import StructureFit
 
-SCHEMA = "vibro.results/1"
 RESULTS_JSON = "results.json"
 CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in this order
 
 
-def _num(x: Any) -> Any:
-    """JSON-safe number: numpy scalars to float, NaN/inf to None."""
-    if x is None:
-        return None
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    x = float(x)
-    return x if math.isfinite(x) else None
+def structure_model(s: StructureFit, ball_offset_mm: float | None = None) -> StructureMotion:
+    """The fitted sine as the model type (stds from the covariance, None without one)."""
+    sd = [None] * 4 if s.cov is None else [none_if_nan(v) for v in s.std]
+    return StructureMotion(mm_to_m(none_if_nan(s.amplitude_mm)), none_if_nan(s.frequency_hz),
+                           none_if_nan(s.phase_rad), mm_to_m(none_if_nan(s.offset_mm)),
+                           mm_to_m(none_if_nan(s.rms_residual_mm)), mm_to_m(sd[0]), sd[1], sd[2], mm_to_m(sd[3]),
+                           int(s.n_points), mm_to_m(none_if_nan(ball_offset_mm)))
 
 
-def structure_section(ident: Identification) -> dict:
-    s = ident.structure
-    sd = s.std
-    return {"amplitude_mm": _num(s.amplitude_mm), "frequency_hz": _num(s.frequency_hz),
-            "phase_rad": _num(s.phase_rad), "offset_mm": _num(s.offset_mm),
-            "rms_residual_mm": _num(s.rms_residual_mm),
-            "amplitude_std_mm": _num(sd[0]), "frequency_std_hz": _num(sd[1]), "phase_std_rad": _num(sd[2]),
-            "offset_std_mm": _num(sd[3]), "n_points": s.n_points}
+def flight_model(fl: FlightFit, mass_kg: float) -> Flight:
+    """One fitted flight (friction from Eq. 17 with the ball mass, only for a free flight)."""
+    a, b, c = fl.abs_coefficients()
+    f_n, f_std = fl.friction_n(mass_kg)
+    return Flight(int(fl.index), none_if_nan(fl.t_start_s), none_if_nan(fl.t_end_s), mm_to_m(none_if_nan(a)),
+                  mm_to_m(none_if_nan(b)), mm_to_m(none_if_nan(c)), fl.direction or "",
+                  none_if_nan(f_n) if fl.is_free else None, none_if_nan(f_std) if fl.is_free else None,
+                  mm_to_m(none_if_nan(fl.rms_residual_mm)), int(fl.n_points), bool(fl.is_free), fl.reason or "")
 
 
-def flights_section(ident: Identification) -> list[dict]:
-    """One row per fitted flight. t_start / t_end are the impacts that open / close the flight when
-    known, else its first / last fitted frame (``t_first_frame`` / ``t_last_frame`` always given)."""
-    opens = {i.flight_after: i.t_s for i in ident.impacts}
-    closes = {i.flight_before: i.t_s for i in ident.impacts}
-    out = []
-    for fl in ident.flights:
-        a, b, c = fl.abs_coefficients()
-        f_n, f_std = fl.friction_n(ident.mass_kg)
-        out.append({"index": fl.index, "t_start": _num(opens.get(fl.index, fl.t_start_s)),
-                    "t_end": _num(closes.get(fl.index, fl.t_end_s)),
-                    "t_first_frame": _num(fl.t_start_s), "t_last_frame": _num(fl.t_end_s),
-                    "a": _num(a), "b": _num(b), "c": _num(c), "direction": fl.direction or "up",
-                    "friction_n": _num(f_n) if fl.is_free else None,
-                    "friction_std_n": _num(f_std) if fl.is_free else None,
-                    "rms_residual_mm": _num(fl.rms_residual_mm), "n_points": fl.n_points,
-                    "free": bool(fl.is_free), "reason": fl.reason})
-    return out
+def impact_model(est: ImpactEstimate) -> Impact:
+    return Impact(int(est.index), none_if_nan(est.t_s), est.plate, none_if_nan(est.cor), none_if_nan(est.cor_std),
+                  none_if_nan(est.v_ball_before_ms), none_if_nan(est.v_ball_after_ms),
+                  none_if_nan(est.v_structure_ms), none_if_nan(est.t_std_s), int(est.flight_before),
+                  int(est.flight_after), est.method)
 
 
-def impacts_section(ident: Identification) -> list[dict]:
-    return [{"index": i.index, "t": _num(i.t_s), "t_std": _num(i.t_std_s), "plate": i.plate,
-             "cor": _num(i.cor), "cor_std": _num(i.cor_std), "v_ball_before": _num(i.v_ball_before_ms),
-             "v_ball_after": _num(i.v_ball_after_ms), "v_structure": _num(i.v_structure_ms),
-             "flight_before": i.flight_before, "flight_after": i.flight_after, "method": i.method}
-            for i in ident.impacts]
-
-
-def cor_summary_section(ident: Identification) -> dict:
-    return {p: {k: _num(v) for k, v in d.items()} for p, d in ident.cor_summary.items()}
-
-
-def cor_statistics_section(ident: Identification) -> dict:
-    """Per plate (n >= 3): histogram (counts, edges) and normal Q-Q slope, intercept and correlation r."""
+def cor_statistics_section(impacts: Iterable) -> dict:
+    """Per plate (n >= 3): histogram (counts, edges) and normal Q-Q slope, intercept and correlation r of
+    the CORs of ``impacts`` (anything with ``plate`` and ``cor``)."""
     from .statistics import normal_check
 
+    impacts = list(impacts)
     out = {}
     for plate in ("top", "bottom"):
-        vals = [i.cor for i in ident.impacts if i.plate == plate]
+        vals = [np.nan if i.cor is None else i.cor for i in impacts if i.plate == plate]
         if len(vals) < 3:
             continue
         nc = normal_check(vals)
-        out[plate] = {"histogram_counts": [int(c) for c in nc.counts], "histogram_edges": [_num(e) for e in nc.edges],
-                      "qq_slope": _num(nc.slope), "qq_intercept": _num(nc.intercept), "qq_r": _num(nc.r)}
+        out[plate] = {"histogram_counts": [int(c) for c in nc.counts], "histogram_edges": json_value(nc.edges),
+                      "qq_slope": json_number(nc.slope), "qq_intercept": json_number(nc.intercept),
+                      "qq_r": json_number(nc.r)}
     return out
 
 
-def identification_sections(ident: Identification) -> dict:
-    """structure, flights, impacts, cor_summary (+ regime, plate geometry, accelerometers, warnings)."""
+def identification_extras(ident: Identification) -> dict[str, Any]:
+    """The sections the model does not type yet: regime, identification details, accelerometers."""
     out: dict[str, Any] = {
-        "structure": structure_section(ident),
-        "flights": flights_section(ident),
-        "impacts": impacts_section(ident),
-        "cor_summary": cor_summary_section(ident),
-        "cor_statistics": cor_statistics_section(ident),
         "regime": ident.regime.to_dict(),
-        "identification": {"method": ident.method, "weights": ident.weights, "noise_mm": _num(ident.noise_mm),
-                           "plate_levels_mm": {k: _num(v) for k, v in ident.plate_levels.items()},
-                           "short_flights": [{"t_start": _num(f.t_start_s), "t_end": _num(f.t_end_s),
-                                              "n_points": f.n_points} for f in ident.short_flights],
-                           "contact_phases": [{"t_start": _num(c.t_start_s), "t_end": _num(c.t_end_s),
-                                               "n_frames": c.n} for c in ident.clusters if c.n > 4]},
-        "warnings": list(ident.warnings),
+        "identification": {"method": ident.method, "weights": ident.weights, "noise_mm": ident.noise_mm,
+                           "plate_levels_mm": dict(ident.plate_levels),
+                           "short_flights": [{"t_start": f.t_start_s, "t_end": f.t_end_s, "n_points": f.n_points}
+                                             for f in ident.short_flights],
+                           "contact_phases": [{"t_start": c.t_start_s, "t_end": c.t_end_s, "n_frames": c.n}
+                                              for c in ident.clusters if c.n > 4]},
     }
     if ident.accel is not None:
-        acc = ident.accel
+        acc, off = ident.accel, ident.clock_offset
         out["accelerometers"] = {
-            "n_impacts": len(acc.impacts), "threshold_ms2": _num(acc.threshold),
-            "spectrum_peaks_hz": [_num(f) for f in acc.peaks_hz],
+            "n_impacts": len(acc.impacts), "threshold_ms2": acc.threshold, "spectrum_peaks_hz": list(acc.peaks_hz),
             "clipping": acc.clipping,
-            "clock_offset_s": _num(ident.clock_offset.offset_s) if ident.clock_offset else None,
-            "clock_offset_matched": ident.clock_offset.n_matched if ident.clock_offset else 0,
-            "clock_offset_residual_std_s": _num(ident.clock_offset.residual_std_s) if ident.clock_offset else None,
-            "impacts": [{"t_daq": _num(i.t_s), "plate": i.plate, "peak_ms2": _num(i.peak_ms2),
-                         "upper_energy_m2s3": _num(i.energy_upper), "lower_energy_m2s3": _num(i.energy_lower),
-                         "dominant_frequencies_hz": [_num(f) for f in i.dominant_frequencies_hz],
-                         "clipped": bool(i.clipped)} for i in acc.impacts],
+            "clock_offset_s": off.offset_s if off else None, "clock_offset_matched": off.n_matched if off else 0,
+            "clock_offset_residual_std_s": off.residual_std_s if off else None,
+            "impacts": [{"t_daq": i.t_s, "plate": i.plate, "peak_ms2": i.peak_ms2,
+                         "upper_energy_m2s3": i.energy_upper, "lower_energy_m2s3": i.energy_lower,
+                         "dominant_frequencies_hz": list(i.dominant_frequencies_hz), "clipped": bool(i.clipped)}
+                        for i in acc.impacts],
         }
         if getattr(ident, "coverage", None) is not None:
-            out["accelerometers"]["coverage"] = {k: (_num(v) if isinstance(v, float) else
-                                                     [_num(x) for x in v] if isinstance(v, list) else v)
-                                                 for k, v in ident.coverage.to_dict().items()}
-    return out
+            out["accelerometers"]["coverage"] = ident.coverage.to_dict()
+    return json_value(out)
+
+
+def results_model(ident: Identification, recording: str, simulation: Simulation | None = None) -> ResultsDocument:
+    """The results document of an identification (discrepancy left empty: the caller adds it)."""
+    impacts = [impact_model(i) for i in ident.impacts]
+    sections = {"cor_statistics": cor_statistics_section(impacts), **identification_extras(ident)}
+    return ResultsDocument.build(recording, structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0)),
+                                 [flight_model(f, ident.mass_kg) for f in ident.flights], impacts,
+                                 simulation=simulation, warnings=ident.warnings, sections=sections)
 
 
 def results_document(ident: Identification, recording: str, simulation: dict | None = None,
                      discrepancy: dict | None = None) -> dict:
-    """The whole results.json mapping (schema vibro.results/1)."""
-    doc = {"schema": SCHEMA, "recording": str(recording)}
-    doc.update(identification_sections(ident))
-    doc["simulation"] = simulation if simulation is not None else {
-        "cor_model": {"deviation": None}, "hertz_model": {"deviation": None}}
-    doc["discrepancy"] = discrepancy if discrepancy is not None else {
-        "baseline_deviation": None, "findings": [], "final_deviation": None}
-    return doc
+    """The whole results.json mapping (schema vibro.results/1) of an identification."""
+    from vibro_model.results import Discrepancy
+
+    doc = results_model(ident, recording, None if simulation is None else Simulation.from_dict(simulation))
+    if discrepancy is not None:
+        doc.discrepancy = Discrepancy.from_dict(discrepancy)
+    return doc.to_dict()
 
 
-def write_json(path: str | Path, doc: dict) -> None:
-    """Write ``doc`` as JSON (NaN refused: the contract writes null), atomically."""
-    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+def write_json(path: str | Path, doc: ResultsDocument | dict) -> Path:
+    """results.json through the codec (validated)."""
+    return write_results(path, doc)
 
 
-def write_csv_tables(ident: Identification, out_dir: str | Path) -> list[Path]:
+def write_csv_tables(source: Identification | ResultsDocument, out_dir: str | Path) -> list[Path]:
     """flights.csv, impacts.csv (same columns as results.json) in ``out_dir``; returns the paths."""
+    doc = source if isinstance(source, ResultsDocument) else results_model(source, "")
     out_dir = Path(out_dir)
     paths = []
-    for name, rows in zip(CSV_TABLES, (flights_section(ident), impacts_section(ident))):
+    for name, rows in zip(CSV_TABLES, ([f.to_dict() for f in doc.flights], [i.to_dict() for i in doc.impacts])):
         path = out_dir / name
         with atomic_open(path, "w", newline="") as fh:
             if rows:

@@ -7,21 +7,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from vibro_model.results import CorSummary
+
 
 def cor_summary(impacts) -> dict[str, dict]:
     """{"top": {"mean", "std", "n"}, "bottom": {...}}: sample mean and std (ddof=1) of the COR per plate.
 
-    mean is None when n = 0 and std is None when n < 2 (JSON null: undefined, not zero).
+    mean is None when n = 0 and std is None when n < 2 (JSON null: undefined, not zero). The one
+    definition is :class:`vibro_model.results.CorSummary`.
     """
-    out: dict[str, dict] = {}
-    for plate in ("top", "bottom"):
-        vals = np.array([i.cor for i in impacts if i.plate == plate], float)
-        out[plate] = {
-            "mean": float(vals.mean()) if vals.size else None,
-            "std": float(vals.std(ddof=1)) if vals.size > 1 else None,
-            "n": int(vals.size),
-        }
-    return out
+    return CorSummary.of(impacts).to_dict()
 
 
 @dataclass

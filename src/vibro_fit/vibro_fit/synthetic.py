@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 
 from vibro_io.dictrack import DicTrack
 
-G_MS2 = 9.81  # gravity (m/s^2), the value vibro_sim uses
+from vibro_model.constants import G_MPS2 as G_MS2
 
 
 @dataclass

@@ -24,36 +24,26 @@ from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
-from vibro_ros.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
-                                   stamp_from_seconds)
+from vibro_ros.convert import flight_to_message, impact_to_message, structure_to_message
+from vibro_ros.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node)
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactEstimate as Estimate
+from .results import flight_model, impact_model, structure_model
 from .streaming import StreamingFitter
 
 
 def flight_message(fl: FlightFit, mass_kg: float, final: bool = False) -> FreeFlight:
-    a, b, c = fl.abs_coefficients()
-    f_n, f_std = fl.friction_n(mass_kg)
-    msg = FreeFlight(index=fl.index, t_start_s=fl.t_start_s, t_end_s=fl.t_end_s, a_mm_per_s2=a, b_mm_per_s=b,
-                     c_mm=c, direction=fl.direction or "", friction_n=f_n if fl.is_free else math.nan,
-                     friction_std_n=f_std if fl.is_free else math.nan, rms_residual_mm=fl.rms_residual_mm,
-                     points_used=int(fl.n_points), fitted=bool(fl.fitted and fl.is_free), note=fl.reason or "",
-                     final=final)
-    stamp_from_seconds(msg.header, fl.t_end_s)
-    return msg
+    """A fitted flight as published (``final``: the end-of-stream fit)."""
+    return flight_to_message(flight_model(fl, mass_kg), final)
 
 
 def impact_message(est: Estimate, final: bool = False) -> ImpactEstimate:
-    msg = ImpactEstimate(index=est.index, t_s=est.t_s, t_std_s=est.t_std_s, plate=est.plate, cor=est.cor,
-                         cor_std=est.cor_std, v_ball_before_m_per_s=est.v_ball_before_ms,
-                         v_ball_after_m_per_s=est.v_ball_after_ms, v_structure_m_per_s=est.v_structure_ms,
-                         flight_before=est.flight_before, flight_after=est.flight_after, final=final)
-    stamp_from_seconds(msg.header, est.t_s)
-    return msg
+    """An impact estimate as published (``final``: the end-of-stream estimate)."""
+    return impact_to_message(impact_model(est), final)
 
 
 class TrajectoryFitter(Node):
@@ -199,13 +189,7 @@ class TrajectoryFitter(Node):
             self.flights_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
             return
-        s = ident.structure
-        sd = np.sqrt(np.clip(np.diag(s.cov), 0, None)) if s.cov is not None else np.full(4, math.nan)
-        smsg = StructureMotion(amplitude_mm=s.amplitude_mm, frequency_hz=s.frequency_hz, phase_rad=s.phase_rad,
-                               offset_mm=s.offset_mm, amplitude_std_mm=float(sd[0]), frequency_std_hz=float(sd[1]),
-                               phase_std_rad=float(sd[2]), offset_std_mm=float(sd[3]),
-                               rms_residual_mm=s.rms_residual_mm, frames_used=int(s.n_points),
-                               ball_offset_mm=float(ident.plate_levels.get("offset_mm", 0.0)))
+        smsg = structure_to_message(structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0)))
         self.pub_structure.publish(smsg)
         for fl in ident.flights:
             self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True))

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from vibro_model.constants import G_MPS2
+
 FORCE_EFFECTS = ("coulomb_friction", "viscous_drag", "quadratic_drag")
 
 
-def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_ms2: float = 9.81, tol_s: float = 0.002
+def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_ms2: float = G_MPS2, tol_s: float = 0.002
                      ) -> dict:
     """Accuracy figures of ``results`` against ``truth``: COR and impact-time errors, plate agreement,
     structure amplitude (%) and frequency (Hz) errors, friction errors in % of the ball's weight."""

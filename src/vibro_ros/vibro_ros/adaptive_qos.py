@@ -7,7 +7,7 @@ Two needs, one DDS rule (a transient-local reader never matches a volatile write
   same topic volatile must still be heard. rmw's ``BEST_AVAILABLE`` durability does not
   do it: it is decided once, when the subscription is created, from the publishers the
   new node has discovered by then (in a fresh process: none, which gives transient local),
-  so a volatile publisher is rejected in every start order (tests/test_bags_qos.py).
+  so a volatile publisher is rejected in every start order (tests/test_bags_rosbag2.py).
   :class:`ResultsSubscription` keeps a transient-local reader (late-joiner history) and,
   once a publisher it cannot match is discovered, adds a volatile (best-effort if needed)
   reader that matches everyone; a sample both readers get is delivered once (recognised by

@@ -17,26 +17,14 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
-from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.convert import finding_to_message
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node
 from vibro_io.rig import load_rig
+from vibro_model.results import Discrepancy as DiscrepancyBlock
 from vibro_msgs.msg import DiscrepancyFinding
 
 from .discrepancy import analyse_discrepancy
 from .discrepancy.from_messages import sections_from_messages, track_from_messages
-
-
-def finding_message(index: int, f: dict) -> DiscrepancyFinding:
-    """One finding of the discrepancy block as a message (NaN for missing numbers)."""
-    nan = float("nan")
-    params = f.get("parameters") or {}
-    stds = f.get("parameters_std") or {}
-    msg = DiscrepancyFinding(index=index, effect=str(f.get("effect", "")), where=str(f.get("where", "")))
-    msg.parameter_names = list(params)
-    msg.parameter_values = [float(v) if v is not None else nan for v in params.values()]
-    msg.parameter_std = [float(stds[k]) if stds.get(k) is not None else nan for k in params]
-    msg.deviation_before = float(f["deviation_before"]) if f.get("deviation_before") is not None else nan
-    msg.deviation_after = float(f["deviation_after"]) if f.get("deviation_after") is not None else nan
-    return msg
 
 
 class Discrepancy(Node):
@@ -81,15 +69,15 @@ class Discrepancy(Node):
             self.status.publish(0, 0, True)
             return
         t_last = max(float(m.t_s) for m in r.frames.values())
-        for k, f in enumerate(doc["findings"]):
-            msg = finding_message(k, f)
-            stamp_from_seconds(msg.header, t_last)
+        block = DiscrepancyBlock.from_dict(doc)
+        for k, finding in enumerate(block.findings):
+            msg = finding_to_message(finding, k, t_last)
             self.pub.publish(msg)
             self.get_logger().info(f"finding {k}: {msg.effect} {dict(zip(msg.parameter_names, msg.parameter_values))}"
                                    f"; D {msg.deviation_before:.4g} -> {msg.deviation_after:.4g}")
-        if not doc["findings"]:
-            self.get_logger().info(f"no finding: the baseline explains the run (D = {doc['baseline_deviation']})")
-        self.status.publish(len(doc["findings"]), 0, True)
+        if not block.findings:
+            self.get_logger().info(f"no finding: the baseline explains the run (D = {block.baseline_deviation})")
+        self.status.publish(len(block.findings), 0, True)
 
 
 def main(args: list[str] | None = None) -> int:

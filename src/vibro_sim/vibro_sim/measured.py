@@ -18,7 +18,6 @@ from .params import BallCavity
 from .replay import ReplayInputs, simulate_measured
 from .structure import StructureMotion
 
-G_MS2 = 9.81
 
 
 @dataclass(frozen=True)

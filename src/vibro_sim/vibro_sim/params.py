@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from vibro_model.constants import G_MPS2
+
 # Paper's Appendix A / Test 1 rig: ceramic ball, aluminium plates.
 BALL_MASS_KG = 1.82e-4
 BALL_DIAMETER_M = 4.77e-3
@@ -27,7 +29,7 @@ class BallCavity:
     mass_kg: float = BALL_MASS_KG
     radius_m: float = 0.5 * BALL_DIAMETER_M
     free_play_m: float = 0.5 * (GAP_M - BALL_DIAMETER_M)
-    gravity_ms2: float = 9.81
+    gravity_ms2: float = G_MPS2
     tilt_deg: float = 0.0
     ball_E_pa: float = BALL_E_PA
     ball_nu: float = BALL_NU
@@ -68,7 +70,7 @@ class BallCavity:
         return 4.0 * math.sqrt(self.radius_m) / (3.0 * math.pi * (k_b + k_s))
 
     @classmethod
-    def from_rig(cls, rig, gravity_ms2: float = 9.81, tilt_deg: float = 0.0) -> "BallCavity":
+    def from_rig(cls, rig, gravity_ms2: float = G_MPS2, tilt_deg: float = 0.0) -> "BallCavity":
         """Build from a :class:`vibro_io.rig.RigConfig` (mm in the rig -> m here)."""
         return cls(
             mass_kg=rig.ball.mass_kg,

@@ -17,7 +17,10 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
-from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_model.results import SimulationRun
+from vibro_model.units import mm_to_m
+from vibro_ros.convert import simulation_run_to_message
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import SimulationResult
 
@@ -85,11 +88,9 @@ class Simulator(Node):
                 self.get_logger().error(f"{model} failed: {score['error']}")
                 continue
             step = max(1, int(np.ceil(score["t_s"].size / self.max_points)))
-            msg = SimulationResult(model=model, deviation=score["deviation"], impacts=score["impacts"])
-            msg.t_s = score["t_s"][::step].tolist()
-            msg.ball_mm = score["ball_mm"][::step].tolist()
-            msg.measured_ball_mm = score["measured_mm"][::step].tolist()
-            stamp_from_seconds(msg.header, float(score["t_s"][-1]))
+            run = SimulationRun(model, float(score["deviation"]), int(score["impacts"]), score["t_s"][::step],
+                                mm_to_m(score["ball_mm"][::step]), mm_to_m(score["measured_mm"][::step]))
+            msg = simulation_run_to_message(run, float(score["t_s"][-1]))
             self.pub.publish(msg)
             sent += 1
             self.get_logger().info(f"{model}: D = {100 * score['deviation']:.2f} %")

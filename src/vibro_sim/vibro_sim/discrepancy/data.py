@@ -19,7 +19,7 @@ from vibro_io.dictrack import DicTrack
 from vibro_io.errors import RecordingError
 from vibro_io.rig import RigConfig
 
-G_MS2 = 9.81
+from vibro_model.constants import G_MPS2 as G_MS2
 MIN_FLIGHT_POINTS = 6
 
 

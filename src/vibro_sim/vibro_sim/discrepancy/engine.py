@@ -24,6 +24,8 @@ import numpy as np
 
 from vibro_io.dictrack import DicTrack
 from vibro_io.rig import RigConfig
+from vibro_model.codec import json_number as _num
+from vibro_model.codec import json_value as jsonable
 
 from ..cor_model import simulate_cor
 from ..deviation import deviation
@@ -60,29 +62,6 @@ class DiscrepancyRun:
     baseline_steps: OneStep | None = None
     final_steps: OneStep | None = None
     chain: list[tuple[str, FittedModel, FullRun]] = field(default_factory=list)
-
-
-def _num(x):
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def jsonable(obj):
-    """Plain JSON types: numpy scalars/arrays to Python, non-finite floats to None."""
-    if isinstance(obj, Mapping):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        x = float(obj)
-        return x if math.isfinite(x) else None
-    return obj
 
 
 def full_run(meas: Measured, model: FittedModel) -> FullRun:

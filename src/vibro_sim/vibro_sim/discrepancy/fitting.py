@@ -27,6 +27,8 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar, nnls
 
+from vibro_model.constants import G_MPS2
+
 from ..structure import StructureMotion
 from .data import FlightData, Measured
 from .library import FlightTerm, ImpactTerm
@@ -53,7 +55,7 @@ class FlightModelFit:
     flight_n: np.ndarray
     residuals: list[np.ndarray] = field(default_factory=list)
     grids: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (u, v(u)) per flight
-    g_ms2: float = 9.81
+    g_ms2: float = G_MPS2
 
     @property
     def names(self) -> tuple[str, ...]:

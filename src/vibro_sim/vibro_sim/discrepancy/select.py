@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from vibro_model.codec import json_number as _f
+
 from .data import Measured
 from .fitting import (FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, fit_structure)
 from .library import FLIGHT_TERMS, FlightTerm
@@ -53,10 +55,6 @@ class Decision:
     def to_dict(self) -> dict:
         return {"candidate": self.label, "statistic": _f(self.statistic), "p_value": _f(self.p_value),
                 "explained": _f(self.explained), "accepted": self.accepted, "note": self.note}
-
-
-def _f(x):
-    return float(x) if x is not None and math.isfinite(x) else None
 
 
 @dataclass

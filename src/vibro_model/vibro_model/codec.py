@@ -1,0 +1,178 @@
+"""The one results.json codec: schema name, JSON-number sanitiser, writer, reader with validation.
+
+Every results.json vibro writes (``vibro analyze``, ``vibro fit``, ``vibro results <bag>``) goes through
+:func:`write_results`, every one it reads through :func:`read_results`; the types of
+:mod:`vibro_model.results` turn themselves into the contract's keys (docs/recording-format.md) with the
+helpers here. A document read back is validated: a missing key, a wrong type or an unknown plate or
+direction raises :class:`ResultsError` naming the file and the key (``flights[3].t_start``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
+
+import numpy as np
+
+from vibro_io.errors import RecordingError
+
+if TYPE_CHECKING:
+    from .results import ResultsDocument
+
+SCHEMA = "vibro.results/1"
+
+
+class ResultsError(RecordingError):
+    """A results document (file or mapping) that does not follow the contract; the message names the key."""
+
+
+# ---------------------------------------------------------------- JSON numbers
+def json_number(x: Any) -> Any:
+    """A JSON-safe scalar: numpy scalars to Python, NaN/inf to None (JSON null: unknown), bools kept."""
+    if x is None:
+        return None
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def json_value(obj: Any) -> Any:
+    """Plain JSON types, recursively: mappings (keys to str), sequences and arrays to lists, numbers through
+    :func:`json_number`; strings and None as they are."""
+    if isinstance(obj, Mapping):
+        return {str(k): json_value(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [json_value(v) for v in obj]
+    if obj is None or isinstance(obj, (bool, np.bool_, int, np.integer, float, np.floating)):
+        return json_number(obj)
+    return obj
+
+
+def nan_if_none(x: float | None) -> float:
+    """None (unknown) as NaN, for float64 message fields."""
+    return math.nan if x is None else float(x)
+
+
+def none_if_nan(x: Any) -> float | None:
+    """A finite float, or None for NaN/inf/None."""
+    return json_number(None if x is None else float(x))
+
+
+# ---------------------------------------------------------------- reading with validation
+class Fields:
+    """Typed access to one mapping of a results document; every error names ``where.key``."""
+
+    def __init__(self, data: Any, where: str):
+        if not isinstance(data, Mapping):
+            raise ResultsError(f"{where}: expected a mapping, got {type(data).__name__}")
+        self.data = data
+        self.where = where
+
+    def value(self, key: str, required: bool) -> Any:
+        """The raw value of ``key`` (None when absent and not required)."""
+        if key not in self.data:
+            if required:
+                raise ResultsError(f"{self.where}.{key}: missing")
+            return None
+        return self.data[key]
+
+    def number(self, key: str, required: bool = True, nullable: bool = True) -> float | None:
+        """A finite number (int or float, not bool), or None where null is allowed."""
+        value = self.value(key, required)
+        if value is None:
+            if key in self.data and not nullable:
+                raise ResultsError(f"{self.where}.{key}: must be a number, got null")
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ResultsError(f"{self.where}.{key}: must be a finite number, got {value!r}")
+        return float(value)
+
+    def integer(self, key: str, required: bool = True, nullable: bool = False) -> int | None:
+        value = self.value(key, required)
+        if value is None and (nullable or key not in self.data):
+            return None
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ResultsError(f"{self.where}.{key}: must be an integer, got {value!r}")
+        return int(value)
+
+    def boolean(self, key: str, default: bool) -> bool:
+        value = self.value(key, False)
+        if value is None:
+            return default
+        if not isinstance(value, bool):
+            raise ResultsError(f"{self.where}.{key}: must be true or false, got {value!r}")
+        return value
+
+    def string(self, key: str, required: bool = True, choices: Sequence[str] | None = None,
+               default: str | None = None) -> str | None:
+        value = self.value(key, required)
+        if value is None:
+            return default
+        if not isinstance(value, str):
+            raise ResultsError(f"{self.where}.{key}: must be a string, got {value!r}")
+        if choices is not None and value not in choices:
+            raise ResultsError(f"{self.where}.{key}: must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    def mapping(self, key: str, required: bool = True) -> "Fields | None":
+        value = self.value(key, required)
+        return None if value is None else Fields(value, f"{self.where}.{key}")
+
+    def rows(self, key: str, required: bool = True) -> list["Fields"]:
+        """A list of mappings, each as :class:`Fields` named ``where.key[i]``."""
+        value = self.value(key, required)
+        if value is None:
+            return []
+        if not isinstance(value, list):
+            raise ResultsError(f"{self.where}.{key}: must be a list, got {type(value).__name__}")
+        return [Fields(row, f"{self.where}.{key}[{i}]") for i, row in enumerate(value)]
+
+    def numbers_by_name(self, key: str, required: bool = True) -> dict[str, float | None] | None:
+        """A mapping name -> number or null (finding parameters)."""
+        sub = self.mapping(key, required)
+        if sub is None:
+            return None
+        return {str(k): sub.number(str(k)) for k in sub.data}
+
+    def extras(self, known: Sequence[str]) -> dict[str, Any]:
+        """The keys not in ``known``, as written (kept through a read/write round trip)."""
+        return {k: v for k, v in self.data.items() if k not in known}
+
+
+# ---------------------------------------------------------------- documents
+def as_document(doc: "ResultsDocument | Mapping[str, Any]", source: str = "results") -> "ResultsDocument":
+    """A :class:`ResultsDocument`, validating a mapping on the way (errors name ``source`` and the key)."""
+    from .results import ResultsDocument
+
+    return doc if isinstance(doc, ResultsDocument) else ResultsDocument.from_dict(doc, source)
+
+
+def results_text(doc: "ResultsDocument | Mapping[str, Any]") -> str:
+    """The JSON text of a results document (validated; strict JSON: no NaN, indented)."""
+    return json.dumps(as_document(doc).to_dict(), indent=2, allow_nan=False) + "\n"
+
+
+def write_results(path: str | Path, doc: "ResultsDocument | Mapping[str, Any]") -> Path:
+    """Write results.json (a document or a mapping, validated first); returns the path."""
+    from vibro_io.outputs import atomic_write_text  # a crash never leaves a half-written results.json
+
+    return atomic_write_text(Path(path), results_text(doc))
+
+
+def read_results(path: str | Path) -> "ResultsDocument":
+    """Read and validate a results.json; :class:`ResultsError` names the file and the key at fault."""
+    from .results import ResultsDocument
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ResultsError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except ValueError as exc:
+        raise ResultsError(f"{path}: not JSON ({exc})") from None
+    return ResultsDocument.from_dict(data, str(path))

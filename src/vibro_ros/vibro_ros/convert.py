@@ -1,0 +1,142 @@
+"""One converter each way between the results types of :mod:`vibro_model.results` and their vibro_msgs.
+
+| model | message |
+|---|---|
+| StructureMotion | vibro_msgs/StructureMotion |
+| Flight | vibro_msgs/FreeFlight |
+| Impact | vibro_msgs/ImpactEstimate |
+| SimulationRun | vibro_msgs/SimulationResult |
+| DiscrepancyFinding | vibro_msgs/DiscrepancyFinding |
+
+Messages carry mm (``*_mm``, ``*_mm_per_s``) and m/s (``*_m_per_s``) as their field names say; the model
+is SI. An unknown number is None in the model and NaN in a float64 field. ``*_from_message`` read any
+object with the message's fields (an rclpy message, a rosbags-deserialised one from a bag) and import
+no ROS; ``*_to_message`` build rclpy messages (vibro_msgs imported on use). A FreeFlight carries the
+first/last fitted frame only: the impacts that open/close a flight are linked again from the impacts
+(:func:`vibro_model.results.link_impacts`, done by ``ResultsDocument.build``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from vibro_model.codec import nan_if_none, none_if_nan
+from vibro_model.results import DiscrepancyFinding, Flight, Impact, SimulationRun, StructureMotion
+from vibro_model.units import m_to_mm, mm_to_m
+
+
+def _stamp(msg: Any, t_s: float | None) -> Any:
+    if t_s is not None:
+        from .node_support import stamp_from_seconds
+
+        stamp_from_seconds(msg.header, t_s)
+    return msg
+
+
+# ---------------------------------------------------------------- structure
+def structure_to_message(s: StructureMotion, stamp_s: float | None = None):
+    from vibro_msgs.msg import StructureMotion as Msg
+
+    msg = Msg(amplitude_mm=nan_if_none(m_to_mm(s.amplitude_m)), frequency_hz=nan_if_none(s.frequency_hz),
+              phase_rad=nan_if_none(s.phase_rad), offset_mm=nan_if_none(m_to_mm(s.offset_m)),
+              amplitude_std_mm=nan_if_none(m_to_mm(s.amplitude_std_m)),
+              frequency_std_hz=nan_if_none(s.frequency_std_hz), phase_std_rad=nan_if_none(s.phase_std_rad),
+              offset_std_mm=nan_if_none(m_to_mm(s.offset_std_m)),
+              rms_residual_mm=nan_if_none(m_to_mm(s.rms_residual_m)), frames_used=int(s.n_points or 0),
+              ball_offset_mm=nan_if_none(m_to_mm(s.ball_offset_m)))
+    return _stamp(msg, stamp_s)
+
+
+def structure_from_message(msg: Any) -> StructureMotion:
+    return StructureMotion(mm_to_m(none_if_nan(msg.amplitude_mm)), none_if_nan(msg.frequency_hz),
+                           none_if_nan(msg.phase_rad), mm_to_m(none_if_nan(msg.offset_mm)),
+                           mm_to_m(none_if_nan(msg.rms_residual_mm)), mm_to_m(none_if_nan(msg.amplitude_std_mm)),
+                           none_if_nan(msg.frequency_std_hz), none_if_nan(msg.phase_std_rad),
+                           mm_to_m(none_if_nan(msg.offset_std_mm)), int(msg.frames_used),
+                           mm_to_m(none_if_nan(msg.ball_offset_mm)))
+
+
+# ---------------------------------------------------------------- flights
+def flight_to_message(f: Flight, final: bool = False):
+    """A FreeFlight stamped at its last fitted frame; ``final``: the end-of-stream fit."""
+    from vibro_msgs.msg import FreeFlight
+
+    msg = FreeFlight(index=int(f.index), t_start_s=nan_if_none(f.t_first_frame_s),
+                     t_end_s=nan_if_none(f.t_last_frame_s), a_mm_per_s2=nan_if_none(m_to_mm(f.a_mps2)),
+                     b_mm_per_s=nan_if_none(m_to_mm(f.b_mps)), c_mm=nan_if_none(m_to_mm(f.c_m)),
+                     direction=f.direction, friction_n=nan_if_none(f.friction_n),
+                     friction_std_n=nan_if_none(f.friction_std_n),
+                     rms_residual_mm=nan_if_none(m_to_mm(f.rms_residual_m)), points_used=int(f.n_points or 0),
+                     fitted=bool(f.free), note=f.reason, final=bool(final))
+    return _stamp(msg, f.t_last_frame_s)
+
+
+def flight_from_message(msg: Any) -> Flight:
+    return Flight(int(msg.index), none_if_nan(msg.t_start_s), none_if_nan(msg.t_end_s),
+                  mm_to_m(none_if_nan(msg.a_mm_per_s2)), mm_to_m(none_if_nan(msg.b_mm_per_s)),
+                  mm_to_m(none_if_nan(msg.c_mm)), str(msg.direction), none_if_nan(msg.friction_n),
+                  none_if_nan(msg.friction_std_n), mm_to_m(none_if_nan(msg.rms_residual_mm)), int(msg.points_used),
+                  bool(msg.fitted), str(msg.note))
+
+
+# ---------------------------------------------------------------- impacts
+def impact_to_message(i: Impact, final: bool = False):
+    """An ImpactEstimate stamped at the impact time; ``final``: the end-of-stream estimate."""
+    from vibro_msgs.msg import ImpactEstimate
+
+    msg = ImpactEstimate(index=int(i.index), t_s=nan_if_none(i.t_s), t_std_s=nan_if_none(i.t_std_s), plate=i.plate,
+                         cor=nan_if_none(i.cor), cor_std=nan_if_none(i.cor_std),
+                         v_ball_before_m_per_s=nan_if_none(i.v_ball_before_mps),
+                         v_ball_after_m_per_s=nan_if_none(i.v_ball_after_mps),
+                         v_structure_m_per_s=nan_if_none(i.v_structure_mps), flight_before=int(i.flight_before),
+                         flight_after=int(i.flight_after), final=bool(final))
+    return _stamp(msg, i.t_s)
+
+
+def impact_from_message(msg: Any) -> Impact:
+    return Impact(int(msg.index), none_if_nan(msg.t_s), str(msg.plate), none_if_nan(msg.cor), none_if_nan(msg.cor_std),
+                  none_if_nan(msg.v_ball_before_m_per_s), none_if_nan(msg.v_ball_after_m_per_s),
+                  none_if_nan(msg.v_structure_m_per_s), none_if_nan(msg.t_std_s), int(msg.flight_before),
+                  int(msg.flight_after))
+
+
+# ---------------------------------------------------------------- simulation
+def simulation_run_to_message(run: SimulationRun, stamp_s: float | None = None):
+    from vibro_msgs.msg import SimulationResult
+
+    msg = SimulationResult(model=run.model, deviation=nan_if_none(run.deviation), impacts=int(run.n_impacts or 0))
+    msg.t_s = np.asarray(run.t_s, dtype=float).tolist()
+    msg.ball_mm = m_to_mm(np.asarray(run.ball_m, dtype=float)).tolist()
+    msg.measured_ball_mm = m_to_mm(np.asarray(run.measured_ball_m, dtype=float)).tolist()
+    return _stamp(msg, stamp_s)
+
+
+def simulation_run_from_message(msg: Any) -> SimulationRun:
+    return SimulationRun(str(msg.model), none_if_nan(msg.deviation), int(msg.impacts),
+                         np.asarray(msg.t_s, dtype=float), mm_to_m(np.asarray(msg.ball_mm, dtype=float)),
+                         mm_to_m(np.asarray(msg.measured_ball_mm, dtype=float)))
+
+
+# ---------------------------------------------------------------- discrepancy findings
+def finding_to_message(finding: DiscrepancyFinding, index: int, stamp_s: float | None = None):
+    """Finding number ``index`` of a run (parameters as parallel name/value/std arrays, NaN when unknown)."""
+    from vibro_msgs.msg import DiscrepancyFinding as Msg
+
+    stds = finding.parameters_std or {}
+    msg = Msg(index=int(index), effect=finding.effect, where=finding.where)
+    msg.parameter_names = list(finding.parameters)
+    msg.parameter_values = [nan_if_none(v) for v in finding.parameters.values()]
+    msg.parameter_std = [nan_if_none(stds.get(k)) for k in finding.parameters]
+    msg.deviation_before = nan_if_none(finding.deviation_before)
+    msg.deviation_after = nan_if_none(finding.deviation_after)
+    return _stamp(msg, stamp_s)
+
+
+def finding_from_message(msg: Any) -> DiscrepancyFinding:
+    """The finding (its number is ``msg.index``); a finding without parameters has no ``parameters_std``."""
+    names = [str(n) for n in msg.parameter_names]
+    return DiscrepancyFinding(str(msg.effect), {n: none_if_nan(v) for n, v in zip(names, msg.parameter_values)},
+                              str(msg.where), none_if_nan(msg.deviation_before), none_if_nan(msg.deviation_after),
+                              {n: none_if_nan(v) for n, v in zip(names, msg.parameter_std)} if names else None)

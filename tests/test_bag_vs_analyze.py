@@ -1,0 +1,162 @@
+"""``vibro results <bag>`` of a graph run is ``vibro analyze``'s document of the same recording, field for
+field (both through the one codec), and a bag cut short says so instead of passing for a whole run."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+#: the graph runs the same cores on the same CDR-exact numbers as analyze: only float rounding may differ
+TOL = 1e-9
+
+#: what analyze writes and no vibro_msgs message carries (told to the lead: needs a message change)
+NOT_CARRIED = {
+    "recording": "the path given: the recording directory vs the bag",
+    "warnings": "the fitter logs identify()'s warnings; no message carries them",
+    "regime": "identify()'s regime: no message",
+    "identification": "identify()'s method, noise, plate levels, short flights, contact phases: no message",
+    "accelerometers": "identify()'s accelerometer analysis: no message",
+    "impacts[].method": "ImpactEstimate has no method field",
+    "discrepancy.*": "the engine's extras (model, noise floors, location, stages, notes): no message",
+    "discrepancy.findings[].*": "the engine's per-finding extras (one-step errors, alternatives): no message",
+}
+
+
+def _vibro(*args: str, env: dict, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([*VIBRO, *args], capture_output=True, text=True, timeout=timeout, env=env)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict:
+    """One synthetic recording, one graph run (bag), its ``vibro results`` and ``vibro analyze``."""
+    tmp = tmp_path_factory.mktemp("bag_vs_analyze")
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.Random(os.getpid()).randint(101, 200)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    rec = tmp / "rec"
+    synth = _vibro("synth", "--out", str(rec), "--frames", "400", "--seed", "5", "--effect", "coulomb_friction",
+                  "--no-progress", env=env)
+    assert synth.returncode == 0, synth.stderr
+    bag = tmp / "bag"
+    graph = _vibro("graph", str(rec), "--bag", str(bag), "--timeout-s", "150", env=env, timeout=240)
+    assert graph.returncode == 0, graph.stdout + graph.stderr
+    analyze = _vibro("analyze", str(rec), "--out", str(tmp / "an"), "--no-progress", "--no-report", env=env)
+    assert analyze.returncode == 0, analyze.stderr
+    results = _vibro("results", str(bag), "--out", str(tmp / "bagres"), env=env)
+    assert results.returncode == 0, results.stderr
+    return {"tmp": tmp, "rec": rec, "bag": bag, "env": env,
+            "analyze": json.loads((tmp / "an" / "results.json").read_text()),
+            "bag_doc": json.loads((tmp / "bagres" / "results.json").read_text())}
+
+
+def _not_carried(path: str) -> bool:
+    generic = re.sub(r"\[\d+\]", "[]", path)
+    return any(generic == k or (k.endswith(".*") and generic.startswith(k[:-1]) and "." not in generic[len(k) - 1:])
+               for k in NOT_CARRIED)
+
+
+def _compare(a, b, path: str, compared: list[str]) -> None:
+    """Every field of analyze's document ``a`` must be in the bag's ``b`` and equal (numbers to TOL), unless
+    listed in NOT_CARRIED."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict), path
+        for k, v in a.items():
+            sub = f"{path}.{k}" if path else k
+            if k not in b:
+                assert _not_carried(sub), f"{sub}: in analyze's document, missing from the bag's"
+                continue
+            if _not_carried(sub):
+                continue
+            _compare(v, b[k], sub, compared)
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), f"{path}: {len(a)} vs {len(b) if isinstance(b, list) else b}"
+        for k, (x, y) in enumerate(zip(a, b)):
+            _compare(x, y, f"{path}[{k}]", compared)
+    elif isinstance(a, float) or isinstance(b, float):
+        assert isinstance(a, (int, float)) and isinstance(b, (int, float)), f"{path}: {a!r} vs {b!r}"
+        assert abs(a - b) <= TOL * max(1.0, abs(a)), f"{path}: analyze {a!r}, bag {b!r}"
+        compared.append(path)
+    else:
+        assert a == b, f"{path}: analyze {a!r}, bag {b!r}"
+        compared.append(path)
+
+
+def test_bag_results_equal_analyze_field_for_field(runs: dict) -> None:
+    a, b = runs["analyze"], runs["bag_doc"]
+    assert b["complete"] is True and a["complete"] is True
+    assert len(a["impacts"]) >= 8 and len(a["flights"]) >= 8
+    if not a["discrepancy"]["findings"]:
+        # no finding: the discrepancy node publishes nothing that holds the baseline D; the bag says so
+        assert b["discrepancy"]["baseline_deviation"] is None and b["discrepancy"]["final_deviation"] is None
+        assert any("baseline D is not recorded" in w for w in b["warnings"])
+        for key in ("baseline_deviation", "final_deviation"):
+            del a["discrepancy"][key], b["discrepancy"][key]
+    compared: list[str] = []
+    _compare(a, b, "", compared)
+    # the fields the issue named are among those compared: the opening impact in t_start, the fitted
+    # frames beside it, free (not "fitted"), the simulation's D
+    names = {re.sub(r"\[\d+\]", "[]", p) for p in compared}
+    for key in ("flights[].t_start", "flights[].t_end", "flights[].t_first_frame", "flights[].t_last_frame",
+                "flights[].free", "flights[].friction_n", "flights[].a", "impacts[].cor", "impacts[].t_std",
+                "structure.amplitude_mm", "structure.ball_offset_mm", "cor_summary.top.mean",
+                "simulation.cor_model.deviation", "simulation.hertz_model.deviation", "schema", "complete"):
+        assert key in names, key
+    assert "fitted" not in b["flights"][0]
+    # t_start is the opening impact, not the first fitted frame: it lies in the frame gap before it
+    opened = [f for f in b["flights"] if f["t_start"] != f["t_first_frame"]]
+    assert len(opened) >= len(b["impacts"]) - 1
+    assert all(f["t_first_frame"] - 0.0025 < f["t_start"] < f["t_first_frame"] for f in opened)
+
+
+def _cut_before_final_pass(bag: Path, out: Path) -> int:
+    """Copy ``bag`` up to (not including) the fitter's first final message: what a recorder killed just
+    before the end-of-stream pass leaves. Returns the number of messages kept."""
+    from vibro_ros.bags import BagWriter, deserialize, make_typestore, read_messages
+
+    store = make_typestore()
+    writer = BagWriter(out)
+    kept = 0
+    for m in read_messages(bag):
+        if m.topic == "vibro/structure" or (m.topic in ("vibro/flights", "vibro/impacts")
+                                             and deserialize(m, store).final):
+            break
+        writer.add_topic(m.topic, m.msg_type)
+        writer.write(m.topic, m.timestamp_ns, m.data)
+        kept += 1
+    writer.close()
+    return kept
+
+
+def test_a_bag_cut_short_keeps_the_streamed_estimates_and_fails_loudly(runs: dict) -> None:
+    from vibro_ros.bags import deserialize, make_typestore, read_messages
+
+    cut = runs["tmp"] / "cut"
+    assert _cut_before_final_pass(runs["bag"], cut) > 0
+    store = make_typestore()
+    streamed = {int(msg.index): msg for msg in (deserialize(m, store) for m in read_messages(cut, {"vibro/impacts"}))}
+    assert len(streamed) >= 5
+    res = _vibro("results", str(cut), "--out", str(runs["tmp"] / "cutres"), env=runs["env"])
+    assert res.returncode == 1, res.stdout + res.stderr
+    err = res.stderr.strip().splitlines()
+    assert len(err) == 1 and "incomplete" in err[0] and "Traceback" not in res.stderr
+    doc = json.loads((runs["tmp"] / "cutres" / "results.json").read_text())
+    assert doc["complete"] is False and doc["structure"] is None
+    assert any(w.startswith("bag cut short:") and "vibro/structure" in w for w in doc["warnings"])
+    # the streamed estimates are kept, each as streamed, and they are the run's impacts: every one is at an
+    # impact analyze found (the streaming fitter and the final pass see the same frames around it)
+    assert [i["index"] for i in doc["impacts"]] == sorted(streamed)
+    assert all(i["t"] == streamed[i["index"]].t_s and i["cor"] == streamed[i["index"]].cor for i in doc["impacts"])
+    t_final = [i["t"] for i in runs["analyze"]["impacts"]]
+    assert all(min(abs(i["t"] - t) for t in t_final) < 1e-3 for i in doc["impacts"])
+    # printed to stdout instead of a file: the same exit code, nothing passes for a whole run
+    res = _vibro("results", str(cut), env=runs["env"])
+    assert res.returncode == 1 and json.loads(res.stdout)["complete"] is False
+    assert math.isfinite(doc["impacts"][0]["cor"])
