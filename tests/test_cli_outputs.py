@@ -264,8 +264,8 @@ def result_bag(tmp_path_factory) -> Path:
     """A real MCAP bag holding the fitter's final structure message and the rig (as vibro graph records)."""
     from rclpy.serialization import serialize_message
 
-    from vibro_io import topics
-    from vibro_io.bags import BagWriter
+    from vibro_ros import topics
+    from vibro_ros.bags import BagWriter
     from vibro_msgs.msg import StructureMotion
 
     bag = tmp_path_factory.mktemp("bags") / "run1"
@@ -333,7 +333,7 @@ def test_graph_bad_bag_paths(tiny_recording, tmp_path, capsys):
 
 def fake_replay_folder(out: Path, source_bag: Path) -> None:
     """What an earlier replay left: rig.yaml, results.json, a real bag and its logs."""
-    from vibro_io.bags import BagWriter
+    from vibro_ros.bags import BagWriter
 
     out.mkdir()
     (out / "rig.yaml").write_text(RIG_YAML.read_text())
