@@ -33,13 +33,20 @@ def _num(x: Any) -> Any:
 
 
 def structure_section(ident: Identification) -> dict:
+    """The fitted sine. A structure that does not move beyond DIC noise (``moving`` false) has no
+    frequency or phase (null): a sine fitted to noise would claim one."""
     s = ident.structure
     sd = s.std
-    return {"amplitude_mm": _num(s.amplitude_mm), "frequency_hz": _num(s.frequency_hz),
-            "phase_rad": _num(s.phase_rad), "offset_mm": _num(s.offset_mm),
-            "rms_residual_mm": _num(s.rms_residual_mm),
-            "amplitude_std_mm": _num(sd[0]), "frequency_std_hz": _num(sd[1]), "phase_std_rad": _num(sd[2]),
-            "offset_std_mm": _num(sd[3]), "n_points": s.n_points}
+    moving = ident.motion.structure_moves if ident.motion is not None else True
+    out = {"amplitude_mm": _num(s.amplitude_mm), "frequency_hz": _num(s.frequency_hz),
+           "phase_rad": _num(s.phase_rad), "offset_mm": _num(s.offset_mm),
+           "rms_residual_mm": _num(s.rms_residual_mm),
+           "amplitude_std_mm": _num(sd[0]), "frequency_std_hz": _num(sd[1]), "phase_std_rad": _num(sd[2]),
+           "offset_std_mm": _num(sd[3]), "n_points": s.n_points, "moving": bool(moving)}
+    if not moving:
+        out.update({"frequency_hz": None, "frequency_std_hz": None, "phase_rad": None, "phase_std_rad": None,
+                    "note": "the structure does not move beyond DIC noise: no frequency or phase"})
+    return out
 
 
 def flights_section(ident: Identification) -> list[dict]:
@@ -103,18 +110,28 @@ def identification_sections(ident: Identification) -> dict:
                            "short_flights": [{"t_start": _num(f.t_start_s), "t_end": _num(f.t_end_s),
                                               "n_points": f.n_points} for f in ident.short_flights],
                            "contact_phases": [{"t_start": _num(c.t_start_s), "t_end": _num(c.t_end_s),
-                                               "n_frames": c.n} for c in ident.clusters if c.n > 4]},
+                                               "n_frames": c.n} for c in ident.clusters if c.n > 4],
+                           "impacts_without_cor": [{k: _num(v) if isinstance(v, float) else v
+                                                    for k, v in ld.to_dict().items()} for ld in ident.landings]},
+        "rig_consistency": [r.to_dict() for r in ident.rig_consistency],
         "warnings": list(ident.warnings),
     }
+    if ident.motion is not None:
+        out["motion"] = {k: _num(v) if isinstance(v, float) else v for k, v in ident.motion.to_dict().items()}
     if ident.accel is not None:
         acc = ident.accel
         out["accelerometers"] = {
             "n_impacts": len(acc.impacts), "threshold_ms2": _num(acc.threshold),
             "spectrum_peaks_hz": [_num(f) for f in acc.peaks_hz],
             "clipping": acc.clipping,
-            "clock_offset_s": _num(ident.clock_offset.offset_s) if ident.clock_offset else None,
+            "clock_offset_s": _num(ident.clock_offset.known_offset_s) if ident.clock_offset else None,
             "clock_offset_matched": ident.clock_offset.n_matched if ident.clock_offset else 0,
             "clock_offset_residual_std_s": _num(ident.clock_offset.residual_std_s) if ident.clock_offset else None,
+            "clock_offset": ident.clock_offset.to_dict() if ident.clock_offset else {
+                "determined": False, "offset_s": None, "reason": "no accelerometer impact near a DIC impact",
+                "n_matched": 0, "message": "clock offset not determined: no accelerometer impact near a DIC impact"},
+            "impacts_not_seen_by_camera_s": (None if ident.accel_unseen_s is None
+                                             else [_num(x) for x in ident.accel_unseen_s]),
             "impacts": [{"t_daq": _num(i.t_s), "plate": i.plate, "peak_ms2": _num(i.peak_ms2),
                          "upper_energy_m2s3": _num(i.energy_upper), "lower_energy_m2s3": _num(i.energy_lower),
                          "dominant_frequencies_hz": [_num(f) for f in i.dominant_frequencies_hz],
