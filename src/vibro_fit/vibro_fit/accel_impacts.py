@@ -111,6 +111,7 @@ class ClockOffset:
     n_accel: int = 0
     n_dic: int = 0
     candidates: list[tuple[float, int]] = field(default_factory=list)
+    assumption: str = ""
 
     @property
     def known_offset_s(self) -> float | None:
@@ -125,7 +126,8 @@ class ClockOffset:
     def message(self) -> str:
         """One sentence for the user: the offset and the overlap it rests on, or why it is not determined."""
         if self.determined:
-            return f"clock offset t_daq - t_camera = {self.offset_s:+.5f} s from {self.overlap_words()}"
+            extra = f" ({self.assumption})" if self.assumption else ""
+            return f"clock offset t_daq - t_camera = {self.offset_s:+.5f} s from {self.overlap_words()}{extra}"
         return f"clock offset not determined: {self.reason}"
 
     def to_dict(self) -> dict:
@@ -137,6 +139,7 @@ class ClockOffset:
                 "matched_span_s": [float(span[0]), float(span[1])] if span else None,
                 "matched_duration_s": float(span[1] - span[0]) if span else 0.0,
                 "candidates": [{"offset_s": float(o), "n_matched": int(n)} for o, n in self.candidates],
+                "assumption": self.assumption or None,
                 "message": self.message()}
 
 
@@ -250,8 +253,9 @@ def _refine(a: np.ndarray, d: np.ndarray, off: float, tol_s: float) -> tuple[flo
 
 
 def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = None, tol_s: float = 0.0005,
-                          max_offset_s: float = 1.0, min_matched: int = MIN_MATCHED_IMPACTS
-                          ) -> ClockOffset | None:
+                          max_offset_s: float = 1.0, min_matched: int = MIN_MATCHED_IMPACTS,
+                          accel_span_s: tuple[float, float] | None = None,
+                          camera_span_s: tuple[float, float] | None = None) -> ClockOffset | None:
     """Offset (s) with t_daq = t_camera + offset, matching accelerometer and DIC impact times.
 
     All pairwise differences t_daq - t_camera within +-``max_offset_s`` are histogrammed with bins of
@@ -265,7 +269,11 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
     ``min_matched`` impacts match, or when another candidate (more than 3 ``tol_s`` away) matches at
     least as many impacts minus one: then the records do not say which offset is right (e.g. an
     accelerometer record covering half the video of a regular motion fits at several whole periods).
-    None when no pair of impacts lies within ``max_offset_s``.
+    One prior breaks such a tie, and is stated (``assumption``): when both records are given
+    (``accel_span_s`` on the DAQ clock, ``camera_span_s`` on the camera clock), last equally long (within half
+    a period) and the best offset aligns their starts (within half a period), the records were started
+    together, so a whole-period shift, which shortens their overlap, must match strictly more impacts to
+    rival it. None when no pair of impacts lies within ``max_offset_s``.
     """
     a = np.sort(np.asarray(accel_times_s, float))
     d = np.sort(np.asarray(dic_times_s, float))
@@ -307,7 +315,19 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
     r, sel = _match(a, d, off, tol_s)
     span = (float(d[sel][0]), float(d[sel][-1])) if sel.any() else None
     reason = ""
-    rivals = [(o, m) for o, m in others if m >= n - 1]
+    assumption = ""
+    slack = n - 1
+    if period_s and accel_span_s is not None and camera_span_s is not None:
+        dur_a = accel_span_s[1] - accel_span_s[0]
+        dur_c = camera_span_s[1] - camera_span_s[0]
+        aligned = accel_span_s[0] - camera_span_s[0]
+        if abs(dur_a - dur_c) < 0.5 * period_s and abs(off - aligned) < 0.5 * period_s:
+            slack = n
+            if any(m >= n - 1 for o, m in others):
+                assumption = ("assuming the two records were started together: they last equally long and this "
+                              "offset aligns their starts; a regular motion also matches "
+                              + ", ".join(f"{m} at {o:+.5f} s" for o, m in others if m >= n - 1))
+    rivals = [(o, m) for o, m in others if m >= slack]
     if n < min_matched:
         reason = (f"too little overlap: only {n} impact(s) in common between the accelerometers ({a.size}) and "
                   f"DIC ({d.size}), at least {min_matched} needed")
@@ -319,7 +339,7 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
                   "the overlap of the two records is too regular to tell them apart "
                   f"({a.size} accelerometer impacts, {d.size} DIC impacts)")
     return ClockOffset(float(off), int(n), float(sd), not reason, reason, span, int(a.size), int(d.size),
-                       others)
+                       others, "" if reason else assumption)
 
 
 class AccelImpactDetector:
