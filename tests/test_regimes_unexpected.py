@@ -67,6 +67,19 @@ def test_still_recording_is_called_still_and_claims_no_frequency(still, capsys):
     assert any(w.startswith("still recording") for w in doc["warnings"])
 
 
+def test_structure_moving_ball_resting_is_stated(tmp_path):
+    # 5 m/s^2 < g: the ball never leaves the lower plate. The structure frequency is claimed (it moves);
+    # no impacts, so no discrepancy analysis, said plainly
+    _synth(tmp_path / "rec", seed=3, accel_ms2=5.0)
+    doc = _analyze(tmp_path / "rec", tmp_path / "out")
+    assert doc["motion"]["state"] == "structure_only"
+    assert doc["structure"]["moving"] is True
+    assert doc["structure"]["frequency_hz"] == pytest.approx(22.0, abs=0.01)
+    assert doc["impacts"] == [] and doc["identification"]["impacts_without_cor"] == []
+    assert "no impacts identified (recording: structure only)" in doc["discrepancy"]["skipped"]
+    assert not any("Error" in w or "failed" in w for w in doc["warnings"])
+
+
 def test_noise_study_accepts_the_still_recording(still):
     base, _ = still
     assert main(["noise", str(base / "rec"), "--no-progress"]) == 0

@@ -138,8 +138,13 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     ``method``: "paper" (Eq. 15-16 on separate parabola fits) or "joint" (pairs of flights refitted with the
     constraint that they meet on the plate). With ``accel`` the impacts are also detected on the
     accelerometers, the camera-to-DAQ clock offset estimated, and the accelerometer impact times (camera
-    clock) used to refine the segmentation. ``weights="dic_valid"`` weights the flight fits by the number
-    of valid ball mesh points of each frame (DIC quality).
+    clock) used to refine the segmentation; the offset is used only when determined (see
+    :func:`~vibro_fit.accel_impacts.estimate_clock_offset`), else the reason is a warning.
+    ``weights="dic_valid"`` weights the flight fits by the number of valid ball mesh points of each frame.
+
+    Also stated (warnings and fields): what the recording shows (``motion``), impacts without a COR
+    (``landings``), accelerometer impacts the camera misses (``accel_unseen_s``) and contradictions between
+    rig.yaml and the measurement (``rig_consistency``).
     """
     if weights not in (None, "none", "dic_valid"):
         raise RecordingError(f"identify: unknown weights {weights!r} (none, dic_valid)")

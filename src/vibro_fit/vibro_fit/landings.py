@@ -6,7 +6,8 @@ chatters and sticks (a *contact phase*), and the next fitted flight starts from 
 impact. Such a landing is still an impact, and the accelerometers see it. This module finds them so that
 they are reported (time, plate, relative approach speed, why there is no COR), never dropped silently.
 
-Rule: for each fitted free flight that no COR impact closes, look at what follows its last frame: a
+Rule: for each fitted flight that no COR impact closes (a flight that is not free too: its landing is
+reported with that caveat, its speed being approximate), look at what follows its last frame: a
 contact cluster then a short flight, a contact phase (cluster longer than an impact), or a fitted flight
 that is not free. The landing time is where the flight's parabola relative to the structure reaches the
 plate level (the COR impacts' median level of that plate when known, else the median relative position
@@ -57,7 +58,7 @@ def find_landings(flights, impacts, clusters, short_flights, structure, plate_le
     shorts = sorted(short_flights, key=lambda f: f.t_start_s)
     out: list[Landing] = []
     for k, fl in enumerate(fitted):
-        if not fl.is_free or fl.index in closed:
+        if fl.index in closed:
             continue
         after = [c for c in clusters if c.t_start_s > fl.t_end_s]
         if not after:
@@ -95,5 +96,7 @@ def find_landings(flights, impacts, clusters, short_flights, structure, plate_le
             i0 = int(first.frames[0])
             t_hit = float(0.5 * (t_s[i0] + t_s[min(i0 + 1, t_s.size - 1)]))
         v_rel = float(fl.velocity_ms(t_hit) - structure.velocity_ms(t_hit))
+        if not fl.is_free:
+            reason += f"; the flight before is not free ({fl.reason}): time and speed approximate"
         out.append(Landing(t_hit, plate, v_rel, int(fl.index), reason))
     return out
