@@ -176,27 +176,16 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         accel_res = analyse_accel(accel, f_motion, highpass_hz=highpass_hz)
         warnings += accel_res.warnings
         acc_t = [i.t_s for i in accel_res.impacts]
-        spans = {"accel_span_s": (float(accel.t_s[0]), float(accel.t_s[-1])), "camera_span_s": (float(t[0]), float(t[-1]))}
-        offset = estimate_clock_offset(acc_t, [i.t_s for i in sf.impacts], period_s=1.0 / f_motion, **spans)
-        if offset is None or not offset.determined:
-            # few or no COR impacts: landings (impacts without a COR) are impacts the accelerometers see too
-            marks = sorted([i.t_s for i in sf.impacts] + [x.t_s for x in _landings(sf, structure, rig, t, ball, st,
-                                                                                     cfg)])
-            alt = estimate_clock_offset(acc_t, marks, period_s=1.0 / f_motion, tol_s=0.0005 + 0.5 / rig.camera.fps,
-                                        **spans)
-            if alt is not None and alt.determined:
-                offset = alt
-            elif alt is not None and (offset is None or alt.n_matched > offset.n_matched):
-                offset = alt
+        offset = _clock_offset(acc_t, sf, structure, rig, track, cfg, f_motion, accel)
         if offset is not None and offset.determined:
             accel_cam_s = [x - offset.offset_s for x in acc_t]
             sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=accel_cam_s, weights=weights)
         elif acc_t:
             why = offset.reason if offset is not None else "no accelerometer impact lies within 1 s of a DIC impact"
-            durations = (f"; the accelerometer record lasts {float(accel.t_s[-1] - accel.t_s[0]):.3f} s, the video "
-                     f"{float(t[-1] - t[0]):.3f} s")
-            warnings.append(f"clock offset unknown: not determined ({why}{durations}); accelerometer impacts are not paired with "
-                            "the camera's, segmentation from DIC only")
+            durations = (f"; the accelerometer record lasts {float(accel.t_s[-1] - accel.t_s[0]):.3f} s, "
+                         f"the video {float(t[-1] - t[0]):.3f} s")
+            warnings.append(f"clock offset unknown: not determined ({why}{durations}); accelerometer impacts are "
+                            "not paired with the camera's, segmentation from DIC only")
         coverage = frame_coverage(t, accel.t_s, acc_t, offset.known_offset_s if offset is not None else None,
                                   1.0 / rig.camera.fps)
         if coverage.message():
@@ -268,6 +257,26 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
                           float(noise), method, rig.ball.mass_kg, list(sf.short_flights), list(sf.clusters),
                           accel_res, offset, warnings, weights or "none", coverage, motion, landings, unseen,
                           rig_state)
+
+
+def _clock_offset(acc_t: list[float], sf: StreamingFitter, structure: StructureFit, rig: RigConfig,
+                  track: DicTrack, cfg: SegmentationConfig, f_motion_hz: float, accel: AccelData
+                  ) -> ClockOffset | None:
+    """Camera-to-DAQ offset from the COR impacts; when that is not determined, from the COR impacts plus the
+    landings (impacts without a COR, located to a frame or better: tolerance 0.5 ms + half a frame)."""
+    t = track.t_s
+    spans = {"accel_span_s": (float(accel.t_s[0]), float(accel.t_s[-1])),
+             "camera_span_s": (float(t[0]), float(t[-1]))}
+    offset = estimate_clock_offset(acc_t, [i.t_s for i in sf.impacts], period_s=1.0 / f_motion_hz, **spans)
+    if offset is not None and offset.determined:
+        return offset
+    marks = sorted([i.t_s for i in sf.impacts]
+                   + [x.t_s for x in _landings(sf, structure, rig, t, track.ball_mm, track.structure_mm, cfg)])
+    alt = estimate_clock_offset(acc_t, marks, period_s=1.0 / f_motion_hz, tol_s=0.0005 + 0.5 / rig.camera.fps,
+                                **spans)
+    if alt is not None and (alt.determined or offset is None or alt.n_matched > offset.n_matched):
+        return alt
+    return offset
 
 
 def _landings(sf: StreamingFitter, structure: StructureFit, rig: RigConfig, t, ball, st,
