@@ -42,7 +42,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"results        {args.out}/results.json")
     print(f"regime         {doc['regime']['name']}; {len(doc['flights'])} flights, {len(doc['impacts'])} impacts")
     s = doc["structure"]
-    print(f"structure      A = {s['amplitude_mm']:.4f} mm, f = {s['frequency_hz']:.4f} Hz")
+    if doc.get("motion"):
+        print(f"motion         {doc['motion']['message']}")
+    print(f"structure      A = {f(s['amplitude_mm'], '.4f')} mm, f = {f(s['frequency_hz'], '.4f')} Hz"
+          + ("" if s.get("moving", True) else " (does not move beyond DIC noise)"))
+    acc = doc.get("accelerometers") or {}
+    if acc.get("clock_offset"):
+        print(f"accelerometers {acc['n_impacts']} impacts; {acc['clock_offset']['message']}")
+    for r in doc.get("rig_consistency", []):
+        print(f"rig.yaml       inconsistent: {r['message']}")
     for plate in ("bottom", "top"):
         d = summ[plate]
         print(f"COR {plate:<7}    mean {f(d['mean'], '.4f')}  std {f(d['std'], '.4f')}  n {d['n']}")

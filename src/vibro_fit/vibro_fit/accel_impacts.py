@@ -93,11 +93,58 @@ class AccelAnalysis:
 
 @dataclass
 class ClockOffset:
-    """t_daq = t_camera + offset_s, from ``n_matched`` impact pairs; ``residual_std_s`` their scatter."""
+    """Camera-to-DAQ clock offset, t_daq = t_camera + offset_s, from ``n_matched`` impact pairs.
+
+    ``determined`` is False when the matching cannot tell the offset (``reason`` says why: too few
+    impacts in common, or another offset, typically a shaker period away, matching nearly as many);
+    ``offset_s`` is then only the best candidate and must not be used (see :attr:`known_offset_s`).
+    ``matched_span_s`` is the camera-clock interval of the matched DIC impacts (the overlap the offset
+    rests on); ``candidates`` the other offsets tried, each (offset_s, n_matched), best first.
+    """
 
     offset_s: float
     n_matched: int
     residual_std_s: float
+    determined: bool = True
+    reason: str = ""
+    matched_span_s: tuple[float, float] | None = None
+    n_accel: int = 0
+    n_dic: int = 0
+    candidates: list[tuple[float, int]] = field(default_factory=list)
+    assumption: str = ""
+
+    @property
+    def known_offset_s(self) -> float | None:
+        """The offset when it is determined, else None."""
+        return self.offset_s if self.determined else None
+
+    def overlap_words(self) -> str:
+        span = self.matched_span_s
+        where = f" over t = {span[0]:.4f}..{span[1]:.4f} s (camera clock, {span[1] - span[0]:.3f} s)" if span else ""
+        return (f"{self.n_matched} of {self.n_accel} accelerometer and {self.n_dic} DIC impacts matched{where}")
+
+    def message(self) -> str:
+        """One sentence for the user: the offset and the overlap it rests on, or why it is not determined."""
+        if self.determined:
+            extra = f" ({self.assumption})" if self.assumption else ""
+            return f"clock offset t_daq - t_camera = {self.offset_s:+.5f} s from {self.overlap_words()}{extra}"
+        return f"clock offset not determined: {self.reason}"
+
+    def to_dict(self) -> dict:
+        span = self.matched_span_s
+        return {"determined": bool(self.determined), "offset_s": self.known_offset_s,
+                "best_candidate_s": float(self.offset_s), "reason": self.reason or None,
+                "n_matched": int(self.n_matched), "n_accel_impacts": int(self.n_accel),
+                "n_dic_impacts": int(self.n_dic),
+                "matched_span_s": [float(span[0]), float(span[1])] if span else None,
+                "matched_duration_s": float(span[1] - span[0]) if span else 0.0,
+                "candidates": [{"offset_s": float(o), "n_matched": int(n)} for o, n in self.candidates],
+                "assumption": self.assumption or None,
+                "message": self.message()}
+
+
+#: fewest impacts in common for a clock offset (with fewer, chance coincidences of a periodic motion win)
+MIN_MATCHED_IMPACTS = 4
 
 
 def highpass(x: np.ndarray, fs_hz: float, cutoff_hz: float = 100.0, order: int = 4) -> np.ndarray:
@@ -185,15 +232,48 @@ def analyse_accel(data: AccelData, frequency_hz: float, highpass_hz: float = 100
     return AccelAnalysis(impacts, freqs, mu, ml, peaks, thr, fs, clipping, warnings)
 
 
+def _match(a: np.ndarray, d: np.ndarray, off: float, tol_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """For offset ``off``: per DIC time, the signed distance (s) to the nearest accelerometer time on the
+    camera clock, and the mask of those within ``tol_s``."""
+    k = np.clip(np.searchsorted(a, d + off), 1, max(a.size - 1, 1))
+    cand = np.stack([a[k - 1], a[np.minimum(k, a.size - 1)]]) - (d + off)
+    r = cand[np.argmin(np.abs(cand), axis=0), np.arange(d.size)]
+    return r, np.abs(r) <= tol_s
+
+
+def _refine(a: np.ndarray, d: np.ndarray, off: float, tol_s: float) -> tuple[float, int, float]:
+    """(offset, n_matched, residual std) after two median refinements from ``off``."""
+    for _ in range(2):
+        r, sel = _match(a, d, off, tol_s)
+        if not sel.any():
+            return off, 0, 0.0
+        off += float(np.median(r[sel]))
+    r, sel = _match(a, d, off, tol_s)
+    return off, int(sel.sum()), float(np.std(r[sel])) if sel.sum() > 1 else 0.0
+
+
 def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = None, tol_s: float = 0.0005,
-                          max_offset_s: float = 1.0) -> ClockOffset | None:
+                          max_offset_s: float = 1.0, min_matched: int = MIN_MATCHED_IMPACTS,
+                          accel_span_s: tuple[float, float] | None = None,
+                          camera_span_s: tuple[float, float] | None = None) -> ClockOffset | None:
     """Offset (s) with t_daq = t_camera + offset, matching accelerometer and DIC impact times.
 
     All pairwise differences t_daq - t_camera within +-``max_offset_s`` are histogrammed with bins of
-    ``tol_s``; the densest pair of adjacent bins gives the offset (the true offset collects one
-    difference per matched impact, wrong ones scatter because impact intervals are uneven), refined as
-    the median of the differences within ``tol_s`` of it, and checked by nearest-neighbour matching.
-    ``period_s`` is unused (kept for the API). None when nothing matches.
+    ``tol_s``; the densest peaks are candidate offsets (the true offset collects one difference per
+    matched impact), each refined as the median of its matched differences and scored by the number of
+    DIC impacts that have an accelerometer impact within ``tol_s``. With ``period_s`` (the shaker
+    period), the best candidate shifted by whole periods is scored too: a periodic motion matches
+    itself one period later, and only the edges of the overlap tell those offsets apart.
+
+    The offset is *not determined* (``determined=False``, with the reason) when fewer than
+    ``min_matched`` impacts match, or when another candidate (more than 3 ``tol_s`` away) matches at
+    least as many impacts minus one: then the records do not say which offset is right (e.g. an
+    accelerometer record covering half the video of a regular motion fits at several whole periods).
+    One prior breaks such a tie, and is stated (``assumption``): when both records are given
+    (``accel_span_s`` on the DAQ clock, ``camera_span_s`` on the camera clock), last equally long (within half
+    a period) and the best offset aligns their starts (within half a period), the records were started
+    together, so a whole-period shift, which shortens their overlap, must match strictly more impacts to
+    rival it. None when no pair of impacts lies within ``max_offset_s``.
     """
     a = np.sort(np.asarray(accel_times_s, float))
     d = np.sort(np.asarray(dic_times_s, float))
@@ -206,24 +286,60 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
     edges = np.arange(-max_offset_s, max_offset_s + tol_s, tol_s)
     counts, edges = np.histogram(diffs, bins=edges)
     pair = counts[:-1] + counts[1:] if counts.size > 1 else counts
-    k = int(np.argmax(pair))
-    centre = edges[k + 1] if counts.size > 1 else 0.5 * (edges[0] + edges[1])
-    near = diffs[np.abs(diffs - centre) <= tol_s]
-    off = float(np.median(near)) if near.size else float(centre)
-
-    def residuals(o):
-        k = np.clip(np.searchsorted(a, d + o), 1, max(a.size - 1, 1))
-        cand = np.stack([a[k - 1], a[np.minimum(k, a.size - 1)]]) - (d + o)
-        return cand[np.argmin(np.abs(cand), axis=0), np.arange(d.size)]
-
-    r = residuals(off)
-    sel = np.abs(r) <= tol_s
-    if sel.sum() == 0:
+    centres = edges[1:-1] if counts.size > 1 else 0.5 * (edges[:1] + edges[1:])
+    seeds: list[float] = []
+    for k in np.argsort(pair, kind="stable")[::-1]:
+        if pair[k] < 2 and seeds:
+            break
+        c = float(centres[k])
+        if all(abs(c - s) > 3 * tol_s for s in seeds):
+            seeds.append(c)
+        if len(seeds) >= 8:
+            break
+    scored = [_refine(a, d, s, tol_s) for s in seeds]
+    best = max(scored, key=lambda x: (x[1], -x[2]))
+    if period_s:
+        n_per = int(max_offset_s / period_s)
+        scored += [_refine(a, d, best[0] + k * period_s, tol_s) for k in range(-n_per, n_per + 1) if k != 0
+                   and abs(best[0] + k * period_s) <= max_offset_s]
+    scored.sort(key=lambda x: (-x[1], x[2]))
+    best = scored[0]
+    off, n, sd = best
+    if n == 0:
         return None
-    off += float(np.median(r[sel]))
-    r = residuals(off)
-    sel = np.abs(r) <= tol_s
-    return ClockOffset(float(off), int(sel.sum()), float(np.std(r[sel])) if sel.sum() > 1 else 0.0)
+    others: list[tuple[float, int]] = []
+    for o, m, _ in scored[1:]:
+        if abs(o - off) > 3 * tol_s and all(abs(o - x) > 3 * tol_s for x, _ in others) and m > 0:
+            others.append((float(o), int(m)))
+    others = others[:5]
+    r, sel = _match(a, d, off, tol_s)
+    span = (float(d[sel][0]), float(d[sel][-1])) if sel.any() else None
+    reason = ""
+    assumption = ""
+    slack = n - 1
+    if period_s and accel_span_s is not None and camera_span_s is not None:
+        dur_a = accel_span_s[1] - accel_span_s[0]
+        dur_c = camera_span_s[1] - camera_span_s[0]
+        aligned = accel_span_s[0] - camera_span_s[0]
+        if abs(dur_a - dur_c) < 0.5 * period_s and abs(off - aligned) < 0.5 * period_s:
+            slack = n
+            if any(m >= n - 1 for o, m in others):
+                assumption = ("assuming the two records were started together: they last equally long and this "
+                              "offset aligns their starts; a regular motion also matches "
+                              + ", ".join(f"{m} at {o:+.5f} s" for o, m in others if m >= n - 1))
+    rivals = [(o, m) for o, m in others if m >= slack]
+    if n < min_matched:
+        reason = (f"too little overlap: only {n} impact(s) in common between the accelerometers ({a.size}) and "
+                  f"DIC ({d.size}), at least {min_matched} needed")
+    elif rivals:
+        o2, m2 = max(rivals, key=lambda x: x[1])
+        shift = o2 - off
+        per = f" ({shift / period_s:+.2f} shaker periods)" if period_s else ""
+        reason = (f"ambiguous: offset {off:+.5f} s matches {n} impacts and {o2:+.5f} s{per} matches {m2}; "
+                  "the overlap of the two records is too regular to tell them apart "
+                  f"({a.size} accelerometer impacts, {d.size} DIC impacts)")
+    return ClockOffset(float(off), int(n), float(sd), not reason, reason, span, int(a.size), int(d.size),
+                       others, "" if reason else assumption)
 
 
 class AccelImpactDetector:

@@ -21,7 +21,10 @@ from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_c
 from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
 from .impacts import ImpactEstimate, joint_impact
+from .landings import Landing, find_landings
+from .motion_state import MotionState, classify_motion, structure_moves
 from .regimes import Regime, classify_regime, y_rel_range
+from .rig_consistency import RigStatement, check_rig, excitation_on_daq_clock_hz
 from .segmentation import SegmentationConfig, noise_sigma_mm, plate_levels
 from .statistics import cor_summary
 from .streaming import Cluster, StreamingFitter
@@ -53,6 +56,15 @@ class Identification:
     warnings: list[str] = field(default_factory=list)
     weights: str = "none"
     coverage: FrameCoverage | None = None  # filmed interval vs accelerometer record (with accel only)
+    motion: MotionState | None = None      # still / structure only / ball moving / impacting
+    landings: list[Landing] = field(default_factory=list)   # impacts without a COR (short rebound, chatter)
+    accel_unseen_s: list[float] | None = None  # accelerometer impacts (camera clock) the camera does not see
+    rig_consistency: list[RigStatement] = field(default_factory=list)
+
+    @property
+    def rig_consistent(self) -> bool:
+        """False when a rig.yaml inconsistency forbids building physics findings on this identification."""
+        return not any(r.blocks_physics for r in self.rig_consistency)
 
 
 def track_rows(track: DicTrack):
@@ -126,8 +138,13 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     ``method``: "paper" (Eq. 15-16 on separate parabola fits) or "joint" (pairs of flights refitted with the
     constraint that they meet on the plate). With ``accel`` the impacts are also detected on the
     accelerometers, the camera-to-DAQ clock offset estimated, and the accelerometer impact times (camera
-    clock) used to refine the segmentation. ``weights="dic_valid"`` weights the flight fits by the number
-    of valid ball mesh points of each frame (DIC quality).
+    clock) used to refine the segmentation; the offset is used only when determined (see
+    :func:`~vibro_fit.accel_impacts.estimate_clock_offset`), else the reason is a warning.
+    ``weights="dic_valid"`` weights the flight fits by the number of valid ball mesh points of each frame.
+
+    Also stated (warnings and fields): what the recording shows (``motion``), impacts without a COR
+    (``landings``), accelerometer impacts the camera misses (``accel_unseen_s``) and contradictions between
+    rig.yaml and the measurement (``rig_consistency``).
     """
     if weights not in (None, "none", "dic_valid"):
         raise RecordingError(f"identify: unknown weights {weights!r} (none, dic_valid)")
@@ -140,7 +157,9 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     t, ball, st = track.t_s, track.ball_mm, track.structure_mm
     f_nom = rig.excitation.frequency_hz
     structure = fit_structure(t[good], st[good])
-    if abs(structure.frequency_hz - f_nom) > 0.05 * f_nom:
+    moving = structure_moves(structure.amplitude_mm, float(structure.std[0]), structure.rms_residual_mm)
+    f_motion = structure.frequency_hz if moving else f_nom
+    if moving and abs(structure.frequency_hz - f_nom) > 0.05 * f_nom:
         warnings.append(f"structure frequency {structure.frequency_hz:.3f} Hz differs from the nominal "
                         f"{f_nom:g} Hz (rig.yaml excitation.frequency_hz) by more than 5 %")
     if good.sum() < len(track):
@@ -152,20 +171,23 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     accel_res = None
     offset = None
     coverage = None
+    accel_cam_s: list[float] | None = None
     if accel is not None:
-        accel_res = analyse_accel(accel, structure.frequency_hz, highpass_hz=highpass_hz)
+        accel_res = analyse_accel(accel, f_motion, highpass_hz=highpass_hz)
         warnings += accel_res.warnings
-        offset = estimate_clock_offset([i.t_s for i in accel_res.impacts], [i.t_s for i in sf.impacts],
-                                       period_s=1.0 / structure.frequency_hz)
-        n_dic = len(sf.impacts)
-        if offset is not None and offset.n_matched >= max(3, 0.5 * n_dic):
-            cam_times = [i.t_s - offset.offset_s for i in accel_res.impacts]
-            sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=cam_times, weights=weights)
-        else:
-            warnings.append("accelerometer impacts could not be matched to DIC impacts: clock offset unknown, "
-                            "segmentation from DIC only")
-        coverage = frame_coverage(t, accel.t_s, [i.t_s for i in accel_res.impacts],
-                                  offset.offset_s if offset is not None else None, 1.0 / rig.camera.fps)
+        acc_t = [i.t_s for i in accel_res.impacts]
+        offset = _clock_offset(acc_t, sf, structure, rig, track, cfg, f_motion, accel)
+        if offset is not None and offset.determined:
+            accel_cam_s = [x - offset.offset_s for x in acc_t]
+            sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=accel_cam_s, weights=weights)
+        elif acc_t:
+            why = offset.reason if offset is not None else "no accelerometer impact lies within 1 s of a DIC impact"
+            durations = (f"; the accelerometer record lasts {float(accel.t_s[-1] - accel.t_s[0]):.3f} s, "
+                         f"the video {float(t[-1] - t[0]):.3f} s")
+            warnings.append(f"clock offset unknown: not determined ({why}{durations}); accelerometer impacts are "
+                            "not paired with the camera's, segmentation from DIC only")
+        coverage = frame_coverage(t, accel.t_s, acc_t, offset.known_offset_s if offset is not None else None,
+                                  1.0 / rig.camera.fps)
         if coverage.message():
             warnings.append(coverage.message())
     impacts = list(sf.impacts)
@@ -201,11 +223,87 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
             warnings.append(f"flight {fl.index} ({fl.t_start_s:.4f}..{fl.t_end_s:.4f} s) is not a free flight: "
                             f"{fl.reason}; no COR from it")
     warnings += sf.rejected
+    landings = _landings(sf, structure, rig, t, ball, st, cfg, levels)
+    for ld in landings:
+        warnings.append(f"impact without COR at t = {ld.t_s:.4f} s on the {ld.plate} plate (relative speed "
+                        f"{abs(ld.v_rel_before_ms):.3f} m/s, end of flight {ld.flight_before}): {ld.reason}")
+    unseen = None
+    if accel_res is not None:
+        unseen = _accel_unseen(accel_cam_s, impacts, landings, sf.flights, t, rig.camera.fps)
+        n_acc = len(accel_res.impacts)
+        if unseen:
+            warnings.append(f"the accelerometers see {len(unseen)} impact(s) the camera does not identify, at t = "
+                            + ", ".join(f"{x:.4f}" for x in unseen[:10]) + (" ..." if len(unseen) > 10 else "")
+                            + " s (camera clock): they were used as impact-time hints for the segmentation")
+        elif accel_cam_s is None and n_acc > len(impacts) + len(landings):
+            warnings.append(f"the accelerometers detect {n_acc} impacts, the camera {len(impacts)} with a COR and "
+                            f"{len(landings)} without: with the clock offset not determined they cannot be paired, "
+                            "so the impacts only the accelerometers see are not located on the camera clock")
     dt = float(np.median(np.diff(t)))
-    regime = classify_regime(float(t[-1] - t[0] + dt), structure.frequency_hz, impacts, sf.clusters,
-                             sf.short_flights, cfg.max_impact_frames, dt, y_rel_range(ball, st), b)
+    regime = classify_regime(float(t[-1] - t[0] + dt), f_motion, impacts, sf.clusters,
+                             sf.short_flights, cfg.max_impact_frames, dt, y_rel_range(ball, st), b,
+                             n_landings=len(landings))
     if regime.name != "two_impacts_per_cycle":
         warnings.append(f"regime: {regime.name} ({'; '.join(regime.notes) or 'see regime counts'})")
+    motion = classify_motion(structure, y_rel_range(ball, st), float(noise),
+                             sum(1 for f in sf.flights if f.is_free), len(impacts), len(landings))
+    if motion.state != "impacting":
+        warnings.append(motion.message())
+    daq_f = excitation_on_daq_clock_hz(accel, f_nom) if accel is not None and moving else None
+    rig_state = check_rig(rig, structure, moving, impacts, sf.flights, float(noise), cfg.g_ms2, daq_f)
+    for r in rig_state:
+        warnings.append(f"rig description inconsistent with the measurement: {r.message}")
     return Identification(structure, list(sf.flights), impacts, friction, cor_summary(impacts), regime, levels,
                           float(noise), method, rig.ball.mass_kg, list(sf.short_flights), list(sf.clusters),
-                          accel_res, offset, warnings, weights or "none", coverage)
+                          accel_res, offset, warnings, weights or "none", coverage, motion, landings, unseen,
+                          rig_state)
+
+
+def _clock_offset(acc_t: list[float], sf: StreamingFitter, structure: StructureFit, rig: RigConfig,
+                  track: DicTrack, cfg: SegmentationConfig, f_motion_hz: float, accel: AccelData
+                  ) -> ClockOffset | None:
+    """Camera-to-DAQ offset from the COR impacts; when that is not determined, from the COR impacts plus the
+    landings (impacts without a COR, located to a frame or better: tolerance 0.5 ms + half a frame)."""
+    t = track.t_s
+    spans = {"accel_span_s": (float(accel.t_s[0]), float(accel.t_s[-1])),
+             "camera_span_s": (float(t[0]), float(t[-1]))}
+    offset = estimate_clock_offset(acc_t, [i.t_s for i in sf.impacts], period_s=1.0 / f_motion_hz, **spans)
+    if offset is not None and offset.determined:
+        return offset
+    marks = sorted([i.t_s for i in sf.impacts]
+                   + [x.t_s for x in _landings(sf, structure, rig, t, track.ball_mm, track.structure_mm, cfg)])
+    alt = estimate_clock_offset(acc_t, marks, period_s=1.0 / f_motion_hz, tol_s=0.0005 + 0.5 / rig.camera.fps,
+                                **spans)
+    if alt is not None and (alt.determined or offset is None or alt.n_matched > offset.n_matched):
+        return alt
+    return offset
+
+
+def _landings(sf: StreamingFitter, structure: StructureFit, rig: RigConfig, t, ball, st,
+              cfg: SegmentationConfig, levels: dict | None = None) -> list[Landing]:
+    """Impacts without a COR of a streaming run (see :mod:`vibro_fit.landings`)."""
+    if levels is None:
+        levels = plate_levels(list(sf.impacts), rig.free_play_mm)
+    return find_landings(sf.flights, sf.impacts, sf.clusters, sf.short_flights, structure, levels, t, ball, st,
+                         cfg.max_impact_frames)
+
+
+def _accel_unseen(accel_cam_s, impacts, landings, flights, t, fps: float) -> list[float] | None:
+    """Accelerometer impacts (camera clock) with no DIC impact or landing within 1.5 frame intervals, between
+    the first fitted flight's start and the last one's end (an impact before the first flight or after the
+    last one has no flight on one side: the camera cannot identify it); None when the clock offset is
+    unknown."""
+    if accel_cam_s is None:
+        return None
+    seen = np.sort(np.array([i.t_s for i in impacts] + [x.t_s for x in landings], float))
+    lo, hi = float(t[0]), float(t[-1])
+    if flights:
+        lo, hi = min(f.t_start_s for f in flights), max(f.t_end_s for f in flights)
+    tol = 1.5 / fps
+    out = []
+    for x in accel_cam_s:
+        if not (lo <= x <= hi):
+            continue
+        if seen.size == 0 or np.min(np.abs(seen - x)) > tol:
+            out.append(float(x))
+    return out

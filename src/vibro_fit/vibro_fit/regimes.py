@@ -2,7 +2,8 @@
 
 Rules (per recording; counts are per excitation cycle, n_cycles = duration x frequency):
 - ``resting``: contact phases (clusters longer than an impact) cover more than half the record, or no
-  impact at all while the ball moves with the structure (ball - structure range < 10 % of 2b).
+  impact at all (neither with a COR nor a landing without one) while the ball moves with the structure
+  (ball - structure range < 10 % of 2b).
 - ``chattering``: more than 0.3 short flights (too few frames to fit) or same-plate re-impacts within a
   quarter period per cycle.
 - ``two_impacts_per_cycle``: top and bottom impacts each 0.8..1.2 per cycle.
@@ -35,9 +36,10 @@ class Regime:
 
 
 def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, short_flights,
-                    max_impact_frames: int, frame_dt_s: float, y_rel_range_mm: float, free_play_mm: float
-                    ) -> Regime:
-    """Regime from the impacts, contact clusters and short flights of a recording (see module rules)."""
+                    max_impact_frames: int, frame_dt_s: float, y_rel_range_mm: float, free_play_mm: float,
+                    n_landings: int = 0) -> Regime:
+    """Regime from the impacts, contact clusters and short flights of a recording (see module rules);
+    ``n_landings``: impacts without a COR (:mod:`vibro_fit.landings`), noted and never called resting."""
     n_cycles = max(duration_s * frequency_hz, 1e-9)
     n_top = sum(1 for i in impacts if i.plate == "top")
     n_bot = sum(1 for i in impacts if i.plate == "bottom")
@@ -54,7 +56,7 @@ def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, s
     if contact_fraction > 0.5:
         name = "resting"
         notes.append(f"ball in contact with a plate {100 * contact_fraction:.0f} % of the time")
-    elif not impacts and y_rel_range_mm < 0.2 * free_play_mm:
+    elif not impacts and not n_landings and y_rel_range_mm < 0.2 * free_play_mm:
         name = "resting"
         notes.append(f"no impact and the ball moves with the structure (relative range {y_rel_range_mm:.3f} mm, "
                      f"free play b = {free_play_mm:.3f} mm)")
@@ -69,6 +71,11 @@ def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, s
         name = "no_impacts"
     else:
         name = "irregular"
+    n_phases = sum(1 for c in clusters if c.n > max_impact_frames)
+    if n_landings:
+        notes.append(f"{n_landings} impact(s) without a COR (rebound too short to fit, or chatter/sticking after it)")
+    if n_phases and name != "resting":
+        notes.append(f"{n_phases} contact phase(s) (chatter or sticking, {100 * contact_fraction:.0f} % of the time)")
     return Regime(name, float(n_cycles), float(top_pc), float(bot_pc), len(short_flights),
                   float(contact_fraction), notes)
 

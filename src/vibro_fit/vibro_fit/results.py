@@ -29,13 +29,24 @@ RESULTS_JSON = "results.json"
 CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in this order
 
 
-def structure_model(s: StructureFit, ball_offset_mm: float | None = None) -> StructureMotion:
-    """The fitted sine as the model type (stds from the covariance, None without one)."""
+def structure_model(s: StructureFit, ball_offset_mm: float | None = None, moving: bool = True) -> StructureMotion:
+    """The fitted sine as the model type (stds from the covariance, None without one). A structure that
+    does not move beyond DIC noise (``moving`` False) has no frequency or phase: a sine fitted to noise
+    would claim one."""
     sd = [None] * 4 if s.cov is None else [none_if_nan(v) for v in s.std]
-    return StructureMotion(mm_to_m(none_if_nan(s.amplitude_mm)), none_if_nan(s.frequency_hz),
-                           none_if_nan(s.phase_rad), mm_to_m(none_if_nan(s.offset_mm)),
+    freq, phase = none_if_nan(s.frequency_hz), none_if_nan(s.phase_rad)
+    note = ""
+    if not moving:
+        freq = phase = sd[1] = sd[2] = None
+        note = "the structure does not move beyond DIC noise: no frequency or phase"
+    return StructureMotion(mm_to_m(none_if_nan(s.amplitude_mm)), freq, phase, mm_to_m(none_if_nan(s.offset_mm)),
                            mm_to_m(none_if_nan(s.rms_residual_mm)), mm_to_m(sd[0]), sd[1], sd[2], mm_to_m(sd[3]),
-                           int(s.n_points), mm_to_m(none_if_nan(ball_offset_mm)))
+                           int(s.n_points), mm_to_m(none_if_nan(ball_offset_mm)), bool(moving), note)
+
+
+def structure_moves(ident: Identification) -> bool:
+    """Whether the identification saw the structure move beyond DIC noise (True when not assessed)."""
+    return ident.motion.structure_moves if ident.motion is not None else True
 
 
 def flight_model(fl: FlightFit, mass_kg: float) -> Flight:
@@ -82,15 +93,24 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
                            "short_flights": [{"t_start": f.t_start_s, "t_end": f.t_end_s, "n_points": f.n_points}
                                              for f in ident.short_flights],
                            "contact_phases": [{"t_start": c.t_start_s, "t_end": c.t_end_s, "n_frames": c.n}
-                                              for c in ident.clusters if c.n > 4]},
+                                              for c in ident.clusters if c.n > 4],
+                           "impacts_without_cor": [ld.to_dict() for ld in ident.landings]},
+        "rig_consistency": [r.to_dict() for r in ident.rig_consistency],
     }
+    if ident.motion is not None:
+        out["motion"] = ident.motion.to_dict()
     if ident.accel is not None:
         acc, off = ident.accel, ident.clock_offset
         out["accelerometers"] = {
             "n_impacts": len(acc.impacts), "threshold_ms2": acc.threshold, "spectrum_peaks_hz": list(acc.peaks_hz),
             "clipping": acc.clipping,
-            "clock_offset_s": off.offset_s if off else None, "clock_offset_matched": off.n_matched if off else 0,
+            "clock_offset_s": off.known_offset_s if off else None,
+            "clock_offset_matched": off.n_matched if off else 0,
             "clock_offset_residual_std_s": off.residual_std_s if off else None,
+            "clock_offset": off.to_dict() if off else {
+                "determined": False, "offset_s": None, "reason": "no accelerometer impact near a DIC impact",
+                "n_matched": 0, "message": "clock offset not determined: no accelerometer impact near a DIC impact"},
+            "impacts_not_seen_by_camera_s": None if ident.accel_unseen_s is None else list(ident.accel_unseen_s),
             "impacts": [{"t_daq": i.t_s, "plate": i.plate, "peak_ms2": i.peak_ms2,
                          "upper_energy_m2s3": i.energy_upper, "lower_energy_m2s3": i.energy_lower,
                          "dominant_frequencies_hz": list(i.dominant_frequencies_hz), "clipped": bool(i.clipped)}
@@ -105,7 +125,8 @@ def results_model(ident: Identification, recording: str, simulation: Simulation 
     """The results document of an identification (discrepancy left empty: the caller adds it)."""
     impacts = [impact_model(i) for i in ident.impacts]
     sections = {"cor_statistics": cor_statistics_section(impacts), **identification_extras(ident)}
-    return ResultsDocument.build(recording, structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0)),
+    return ResultsDocument.build(recording, structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0),
+                                                                  structure_moves(ident)),
                                  [flight_model(f, ident.mass_kg) for f in ident.flights], impacts,
                                  simulation=simulation, warnings=ident.warnings, sections=sections)
 

@@ -32,7 +32,7 @@ from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, Str
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactEstimate as Estimate
-from .results import flight_model, impact_model, structure_model
+from .results import flight_model, impact_model, structure_model, structure_moves
 from .streaming import StreamingFitter
 
 
@@ -189,7 +189,8 @@ class TrajectoryFitter(Node):
             self.flights_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
             return
-        smsg = structure_to_message(structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0)))
+        smsg = structure_to_message(structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0),
+                                                             structure_moves(ident)))
         self.pub_structure.publish(smsg)
         for fl in ident.flights:
             self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True))

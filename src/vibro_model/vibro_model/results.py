@@ -43,6 +43,8 @@ class StructureMotion:
     offset_std_m: float | None = None
     n_points: int | None = None       # frames used in the fit
     ball_offset_m: float | None = None
+    moving: bool = True               # False: the sine does not stand out of the DIC noise (no f, phi claimed)
+    note: str = ""
 
     def to_dict(self) -> dict:
         out = {"amplitude_mm": m_to_mm(self.amplitude_m), "frequency_hz": self.frequency_hz,
@@ -51,7 +53,11 @@ class StructureMotion:
                "frequency_std_hz": self.frequency_std_hz, "phase_std_rad": self.phase_std_rad,
                "offset_std_mm": m_to_mm(self.offset_std_m), "n_points": self.n_points,
                "ball_offset_mm": m_to_mm(self.ball_offset_m)}
-        return {k: json_number(v) for k, v in out.items()}
+        out = {k: json_number(v) for k, v in out.items()}
+        out["moving"] = bool(self.moving)
+        if self.note:
+            out["note"] = self.note
+        return out
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "structure") -> "StructureMotion":
@@ -60,7 +66,8 @@ class StructureMotion:
                    mm_to_m(f.number("offset_mm")), mm_to_m(f.number("rms_residual_mm")),
                    mm_to_m(f.number("amplitude_std_mm", False)), f.number("frequency_std_hz", False),
                    f.number("phase_std_rad", False), mm_to_m(f.number("offset_std_mm", False)),
-                   f.integer("n_points", False, nullable=True), mm_to_m(f.number("ball_offset_mm", False)))
+                   f.integer("n_points", False, nullable=True), mm_to_m(f.number("ball_offset_mm", False)),
+                   f.boolean("moving", True), f.string("note", False, default=""))
 
 
 @dataclass

@@ -300,11 +300,32 @@ def analyse_discrepancy(results_sections: Mapping[str, Any], track: DicTrack, ri
     return run_discrepancy(results_sections, track, rig).document
 
 
+def discrepancy_skip_reason(doc: Mapping[str, Any]) -> str | None:
+    """Why the discrepancy analysis does not apply to a results document, or None: no impacts (nothing for
+    an impact model to be compared with), or a rig description inconsistent with the measurement."""
+    blocking = [r for r in (doc.get("rig_consistency") or []) if r.get("blocks_physics", True)]
+    if blocking:
+        keys = sorted({k for r in blocking for k in r.get("keys", [])})
+        return ("discrepancy analysis skipped: the rig description is inconsistent with the measurement ("
+                + ", ".join(keys) + "); no physics finding is built on it (see rig_consistency)")
+    if not doc.get("impacts"):
+        motion = (doc.get("motion") or {}).get("state")
+        what = f" (recording: {motion.replace('_', ' ')})" if motion else ""
+        return f"discrepancy analysis skipped: no impacts identified{what}, nothing to compare a model with"
+    return None
+
+
 def discrepancy_for_results(doc: Mapping[str, Any], track: DicTrack, rig: RigConfig
                             ) -> tuple[dict, DiscrepancyRun | None, str | None]:
     """For ``vibro analyze``: (discrepancy block, run or None, error message or None) from a results
     document. A recording the analysis cannot handle (too few flights, a model that fails) gives the
-    baseline-only block with an ``error`` key instead of losing the identification."""
+    baseline-only block with an ``error`` key instead of losing the identification. A recording without
+    impacts, or whose rig description contradicts the measurement (``rig_consistency`` entries that block
+    physics), is not analysed: the block carries ``skipped`` with the reason, returned as the message."""
+    reason = discrepancy_skip_reason(doc)
+    if reason is not None:
+        d0 = (doc.get("simulation") or {}).get("cor_model", {}).get("deviation")
+        return {"baseline_deviation": d0, "findings": [], "final_deviation": d0, "skipped": reason}, None, reason
     try:
         run = run_discrepancy(doc, track, rig)
         return run.document, run, None
