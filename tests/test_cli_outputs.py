@@ -261,18 +261,22 @@ RIG_YAML = (REPO / "tests" / "fixtures" / "tiny_recording" / "rig.yaml")
 
 @pytest.fixture(scope="module")
 def result_bag(tmp_path_factory) -> Path:
-    """A real MCAP bag holding the fitter's final structure message and the rig (as vibro graph records)."""
+    """A real MCAP bag of a complete (if impact-free) run: the fitter's final structure message, every
+    stage's end-of-stream status and the rig (as vibro graph records them)."""
     from rclpy.serialization import serialize_message
 
     from vibro_ros import topics
     from vibro_ros.bags import BagWriter
-    from vibro_msgs.msg import StructureMotion
+    from vibro_msgs.msg import StreamStatus, StructureMotion
 
     bag = tmp_path_factory.mktemp("bags") / "run1"
     writer = BagWriter(bag, custom_data={"vibro.rig_yaml": RIG_YAML.read_text()})
     writer.add_topic(topics.STRUCTURE.name, topics.STRUCTURE.msg_type)
+    writer.add_topic(topics.STATUS.name, topics.STATUS.msg_type)
     writer.write(topics.STRUCTURE.name, 1, serialize_message(
         StructureMotion(amplitude_mm=1.5, frequency_hz=22.0, phase_rad=0.1, offset_mm=0.0)))
+    for k, stream in enumerate(("flights", "impacts", "simulation", "discrepancy")):
+        writer.write(topics.STATUS.name, 2 + k, serialize_message(StreamStatus(stream=stream, finished=True)))
     writer.close()
     return bag
 
