@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, params_base=args.params,
                                          timeout_s=args.timeout_s, env=env,
                                          extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
-                                         respawn=args.respawn,
+                                         respawn=args.respawn, namespace=args.namespace,
                                          reference=lambda folder: reference_from_bag(
                                              source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")

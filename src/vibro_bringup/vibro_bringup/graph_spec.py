@@ -112,8 +112,8 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
 
 
 def write_params_file(params: dict[str, dict[str, Any]], path: str | Path) -> Path:
-    """Write a ROS 2 parameters YAML (``node: ros__parameters: {...}``)."""
+    """Write a ROS 2 parameters YAML (``/**/node: ros__parameters: {...}``: the node in any namespace)."""
     path = Path(path)
-    path.write_text(yaml.safe_dump({n: {"ros__parameters": p} for n, p in params.items()}, sort_keys=False),
-                    encoding="utf-8")
+    path.write_text(yaml.safe_dump({(n if n.startswith("/") else f"/**/{n}"): {"ros__parameters": p}
+                                    for n, p in params.items()}, sort_keys=False), encoding="utf-8")
     return path
