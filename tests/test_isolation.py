@@ -132,3 +132,11 @@ def test_a_foreign_frames_publisher_stops_the_tracker_and_fails_the_run(recordin
     assert "restarted" not in err  # refusing foreign input is not a crash: no respawn
     tracker_log = (tmp_path / "bag.logs" / "dic_tracker.log").read_text()
     assert "Traceback" not in tracker_log and "intruder_camera" in tracker_log, tracker_log
+
+
+@pytest.mark.parametrize("command", ["graph", "replay"])
+def test_a_bad_namespace_is_refused_before_anything_starts(command: str, tmp_path: Path) -> None:
+    target = [str(tmp_path / "rec"), "--bag", str(tmp_path / "bag")] if command == "graph" else [str(tmp_path / "bag")]
+    res = _vibro(command, *target, "--namespace", "/lab/1run", timeout=60)
+    assert res.returncode == 2 and "argument --namespace: '/lab/1run' is not a ROS namespace" in res.stderr
+    assert "Traceback" not in res.stderr and not (tmp_path / "bag").exists()
