@@ -3,7 +3,7 @@
     python tests/discrepancy_feeder.py case.json [--seconds 60]
 
 case.json holds {"sections": results sections, "track": {column: list}}. Publishes the DIC frames
-(stream QoS, once the node listens), the structure fit, the final flights and impacts, the fitter's
+(latched history QoS, as dic_tracker, once the node listens), the structure fit, the final flights and impacts, the fitter's
 end-of-stream statuses and the simulator's "simulation" finished status, then lingers so that the
 transient-local results reach late joiners.
 """
@@ -25,12 +25,12 @@ def main() -> int:
 
     import rclpy
     from vibro_ros import topics
-    from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS
+    from vibro_ros.node_support import HISTORY_QOS, RESULTS_QOS
     from vibro_msgs.msg import DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
     rclpy.init()
     node = rclpy.create_node("vibro_test_discrepancy_feeder")
-    pub_dic = node.create_publisher(DicFrame, topics.DIC.name, STREAM_QOS)
+    pub_dic = node.create_publisher(DicFrame, topics.DIC.name, HISTORY_QOS)  # as dic_tracker
     pub_s = node.create_publisher(StructureMotion, topics.STRUCTURE.name, RESULTS_QOS)
     pub_f = node.create_publisher(FreeFlight, topics.FLIGHTS.name, RESULTS_QOS)
     pub_i = node.create_publisher(ImpactEstimate, topics.IMPACTS.name, RESULTS_QOS)

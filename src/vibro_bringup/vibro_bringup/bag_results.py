@@ -23,7 +23,6 @@ from vibro_model.codec import results_text
 from vibro_model.results import Discrepancy, ResultsDocument, Simulation
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
-from vibro_io.errors import RecordingError
 from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_ros.convert import (finding_from_message, flight_from_message, impact_from_message,
                                simulation_run_from_message, structure_from_message)

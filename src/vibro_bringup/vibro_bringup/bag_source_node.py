@@ -19,7 +19,9 @@ from sensor_msgs.msg import Image
 from vibro_ros import topics
 from vibro_ros.bags import read_custom_data, read_messages
 from vibro_io.errors import RecordingError
-from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
+from vibro_ros.guard import InputGuard
+from vibro_ros.node_support import (STREAM_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
+                                   run_id_parameter, run_node, seconds_from_stamp)
 from vibro_io.rig import parse_rig
 from vibro_msgs.msg import AccelBlock, DicFrame
 
@@ -33,6 +35,9 @@ class BagSource(Node):
         self.min_subscribers = int(declare(self, "wait_for_subscribers", 2,
                                            "start once this many subscribers match the frames topic "
                                            "(dic_tracker + recorder)"))
+        self.keep_history = bool(declare(self, "keep_history", False,
+                                         "once done, keep running until stopped, so that the latched history of "
+                                         "vibro/accel stays available to a node restarted mid-run"))
         if not bag:
             raise RecordingError("bag_source: parameter 'bag' is required")
         rig_text = read_custom_data(bag).get("vibro.rig_yaml")
@@ -43,25 +48,43 @@ class BagSource(Node):
         self.camera = parse_rig(yaml.safe_load(rig_text), f"{bag} (recorded rig.yaml)").camera
         raw = list(read_messages(bag, {topics.FRAMES.name, topics.ACCEL.name}))
         self.frames = [m.data for m in raw if m.topic == topics.FRAMES.name]
-        self.accel = [m.data for m in raw if m.topic == topics.ACCEL.name]
+        self.run_id = run_id_parameter(self)
+        self.accel = [self._restamped_block(m.data, bag) for m in raw if m.topic == topics.ACCEL.name]
         if not self.frames:
             raise RecordingError(f"{bag}: no {topics.FRAMES.name} messages to replay")
         self.sent = 0
         self.last_index_acked = -1
         self.done = Future()
+        self.guard = InputGuard(self)  # the acknowledgements must be this run's tracker's
+        self.guard.watch(topics.DIC)
         self._started = False
+        self._finished = False
         self._last_progress = time.monotonic()
         self.health = Health(self)
         self.health.rate_counter = "published"
         self.frames_status = StatusPublisher(self, "frames")
         self.accel_status = StatusPublisher(self, "accel")
         self.pub_frames = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
-        self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
+        self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name,
+                                               history_qos(history_depth_parameter(self)))
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")
 
+    def _restamped_block(self, data: bytes, bag: str) -> AccelBlock:
+        """A recorded AccelBlock with this run's id (the recorded run's id would be refused as another run's)."""
+        try:
+            block = deserialize_message(data, AccelBlock)
+        except Exception as exc:  # CDR of another AccelBlock definition (a bag recorded by an older vibro)
+            raise RecordingError(f"{bag}: a recorded {topics.ACCEL.name} message does not decode as this vibro's "
+                                 f"AccelBlock ({exc.__class__.__name__}); was the bag recorded by an older "
+                                 "vibro?") from None
+        block.run_id = self.run_id
+        return block
+
     def _on_ack(self, msg: DicFrame) -> None:
+        if not self.guard.accept(topics.DIC.name, run_id=msg.run_id, index=msg.frame_index, what="frame"):
+            return
         self.last_index_acked = max(self.last_index_acked, int(msg.frame_index))
         self._last_progress = time.monotonic()
         self._send_until_index(self.last_index_acked + self.window)
@@ -75,7 +98,7 @@ class BagSource(Node):
             self.frames_status.publish(self.sent, 0, True)
 
     def _tick(self) -> None:
-        if self.done.done():
+        if self.done.done() or self._finished:
             return
         if not self._started:
             if self.pub_frames.get_subscription_count() < self.min_subscribers:
@@ -97,7 +120,9 @@ class BagSource(Node):
         if self.last_index_acked >= self._indices[-1] or time.monotonic() - self._last_progress > self.linger_s:
             self.frames_status.publish(self.sent, 0, True)
             self.get_logger().info(f"done: {self.sent} frames, {len(self.accel)} accelerometer blocks replayed")
-            self.done.set_result(True)
+            self._finished = True
+            if not self.keep_history:
+                self.done.set_result(True)
 
 
 def main(args: list[str] | None = None) -> int:

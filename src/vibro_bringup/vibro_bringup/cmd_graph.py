@@ -4,6 +4,8 @@ Every node runs in its own OS process and talks over DDS. This command starts th
 (sinks and processing first, sources last), watches ``vibro/status`` until the last
 stage has finished, stops everything with SIGINT, and prints what came through: frames
 in / tracked / lost (a lost frame is never silent), COR per plate, D per model, findings.
+Each run lives in its own namespace with its own run id (see isolation.py), so two runs on
+one domain never mix; a node that sees foreign input stops, and the run fails with its error.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from typing import Callable
 from vibro_io.errors import RecordingError
 from vibro_io.recording import open_recording
 
-from .graph_spec import NODES, NodeSpec, node_parameters, write_params_file, write_reference_frame
+from .graph_spec import BAG_SOURCE, NODES, NodeSpec, node_parameters, write_params_file, write_reference_frame
+from .isolation import RunIdentity, namespace_argument, new_run_identity
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,6 +73,9 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                         "with default ports; default: inherited)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the bag and logs (and, for replay, the outputs) of an earlier run of this command")
+    p.add_argument("--namespace", type=namespace_argument, metavar="NS",
+                   help="ROS namespace of this run's nodes and topics (default: /vibro_<run id>, new per run, so "
+                        "runs on one domain stay apart; / = none)")
     p.add_argument("--respawn", type=_non_negative_int, default=2, metavar="N",
                    help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
 
@@ -94,13 +100,16 @@ class GraphSummary:
     accel_span_s: list = field(default_factory=list)  # [first, last] accelerometer sample time (DAQ clock, s)
     accel_impacts_s: dict = field(default_factory=dict)  # index -> accelerometer impact time (DAQ clock, s)
     camera: object = None  # rig.yaml's CameraConfig (frame times for the coverage note)
+    identity: str = ""  # run id, namespace and domain of the run
 
 
 class GraphRun:
     """Processes of one graph run plus an in-process monitor node."""
 
-    def __init__(self, recording: Path, bag: Path, params_file: Path, env: dict[str, str], respawn: int = 2):
+    def __init__(self, recording: Path, bag: Path, params_file: Path, env: dict[str, str], respawn: int = 2,
+                 identity: RunIdentity | None = None):
         self.recording = recording
+        self.identity = identity or RunIdentity("", "/")
         self.respawn = max(0, int(respawn))
         self.specs: dict[str, NodeSpec] = {}
         self.bag = bag
@@ -117,7 +126,7 @@ class GraphRun:
         with log.open("a" if append else "w") as out:  # the child keeps its own descriptor
             self.procs[spec.name] = subprocess.Popen(
                 [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
-                 str(self.params_file), "-r", f"__node:={spec.name}"],
+                 str(self.params_file), "-r", f"__node:={spec.name}", "-r", f"__ns:={self.identity.namespace}"],
                 stdout=out, stderr=subprocess.STDOUT, env=self.env)
 
     def supervise(self) -> list[str]:
@@ -127,10 +136,11 @@ class GraphRun:
         for name in self.died():
             spec = self.specs.get(name)
             done = self.summary.restarts.get(name, 0)
-            if spec is None or spec.role != "processing" or done >= self.respawn:
+            code = self.procs[name].returncode
+            # exit code 2: the node refused its input or parameters (e.g. another run's data): a restart would too
+            if spec is None or spec.role != "processing" or done >= self.respawn or code == 2:
                 given_up.append(name)
                 continue
-            code = self.procs[name].returncode
             self.summary.restarts[name] = done + 1
             log = self.logs[name]
             with log.open("a") as out:
@@ -139,6 +149,26 @@ class GraphRun:
             self.start(spec, log.parent, append=True)
             print(f"{name} exited with {code}; restarted ({done + 1}/{self.respawn})", file=sys.stderr, flush=True)
         return given_up
+
+    def error_of(self, name: str) -> str:
+        """The last error line a node logged (its log file), '' when none."""
+        log = self.logs.get(name)
+        try:
+            lines = log.read_text(errors="replace").splitlines() if log is not None else []
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if "[ERROR]" in line:
+                return line.split("]: ", 1)[-1].strip()
+        return ""
+
+    def describe_dead(self, names: list[str]) -> str:
+        """'node exited with CODE: its error' for each of ``names``, and where the first one's log is."""
+        parts = []
+        for name in names:
+            error = self.error_of(name)
+            parts.append(f"{name} exited with {self.procs[name].returncode}" + (f": {error}" if error else ""))
+        return "; ".join(parts) + (f" (see {self.logs[names[0]]})" if names else "")
 
     def died(self) -> list[str]:
         """Non-source nodes that exited on their own (a source exits when done)."""
@@ -195,12 +225,15 @@ class Monitor:
 
         self.run = run
         s = self.summary = run.summary
+        run_id = run.identity.run_id
         rclpy.init()
-        self.node = node = rclpy.create_node("vibro_graph_monitor")
+        self.node = node = rclpy.create_node("vibro_graph_monitor", namespace=run.identity.namespace)
         self.executor = make_executor()
         self.executor.add_node(node)
 
         def on_status(m: StreamStatus) -> None:
+            if m.run_id != run_id:  # another run's (its nodes stop this run with an error)
+                return
             if m.stream == "frames":
                 s.frames_announced = max(s.frames_announced, int(m.items_sent + m.items_lost))
                 s.frames_unreadable = max(s.frames_unreadable, int(m.items_lost))
@@ -209,7 +242,7 @@ class Monitor:
                 s.finished[m.stream] = True
 
         def on_dic(m: DicFrame) -> None:
-            if m.frame_index in s.dic_indices:
+            if m.run_id != run_id or m.frame_index in s.dic_indices:
                 return
             s.dic_indices.add(int(m.frame_index))
             s.dic_frames += 1
@@ -228,6 +261,8 @@ class Monitor:
         node.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name, s.findings.append, RESULTS_QOS)
 
         def on_block(m: AccelBlock) -> None:  # only the time span: frames that stop early are reported
+            if m.run_id != run_id:
+                return
             t0, t1 = m.t_start_s, m.t_start_s + (len(m.upper_ms2) - 1) / m.sample_rate_hz
             s.accel_span_s = [min(t0, s.accel_span_s[0]), max(t1, s.accel_span_s[1])] if s.accel_span_s else [t0, t1]
 
@@ -246,13 +281,19 @@ class Monitor:
             self.executor.spin_once(timeout_sec=0.05)
 
     def wait_wired(self, expected: dict[str, tuple[set[str], set[str]]], timeout_s: float) -> bool:
-        """Wait until, for each topic, the named nodes are seen publishing and subscribing to it."""
+        """Wait until, for each topic, the named nodes are seen publishing and subscribing to it (topics and
+        nodes in this run's namespace)."""
         deadline = time.monotonic() + timeout_s
         node = self.node
+        ns = self.run.identity.namespace.rstrip("/")
+
+        def names(infos) -> set[str]:
+            return {i.node_name for i in infos if i.node_namespace.rstrip("/") == ns}
+
         while time.monotonic() < deadline:
             self.spin(0.1)
-            if all(pubs <= {i.node_name for i in node.get_publishers_info_by_topic(t)}
-                   and subs <= {i.node_name for i in node.get_subscriptions_info_by_topic(t)}
+            if all(pubs <= names(node.get_publishers_info_by_topic(t))
+                   and subs <= names(node.get_subscriptions_info_by_topic(t))
                    for t, (pubs, subs) in expected.items()):
                 self.spin(0.5)  # let the nodes' own discovery settle too
                 return True
@@ -274,8 +315,8 @@ class Monitor:
             dead = self.run.supervise()
             if dead:
                 print(f"vibro graph: node(s) {', '.join(dead)} exited early"
-                      f"{' (restarts used up)' if any(self.run.summary.restarts.get(n) for n in dead) else ''}; "
-                      f"see {self.run.logs[dead[0]]}",
+                      f"{' (restarts used up)' if any(self.run.summary.restarts.get(n) for n in dead) else ''}: "
+                      f"{self.run.describe_dead(dead)}",
                       file=sys.stderr)
                 return False
         return False
@@ -311,6 +352,8 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     # the monitor's view of vibro/dic only adds the reasons. A restarted tracker only counts what it
     # answered itself, so after a restart the union of the frame indices seen on vibro/dic counts.
     restarted = s.restarts.get("dic_tracker", 0)
+    if s.identity:
+        print(s.identity)
     published, lost = (s.dic_frames, s.dic_lost) if restarted else s.counts.get("dic", (s.dic_frames, s.dic_lost))
     tracked = published - lost
     announced = s.frames_announced
@@ -360,13 +403,17 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
 
 def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, params_base: str | None,
                   timeout_s: float, env: dict[str, str], extra_params: dict | None = None, respawn: int = 2,
-                  reference: Callable[[Path], Path | None] | None = None) -> tuple[bool, GraphSummary, Path]:
+                  reference: Callable[[Path], Path | None] | None = None, namespace: str | None = None,
+                  history_depth: int | None = None) -> tuple[bool, GraphSummary, Path]:
     """Start the processing nodes, check the wiring, start ``sources``, watch until done, stop all.
 
     ``rig_dir`` holds the rig.yaml (and, for the file sources, the recording). Returns
     (finished, summary, log folder). ``reference(folder)`` writes frame 0 as an image file into the
     run's temporary folder for dic_tracker's ``reference_image``; ``respawn``: restarts allowed per node.
+    The run gets a new run id and lives in ``namespace`` (default ``/vibro_<run id>``); ``history_depth``:
+    items the latched histories of vibro/dic and vibro/accel keep (default: the nodes' own).
     """
+    identity = new_run_identity(namespace)
     processing = [s for s in NODES if s.role != "source" and _importable(s.module)]
     missing = [s.name for s in NODES if s.role != "source" and s not in processing]
     if missing:
@@ -385,12 +432,20 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         # a tracker restarted mid-run loses frames only visibly, never for one reader alone
         dic_readers = {"trajectory_fitter", "simulator", "discrepancy", "recorder", "frame_source", "bag_source"}
         params.setdefault("dic_tracker", {})["wait_for_subscribers"] = 1 + len(names & dic_readers)
+        for spec in (*NODES, BAG_SOURCE):  # one run: its id, and histories a restarted node can recover from
+            params.setdefault(spec.name, {})["run_id"] = identity.run_id
+            if history_depth is not None:
+                params[spec.name]["history_depth"] = int(history_depth)
+        for source in ("accel_source", "bag_source"):
+            params[source]["keep_history"] = True
         for node, values in (extra_params or {}).items():
             params.setdefault(node, {}).update(values)
         params_file = write_params_file(params, Path(tmp) / "params.yaml")
         log_dir = bag.parent / f"{bag.name}.logs"
         log_dir.mkdir(exist_ok=True)
-        graph = GraphRun(rig_dir, bag, params_file, env, respawn)
+        graph = GraphRun(rig_dir, bag, params_file, env, respawn, identity)
+        graph.summary.identity = identity.describe(env)
+        print(graph.summary.identity, flush=True)
         monitor = None
         ok = False
         try:
@@ -400,8 +455,7 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
             if not monitor.wait_wired(expected_wiring(wiring_names), 120.0):
                 dead = graph.died()
                 raise RecordingError("the graph did not come up: " + (
-                    f"node(s) {', '.join(dead)} exited; see {graph.logs[dead[0]]}" if dead
-                    else "topics not matched within 120 s"))
+                    graph.describe_dead(dead) if dead else "topics not matched within 120 s"))
             for spec in sources:
                 graph.start(spec, log_dir)
             ok = monitor.watch(until, timeout_s)
@@ -446,11 +500,14 @@ def run(args: argparse.Namespace) -> int:
     bag = new_bag_path(args.bag, args.overwrite)
     env = prepare_environment(args.domain_id)
     sources = [s for s in NODES if s.role == "source" and (recording.has_accel or s.name != "accel_source")]
+    from vibro_ros.node_support import HISTORY_DEPTH
+
     t0 = time.monotonic()
     ok, summary, log_dir = execute_graph(
         recording.path, bag, sources, with_accel=recording.has_accel, params_base=args.params,
         timeout_s=args.timeout_s, env=env, respawn=args.respawn,
-        reference=lambda folder: write_reference_frame(recording.path, folder / "reference_frame0.png"))
+        reference=lambda folder: write_reference_frame(recording.path, folder / "reference_frame0.png"),
+        namespace=args.namespace, history_depth=max(HISTORY_DEPTH, len(recording.frames) + 1))
     print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     return 0 if ok else 1

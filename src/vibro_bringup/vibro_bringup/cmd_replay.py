@@ -14,7 +14,7 @@ from pathlib import Path
 
 from vibro_ros.bags import read_custom_data
 from vibro_io.errors import RecordingError
-from vibro_io.outputs import prepare_output_dir
+from vibro_io.outputs import atomic_write_text, prepare_output_dir
 from vibro_model.codec import write_results
 
 from .bag_results import document_from_bag
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, params_base=args.params,
                                          timeout_s=args.timeout_s, env=env,
                                          extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
-                                         respawn=args.respawn,
+                                         respawn=args.respawn, namespace=args.namespace,
                                          reference=lambda folder: reference_from_bag(
                                              source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")

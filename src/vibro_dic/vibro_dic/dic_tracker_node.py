@@ -6,6 +6,9 @@ DicFrame, so the gap is visible downstream and the frame source's flow control k
 The DIC reference (ROIs from rig.yaml) is the image file named by the parameter
 ``reference_image`` (``vibro graph`` sets it to frame 0 of the recording, so a tracker that
 is restarted mid-run still measures displacement since frame 0), else the first image received.
+vibro/dic is a latched history (``history_depth`` frames, transient local): a fitter, simulator or
+discrepancy node restarted mid-run receives every DicFrame again. Frames from a second publisher,
+repeated or going back, and statuses of another run stop the node (vibro_ros.guard).
 """
 
 from __future__ import annotations
@@ -22,8 +25,10 @@ from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
-from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
-                                   seconds_from_stamp, stamp_from_seconds)
+from vibro_ros.guard import InputGuard
+from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare,
+                                   history_depth_parameter, history_qos, run_node, seconds_from_stamp,
+                                   stamp_from_seconds)
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
 from vibro_msgs.msg import DicFrame, StreamStatus
@@ -48,12 +53,13 @@ def image_array(msg: Image) -> np.ndarray:
     return img
 
 
-def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "") -> DicFrame:
+def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "", reference_frame_index: int = 0,
+                run_id: str = "") -> DicFrame:
     msg = DicFrame(frame_index=row.frame, t_s=row.t_s, ball_mm=row.ball_mm, structure_mm=row.structure_mm,
                    ball_valid_points=row.ball_valid, structure_valid_points=row.structure_valid,
                    ball_mesh_points=mesh_points[0], structure_mesh_points=mesh_points[1],
                    ball_mean_zncc=row.ball_zncc, structure_mean_zncc=row.structure_zncc,
-                   lost=row.lost, status=status)
+                   lost=row.lost, status=status, reference_frame_index=reference_frame_index, run_id=run_id)
     msg.header.frame_id = "camera"
     stamp_from_seconds(msg.header, row.t_s)
     return msg
@@ -90,12 +96,15 @@ class DicTrackerNode(Node):
                 raise RecordingError(f"dic_tracker: parameter 'reference_image': {exc}") from None
         self.tracker: DicTracker | None = None
         self.next_index = 0
+        self.reference_index: int | None = 0 if self.reference is not None else None  # the stream begins here
         self.published = self.lost = self.received = 0
         self.frames_finished: StreamStatus | None = None
         self.health = Health(self)
         self.health.rate_counter = "tracked"
         self.status = StatusPublisher(self, "dic")
-        self.pub = self.create_publisher(DicFrame, topics.DIC.name, STREAM_QOS)
+        self.guard = InputGuard(self)
+        self.guard.watch(topics.FRAMES)
+        self.pub = self.create_publisher(DicFrame, topics.DIC.name, history_qos(history_depth_parameter(self)))
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
         self.create_timer(1.0, self._report)
@@ -136,7 +145,9 @@ class DicTrackerNode(Node):
 
     def _publish(self, row: FrameTrack, status: str = "") -> None:
         mesh = (len(self.tracker.ball.points), len(self.tracker.structure.points)) if self.tracker else (0, 0)
-        msg = dic_message(row, mesh, status)
+        if self.reference_index is None:  # no reference file: the stream begins at the first frame answered
+            self.reference_index = row.frame
+        msg = dic_message(row, mesh, status, self.reference_index, self.guard.run_id)
         if self._released:
             self.pub.publish(msg)
         else:
@@ -150,13 +161,11 @@ class DicTrackerNode(Node):
         self.health.count("tracked")
 
     def _on_image(self, msg: Image) -> None:
-        self.received += 1
         k = self._index_of(msg)
-        t = self.rig.camera.frame_time_s(k)
-        if k < self.next_index:
-            self.get_logger().warning(f"frame {k} arrived after frame {self.next_index - 1}; ignored")
-            self.health.count("out_of_order")
+        if not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
             return
+        self.received += 1
+        t = self.rig.camera.frame_time_s(k)
         try:
             image = image_array(msg)
             if self.tracker is None:
@@ -199,6 +208,8 @@ class DicTrackerNode(Node):
         self.next_index = k
 
     def _on_status(self, msg: StreamStatus) -> None:
+        if not self.guard.accept(topics.STATUS.name, run_id=msg.run_id):
+            return
         if msg.stream == "frames" and msg.finished:
             self.frames_finished = msg
             self._maybe_finish()

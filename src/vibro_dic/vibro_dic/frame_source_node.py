@@ -18,6 +18,7 @@ from sensor_msgs.msg import Image
 
 from vibro_ros import topics
 from vibro_io.frames import Frame
+from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import DicFrame
@@ -64,12 +65,16 @@ class FrameSource(Node):
         self.health.rate_counter = "published"
         self.health.values["frames_total"] = self.total
         self.status = StatusPublisher(self, "frames")
+        self.guard = InputGuard(self)  # the acknowledgements must be this run's tracker's
+        self.guard.watch(topics.DIC)
         self.pub = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{self.total} frames from {self.recording.frames.source}")
 
     def _on_ack(self, msg: DicFrame) -> None:
+        if not self.guard.accept(topics.DIC.name, run_id=msg.run_id, index=msg.frame_index, what="frame"):
+            return
         self.acked += 1
         self.last_index_acked = max(self.last_index_acked, int(msg.frame_index))
         self._last_progress = time.monotonic()

@@ -2,7 +2,10 @@
 
 Blocks of ``block_s`` seconds, stamped with the DAQ time of their first sample, either
 paced at ``speed`` x real time or (``speed = 0``) as fast as DDS takes them. The stream
-is reliable with a deep queue, and blocks are numbered so a receiver detects a gap.
+is a latched history (reliable, transient local, ``history_depth`` blocks) and blocks are numbered, so
+a receiver detects a gap and a node restarted mid-run receives every block again: with
+``keep_history`` (vibro graph sets it) the source keeps running once done, until stopped, because the
+history lives in the publisher. Each block carries the run id (parameter ``run_id``).
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ from rclpy.task import Future
 
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
-from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.node_support import (Health, StatusPublisher, declare, history_depth_parameter, history_qos,
+                                   run_id_parameter, run_node, stamp_from_seconds)
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import AccelBlock
 
@@ -29,6 +33,11 @@ class AccelSource(Node):
         self.speed = float(declare(self, "speed", 0.0, "pacing as a multiple of real time; 0 = as fast as possible"))
         self.min_subscribers = int(declare(self, "wait_for_subscribers", 1,
                                            "start once this many subscribers match the accel topic"))
+        self.keep_history = bool(declare(self, "keep_history", False,
+                                         "once done, keep running until stopped, so that the latched history of "
+                                         "vibro/accel stays available to a node restarted mid-run"))
+        self.run_id = run_id_parameter(self)
+        depth = history_depth_parameter(self)
         if not path:
             raise RecordingError("accel_source: parameter 'recording' is required")
         if block_s <= 0:
@@ -40,13 +49,18 @@ class AccelSource(Node):
         self.rate_hz = data.sample_rate_hz
         self.block_n = max(1, int(round(block_s * self.rate_hz)))
         self.starts = np.arange(0, len(data), self.block_n)
+        if len(self.starts) > depth:
+            self.get_logger().warning(
+                f"{len(self.starts)} blocks but history_depth {depth}: a node restarted mid-run cannot receive "
+                f"blocks 0..{len(self.starts) - depth - 1} again and will stop with an error")
         self.next_block = 0
+        self._finished = False
         self.done = Future()
         self._t_start: float | None = None
         self.health = Health(self)
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel")
-        self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
+        self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, history_qos(depth))
         self.create_timer(0.005, self._tick)
         self.get_logger().info(f"{len(data)} samples at {self.rate_hz:.0f} Hz in {len(self.starts)} blocks")
 
@@ -54,7 +68,7 @@ class AccelSource(Node):
         s = int(self.starts[i])
         e = min(s + self.block_n, len(self.data))
         msg = AccelBlock(block_index=i, first_sample_index=s, sample_rate_hz=self.rate_hz,
-                         t_start_s=float(self.data.t_s[s]))
+                         t_start_s=float(self.data.t_s[s]), run_id=self.run_id)
         msg.upper_ms2 = self.data.upper_ms2[s:e].tolist()
         msg.lower_ms2 = self.data.lower_ms2[s:e].tolist()
         msg.header.frame_id = "daq"
@@ -62,7 +76,7 @@ class AccelSource(Node):
         return msg
 
     def _tick(self) -> None:
-        if self.done.done():
+        if self.done.done() or self._finished:
             return
         if self._t_start is None:
             if self.pub.get_subscription_count() < self.min_subscribers:
@@ -78,12 +92,16 @@ class AccelSource(Node):
         finished = self.next_block >= n
         self.status.publish(self.next_block, 0, finished)
         if finished:
-            self.get_logger().info(f"done: {n} blocks published")
-            self.done.set_result(True)
+            self._finished = True
+            self.get_logger().info(f"done: {n} blocks published"
+                                   + ("; keeping their history until stopped" if self.keep_history else ""))
+            if not self.keep_history:
+                self.done.set_result(True)
 
     def close(self) -> None:
         """Give reliable delivery a moment to drain before the process exits."""
-        time.sleep(0.5)
+        if not self.keep_history:
+            time.sleep(0.5)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,7 +3,9 @@
 A thin adapter over :class:`vibro_fit.accel_impacts.AccelImpactDetector` (the rule of
 ``vibro analyze``): zero-phase high-pass, threshold median + k_sigma x robust noise,
 refractory time, plate by channel energy, clipping flag. A gap in the block numbering
-is reported (log, diagnostics), never silently bridged.
+is reported (log, diagnostics), never silently bridged. vibro/accel is a latched history, so a detector
+restarted mid-run detects from block 0 again; blocks of another publisher or run, repeated or going
+back, or a history that does not begin at block 0, stop the node (vibro_ros.guard).
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
-from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, run_node,
-                                   stamp_from_seconds)
+from vibro_ros.guard import InputGuard
+from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
+                                   run_node, stamp_from_seconds)
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
 
@@ -56,7 +59,10 @@ class ImpactDetector(Node):
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel_impacts")
         self.pub = self.create_publisher(AccelImpact, topics.ACCEL_IMPACTS.name, RESULTS_QOS)
-        results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block)
+        self.guard = InputGuard(self)
+        self.guard.watch(topics.ACCEL)
+        results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block,
+                             history_qos(history_depth_parameter(self)))
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
 
     def _publish(self, impacts: list[Impact]) -> None:
@@ -67,6 +73,9 @@ class ImpactDetector(Node):
                 self.health.warn(f"impact at {impact.t_s:.5f} s clipped on the {impact.plate} plate's sensor")
 
     def _on_block(self, msg: AccelBlock) -> None:
+        if not self.guard.accept(topics.ACCEL.name, run_id=msg.run_id, index=msg.block_index, first_index=0,
+                                 what="block"):
+            return
         if msg.block_index != self.next_block:
             self.gaps += 1
             self.health.count("block_gaps")
@@ -84,6 +93,8 @@ class ImpactDetector(Node):
         self._maybe_finish()
 
     def _on_status(self, msg: StreamStatus) -> None:
+        if not self.guard.accept(topics.STATUS.name, run_id=msg.run_id):
+            return
         if msg.stream == "accel" and msg.finished:
             self.blocks_announced = int(msg.items_sent)
             self._maybe_finish()

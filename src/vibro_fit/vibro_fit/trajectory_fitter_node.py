@@ -8,6 +8,12 @@ streams, the node runs :func:`vibro_fit.identify.identify` on everything receive
 function ``vibro analyze`` calls, and publishes the final structure motion, flights and
 impacts; a final estimate replaces the streamed one with the same index. So the graph's
 results equal the offline CLI's on the same recording.
+
+Restart: vibro/dic and vibro/accel are latched histories, so a fitter restarted mid-run receives every
+DicFrame and block again and reaches the same final results. A history that does not begin where its
+stream began (frame ``reference_frame_index``, block 0), no accelerometer block at all when they are
+expected, or input from another publisher or run stops the node with an error (vibro_ros.guard),
+never a run with fewer impacts.
 """
 
 from __future__ import annotations
@@ -25,7 +31,9 @@ from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import flight_to_message, impact_to_message, structure_to_message
-from vibro_ros.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node)
+from vibro_ros.guard import InputGuard
+from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter,
+                                   history_qos, run_node)
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
@@ -81,19 +89,23 @@ class TrajectoryFitter(Node):
         self.pub_structure = self.create_publisher(StructureMotion, topics.STRUCTURE.name, RESULTS_QOS)
         self.pub_flights = self.create_publisher(FreeFlight, topics.FLIGHTS.name, RESULTS_QOS)
         self.pub_impacts = self.create_publisher(ImpactEstimate, topics.IMPACTS.name, RESULTS_QOS)
-        self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
+        self.guard = InputGuard(self)
+        history = history_qos(history_depth_parameter(self))
+        self.guard.watch(topics.DIC)
+        self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, history)
         if self.use_accel:
-            results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block)
+            self.guard.watch(topics.ACCEL)
+            results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block, history)
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_timer(0.5, self._maybe_finish)
 
     # ---------------------------------------------------------------- streaming
     def _on_dic(self, msg: DicFrame) -> None:
+        if not self.guard.accept(topics.DIC.name, run_id=msg.run_id, index=msg.frame_index,
+                                 first_index=msg.reference_frame_index, what="frame"):
+            return
         k = int(msg.frame_index)
         expected = len(self.rows)
-        if k < expected:
-            self.health.count("duplicate_frames")
-            return
         if k > expected:  # frames the tracker never answered (e.g. it restarted): a visible gap
             self.health.count("gap_frames", k - expected)
             self.health.warn(f"no DIC result for frames {expected}..{k - 1}")
@@ -117,11 +129,16 @@ class TrajectoryFitter(Node):
             self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg))
 
     def _on_block(self, msg: AccelBlock) -> None:
+        if not self.guard.accept(topics.ACCEL.name, run_id=msg.run_id, index=msg.block_index, first_index=0,
+                                 what="block"):
+            return
         self.blocks[int(msg.block_index)] = msg
         self._last_block_at = time.monotonic()
         self._maybe_finish()
 
     def _on_status(self, msg: StreamStatus) -> None:
+        if not self.guard.accept(topics.STATUS.name, run_id=msg.run_id):
+            return
         if msg.finished and msg.stream == "dic":
             self.dic_announced = int(msg.items_sent)
         elif msg.finished and msg.stream == "accel":
@@ -144,6 +161,12 @@ class TrajectoryFitter(Node):
             self._announced_at = time.monotonic()
         quiet_since = max(self._announced_at, self._last_block_at)  # accelerometer blocks still flowing: wait
         if time.monotonic() - quiet_since < self.stream_wait_s:
+            return False
+        if need_accel and not self.blocks:
+            self.guard.fail("no accelerometer block ever arrived on vibro/accel although use_accelerometers is "
+                            "true and rig.yaml has accelerometers (source not running, or this node was restarted "
+                            "after the source and its history had gone); set use_accelerometers:=false to fit "
+                            "without them")
             return False
         missing_frames = max(0, self.dic_announced - len(self.rows))
         missing_blocks = max(0, (self.accel_announced or 0) - len(self.blocks)) if need_accel else 0
@@ -175,7 +198,7 @@ class TrajectoryFitter(Node):
         return AccelData(t, up, lo)
 
     def _maybe_finish(self) -> None:
-        if self.done_final or not self._ready():
+        if self.done_final or not self.guard.ok() or not self._ready():
             return
         self.done_final = True
         for est in self.stream.finish():

@@ -4,7 +4,10 @@ The simulator and discrepancy nodes both need: the structure motion, every *fina
 flight and impact (streamed previews are ignored), and the DIC frames, complete. Complete
 means every item the fitter and the tracker announced in their end-of-stream statuses has
 arrived, in whatever order DDS delivered them; without the tracker's "dic" status, the
-frames count as complete once none has arrived for ``dic_wait_s``. Imports rclpy.
+frames count as complete once none has arrived for ``dic_wait_s``. vibro/dic is a latched history,
+so a node restarted mid-run receives every frame again; input from another publisher or run, frames
+repeated or going back, or a history that does not begin where the stream began stop the node
+(vibro_ros.guard). Imports rclpy.
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ from rclpy.node import Node
 from vibro_msgs.msg import DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
 from . import topics
-from .node_support import RESULTS_QOS, STREAM_QOS
+from .guard import InputGuard
+from .node_support import RESULTS_QOS, history_depth_parameter, history_qos
 
 
 class FinalFitResults:
@@ -33,33 +37,44 @@ class FinalFitResults:
         self.dic_wait_s = dic_wait_s
         self._last_dic = time.monotonic()
         self._on_update = on_update
+        self.guard = guard = InputGuard(node)
+        for topic in (topics.STRUCTURE, topics.FLIGHTS, topics.IMPACTS, topics.DIC):
+            guard.watch(topic)
         node.create_subscription(StructureMotion, topics.STRUCTURE.name, self._on_structure, RESULTS_QOS)
         node.create_subscription(FreeFlight, topics.FLIGHTS.name, self._on_flight, RESULTS_QOS)
         node.create_subscription(ImpactEstimate, topics.IMPACTS.name, self._on_impact, RESULTS_QOS)
-        node.create_subscription(DicFrame, topics.DIC.name, self._on_dic, STREAM_QOS)
+        node.create_subscription(DicFrame, topics.DIC.name, self._on_dic,
+                                 history_qos(history_depth_parameter(node)))
         node.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
         node.create_timer(0.5, on_update)  # the dic_wait_s fallback needs a clock, not a message
 
     def _on_structure(self, msg: StructureMotion) -> None:
+        if not self.guard.accept(topics.STRUCTURE.name):
+            return
         self.structure = msg
         self._on_update()
 
     def _on_flight(self, msg: FreeFlight) -> None:
-        if msg.final:  # streamed flights are previews; the final fit is what counts
+        if self.guard.accept(topics.FLIGHTS.name) and msg.final:  # streamed flights are previews; the final fit is what counts
             self.flights[msg.index] = msg
             self._on_update()
 
     def _on_impact(self, msg: ImpactEstimate) -> None:
-        if msg.final:
+        if self.guard.accept(topics.IMPACTS.name) and msg.final:
             self.impacts[msg.index] = msg
             self._on_update()
 
     def _on_dic(self, msg: DicFrame) -> None:
+        if not self.guard.accept(topics.DIC.name, run_id=msg.run_id, index=msg.frame_index,
+                                 first_index=msg.reference_frame_index, what="frame"):
+            return
         self.frames[int(msg.frame_index)] = msg
         self._last_dic = time.monotonic()
         self._on_update()
 
     def _on_status(self, msg: StreamStatus) -> None:
+        if not self.guard.accept(topics.STATUS.name, run_id=msg.run_id):
+            return
         if msg.finished:
             self.finished.add(msg.stream)
             if msg.stream in ("impacts", "flights", "dic"):
@@ -68,6 +83,8 @@ class FinalFitResults:
 
     def complete(self) -> bool:
         """Every announced final flight and impact, the structure fit and all DIC frames have arrived."""
+        if not self.guard.ok():
+            return False
         if "impacts" not in self.announced or "flights" not in self.announced:
             return False
         if len(self.impacts) < self.announced["impacts"] or len(self.flights) < self.announced["flights"]:

@@ -36,16 +36,60 @@ RESULTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
 #: A live camera driver's image_raw (best effort, shallow).
 SENSOR_QOS = qos_profile_sensor_data
 
+#: Items a latched history keeps by default: 100 s of frames at 1000 frames/s, 2000 s of 20 ms blocks.
+HISTORY_DEPTH = 100_000
+
+
+def history_qos(depth: int = HISTORY_DEPTH) -> QoSProfile:
+    """A latched history (vibro/dic, vibro/accel): reliable, transient local, KEEP_LAST ``depth``.
+
+    The publisher keeps its last ``depth`` items while it runs, so a node (re)started mid-run
+    receives every item again, from the first, before the live ones. Both sides use the same
+    depth (a reader's queue must hold the whole history too). A transient-local reader does not
+    match a volatile publisher: publishers of these topics must use this profile.
+    """
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(depth),
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+HISTORY_QOS = history_qos()
+
 #: ROS defaults (reliable, volatile, depth 10), e.g. /diagnostics as every ROS tool publishes it.
 DEFAULT_QOS = QoSProfile(depth=10)
 
-QOS_BY_KIND = {"stream": STREAM_QOS, "results": RESULTS_QOS, "sensor": SENSOR_QOS, "default": DEFAULT_QOS}
+QOS_BY_KIND = {"stream": STREAM_QOS, "results": RESULTS_QOS, "sensor": SENSOR_QOS, "default": DEFAULT_QOS,
+               "history": HISTORY_QOS}
 
 
 def declare(node: Node, name: str, default: Any, description: str, read_only: bool = True) -> Any:
     """Declare a parameter with a description and return its value."""
     node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only))
     return node.get_parameter(name).value
+
+
+def run_id_parameter(node: Node) -> str:
+    """The node's ``run_id`` parameter (declared on first use): the id ``vibro graph``/``vibro replay`` give
+    every node of one run; the node stamps it on its StreamStatus/DicFrame/AccelBlock messages and refuses
+    other runs' messages (vibro_ros.guard). Empty (a node started by hand) = no run id, accept any."""
+    if not node.has_parameter("run_id"):
+        declare(node, "run_id", "", "id of the run this node belongs to (set by vibro graph/replay); "
+                "messages of another run stop the node. Empty: accept any run")
+    return str(node.get_parameter("run_id").value)
+
+
+def history_depth_parameter(node: Node) -> int:
+    """The node's ``history_depth`` parameter (declared on first use): items kept by the latched histories of
+    vibro/dic and vibro/accel (:func:`history_qos`); RecordingError unless >= 1."""
+    from vibro_io.errors import RecordingError
+
+    if not node.has_parameter("history_depth"):
+        declare(node, "history_depth", HISTORY_DEPTH,
+                "items the latched histories of vibro/dic and vibro/accel keep for a node restarted mid-run "
+                "(publisher and readers alike; vibro graph sets it from the recording's length)")
+    depth = int(node.get_parameter("history_depth").value)
+    if depth < 1:
+        raise RecordingError(f"{node.get_name()}: parameter 'history_depth' must be >= 1, got {depth}")
+    return depth
 
 
 def stamp_from_seconds(header: Header, t_s: float) -> Header:
@@ -142,12 +186,14 @@ class StatusPublisher:
         self._node = node
         self._stream = stream
         self._last: tuple[int, int, bool] | None = None
+        self._run_id = run_id_parameter(node)
         self._pub = node.create_publisher(StreamStatus, topics.STATUS.name, RESULTS_QOS)
         node.create_timer(1.0, self._repeat)
 
     def publish(self, sent: int, lost: int, finished: bool) -> None:
         self._last = (int(sent), int(lost), bool(finished))
-        msg = StreamStatus(stream=self._stream, items_sent=sent, items_lost=lost, finished=finished)
+        msg = StreamStatus(stream=self._stream, items_sent=sent, items_lost=lost, finished=finished,
+                           run_id=self._run_id)
         msg.header.stamp = self._node.get_clock().now().to_msg()
         self._pub.publish(msg)
 
@@ -225,10 +271,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, spin the node until SIGINT/SIGTERM or until it is done, then shut down cleanly.
 
     A node that ends by itself has a ``done`` attribute (an ``rclpy.task.Future``) and sets
-    its result. Bad input raised while building the node (``RecordingError``) is logged
-    as one line and gives exit code 2. ``--help`` (before ``--ros-args``) prints the node's usage
-    and gives 0 without starting it; any other non-ROS argument gives 2 (``node_help``).
-    ``factory`` is the node class (its source gives the usage).
+    its result. Bad input raised while building the node (``RecordingError``), or set as the
+    exception of ``done`` (foreign input, vibro_ros.guard), is logged as one line and gives exit code 2.
+    ``--help`` (before ``--ros-args``) prints the node's usage and gives 0 without starting it; any other
+    non-ROS argument gives 2 (``node_help``). ``factory`` is the node class (its source gives the usage).
     """
     import sys
 
@@ -250,7 +296,10 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         node = factory()
         executor = make_executor()
         executor.add_node(node)
-        spin_until_done(executor, getattr(node, "done", None))
+        done = getattr(node, "done", None)
+        spin_until_done(executor, done)
+        if done is not None and done.done() and done.exception() is not None:
+            raise done.exception()  # e.g. vibro_ros.guard.ForeignInputError: one line, exit code 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RecordingError as exc:

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 class Topic:
     name: str
     msg_type: str  # ROS type name, package/msg/Type
-    qos: str       # "stream" (reliable, flow-controlled), "results" (reliable, transient local), "sensor", "default"
+    qos: str       # "stream" (reliable, flow-controlled), "results" (reliable, transient local), "history" (latched
+                   # history for a restarted reader: reliable, transient local, deep), "sensor", "default"
     publisher: str
     description: str
     #: node names that publish it with the ``qos`` kind's profile (empty: any vibro node)
@@ -26,9 +27,9 @@ class Topic:
 FRAMES = Topic("vibro/frames", "sensor_msgs/msg/Image", "stream", "frame_source",
                "camera frames, mono8/mono16, stamp = t0_s + k/fps (remap to a camera driver's image_raw)",
                ("frame_source", "bag_source"))
-DIC = Topic("vibro/dic", "vibro_msgs/msg/DicFrame", "stream", "dic_tracker",
+DIC = Topic("vibro/dic", "vibro_msgs/msg/DicFrame", "history", "dic_tracker",
             "per-frame ball and structure displacement (mm, + up), valid points, ZNCC, lost flag", ("dic_tracker",))
-ACCEL = Topic("vibro/accel", "vibro_msgs/msg/AccelBlock", "results", "accel_source",
+ACCEL = Topic("vibro/accel", "vibro_msgs/msg/AccelBlock", "history", "accel_source",
               "blocks of upper/lower plate accelerations (m/s^2)", ("accel_source", "bag_source"))
 ACCEL_IMPACTS = Topic("vibro/accel_impacts", "vibro_msgs/msg/AccelImpact", "results", "impact_detector",
                       "impacts detected in the accelerometers (time, plate, peak, spectrum peaks)", ("impact_detector",))
