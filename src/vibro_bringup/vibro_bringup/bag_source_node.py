@@ -13,13 +13,13 @@ import time
 
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
-from rclpy.task import Future
 from sensor_msgs.msg import Image
 
 from vibro_ros import topics
 from vibro_ros.bags import read_custom_data, read_messages
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node, seconds_from_stamp
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import parse_rig
 from vibro_msgs.msg import AccelBlock, DicFrame
 
@@ -30,9 +30,6 @@ class BagSource(Node):
         bag = declare(self, "bag", "", "bag directory recorded by vibro graph")
         self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker"))
         self.linger_s = float(declare(self, "linger_s", 3.0, "seconds to wait for the last acknowledgements"))
-        self.min_subscribers = int(declare(self, "wait_for_subscribers", 2,
-                                           "start once this many subscribers match the frames topic "
-                                           "(dic_tracker + recorder)"))
         if not bag:
             raise RecordingError("bag_source: parameter 'bag' is required")
         rig_text = read_custom_data(bag).get("vibro.rig_yaml")
@@ -48,8 +45,8 @@ class BagSource(Node):
             raise RecordingError(f"{bag}: no {topics.FRAMES.name} messages to replay")
         self.sent = 0
         self.last_index_acked = -1
-        self.done = Future()
         self._started = False
+        self._ended = False
         self._last_progress = time.monotonic()
         self.health = Health(self)
         self.health.rate_counter = "published"
@@ -58,6 +55,11 @@ class BagSource(Node):
         self.pub_frames = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
         self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
+        # nothing is sent before every declared reader (dic_tracker, impact_detector, trajectory_fitter,
+        # recorder) has matched; the node exits once they have acknowledged everything
+        self.gate = ReaderGate(self, health=self.health)
+        self.gate.start_clock()
+        self.done = self.gate.done
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")
 
@@ -75,10 +77,10 @@ class BagSource(Node):
             self.frames_status.publish(self.sent, 0, True)
 
     def _tick(self) -> None:
-        if self.done.done():
+        if self.done.done() or self._ended:
             return
         if not self._started:
-            if self.pub_frames.get_subscription_count() < self.min_subscribers:
+            if not self.gate.open:
                 return
             self._started = True
             # frame numbers from the stamps, as the tracker computes them (k = (t - t0_s) * fps)
@@ -97,7 +99,8 @@ class BagSource(Node):
         if self.last_index_acked >= self._indices[-1] or time.monotonic() - self._last_progress > self.linger_s:
             self.frames_status.publish(self.sent, 0, True)
             self.get_logger().info(f"done: {self.sent} frames, {len(self.accel)} accelerometer blocks replayed")
-            self.done.set_result(True)
+            self._ended = True
+            self.gate.finish(always=True)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -16,6 +16,7 @@ from vibro_ros import topics
 from vibro_ros.bags import BagWriter
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node
+from vibro_ros.readiness import WriterWatch
 
 
 def message_class(ros_type: str):
@@ -52,6 +53,9 @@ class Recorder(Node):
                                      lambda data, name=topic.name: self._on_message(name, data),
                                      QOS_BY_KIND.get(topic.qos, 10), raw=True)
         self.get_logger().info(f"recording {len(self.writer.topics)} topics to {bag}")
+        # file mode: ends once every declared writer has come and gone (they wait for this recorder)
+        self.inputs = WriterWatch(self, list(self.writer.topics))
+        self.done = self.inputs.done
 
     def _on_message(self, topic: str, data: bytes) -> None:
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)

@@ -12,11 +12,11 @@ import time
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.task import Future
 
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import AccelBlock
 
@@ -27,8 +27,6 @@ class AccelSource(Node):
         path = declare(self, "recording", "", "recording directory whose rig.yaml names accel.csv")
         block_s = float(declare(self, "block_s", 0.02, "duration of one published block (s)"))
         self.speed = float(declare(self, "speed", 0.0, "pacing as a multiple of real time; 0 = as fast as possible"))
-        self.min_subscribers = int(declare(self, "wait_for_subscribers", 1,
-                                           "start once this many subscribers match the accel topic"))
         if not path:
             raise RecordingError("accel_source: parameter 'recording' is required")
         if block_s <= 0:
@@ -41,12 +39,16 @@ class AccelSource(Node):
         self.block_n = max(1, int(round(block_s * self.rate_hz)))
         self.starts = np.arange(0, len(data), self.block_n)
         self.next_block = 0
-        self.done = Future()
         self._t_start: float | None = None
         self.health = Health(self)
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel")
         self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
+        # nothing is sent before every declared reader (impact_detector, trajectory_fitter, recorder) has
+        # matched; the node exits once they have acknowledged every block and the end-of-stream status
+        self.gate = ReaderGate(self, health=self.health)
+        self.gate.start_clock()
+        self.done = self.gate.done
         self.create_timer(0.005, self._tick)
         self.get_logger().info(f"{len(data)} samples at {self.rate_hz:.0f} Hz in {len(self.starts)} blocks")
 
@@ -62,10 +64,10 @@ class AccelSource(Node):
         return msg
 
     def _tick(self) -> None:
-        if self.done.done():
+        if self.done.done() or self.next_block >= len(self.starts) > 0:
             return
         if self._t_start is None:
-            if self.pub.get_subscription_count() < self.min_subscribers:
+            if not self.gate.open:
                 return
             self._t_start = time.monotonic()
         n = len(self.starts)
@@ -79,11 +81,7 @@ class AccelSource(Node):
         self.status.publish(self.next_block, 0, finished)
         if finished:
             self.get_logger().info(f"done: {n} blocks published")
-            self.done.set_result(True)
-
-    def close(self) -> None:
-        """Give reliable delivery a moment to drain before the process exits."""
-        time.sleep(0.5)
+            self.gate.finish(always=True)
 
 
 def main(args: list[str] | None = None) -> int:

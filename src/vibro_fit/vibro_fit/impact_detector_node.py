@@ -17,6 +17,7 @@ from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, run_node,
                                    stamp_from_seconds)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
 
@@ -57,6 +58,8 @@ class ImpactDetector(Node):
         self.pub = self.create_publisher(AccelImpact, topics.ACCEL_IMPACTS.name, RESULTS_QOS)
         self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, RESULTS_QOS)
         self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
+        self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
+        self.done = self.gate.done
 
     def _publish(self, impacts: list[Impact]) -> None:
         for impact in impacts:
@@ -94,6 +97,7 @@ class ImpactDetector(Node):
                 self._publish(self.detector.finish())
             self.status.publish(self.sent, self.gaps, True)
             self.get_logger().info(f"done: {self.sent} impacts from {self.next_block} blocks")
+            self.gate.finish()
 
 
 def main(args: list[str] | None = None) -> int:

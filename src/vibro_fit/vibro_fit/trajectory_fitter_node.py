@@ -25,6 +25,7 @@ from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import (RESULTS_QOS, STREAM_QOS, Health, StatusPublisher, declare, run_node,
                                    stamp_from_seconds)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
@@ -95,6 +96,8 @@ class TrajectoryFitter(Node):
             self.create_subscription(AccelBlock, topics.ACCEL.name, self._on_block, RESULTS_QOS)
         self.create_subscription(StreamStatus, topics.STATUS.name, self._on_status, RESULTS_QOS)
         self.create_timer(0.5, self._maybe_finish)
+        self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
+        self.done = self.gate.done
 
     # ---------------------------------------------------------------- streaming
     def _on_dic(self, msg: DicFrame) -> None:
@@ -197,6 +200,7 @@ class TrajectoryFitter(Node):
             self.get_logger().error(f"identification failed: {exc}")
             self.flights_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
+            self.gate.finish()
             return
         s = ident.structure
         sd = np.sqrt(np.clip(np.diag(s.cov), 0, None)) if s.cov is not None else np.full(4, math.nan)
@@ -216,6 +220,7 @@ class TrajectoryFitter(Node):
         self.status.publish(len(ident.impacts), 0, True)
         self.get_logger().info(f"final: {len(ident.flights)} flights, {len(ident.impacts)} impacts, "
                                f"regime {ident.regime.name}")
+        self.gate.finish()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -195,7 +195,7 @@ def spin_until_done(executor, done=None, slice_s: float = 0.5) -> None:
     from rclpy.task import Future
 
     done = done if done is not None else Future()
-    while rclpy.ok() and not done.done():
+    while rclpy.ok() and not done.done() and not stop_requested():
         executor.spin_until_future_complete(done, timeout_sec=slice_s)
 
 
@@ -203,8 +203,10 @@ _stop_signals: list[int] = []
 
 
 def _note_stop(signum: int, _frame) -> None:
-    """Python-level SIGINT/SIGTERM handler, called after rclpy's own (which shuts the context down):
-    remember the stop instead of raising KeyboardInterrupt in the middle of a callback."""
+    """The SIGINT/SIGTERM handler: remember the stop (the spin loop ends within one slice) instead of
+    raising KeyboardInterrupt in the middle of a callback. rclpy's own handlers are not installed: after
+    the first signal they leave SIGINT at its default action, so a second SIGINT (Ctrl-C to the process
+    group plus launch's own SIGINT) killed the node (exit code -2 in ros2 launch)."""
     _stop_signals.append(signum)
 
 
@@ -217,14 +219,17 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, spin the node until SIGINT/SIGTERM or until it is done, then shut down cleanly.
 
     A node that ends by itself has a ``done`` attribute (an ``rclpy.task.Future``) and sets
-    its result. Bad input raised while building the node (``RecordingError``) is logged
-    as one line and gives exit code 2.
+    its result; its ``exit_code`` attribute (default 0) is then the exit code. Bad input raised
+    while building the node (``RecordingError``) is logged as one line and gives exit code 2.
+    SIGINT/SIGTERM: exit code 0.
     """
+    from rclpy.signals import SignalHandlerOptions
+
     from vibro_io.errors import RecordingError
 
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _note_stop)  # before rclpy.init, whose handlers chain to these
-    rclpy.init(args=args)
+        signal.signal(sig, _note_stop)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
     try:
@@ -232,6 +237,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         executor = make_executor()
         executor.add_node(node)
         spin_until_done(executor, getattr(node, "done", None))
+        code = int(getattr(node, "exit_code", 0) or 0)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RecordingError as exc:
