@@ -1,0 +1,160 @@
+"""The launch file's node set (graph_spec.launch_nodes) started the way ros2 launch starts it -- separate
+processes, console-script mains, the function's own parameters and remappings -- in shuffled order with
+random delays, gives what `vibro graph` gives on the same recording, and every node exits by itself."""
+
+from __future__ import annotations
+
+import ast
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from vibro_sim.synth import SynthConfig, synthesize
+
+REPO = Path(__file__).resolve().parents[1]
+VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """300 frames with asymmetric restitution, so that the discrepancy analysis has a finding to compare."""
+    out = tmp_path_factory.mktemp("launch") / "rec"
+    synthesize(out, SynthConfig(frames=300, seed=11, effects={"asymmetric_restitution": {}}), progress=False)
+    return out
+
+
+def console_scripts() -> dict[tuple[str, str], str]:
+    """(package, executable) -> "module:function" from every src/*/setup.py."""
+    found = {}
+    for setup in REPO.glob("src/*/setup.py"):
+        tree = ast.parse(setup.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and " = " in node.value \
+                    and ":" in node.value:
+                exe, target = (x.strip() for x in node.value.split("="))
+                found[(setup.parent.name, exe)] = target
+    return found
+
+
+def launch_command(n, params_file: Path) -> list[str]:
+    """What ros2 launch runs for a launch_ros Node: the console script (here: its main, by the same import
+    the generated script does), --ros-args, the node name, the parameters file (a dict's parameters are
+    written under ``/**``) and the remappings."""
+    module, func = console_scripts()[(n.spec.package, n.spec.executable)].split(":")
+    cmd = [sys.executable, "-c", f"import sys; from {module} import {func}; sys.exit({func}())",
+           "--ros-args", "-r", f"__node:={n.spec.name}", "--params-file", str(params_file)]
+    for src, dst in n.remappings:
+        cmd += ["-r", f"{src}:={dst}"]
+    return cmd
+
+
+def run_as_launch(nodes, folder: Path, env: dict[str, str], seed: int, timeout_s: float = 150.0) -> dict[str, int]:
+    """Start ``nodes`` in shuffled order (a source first, the recorder last: the order vibro graph never
+    uses) at random times within 2 s; wait until all have exited by themselves. Returns exit codes."""
+    rng = random.Random(seed)
+    order = list(nodes)
+    rng.shuffle(order)
+    sources = [n for n in order if n.spec.role == "source"]
+    first = rng.choice(sources)
+    order.remove(first)
+    order.insert(0, first)
+    sink = [n for n in order if n.spec.role == "sink"]
+    for n in sink:
+        order.remove(n)
+        order.append(n)
+    offsets = sorted(rng.uniform(0.0, 2.0) for _ in order)
+    procs: dict[str, subprocess.Popen] = {}
+    t0 = time.monotonic()
+    for n, offset in zip(order, offsets):
+        time.sleep(max(0.0, t0 + offset - time.monotonic()))
+        params = folder / f"{n.spec.name}.params.yaml"
+        params.write_text(yaml.safe_dump({"/**": {"ros__parameters": n.parameters}}))
+        with (folder / f"{n.spec.name}.log").open("w") as log:
+            procs[n.spec.name] = subprocess.Popen(launch_command(n, params), stdout=log, stderr=subprocess.STDOUT,
+                                                  env=env)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while time.monotonic() < deadline and any(p.poll() is None for p in procs.values()):
+            time.sleep(0.1)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    return {name: p.returncode for name, p in procs.items()}
+
+
+def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, tmp_path: Path) -> None:
+    from vibro_bringup.graph_spec import launch_nodes
+
+    scripts = console_scripts()
+    nodes = launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path)
+    assert {n.spec.name for n in nodes} == {"recorder", "dic_tracker", "impact_detector", "trajectory_fitter",
+                                           "simulator", "discrepancy", "frame_source", "accel_source"}
+    for n in nodes:
+        assert scripts[(n.spec.package, n.spec.executable)] == f"{n.spec.module}:main", n.spec
+    # live: no file source, the camera topic remapped, processing nodes stay up and respawn
+    live = {n.spec.name: n for n in launch_nodes(recording, None, live=True, camera_topic="/camera/image_raw")}
+    assert "frame_source" not in live and "recorder" not in live
+    assert live["dic_tracker"].remappings == (("vibro/frames", "/camera/image_raw"),)
+    assert live["dic_tracker"].respawn and live["dic_tracker"].parameters["exit_when_done"] is False
+    assert live["dic_tracker"].parameters["readers"] == ["discrepancy", "simulator", "trajectory_fitter"]
+
+
+def test_launch_in_any_order_equals_vibro_graph(recording: Path, tmp_path: Path) -> None:
+    from vibro_bringup.bag_results import results_from_bag
+    from vibro_bringup.graph_spec import launch_nodes
+    from vibro_ros.bags import deserialize, make_typestore, read_messages
+
+    # 1. vibro graph (the supervisor's order: recorder, processing, sources)
+    domain = random.Random(os.getpid()).randint(1, 100)
+    graph = subprocess.run([*VIBRO, "graph", str(recording), "--bag", str(tmp_path / "graph_bag"), "--domain-id",
+                            str(domain), "--timeout-s", "150"], capture_output=True, text=True, timeout=200)
+    assert graph.returncode == 0, graph.stdout + graph.stderr
+    assert "frames in 300 / tracked 300 / lost 0" in graph.stdout, graph.stdout
+
+    # 2. the launch file's nodes, shuffled, each waiting for its declared readers, exiting by itself
+    nodes = launch_nodes(recording, tmp_path / "launch_bag", reference_dir=tmp_path)
+    seed = random.randrange(10 ** 6)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    t0 = time.monotonic()
+    codes = run_as_launch(nodes, logs, env, seed)
+    elapsed = time.monotonic() - t0
+    texts = {p.stem: p.read_text() for p in logs.glob("*.log")}
+    assert codes == {n.spec.name: 0 for n in nodes}, (seed, codes, {k: v[-1500:] for k, v in texts.items()})
+    assert not [k for k, v in texts.items() if "Traceback" in v], seed
+
+    # 3. the same results: the same CDR-identical frames through the same deterministic code
+    a, b = results_from_bag(tmp_path / "graph_bag"), results_from_bag(tmp_path / "launch_bag")
+    assert len(a["impacts"]) == len(b["impacts"]) >= 8
+    for x, y in zip(a["impacts"], b["impacts"]):
+        assert x["plate"] == y["plate"] and abs(x["cor"] - y["cor"]) < 1e-6 and abs(x["t"] - y["t"]) < 1e-9
+    for model in ("cor_model", "hertz_model"):
+        assert abs(a["simulation"][model]["deviation"] - b["simulation"][model]["deviation"]) < 1e-6
+    fa, fb = a["discrepancy"]["findings"], b["discrepancy"]["findings"]
+    assert [f["effect"] for f in fa] == [f["effect"] for f in fb] == ["asymmetric_restitution"], (fa, fb)
+    for x, y in zip(fa, fb):
+        assert x["parameters"].keys() == y["parameters"].keys()
+        assert all(abs(x["parameters"][k] - y["parameters"][k]) < 1e-6 for k in x["parameters"])
+        assert abs(x["deviation_after"] - y["deviation_after"]) < 1e-6
+
+    # 4. every frame accounted for in the launched graph's bag: 300 images, one tracked DicFrame each
+    store = make_typestore()
+    frames = sum(1 for _ in read_messages(tmp_path / "launch_bag", {"vibro/frames"}))
+    dic = {m.frame_index: m for m in (deserialize(x, store)
+                                      for x in read_messages(tmp_path / "launch_bag", {"vibro/dic"}))}
+    assert frames == 300 and sorted(dic) == list(range(300)) and not any(m.lost for m in dic.values())
+    print(f"launch order seed {seed}: all {len(nodes)} nodes exited 0 in {elapsed:.1f} s; "
+          f"max |dCOR| {max(abs(x['cor'] - y['cor']) for x, y in zip(a['impacts'], b['impacts'])):.2e}, "
+          f"D cor_model {a['simulation']['cor_model']['deviation']:.6g} vs {b['simulation']['cor_model']['deviation']:.6g}, "
+          f"D hertz_model {a['simulation']['hertz_model']['deviation']:.6g} vs "
+          f"{b['simulation']['hertz_model']['deviation']:.6g}, finding cor_top "
+          f"{fa[0]['parameters']['cor_top']:.6g} vs {fb[0]['parameters']['cor_top']:.6g}")
