@@ -57,7 +57,7 @@ class BagSource(Node):
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
         # nothing is sent before every declared reader (dic_tracker, impact_detector, trajectory_fitter,
         # recorder) has matched; the node exits once they have acknowledged everything
-        self.gate = ReaderGate(self, health=self.health)
+        self.gate = ReaderGate(self, health=self.health, default_readers=("dic_tracker",))
         self.gate.start_clock()
         self.done = self.gate.done
         self.create_timer(0.01, self._tick)

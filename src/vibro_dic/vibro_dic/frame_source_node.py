@@ -70,7 +70,7 @@ class FrameSource(Node):
         self.pub = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
         # nothing is sent before every declared reader (dic_tracker, recorder) has matched
-        self.gate = ReaderGate(self, health=self.health)
+        self.gate = ReaderGate(self, health=self.health, default_readers=("dic_tracker",))
         self.gate.start_clock()
         self.done = self.gate.done
         self.create_timer(0.01, self._tick)

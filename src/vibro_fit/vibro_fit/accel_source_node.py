@@ -46,7 +46,7 @@ class AccelSource(Node):
         self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, RESULTS_QOS)
         # nothing is sent before every declared reader (impact_detector, trajectory_fitter, recorder) has
         # matched; the node exits once they have acknowledged every block and the end-of-stream status
-        self.gate = ReaderGate(self, health=self.health)
+        self.gate = ReaderGate(self, health=self.health, default_readers=("trajectory_fitter",))
         self.gate.start_clock()
         self.done = self.gate.done
         self.create_timer(0.005, self._tick)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from typing import Callable, Sequence
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -35,13 +36,14 @@ WAIT_FOR_READERS_S = "wait_for_readers_s"
 EXIT_WHEN_DONE = "exit_when_done"
 
 
-def declare_readiness_parameters(node: Node) -> tuple[list[str], float, bool]:
-    """Declare ``readers``, ``wait_for_readers_s`` and ``exit_when_done``; return their values."""
+def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()) -> tuple[list[str], float, bool]:
+    """Declare ``readers`` (default ``default_readers``), ``wait_for_readers_s`` and ``exit_when_done``;
+    return their values."""
     def declare(name, default, text):
         node.declare_parameter(name, default, ParameterDescriptor(description=text, read_only=True))
         return node.get_parameter(name).value
 
-    readers = declare(READERS, [""], "node names (in this node's namespace) that read its outputs: its data "
+    readers = declare(READERS, list(default_readers) or [""], "node names (in this node's namespace) that read its outputs: its data "
                                      "waits until all have matched, and it exits only once they acknowledged")
     wait_s = float(declare(WAIT_FOR_READERS_S, 60.0, "fail (exit code 1, naming the readers) when declared "
                                                      "readers are still missing after this long (s)"))
@@ -66,10 +68,11 @@ class ReaderGate:
     """
 
     def __init__(self, node: Node, publishers: Sequence[Publisher] | None = None, *, on_open: Callable[[], None] | None = None,
-                 health=None, settle_s: float = 0.3, poll_s: float = 0.05, log_every_s: float = 5.0):
+                 health=None, settle_s: float = 0.3, poll_s: float = 0.05, log_every_s: float = 5.0,
+                 default_readers: Sequence[str] = ()):
         self.node = node
         self._publishers = list(publishers) if publishers is not None else None
-        self.readers, self.wait_s, self.exit_when_done = declare_readiness_parameters(node)
+        self.readers, self.wait_s, self.exit_when_done = declare_readiness_parameters(node, default_readers)
         self.health = health
         self.settle_s = settle_s
         self.log_every_s = log_every_s
@@ -160,7 +163,7 @@ class ReaderGate:
                         self._waiting_since = None
                     self.node.get_logger().info(f"readers matched: {', '.join(self.readers)}")
                     if self.health is not None and self.health.message.startswith("waiting for readers"):
-                        self.health.level, self.health.message = 0, "ok"
+                        self.health.level, self.health.message = DiagnosticStatus.OK, "ok"
                     if self.on_open is not None:
                         self.on_open()
         if self._finishing and not missing and self._acknowledged():
