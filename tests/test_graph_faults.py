@@ -99,11 +99,15 @@ def test_dic_tracker_killed_mid_run_is_restarted_and_the_gap_reported(recording:
                               str(_params(tmp_path, 60.0)), "--domain-id", ros_domain, "--timeout-s", "150"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        _wait_for("vibro_dic.frame_source_node", ros_domain, 150, graph)  # the wiring has been checked
-        source_log = tmp_path / "bag.logs" / "frame_source.log"
+        _wait_for("vibro_dic.frame_source_node", ros_domain, 150, graph)
+        # the tracker holds its results until all its declared readers have matched, the source streams once
+        # its own readers have: kill the tracker 1 s after both, so that it dies mid-run
+        logs = [tmp_path / "bag.logs" / "frame_source.log", tmp_path / "bag.logs" / "dic_tracker.log"]
         deadline = time.monotonic() + 60
-        while "streaming:" not in (source_log.read_text() if source_log.exists() else ""):
-            assert time.monotonic() < deadline and graph.poll() is None, "frame_source never started streaming"
+        while not ("streaming:" in (logs[0].read_text() if logs[0].exists() else "")
+                   and "readers matched" in (logs[1].read_text() if logs[1].exists() else "")):
+            assert time.monotonic() < deadline and graph.poll() is None, \
+                [p.read_text()[-800:] for p in logs if p.exists()]
             time.sleep(0.02)
         time.sleep(1.0)  # ~60 frames in
         victims = _pids("vibro_dic.dic_tracker_node", ros_domain)
