@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import subprocess
 import sys
 import time
@@ -97,3 +98,53 @@ def test_launch_in_any_order_equals_vibro_graph(recording: Path, tmp_path: Path)
           f"D hertz_model {a['simulation']['hertz_model']['deviation']:.6g} vs "
           f"{b['simulation']['hertz_model']['deviation']:.6g}, finding cor_top "
           f"{fa[0]['parameters']['cor_top']:.6g} vs {fb[0]['parameters']['cor_top']:.6g}")
+
+
+def _main_of(module: str) -> list[str]:
+    """A node started as its console script does it (``sys.exit(main())``)."""
+    return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
+
+
+def test_ctrl_c_to_the_process_group_and_launchs_own_sigint_exit_0(tiny_recording: Path, ros_domain: str) -> None:
+    """ros2 launch: Ctrl-C reaches every process of the group, then launch sends SIGINT itself. rclpy's own
+    signal handlers leave SIGINT at its default action after the first one, so the second killed the node
+    (launch: "process has died ... exit code -2"); the nodes must stop with 0 and no traceback."""
+    import signal
+
+    proc = subprocess.Popen([*_main_of("vibro_dic.frame_source_node"), "--ros-args", "-p",
+                             f"recording:={tiny_recording}", "-p", "readers:=[nobody]"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        line = ""
+        while "frames from" not in line:  # the node is up (rclpy initialised), waiting for its reader
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, "frame_source exited early"
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "Traceback" not in out, (proc.returncode, out)
+
+
+def test_readers_are_matched_by_name_in_the_nodes_namespace_or_the_node_fails(tiny_recording: Path,
+                                                                              ros_domain: str) -> None:
+    """A dic_tracker in another namespace is not this frame_source's declared reader: after
+    wait_for_readers_s the source fails (exit 1) naming the missing reader, and has sent nothing."""
+    tracker = subprocess.Popen([*_main_of("vibro_dic.dic_tracker_node"), "--ros-args", "-r", "__ns:=/elsewhere",
+                                "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        res = subprocess.run([*_main_of("vibro_dic.frame_source_node"), "--ros-args", "-r", "__ns:=/here",
+                              "-p", f"recording:={tiny_recording}", "-p", "readers:=[dic_tracker]",
+                              "-p", "wait_for_readers_s:=4.0"], capture_output=True, text=True, timeout=60)
+    finally:
+        tracker.terminate()
+        tracker.wait(timeout=30)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert re.search(r"declared readers dic_tracker never matched [^;]*/here/vibro/frames", res.stderr), res.stderr
+    assert "waiting for readers dic_tracker" in res.stderr  # said while waiting, before failing
+    assert "streaming:" not in res.stderr and "Traceback" not in res.stderr

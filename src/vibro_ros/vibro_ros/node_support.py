@@ -256,5 +256,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
                 flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
-            rclpy.shutdown()
+            rclpy.shutdown(uninstall_handlers=False)  # uninstalling what was never installed: SIGINT -> SIG_DFL
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        # the node has stopped; the interpreter's finalisation resets Python handlers to SIG_DFL (not SIG_IGN),
+        # so a second Ctrl-C arriving now would still kill the process with -2
+        signal.signal(sig, signal.SIG_IGN)
     return code

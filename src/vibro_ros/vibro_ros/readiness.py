@@ -183,6 +183,7 @@ class ReaderGate:
             if self.health is not None:
                 self.health.error(msg)
             self.exit_code = 1
+            self.node.exit_code = 1  # run_node's exit code
             self.done.set_result(False)
         elif now - self._last_log >= self.log_every_s and waited >= 1.0:
             self._last_log = now
