@@ -100,7 +100,7 @@ def test_diagnostics_report_lag_behind_the_camera_clock(tiny_recording: Path, ro
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
             [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={tiny_recording}",
-             "-p", "rate_hz:=10.0", "-p", "readers:=['']", "-p", "linger_s:=2.5"],
+             "-p", "rate_hz:=10.0", "-p", "readers:=[vibro_test_echo]", "-p", "linger_s:=2.5"],
             capture_output=True, text=True, timeout=60)
         out, _ = echo.communicate(timeout=60)
     finally:
