@@ -94,7 +94,8 @@ def test_launch_in_any_order_equals_vibro_graph(recording: Path, tmp_path: Path)
     assert frames == 300 and sorted(dic) == list(range(300)) and not any(m.lost for m in dic.values())
     print(f"launch order seed {seed}: all {len(nodes)} nodes exited 0 in {elapsed:.1f} s; "
           f"max |dCOR| {max(abs(x['cor'] - y['cor']) for x, y in zip(a['impacts'], b['impacts'])):.2e}, "
-          f"D cor_model {a['simulation']['cor_model']['deviation']:.6g} vs {b['simulation']['cor_model']['deviation']:.6g}, "
+          f"D cor_model {a['simulation']['cor_model']['deviation']:.6g} vs "
+          f"{b['simulation']['cor_model']['deviation']:.6g}, "
           f"D hertz_model {a['simulation']['hertz_model']['deviation']:.6g} vs "
           f"{b['simulation']['hertz_model']['deviation']:.6g}, finding cor_top "
           f"{fa[0]['parameters']['cor_top']:.6g} vs {fb[0]['parameters']['cor_top']:.6g}")

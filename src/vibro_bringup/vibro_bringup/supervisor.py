@@ -99,7 +99,8 @@ class Supervisor:
             if spec.role == "processing" and done < self.respawn:
                 self.restarts[name] = done + 1
                 with self.logs[name].open("a") as out:
-                    out.write(f"\n--- vibro graph: {name} exited with {code}; restarted ({done + 1}/{self.respawn}) ---\n")
+                    out.write(f"\n--- vibro graph: {name} exited with {code}; "
+                              f"restarted ({done + 1}/{self.respawn}) ---\n")
                 self.start(spec, append=True)
                 self.announce(f"{name} exited with {code}; restarted ({done + 1}/{self.respawn})")
                 continue

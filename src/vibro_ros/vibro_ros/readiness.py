@@ -43,8 +43,9 @@ def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()
         node.declare_parameter(name, default, ParameterDescriptor(description=text, read_only=True))
         return node.get_parameter(name).value
 
-    readers = declare(READERS, list(default_readers) or [""], "node names (in this node's namespace) that read its outputs: its data "
-                                     "waits until all have matched, and it exits only once they acknowledged")
+    readers = declare(READERS, list(default_readers) or [""],
+                      "node names (in this node's namespace) that read its outputs: its data waits until all "
+                      "have matched, and it exits only once they acknowledged")
     wait_s = float(declare(WAIT_FOR_READERS_S, 60.0, "fail (exit code 1, naming the readers) when declared "
                                                      "readers are still missing after this long (s)"))
     exit_when_done = bool(declare(EXIT_WHEN_DONE, True, "exit once the inputs have ended and the final outputs "
@@ -61,17 +62,16 @@ def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()
 
 
 class ReaderGate:
-    """Declared readers of ``publishers`` (see the module doc). The node spins; the gate polls.
+    """The declared readers of a node's outputs (see the module doc). The node spins; the gate polls.
 
     ``done`` completes when the node may exit (after :meth:`finish`, or on failure);
     ``exit_code`` is then 0, or 1 when the declared readers never came.
     """
 
-    def __init__(self, node: Node, publishers: Sequence[Publisher] | None = None, *, on_open: Callable[[], None] | None = None,
-                 health=None, settle_s: float = 0.3, poll_s: float = 0.05, log_every_s: float = 5.0,
+    def __init__(self, node: Node, *, on_open: Callable[[], None] | None = None, health=None,
+                 settle_s: float = 0.3, poll_s: float = 0.05, log_every_s: float = 5.0,
                  default_readers: Sequence[str] = ()):
         self.node = node
-        self._publishers = list(publishers) if publishers is not None else None
         self.readers, self.wait_s, self.exit_when_done = declare_readiness_parameters(node, default_readers)
         self.health = health
         self.settle_s = settle_s
@@ -86,6 +86,7 @@ class ReaderGate:
         self._waiting_since: float | None = None  # data held (or exit requested) since
         self._finishing = False
         self._last_log = 0.0
+        self._ticks = 0
         self._timer = node.create_timer(poll_s, self._poll)
 
     # ------------------------------------------------------------------ what the node calls
@@ -104,9 +105,7 @@ class ReaderGate:
 
     @property
     def publishers(self) -> list[Publisher]:
-        """The publishers given, else every publisher of the node (its results, status, diagnostics)."""
-        if self._publishers is not None:
-            return self._publishers
+        """Every output of the node: its data or results, vibro/status, /diagnostics."""
         return [p for p in self.node.publishers if p.topic_name != "/parameter_events"]
 
     # ------------------------------------------------------------------ polling
@@ -148,6 +147,9 @@ class ReaderGate:
     def _poll(self) -> None:
         if self.done.done():
             return
+        self._ticks += 1
+        if self.open and not self._finishing and self._ticks % 10:
+            return  # streaming: only keep track of who has come (seen), at a tenth of the rate
         self.present = self._matched() if self.readers else set()
         self.seen |= self.present
         now = time.monotonic()
@@ -225,6 +227,9 @@ class WriterWatch:
     def _poll(self) -> None:
         if self.done.done():
             return
+        self._ticks += 1
+        if self.open and not self._finishing and self._ticks % 10:
+            return  # streaming: only keep track of who has come (seen), at a tenth of the rate
         now_present = self.present()
         self.seen |= now_present
         if self.seen >= set(self.writers) and not now_present:
