@@ -227,9 +227,6 @@ class WriterWatch:
     def _poll(self) -> None:
         if self.done.done():
             return
-        self._ticks += 1
-        if self.open and not self._finishing and self._ticks % 10:
-            return  # streaming: only keep track of who has come (seen), at a tenth of the rate
         now_present = self.present()
         self.seen |= now_present
         if self.seen >= set(self.writers) and not now_present:
