@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -83,7 +81,7 @@ class GraphSummary:
     accel_span_s: list = field(default_factory=list)  # [first, last] accelerometer sample time (DAQ clock, s)
     accel_impacts_s: dict = field(default_factory=dict)  # index -> accelerometer impact time (DAQ clock, s)
     camera: object = None  # rig.yaml's CameraConfig (frame times for the coverage note)
-    failures: list = field(default_factory=list)  # supervisor.Failure: nodes that ended the run
+    failures: list[Failure] = field(default_factory=list)  # nodes that ended the run
     count_problems: list = field(default_factory=list)  # topics whose recorded count misses announced items
     recorded: dict = field(default_factory=dict)  # topic -> (announced, recorded)
     nodes: list = field(default_factory=list)  # the run's node names
