@@ -134,7 +134,7 @@ def run_pair(rec: Path, env: dict[str, str]) -> float:
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         src = subprocess.run([sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args",
-                              "-p", f"recording:={rec}", "-p", "wait_for_subscribers:=1"],
+                              "-p", f"recording:={rec}"],
                              env=env, capture_output=True, text=True, timeout=300)
     finally:
         tracker.send_signal(2)

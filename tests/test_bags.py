@@ -44,7 +44,7 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
         assert _wait_for(lambda: (bag / "metadata.yaml").exists(), 30)
         time.sleep(1.0)  # let discovery match the recorder's subscriptions
         src = subprocess.run([sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args",
-                              "-p", f"recording:={tiny_recording}", "-p", "wait_for_subscribers:=2"],
+                              "-p", f"recording:={tiny_recording}", "-p", "readers:=[dic_tracker, recorder]"],
                              capture_output=True, text=True, timeout=60)
         assert src.returncode == 0, src.stderr
         time.sleep(1.0)
@@ -90,7 +90,8 @@ def test_killed_recorder_leaves_a_readable_bag(tiny_recording: Path, tmp_path: P
         time.sleep(1.0)
         # 250 accelerometer samples in blocks of 1 sample: 250 messages, many 1 KiB chunks
         src = subprocess.run([sys.executable, "-m", "vibro_fit.accel_source_node", "--ros-args",
-                              "-p", f"recording:={tiny_recording}", "-p", "block_s:=0.00002"],
+                              "-p", f"recording:={tiny_recording}", "-p", "block_s:=0.00002",
+                              "-p", "readers:=[recorder]"],
                              capture_output=True, text=True, timeout=60)
         assert src.returncode == 0, src.stderr
         time.sleep(2.0)  # metadata.yaml is rewritten every second

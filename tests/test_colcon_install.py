@@ -91,15 +91,16 @@ def test_installed_nodes_run_with_the_installed_params_file_under_a_namespace(
     params_file = colcon_install / "vibro_bringup" / "share" / "vibro_bringup" / "config" / "vibro.yaml"
     lab = yaml.safe_load(params_file.read_text())[params_file_key("frame_source")]["ros__parameters"]
     code_default = {p.name: p.default for p in node_interface(FrameSource).parameters}
-    assert lab["wait_for_subscribers"] != code_default["wait_for_subscribers"]  # so the file's effect shows
+    assert lab["linger_s"] != code_default["linger_s"]  # so the file's effect shows
     by_name = {spec.name: spec for spec in NODES}
     ros_args = ["--ros-args", "-r", "__ns:=/lab1", "--params-file", params_file]
     procs = [subprocess.Popen(installed(colcon_install, script(colcon_install, by_name["dic_tracker"]), *ros_args,
                                         "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"),
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
-             # the source waits for the lab default's 2 subscribers (tracker + recorder): here it only idles
+             # the source waits for its declared readers, tracker + recorder (as in a lab graph): no recorder
+             # runs here, so it only idles, its parameter service up
              subprocess.Popen(installed(colcon_install, script(colcon_install, by_name["frame_source"]), *ros_args,
-                                        "-p", f"recording:={tiny_recording}"),
+                                        "-p", f"recording:={tiny_recording}", "-p", "readers:=[dic_tracker,recorder]"),
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)]
     try:
         with Probe() as probe:

@@ -99,11 +99,15 @@ def test_dic_tracker_killed_mid_run_is_restarted_and_the_gap_reported(recording:
                               str(_params(tmp_path, 60.0)), "--domain-id", ros_domain, "--timeout-s", "150"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        _wait_for("vibro_dic.frame_source_node", ros_domain, 150, graph)  # the wiring has been checked
-        source_log = tmp_path / "bag.logs" / "frame_source.log"
+        _wait_for("vibro_dic.frame_source_node", ros_domain, 150, graph)
+        # the tracker holds its results until all its declared readers have matched, the source streams once
+        # its own readers have: kill the tracker 1 s after both, so that it dies mid-run
+        logs = [tmp_path / "bag.logs" / "frame_source.log", tmp_path / "bag.logs" / "dic_tracker.log"]
         deadline = time.monotonic() + 60
-        while "streaming:" not in (source_log.read_text() if source_log.exists() else ""):
-            assert time.monotonic() < deadline and graph.poll() is None, "frame_source never started streaming"
+        while not ("streaming:" in (logs[0].read_text() if logs[0].exists() else "")
+                   and "readers matched" in (logs[1].read_text() if logs[1].exists() else "")):
+            assert time.monotonic() < deadline and graph.poll() is None, \
+                [p.read_text()[-800:] for p in logs if p.exists()]
             time.sleep(0.02)
         time.sleep(1.0)  # ~60 frames in
         victims = _pids("vibro_dic.dic_tracker_node", ros_domain)
@@ -252,3 +256,84 @@ def test_tracker_refuses_a_bad_reference_image(content: bytes | None, tmp_path: 
     assert res.returncode == 2, res.stdout + res.stderr
     text = res.stdout + res.stderr
     assert "reference_image" in text and str(ref) in text and "Traceback" not in text, text
+
+
+# ------------------------------------------------------------------ start order, dead nodes, recorded counts
+@pytest.fixture(scope="module")
+def short_recording(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("short") / "rec"
+    synthesize(out, SynthConfig(frames=300, seed=11), progress=False)
+    return out
+
+
+def test_launch_without_a_bag_runs_to_the_end_without_a_recorder(short_recording: Path, tmp_path: Path,
+                                                                 ros_domain: str) -> None:
+    """bag:="" in the launch file: no recorder is started and none is awaited; every node exits by itself."""
+    import random
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from launch_like import run_as_launch
+    from vibro_bringup.graph_spec import launch_nodes
+
+    nodes = launch_nodes(short_recording, None, reference_dir=tmp_path)
+    assert "recorder" not in {n.spec.name for n in nodes}
+    assert not any("recorder" in n.parameters.get("readers", []) for n in nodes)
+    seed = random.randrange(10 ** 6)
+    codes = run_as_launch(nodes, tmp_path, dict(os.environ), seed, timeout_s=120)
+    logs = {p.stem: p.read_text() for p in tmp_path.glob("*.log")}
+    assert codes == {n.spec.name: 0 for n in nodes}, (seed, codes, {k: v[-1200:] for k, v in logs.items()})
+    final = re.search(r"final: \d+ flights, (\d+) impacts", logs["trajectory_fitter"])
+    assert final and int(final.group(1)) >= 8, logs["trajectory_fitter"][-1500:]
+    # the COR model is the synthetic rig's own model: D is DIC noise over the motion, ~1e-4 (test_graph's
+    # run prints 0.01 %); a run that lost data or ran on a partial track would not publish D at all
+    d = dict(re.findall(r"(cor_model|hertz_model): D = ([0-9.]+) %", logs["simulator"]))
+    assert set(d) == {"cor_model", "hertz_model"} and float(d["cor_model"]) < 1.0, logs["simulator"][-1500:]
+    assert "no finding" in logs["discrepancy"] or "finding 0" in logs["discrepancy"]
+    assert not [k for k, v in logs.items() if "Traceback" in v]
+
+
+def test_a_source_that_dies_ends_the_run_at_once_with_its_error(short_recording: Path, tmp_path: Path,
+                                                                ros_domain: str) -> None:
+    from vibro_bringup.graph_spec import default_params_file
+
+    data = yaml.safe_load(default_params_file().read_text())
+    data["frame_source"]["ros__parameters"]["window"] = 0  # refused by frame_source: exit code 2
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump(data))
+    t0 = time.monotonic()
+    res = subprocess.run([*VIBRO, "graph", str(short_recording), "--bag", str(tmp_path / "bag"), "--params",
+                          str(params), "--domain-id", ros_domain, "--timeout-s", "300"],
+                         capture_output=True, text=True, timeout=150)
+    elapsed = time.monotonic() - t0
+    assert res.returncode == 1, res.stdout + res.stderr
+    # no 300 s timeout: the run ends as soon as the source has died (startup of 8 processes, then the stop)
+    assert elapsed < 60, elapsed
+    assert "FAILED: frame_source exited with code 2" in res.stdout, res.stdout
+    assert "parameter 'window' must be >= 1, got 0" in res.stdout  # the last lines of its log
+    assert "timeout" not in res.stderr
+
+
+def test_a_recorder_killed_mid_run_fails_the_run_naming_the_missing_topic(short_recording: Path, tmp_path: Path,
+                                                                          ros_domain: str) -> None:
+    graph = subprocess.Popen([*VIBRO, "graph", str(short_recording), "--bag", str(tmp_path / "bag"), "--params",
+                              str(_params(tmp_path, 60.0)), "--domain-id", ros_domain, "--timeout-s", "150"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        source_log = tmp_path / "bag.logs" / "frame_source.log"
+        deadline = time.monotonic() + 90
+        while "streaming:" not in (source_log.read_text() if source_log.exists() else ""):
+            assert time.monotonic() < deadline and graph.poll() is None, "frame_source never started streaming"
+            time.sleep(0.05)
+        time.sleep(1.5)  # ~90 of 300 frames at 60 frames/s
+        victims = _pids("vibro_bringup.recorder_node", ros_domain)
+        assert len(victims) == 1
+        os.kill(victims[0], signal.SIGKILL)
+        out, err = graph.communicate(timeout=120)
+    finally:
+        if graph.poll() is None:
+            graph.kill()
+            graph.communicate()
+    assert graph.returncode == 1, out + err
+    assert "FAILED: recorder exited with code -9" in out, out
+    m = re.search(r"MISSING: vibro/frames: (\d+) of (\d+) messages announced by frame_source missing", out)
+    assert m and 0 < int(m.group(1)) <= int(m.group(2)) <= 300, out

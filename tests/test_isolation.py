@@ -87,10 +87,10 @@ def test_two_default_runs_on_one_domain_keep_their_own_results(recordings: dict[
 
 
 def _params(tmp: Path, rate_hz: float) -> Path:
-    from vibro_bringup.graph_spec import default_params_file
+    from vibro_bringup.graph_spec import default_params_file, params_file_key
 
     data = yaml.safe_load(default_params_file().read_text())
-    data["frame_source"]["ros__parameters"]["rate_hz"] = rate_hz
+    data[params_file_key("frame_source")]["ros__parameters"]["rate_hz"] = rate_hz
     path = tmp / "params.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

@@ -81,10 +81,10 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
         for ns, (rec, _, zncc_min) in labs.items():
             # the params file as `vibro graph` writes it, applied to namespaced nodes
             params = node_parameters(rec, None)
-            params["dic_tracker"].update(zncc_min=zncc_min, wait_for_subscribers=2)  # frame_source + probe
-            # tracker + probe (as the recorder in a real graph): the source, which lives < 1 s here,
-            # starts once the probe is known, so its /diagnostics reach the probe too
-            params["frame_source"]["wait_for_subscribers"] = 2
+            # just the two nodes: each declares the other as its reader (the table's others are not started); the
+            # tracker stays up after the stream (exit_when_done false) so that its parameters can be read
+            params["dic_tracker"].update(zncc_min=zncc_min, readers=["frame_source"], exit_when_done=False)
+            params["frame_source"]["readers"] = ["dic_tracker"]
             params_file = write_params_file(params, tmp_path / f"params{ns.replace('/', '_')}.yaml")
             procs.append(_start_node("vibro_dic.dic_tracker_node", ns, params_file))
             procs.append(_start_node("vibro_dic.frame_source_node", ns, params_file))

@@ -29,7 +29,7 @@ def test_frames_cross_dds_and_a_corrupt_frame_is_a_visible_gap(tiny_recording: P
     echo = _start(str(HERE / "ros_echo.py"), "vibro_msgs/msg/DicFrame", "vibro/dic", "--count", "5", "--seconds", "60")
     # the tracker holds its results until both readers (this echo, frame_source's acknowledgements) have matched
     tracker = _start("-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p", f"rig_file:={rec / 'rig.yaml'}",
-                     "-p", "wait_for_subscribers:=2")
+                     "-p", "readers:=[vibro_test_echo, frame_source]")
     try:
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
@@ -100,7 +100,7 @@ def test_diagnostics_report_lag_behind_the_camera_clock(tiny_recording: Path, ro
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
             [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={tiny_recording}",
-             "-p", "rate_hz:=10.0", "-p", "wait_for_subscribers:=0", "-p", "linger_s:=2.5"],
+             "-p", "rate_hz:=10.0", "-p", "readers:=[vibro_test_echo]", "-p", "linger_s:=2.5"],
             capture_output=True, text=True, timeout=60)
         out, _ = echo.communicate(timeout=60)
     finally:

@@ -57,8 +57,9 @@ def test_launch_file_uses_the_shared_graph_definition() -> None:
     text = (SRC / "vibro_bringup" / "launch" / "vibro.launch.py").read_text()
     tree = ast.parse(text)
     imported = {(n.module, a.name) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
-    assert ("vibro_bringup.graph_spec", "NODES") in imported
-    assert ("vibro_bringup.graph_spec", "node_parameters") in imported
+    # launch_nodes: the node table's nodes with node_parameters' parameters (tests/test_launch_order.py
+    # starts what it returns and compares the run with vibro graph)
+    assert ("vibro_bringup.graph_spec", "launch_nodes") in imported
 
 
 # --- #16.7: every runtime import is declared in package.xml (what `rosdep install` brings) ---------------

@@ -13,7 +13,6 @@ import time
 
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
-from rclpy.task import Future
 from sensor_msgs.msg import Image
 
 from vibro_ros import topics
@@ -22,6 +21,7 @@ from vibro_io.errors import RecordingError
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (STREAM_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
                                    run_id_parameter, run_node, seconds_from_stamp)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import parse_rig
 from vibro_msgs.msg import AccelBlock, DicFrame
 
@@ -32,12 +32,6 @@ class BagSource(Node):
         bag = declare(self, "bag", "", "bag directory recorded by vibro graph")
         self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker"))
         self.linger_s = float(declare(self, "linger_s", 3.0, "seconds to wait for the last acknowledgements"))
-        self.min_subscribers = int(declare(self, "wait_for_subscribers", 2,
-                                           "start once this many subscribers match the frames topic "
-                                           "(dic_tracker + recorder)"))
-        self.keep_history = bool(declare(self, "keep_history", False,
-                                         "once done, keep running until stopped, so that the latched history of "
-                                         "vibro/accel stays available to a node restarted mid-run"))
         if not bag:
             raise RecordingError("bag_source: parameter 'bag' is required")
         rig_text = read_custom_data(bag).get("vibro.rig_yaml")
@@ -54,11 +48,10 @@ class BagSource(Node):
             raise RecordingError(f"{bag}: no {topics.FRAMES.name} messages to replay")
         self.sent = 0
         self.last_index_acked = -1
-        self.done = Future()
         self.guard = InputGuard(self)  # the acknowledgements must be this run's tracker's
         self.guard.watch(topics.DIC)
         self._started = False
-        self._finished = False
+        self._ended = False
         self._last_progress = time.monotonic()
         self.health = Health(self)
         self.health.rate_counter = "published"
@@ -68,6 +61,11 @@ class BagSource(Node):
         self.pub_accel = self.create_publisher(AccelBlock, topics.ACCEL.name,
                                                history_qos(history_depth_parameter(self)))
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
+        # nothing is sent before every declared reader (dic_tracker, impact_detector, trajectory_fitter,
+        # recorder) has matched; the node exits once they have acknowledged everything
+        self.gate = ReaderGate(self, health=self.health, default_readers=("dic_tracker",))
+        self.gate.start_clock()
+        self.done = self.gate.done
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")
 
@@ -98,10 +96,10 @@ class BagSource(Node):
             self.frames_status.publish(self.sent, 0, True)
 
     def _tick(self) -> None:
-        if self.done.done() or self._finished:
+        if self.done.done() or self._ended:
             return
         if not self._started:
-            if self.pub_frames.get_subscription_count() < self.min_subscribers:
+            if not self.gate.open:
                 return
             self._started = True
             # frame numbers from the stamps, as the tracker computes them (k = (t - t0_s) * fps)
@@ -120,9 +118,8 @@ class BagSource(Node):
         if self.last_index_acked >= self._indices[-1] or time.monotonic() - self._last_progress > self.linger_s:
             self.frames_status.publish(self.sent, 0, True)
             self.get_logger().info(f"done: {self.sent} frames, {len(self.accel)} accelerometer blocks replayed")
-            self._finished = True
-            if not self.keep_history:
-                self.done.set_result(True)
+            self._ended = True
+            self.gate.finish(always=True)
 
 
 def main(args: list[str] | None = None) -> int:

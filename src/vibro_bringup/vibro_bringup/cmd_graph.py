@@ -1,11 +1,16 @@
 """``vibro graph <recording> --bag bags/NAME``: run the node graph on a recording, record it, summarise.
 
-Every node runs in its own OS process and talks over DDS. This command starts them
-(sinks and processing first, sources last), watches ``vibro/status`` until the last
-stage has finished, stops everything with SIGINT, and prints what came through: frames
-in / tracked / lost (a lost frame is never silent), COR per plate, D per model, findings.
-Each run lives in its own namespace with its own run id (see isolation.py), so two runs on
-one domain never mix; a node that sees foreign input stops, and the run fails with its error.
+Every node runs in its own OS process and talks over DDS. The nodes wait for their declared
+readers by name and, the stream ended, exit by themselves (any start order works, as with
+``ros2 launch``); :mod:`vibro_bringup.supervisor` starts them, restarts a processing node that
+dies, and ends the run at once with its error when a node fails. An in-process monitor (a
+declared reader of every node) watches the topics; the summary says what came through: frames
+in / tracked / lost (a lost frame is never silent), COR per plate, D per model, findings, and
+checks the bag (read back once the recorder has closed it) against what each publisher
+announced: a topic with messages missing fails the run.
+Each run lives in its own namespace with its own run id (:mod:`vibro_bringup.isolation`), so two
+runs on one domain never mix; a node that sees foreign input stops (exit code 2, not restarted) and
+the run fails with its error.
 """
 
 from __future__ import annotations
@@ -13,8 +18,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -25,7 +28,9 @@ from typing import Callable
 from vibro_io.errors import RecordingError
 from vibro_io.recording import open_recording
 
-from .graph_spec import BAG_SOURCE, NODES, NodeSpec, node_parameters, write_params_file, write_reference_frame
+from .graph_spec import (ALL_SPECS, MONITOR, NodeSpec, graph_nodes, node_parameters, write_params_file,
+                         write_reference_frame)
+from .supervisor import Failure, Supervisor
 from .isolation import RunIdentity, namespace_argument, new_run_identity
 
 
@@ -100,122 +105,17 @@ class GraphSummary:
     accel_span_s: list = field(default_factory=list)  # [first, last] accelerometer sample time (DAQ clock, s)
     accel_impacts_s: dict = field(default_factory=dict)  # index -> accelerometer impact time (DAQ clock, s)
     camera: object = None  # rig.yaml's CameraConfig (frame times for the coverage note)
+    failures: list[Failure] = field(default_factory=list)  # nodes that ended the run
+    count_problems: list = field(default_factory=list)  # topics whose recorded count misses announced items
+    recorded: dict = field(default_factory=dict)  # topic -> (announced, recorded)
+    nodes: list = field(default_factory=list)  # the run's node names
     identity: str = ""  # run id, namespace and domain of the run
 
 
-class GraphRun:
-    """Processes of one graph run plus an in-process monitor node."""
-
-    def __init__(self, recording: Path, bag: Path, params_file: Path, env: dict[str, str], respawn: int = 2,
-                 identity: RunIdentity | None = None):
-        self.recording = recording
-        self.identity = identity or RunIdentity("", "/")
-        self.respawn = max(0, int(respawn))
-        self.specs: dict[str, NodeSpec] = {}
-        self.bag = bag
-        self.params_file = params_file
-        self.env = env
-        self.procs: dict[str, subprocess.Popen] = {}
-        self.logs: dict[str, Path] = {}
-        self.summary = GraphSummary()
-
-    def start(self, spec: NodeSpec, log_dir: Path, append: bool = False) -> None:
-        log = log_dir / f"{spec.name}.log"
-        self.logs[spec.name] = log
-        self.specs[spec.name] = spec
-        with log.open("a" if append else "w") as out:  # the child keeps its own descriptor
-            self.procs[spec.name] = subprocess.Popen(
-                [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
-                 str(self.params_file), "-r", f"__node:={spec.name}", "-r", f"__ns:={self.identity.namespace}"],
-                stdout=out, stderr=subprocess.STDOUT, env=self.env)
-
-    def supervise(self) -> list[str]:
-        """Restart processing nodes that died mid-run (like a launch file's ``respawn=True``, at most
-        ``respawn`` times each, same params file, log appended); return the dead nodes not restarted."""
-        given_up = []
-        for name in self.died():
-            spec = self.specs.get(name)
-            done = self.summary.restarts.get(name, 0)
-            code = self.procs[name].returncode
-            # exit code 2: the node refused its input or parameters (e.g. another run's data): a restart would too
-            if spec is None or spec.role != "processing" or done >= self.respawn or code == 2:
-                given_up.append(name)
-                continue
-            self.summary.restarts[name] = done + 1
-            log = self.logs[name]
-            with log.open("a") as out:
-                out.write(f"\n--- vibro graph: {name} exited with {code}; restarted "
-                          f"({done + 1}/{self.respawn}) ---\n")
-            self.start(spec, log.parent, append=True)
-            print(f"{name} exited with {code}; restarted ({done + 1}/{self.respawn})", file=sys.stderr, flush=True)
-        return given_up
-
-    def error_of(self, name: str) -> str:
-        """The last error line a node logged (its log file), '' when none."""
-        log = self.logs.get(name)
-        try:
-            lines = log.read_text(errors="replace").splitlines() if log is not None else []
-        except OSError:
-            return ""
-        for line in reversed(lines):
-            if "[ERROR]" in line:
-                return line.split("]: ", 1)[-1].strip()
-        return ""
-
-    def describe_dead(self, names: list[str]) -> str:
-        """'node exited with CODE: its error' for each of ``names``, and where the first one's log is."""
-        parts = []
-        for name in names:
-            error = self.error_of(name)
-            parts.append(f"{name} exited with {self.procs[name].returncode}" + (f": {error}" if error else ""))
-        return "; ".join(parts) + (f" (see {self.logs[names[0]]})" if names else "")
-
-    def died(self) -> list[str]:
-        """Non-source nodes that exited on their own (a source exits when done)."""
-        roles = {s.name: s.role for s in NODES}
-        return [n for n, p in self.procs.items() if p.poll() is not None and roles.get(n, "source") != "source"]
-
-    def stop(self, grace_s: float = 20.0, drain_s: float = 1.0) -> list[str]:
-        """SIGINT every node still running, sources first; the recorder only once the others have exited
-        and ``drain_s`` has passed, so it takes their last messages (final results) before closing the bag.
-        SIGKILL what has not exited after ``grace_s``. Returns the names of nodes that had to be killed."""
-        roles = {s.name: s.role for s in NODES}
-        others = [n for n in self.procs if roles.get(n, "source") == "source"] + \
-                 [s.name for s in NODES if s.role == "processing"]
-        deadline = time.monotonic() + grace_s
-        killed = self._interrupt(others, deadline)
-        if self.procs.get("recorder") is not None and self.procs["recorder"].poll() is None:
-            time.sleep(drain_s)
-        killed += self._interrupt(["recorder"], deadline)
-        if killed:
-            print(f"vibro graph: {', '.join(killed)} did not stop within {grace_s:g} s of SIGINT and was killed",
-                  file=sys.stderr)
-        return killed
-
-    def _interrupt(self, names: list[str], deadline: float) -> list[str]:
-        """SIGINT ``names`` (those still running), wait for them until ``deadline``, SIGKILL the rest."""
-        for name in names:
-            proc = self.procs.get(name)
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        killed = []
-        for name in names:
-            proc = self.procs.get(name)
-            if proc is None:
-                continue
-            try:
-                proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-                killed.append(name)
-        return killed
-
-
 class Monitor:
-    """An in-process node that checks the graph is wired before data flows, then watches it."""
+    """An in-process node that watches the graph's topics (every node counts it as a declared reader)."""
 
-    def __init__(self, run: GraphRun):
+    def __init__(self, summary: GraphSummary, recording: Path, identity: RunIdentity):
         import rclpy
 
         from vibro_ros import topics
@@ -223,11 +123,10 @@ class Monitor:
         from vibro_msgs.msg import (AccelBlock, AccelImpact, DicFrame, DiscrepancyFinding, ImpactEstimate,
                                     SimulationResult, StreamStatus)
 
-        self.run = run
-        s = self.summary = run.summary
-        run_id = run.identity.run_id
+        s = self.summary = summary
+        run_id = identity.run_id
         rclpy.init()
-        self.node = node = rclpy.create_node("vibro_graph_monitor", namespace=run.identity.namespace)
+        self.node = node = rclpy.create_node(MONITOR, namespace=identity.namespace)
         self.executor = make_executor()
         self.executor.add_node(node)
 
@@ -271,7 +170,7 @@ class Monitor:
                                  lambda m: s.accel_impacts_s.__setitem__(int(m.index), float(m.t_s)), RESULTS_QOS)
         try:
             from vibro_io.rig import load_rig
-            s.camera = load_rig(Path(run.recording) / "rig.yaml").camera
+            s.camera = load_rig(Path(recording) / "rig.yaml").camera
         except (RecordingError, OSError):
             s.camera = None
 
@@ -280,47 +179,6 @@ class Monitor:
         while time.monotonic() < end:
             self.executor.spin_once(timeout_sec=0.05)
 
-    def wait_wired(self, expected: dict[str, tuple[set[str], set[str]]], timeout_s: float) -> bool:
-        """Wait until, for each topic, the named nodes are seen publishing and subscribing to it (topics and
-        nodes in this run's namespace)."""
-        deadline = time.monotonic() + timeout_s
-        node = self.node
-        ns = self.run.identity.namespace.rstrip("/")
-
-        def names(infos) -> set[str]:
-            return {i.node_name for i in infos if i.node_namespace.rstrip("/") == ns}
-
-        while time.monotonic() < deadline:
-            self.spin(0.1)
-            if all(pubs <= names(node.get_publishers_info_by_topic(t))
-                   and subs <= names(node.get_subscriptions_info_by_topic(t))
-                   for t, (pubs, subs) in expected.items()):
-                self.spin(0.5)  # let the nodes' own discovery settle too
-                return True
-            if self.run.died():
-                return False
-        return False
-
-    def watch(self, until_streams: tuple[str, ...], timeout_s: float) -> bool:
-        """Spin until every stream in ``until_streams`` is finished; False on timeout or a dead node."""
-        s = self.summary
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            self.spin(0.05)
-            if s.finished.get("dic"):  # the tracker only finishes after the frame source did
-                s.finished["frames"] = True
-            if all(s.finished.get(k) for k in until_streams):
-                self.spin(1.0)  # collect stragglers
-                return True
-            dead = self.run.supervise()
-            if dead:
-                print(f"vibro graph: node(s) {', '.join(dead)} exited early"
-                      f"{' (restarts used up)' if any(self.run.summary.restarts.get(n) for n in dead) else ''}: "
-                      f"{self.run.describe_dead(dead)}",
-                      file=sys.stderr)
-                return False
-        return False
-
     def close(self) -> None:
         import rclpy
 
@@ -328,23 +186,6 @@ class Monitor:
         self.node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
-
-
-def expected_wiring(names: set[str]) -> dict[str, tuple[set[str], set[str]]]:
-    """(publisher nodes, subscriber nodes) each topic must show before the sources start."""
-    from vibro_ros import topics
-
-    def only(*nodes: str) -> set[str]:
-        return {x for x in nodes if x in names}
-
-    return {
-        topics.FRAMES.name: (set(), only("dic_tracker", "recorder")),
-        topics.DIC.name: (only("dic_tracker"), only("trajectory_fitter", "simulator", "discrepancy", "recorder")),
-        topics.ACCEL.name: (set(), only("impact_detector", "trajectory_fitter", "recorder")),
-        topics.IMPACTS.name: (only("trajectory_fitter"), only("simulator", "discrepancy", "recorder")),
-        topics.STATUS.name: (set(), only("dic_tracker", "trajectory_fitter", "simulator", "discrepancy",
-                                         "impact_detector")),
-    }
 
 
 def print_summary(s: GraphSummary, bag: Path) -> None:
@@ -398,6 +239,12 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
                   f"{100 * f.deviation_after:.2f} %; {f.where}")
     else:
         print("findings: none published")
+    if s.recorded:
+        print("recorded: " + ", ".join(f"{t} {got}/{n}" for t, (n, got) in sorted(s.recorded.items())))
+    for problem in s.count_problems:
+        print(f"MISSING: {problem}")
+    for failure in s.failures:
+        print(f"FAILED: {failure.describe()}")
     print(f"bag: {bag}")
 
 
@@ -405,69 +252,124 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
                   timeout_s: float, env: dict[str, str], extra_params: dict | None = None, respawn: int = 2,
                   reference: Callable[[Path], Path | None] | None = None, namespace: str | None = None,
                   history_depth: int | None = None) -> tuple[bool, GraphSummary, Path]:
-    """Start the processing nodes, check the wiring, start ``sources``, watch until done, stop all.
+    """Run the graph (processing nodes, the recorder to ``bag``, ``sources``) until every node has exited by
+    itself, a node fails, or ``timeout_s``; stop what still runs; check the bag's counts.
 
     ``rig_dir`` holds the rig.yaml (and, for the file sources, the recording). Returns
-    (finished, summary, log folder). ``reference(folder)`` writes frame 0 as an image file into the
+    (ok, summary, log folder). ``reference(folder)`` writes frame 0 as an image file into the
     run's temporary folder for dic_tracker's ``reference_image``; ``respawn``: restarts allowed per node.
     The run gets a new run id and lives in ``namespace`` (default ``/vibro_<run id>``); ``history_depth``:
     items the latched histories of vibro/dic and vibro/accel keep (default: the nodes' own).
     """
     identity = new_run_identity(namespace)
-    processing = [s for s in NODES if s.role != "source" and _importable(s.module)]
-    missing = [s.name for s in NODES if s.role != "source" and s not in processing]
+    replay = any(s.name == "bag_source" for s in sources)
+    nodes = [s for s in graph_nodes(bag=True, with_accel=with_accel, replay=replay)
+             if s.role != "source" or s in sources]
+    missing = [s.name for s in nodes if not _importable(s.module)]
     if missing:
         print(f"vibro graph: nodes not available in this checkout: {', '.join(missing)}", file=sys.stderr)
-    if not with_accel:
-        processing = [s for s in processing if s.name != "impact_detector"]
-    names = {s.name for s in processing} | {s.name for s in sources}
-    until = ("frames",) + tuple(k for k, node in (("dic", "dic_tracker"), ("impacts", "trajectory_fitter"),
-                                                  ("simulation", "simulator"), ("discrepancy", "discrepancy"))
-                                if node in names)
-    wiring_names = names
+        nodes = [s for s in nodes if s.name not in missing]
+    summary = GraphSummary(nodes=[s.name for s in nodes])
+    log_dir = bag.parent / f"{bag.name}.logs"
+    log_dir.mkdir(exist_ok=True)
+    ok = False
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
         ref_png = reference(Path(tmp)) if reference is not None else None
-        params = node_parameters(rig_dir, bag, params_base, with_accel, reference_image=ref_png)
-        # the tracker holds its results until every vibro/dic reader (this monitor too) has matched, so that
-        # a tracker restarted mid-run loses frames only visibly, never for one reader alone
-        dic_readers = {"trajectory_fitter", "simulator", "discrepancy", "recorder", "frame_source", "bag_source"}
-        params.setdefault("dic_tracker", {})["wait_for_subscribers"] = 1 + len(names & dic_readers)
-        for spec in (*NODES, BAG_SOURCE):  # one run: its id, and histories a restarted node can recover from
+        params = node_parameters(rig_dir, bag, params_base, with_accel, reference_image=ref_png, nodes=nodes,
+                                 extra_readers=[MONITOR])
+        for spec in nodes:  # one run: its id, and histories a restarted node can recover from
             params.setdefault(spec.name, {})["run_id"] = identity.run_id
             if history_depth is not None:
                 params[spec.name]["history_depth"] = int(history_depth)
-        for source in ("accel_source", "bag_source"):
-            params[source]["keep_history"] = True
         for node, values in (extra_params or {}).items():
             params.setdefault(node, {}).update(values)
         params_file = write_params_file(params, Path(tmp) / "params.yaml")
-        log_dir = bag.parent / f"{bag.name}.logs"
-        log_dir.mkdir(exist_ok=True)
-        graph = GraphRun(rig_dir, bag, params_file, env, respawn, identity)
-        graph.summary.identity = identity.describe(env)
-        print(graph.summary.identity, flush=True)
+        summary.identity = identity.describe(env)
+        print(summary.identity, flush=True)
+
+        def command(spec: NodeSpec) -> list[str]:
+            return [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
+                    str(params_file), "-r", f"__node:={spec.name}", "-r", f"__ns:={identity.namespace}"]
+
+        supervisor = Supervisor(nodes, command, log_dir, env, respawn)
         monitor = None
-        ok = False
         try:
-            monitor = Monitor(graph)
-            for spec in processing:
-                graph.start(spec, log_dir)
-            if not monitor.wait_wired(expected_wiring(wiring_names), 120.0):
-                dead = graph.died()
-                raise RecordingError("the graph did not come up: " + (
-                    graph.describe_dead(dead) if dead else "topics not matched within 120 s"))
-            for spec in sources:
-                graph.start(spec, log_dir)
-            ok = monitor.watch(until, timeout_s)
+            monitor = Monitor(summary, rig_dir, identity)
+            supervisor.start_all()
+            deadline = time.monotonic() + timeout_s
+            while time.monotonic() < deadline:
+                monitor.spin(0.05)
+                failures = supervisor.poll()
+                if failures:
+                    for f in failures:
+                        print(f"vibro graph: {f.describe()}", file=sys.stderr, flush=True)
+                    break
+                if supervisor.all_finished():
+                    ok = True
+                    break
+            else:
+                print(f"vibro graph: timeout after {timeout_s:g} s; still running: "
+                      f"{', '.join(supervisor.running())}", file=sys.stderr)
         finally:
-            graph.stop()
+            supervisor.stop()
             if monitor is not None:
+                monitor.spin(0.2)
                 monitor.close()
+    summary.restarts = dict(supervisor.restarts)
+    summary.failures = list(supervisor.failures)
+    summary.count_problems = check_recorded_counts(bag, summary)
     if not ok:
-        waiting = [k for k in until if not graph.summary.finished.get(k)]
-        print("vibro graph: the graph did not finish (timeout or a node died); streams not finished: "
+        waiting = sorted(supervisor.specs.keys() - supervisor.finished - {f.name for f in supervisor.failures})
+        print("vibro graph: the graph did not finish; nodes not finished: "
               f"{', '.join(waiting) or 'none'}; the bag holds what was recorded", file=sys.stderr)
-    return ok, graph.summary, log_dir
+    return ok and not summary.count_problems, summary, log_dir
+
+
+#: stream (StreamStatus.stream) -> (topic, key of one item, only final=True messages count)
+STREAM_TOPICS: dict[str, tuple[str, str | None, bool]] = {
+    "frames": ("vibro/frames", None, False),
+    "dic": ("vibro/dic", "frame_index", False),
+    "accel": ("vibro/accel", "block_index", False),
+    "accel_impacts": ("vibro/accel_impacts", "index", False),
+    "flights": ("vibro/flights", "index", True),
+    "impacts": ("vibro/impacts", "index", True),
+    "simulation": ("vibro/simulation", "model", False),
+    "discrepancy": ("vibro/discrepancy", "index", False),
+}
+
+
+def check_recorded_counts(bag: Path, s: GraphSummary) -> list[str]:
+    """Compare each topic's items in the bag (distinct items: a restarted node may repeat some) with what its
+    publisher announced in its last StreamStatus (items_sent); one line per topic with items missing."""
+    from vibro_ros.bags import deserialize, make_typestore, read_messages
+
+    wanted = {STREAM_TOPICS[k][0]: k for k in s.counts if k in STREAM_TOPICS}
+    if not wanted:
+        return []
+    keys: dict[str, set] = {t: set() for t in wanted}
+    unreadable = ""
+    try:
+        store = make_typestore()
+        for i, m in enumerate(read_messages(bag, set(wanted))):
+            _, key, final_only = STREAM_TOPICS[wanted[m.topic]]
+            if key is None:
+                keys[m.topic].add(i)
+                continue
+            msg = deserialize(m, store)
+            if not final_only or msg.final:
+                keys[m.topic].add(getattr(msg, key))
+    except RecordingError as exc:
+        unreadable = f" (bag unreadable: {exc})"
+    problems = []
+    for topic, stream in sorted(wanted.items()):
+        announced = s.counts[stream][0]
+        got = len(keys[topic])
+        s.recorded[topic] = (announced, got)
+        if got < announced:
+            publisher = " or ".join(n for n in s.nodes if topic in ALL_SPECS[n].publishes)
+            problems.append(f"{topic}: {announced - got} of {announced} messages announced by "
+                            f"{publisher or 'its publisher'} missing from the bag{unreadable}")
+    return problems
 
 
 def prepare_environment(domain_id: int | None) -> dict[str, str]:
@@ -499,7 +401,7 @@ def run(args: argparse.Namespace) -> int:
     recording = open_recording(args.recording)  # validate before starting anything
     bag = new_bag_path(args.bag, args.overwrite)
     env = prepare_environment(args.domain_id)
-    sources = [s for s in NODES if s.role == "source" and (recording.has_accel or s.name != "accel_source")]
+    sources = [s for s in graph_nodes(bag=True, with_accel=recording.has_accel) if s.role == "source"]
     from vibro_ros.node_support import HISTORY_DEPTH
 
     t0 = time.monotonic()

@@ -2,38 +2,114 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import yaml
+
+from vibro_ros import topics as T
+
+#: The in-process node ``vibro graph`` watches the graph with; a declared reader of every node there.
+MONITOR = "vibro_graph_monitor"
 
 
 @dataclass(frozen=True)
 class NodeSpec:
-    """One node: ``ros2 run <package> <executable>`` on a lab PC, ``python -m <module>`` here."""
+    """One node: ``ros2 run <package> <executable>`` on a lab PC, ``python -m <module>`` here.
+
+    ``publishes``/``subscribes``: topic names (vibro/status and /diagnostics, which every node
+    publishes, are implied); ``waits_for``: nodes whose end-of-stream status on vibro/status it
+    needs although it reads none of their data. The declared readers of a node
+    (:func:`readers_of`) come from these lists.
+    """
 
     name: str
     package: str
     executable: str
     module: str
-    role: str  # "source" (ends by itself), "processing" or "sink"
+    role: str  # "source" (ends with its input), "processing" or "sink"
+    publishes: tuple[str, ...] = ()
+    subscribes: tuple[str, ...] = ()
+    waits_for: tuple[str, ...] = field(default=())
 
 
+_RESULTS = (T.STRUCTURE.name, T.FLIGHTS.name, T.IMPACTS.name)
 NODES: tuple[NodeSpec, ...] = (
-    NodeSpec("recorder", "vibro_bringup", "recorder", "vibro_bringup.recorder_node", "sink"),
-    NodeSpec("dic_tracker", "vibro_dic", "dic_tracker", "vibro_dic.dic_tracker_node", "processing"),
-    NodeSpec("impact_detector", "vibro_fit", "impact_detector", "vibro_fit.impact_detector_node", "processing"),
-    NodeSpec("trajectory_fitter", "vibro_fit", "trajectory_fitter", "vibro_fit.trajectory_fitter_node", "processing"),
-    NodeSpec("simulator", "vibro_sim", "simulator", "vibro_sim.simulator_node", "processing"),
-    NodeSpec("discrepancy", "vibro_sim", "discrepancy", "vibro_sim.discrepancy_node", "processing"),
-    NodeSpec("frame_source", "vibro_dic", "frame_source", "vibro_dic.frame_source_node", "source"),
-    NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source"),
+    NodeSpec("recorder", "vibro_bringup", "recorder", "vibro_bringup.recorder_node", "sink",
+             subscribes=tuple(t.name for t in T.ALL_TOPICS)),
+    NodeSpec("dic_tracker", "vibro_dic", "dic_tracker", "vibro_dic.dic_tracker_node", "processing",
+             publishes=(T.DIC.name,), subscribes=(T.FRAMES.name, T.STATUS.name)),
+    NodeSpec("impact_detector", "vibro_fit", "impact_detector", "vibro_fit.impact_detector_node", "processing",
+             publishes=(T.ACCEL_IMPACTS.name,), subscribes=(T.ACCEL.name, T.STATUS.name)),
+    NodeSpec("trajectory_fitter", "vibro_fit", "trajectory_fitter", "vibro_fit.trajectory_fitter_node", "processing",
+             publishes=_RESULTS, subscribes=(T.DIC.name, T.ACCEL.name, T.STATUS.name)),
+    NodeSpec("simulator", "vibro_sim", "simulator", "vibro_sim.simulator_node", "processing",
+             publishes=(T.SIMULATION.name,), subscribes=(*_RESULTS, T.DIC.name, T.STATUS.name)),
+    NodeSpec("discrepancy", "vibro_sim", "discrepancy", "vibro_sim.discrepancy_node", "processing",
+             publishes=(T.DISCREPANCY.name,), subscribes=(*_RESULTS, T.DIC.name, T.STATUS.name),
+             waits_for=("simulator",)),
+    NodeSpec("frame_source", "vibro_dic", "frame_source", "vibro_dic.frame_source_node", "source",
+             publishes=(T.FRAMES.name,), subscribes=(T.DIC.name,)),
+    NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source",
+             publishes=(T.ACCEL.name,)),
 )
 
 #: Replaces frame_source and accel_source when a recorded bag is replayed (``vibro replay``).
-BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringup.bag_source_node", "source")
+BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringup.bag_source_node", "source",
+                      publishes=(T.FRAMES.name, T.ACCEL.name), subscribes=(T.DIC.name,))
 
+ALL_SPECS: dict[str, NodeSpec] = {s.name: s for s in (*NODES, BAG_SOURCE)}
+
+
+def graph_nodes(*, bag: bool, with_accel: bool, live: bool = False, replay: bool = False) -> list[NodeSpec]:
+    """The nodes of one run, in start order (sink, processing, sources): the recorder only when a bag
+    is recorded, impact_detector and accel_source only with accelerometers, no file source when live
+    (a camera driver publishes the frames), bag_source instead of the file sources for a replay."""
+    out = []
+    for spec in NODES:
+        if spec.name == "recorder" and not bag:
+            continue
+        if spec.name in ("impact_detector", "accel_source") and not with_accel:
+            continue
+        if spec.role == "source" and (replay or (live and spec.name == "frame_source")):
+            continue
+        out.append(spec)
+    if replay:
+        out.append(BAG_SOURCE)
+    return out
+
+
+def _reads(reader: NodeSpec, writer: NodeSpec) -> bool:
+    """``reader`` takes data from ``writer``: a topic it publishes, or its end-of-stream status (a sink
+    records every status; other nodes only the statuses of what they read, and of ``waits_for``)."""
+    subs = set(reader.subscribes) - ({T.STATUS.name} if reader.role != "sink" else set())
+    return bool((set(writer.publishes) | {T.STATUS.name}) & subs) or writer.name in reader.waits_for
+
+
+#: End-of-stream status (vibro/status ``stream``) each stateful processing node announces when it is done.
+FINAL_STREAM = {"dic_tracker": "dic", "impact_detector": "accel_impacts", "trajectory_fitter": "impacts",
+                "simulator": "simulation", "discrepancy": "discrepancy"}
+#: Nodes that publish a latched history (vibro/dic, vibro/accel) a restarted reader recovers its state from.
+HISTORY_PUBLISHERS = ("dic_tracker", "accel_source", "bag_source")
+
+
+def history_kept_until(name: str, present: Iterable[str]) -> list[str]:
+    """For a history publisher: the final streams of its stateful readers among ``present``; it stays up
+    (keeping its latched history for a reader restarted mid-run) until all of them have ended."""
+    if name not in HISTORY_PUBLISHERS:
+        return []
+    return sorted(FINAL_STREAM[n] for n in readers_of(name, present) if n in FINAL_STREAM)
+
+
+def readers_of(name: str, present: Iterable[str]) -> list[str]:
+    """The declared readers of node ``name`` among the nodes ``present``."""
+    return sorted(n for n in set(present) if n != name and _reads(ALL_SPECS[n], ALL_SPECS[name]))
+
+
+def writers_of(name: str, present: Iterable[str]) -> list[str]:
+    """The nodes among ``present`` that node ``name`` takes data from."""
+    return sorted(n for n in set(present) if n != name and _reads(ALL_SPECS[name], ALL_SPECS[n]))
 
 
 #: Params-file key prefix matching a node name in any namespace (rcl's ``/**`` wildcard), so a
@@ -114,9 +190,14 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
 
 
 def node_parameters(recording: str | Path, bag: str | Path | None, base: str | Path | None = None,
-                    with_accel: bool = True, reference_image: str | Path | None = None) -> dict[str, dict[str, Any]]:
-    """Parameters per node for one run: the defaults file, then the recording and bag paths, and
-    ``reference_image`` (frame 0 as an image file) for dic_tracker when given."""
+                    with_accel: bool = True, reference_image: str | Path | None = None, *,
+                    nodes: Iterable[NodeSpec] | None = None, extra_readers: Iterable[str] = (),
+                    live: bool = False) -> dict[str, dict[str, Any]]:
+    """Parameters per node for one run: the defaults file, then the recording and bag paths,
+    ``reference_image`` (frame 0 as an image file) for dic_tracker when given, and from the node table
+    each node's declared ``readers`` (plus ``extra_readers``, e.g. vibro graph's monitor), the recorder's
+    ``writers`` and ``exit_when_done`` (not ``live``). ``nodes``: the run's nodes (default
+    :func:`graph_nodes` for ``bag`` and ``with_accel``)."""
     base = Path(base or default_params_file())
     data = yaml.safe_load(base.read_text(encoding="utf-8")) or {}
     params = {node_name_of_key(key, base): dict(block.get("ros__parameters", {})) for key, block in data.items()}
@@ -130,7 +211,57 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
         params["dic_tracker"]["reference_image"] = str(Path(reference_image).resolve())
     if bag is not None:
         params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
+    present = [s.name for s in (nodes if nodes is not None else graph_nodes(bag=bag is not None,
+                                                                            with_accel=with_accel, live=live))]
+    for name in present:
+        p = params.setdefault(name, {})
+        p["readers"] = readers_of(name, present) + sorted(set(extra_readers) - set(present))
+        p["exit_when_done"] = not live
+        p["keep_history_until"] = history_kept_until(name, present) or [""]
+        if ALL_SPECS[name].role == "sink":
+            p["writers"] = writers_of(name, present)
+    for p in params.values():
+        if not p.get("readers", True):
+            p["readers"] = [""]  # ROS 2 parameter files cannot type an empty list
     return params
+
+
+@dataclass(frozen=True)
+class LaunchNode:
+    """One node as ``ros2 launch`` starts it (``launch_ros.actions.Node``)."""
+
+    spec: NodeSpec
+    parameters: dict[str, Any]
+    remappings: tuple[tuple[str, str], ...]
+    respawn: bool            # launch's respawn=True (live graph: processing nodes never end by themselves)
+    respawn_on_failure: bool  # restart only after a non-zero exit (file mode: a node that finished exits 0)
+    respawn_delay_s: float
+
+
+def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = False,
+                 camera_topic: str = T.FRAMES.name, base: str | Path | None = None,
+                 reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0) -> list[LaunchNode]:
+    """What launch/vibro.launch.py starts: the same nodes, parameters and declared readers as ``vibro graph``
+    (without its monitor). File mode: dic_tracker's reference is frame 0 written to ``reference_dir``
+    (default: a new temporary folder), every node exits once its stream has ended, and a processing
+    node that dies (non-zero exit) is restarted after ``respawn_delay_s``; launch's own ``respawn=True``
+    would also restart a node that finished, so it is used live only, where nodes never finish."""
+    from vibro_io.recording import open_recording
+
+    rec = open_recording(recording)
+    bag = str(bag) if bag else None
+    nodes = graph_nodes(bag=bag is not None, with_accel=rec.has_accel, live=live)
+    reference = None
+    if not live:
+        import tempfile
+
+        folder = Path(reference_dir) if reference_dir is not None else Path(tempfile.mkdtemp(prefix="vibro-launch-"))
+        reference = write_reference_frame(rec.path, folder / "reference_frame0.png")
+    params = node_parameters(rec.path, bag, base, rec.has_accel, reference, nodes=nodes, live=live)
+    params["dic_tracker"]["live_camera"] = live
+    remap = ((T.FRAMES.name, camera_topic),) if camera_topic != T.FRAMES.name else ()
+    return [LaunchNode(spec, params.get(spec.name, {}), remap, live and spec.role == "processing",
+                       not live and spec.role == "processing", respawn_delay_s) for spec in nodes]
 
 
 def write_params_file(params: dict[str, dict[str, Any]], path: str | Path) -> Path:

@@ -31,6 +31,7 @@ from vibro_ros.qos_format import adapt_request_to_offers
 DISCOVERY_S = 0.1
 #: How long to wait for a discovered publisher's node name (to recognise vibro's own publishers) (s).
 NAME_WAIT_S = 2.0
+from vibro_ros.readiness import WriterWatch
 
 
 def message_class(ros_type: str):
@@ -73,6 +74,9 @@ class Recorder(Node):
         self.create_timer(DISCOVERY_S, self._discover)
         self.create_timer(0.2, self.writer.flush_if_due)
         self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag}")
+        # file mode: ends once every declared writer has come and gone (they wait for this recorder)
+        self.inputs = WriterWatch(self, list(self.pending))
+        self.done = self.inputs.done
 
     def _discover(self, final: bool = False) -> None:
         """Write the channel of each topic whose publishers are discovered, with their offered profiles."""

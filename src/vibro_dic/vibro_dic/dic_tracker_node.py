@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 
 import numpy as np
 from rclpy.node import Node
@@ -29,6 +28,7 @@ from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare,
                                    history_depth_parameter, history_qos, run_node, seconds_from_stamp,
                                    stamp_from_seconds)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
 from vibro_msgs.msg import DicFrame, StreamStatus
@@ -73,12 +73,6 @@ class DicTrackerNode(Node):
         self.zncc_min = float(declare(self, "zncc_min", 0.6, "a mesh point below this ZNCC is rejected"))
         live = bool(declare(self, "live_camera", False,
                             "true: best-effort sensor QoS for a camera driver's image_raw"))
-        self.min_subscribers = int(declare(
-            self, "wait_for_subscribers", 0,
-            "hold the results until this many subscribers match vibro/dic, so that none of them misses "
-            "the first ones (a tracker restarted mid-run); 0 = publish at once"))
-        self.wait_limit_s = float(declare(self, "wait_for_subscribers_s", 10.0,
-                                          "publish anyway after holding results this long (s)"))
         reference = declare(self, "reference_image", "",
                             "image file (PNG/TIFF) of frame 0, the DIC reference; empty = the first image received")
         if not rig_file:
@@ -108,32 +102,18 @@ class DicTrackerNode(Node):
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
         self.create_timer(1.0, self._report)
-        self._held: list[DicFrame] = []  # results kept back until vibro/dic has its subscribers
-        self._released = self.min_subscribers <= 0
-        self._held_since: float | None = None
-        self._matched_at: float | None = None
-        if not self._released:
-            self.create_timer(0.05, self._check_subscribers)
+        self._held: list[DicFrame] = []  # results kept back until every declared reader of vibro/dic matched
+        # readers (the fitter, simulator, discrepancy, recorder, the frame source's acknowledgements) by name;
+        # the node exits once they have acknowledged everything (file mode)
+        self.gate = ReaderGate(self, on_open=self._release, health=self.health)
+        self.done = self.gate.done
 
-    def _check_subscribers(self) -> None:
-        """Release held results once ``wait_for_subscribers`` readers matched vibro/dic (0.3 s ago, so their
-        side has matched too), or once results have been held for ``wait_for_subscribers_s``."""
-        if self._released:
-            return
-        now = time.monotonic()
-        if self.pub.get_subscription_count() >= self.min_subscribers:
-            self._matched_at = self._matched_at or now
-            if now - self._matched_at < 0.3:
-                return
-        else:
-            self._matched_at = None
-            if self._held_since is None or now - self._held_since < self.wait_limit_s:
-                return
-            msg = (f"only {self.pub.get_subscription_count()} of {self.min_subscribers} subscribers matched "
-                   f"vibro/dic after {self.wait_limit_s:g} s; publishing anyway")
-            self.health.warn(msg)
-            self.get_logger().warning(msg)
-        self._released = True
+    @property
+    def _released(self) -> bool:
+        return self.gate.open
+
+    def _release(self) -> None:
+        """Every declared reader matched vibro/dic: send what was held, in order."""
         for msg in self._held:
             self.pub.publish(msg)
         self._held.clear()
@@ -152,8 +132,7 @@ class DicTrackerNode(Node):
             self.pub.publish(msg)
         else:
             self._held.append(msg)
-            self._held_since = self._held_since or time.monotonic()
-            self._check_subscribers()
+            self.gate.start_clock()
         self.published += 1
         if row.lost:
             self.lost += 1
@@ -225,6 +204,7 @@ class DicTrackerNode(Node):
     def _maybe_finish(self) -> None:
         if self.finished and self._released:
             self.status.publish(self.published, self.lost, True)
+            self.gate.finish()
 
     def _report(self) -> None:
         self.health.values["frames_lost"] = self.lost

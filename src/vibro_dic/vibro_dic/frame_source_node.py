@@ -13,13 +13,13 @@ import sys
 import time
 
 from rclpy.node import Node
-from rclpy.task import Future
 from sensor_msgs.msg import Image
 
 from vibro_ros import topics
 from vibro_io.frames import Frame
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import DicFrame
 
@@ -43,14 +43,17 @@ class FrameSource(Node):
         self.rate_hz = float(declare(self, "rate_hz", 0.0,
                                      "frames/s to publish at; 0 = as fast as the tracker acknowledges (lossless)"))
         self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker (rate_hz = 0)"))
-        self.min_subscribers = int(declare(self, "wait_for_subscribers", 1,
-                                           "start once this many subscribers match the frames topic"))
         self.frame_id = declare(self, "frame_id", "camera", "header.frame_id of the images")
         self.linger_s = float(declare(self, "linger_s", 3.0,
                                       "seconds to wait for the last acknowledgements before exiting"))
+        from vibro_io.errors import RecordingError
+
         if not path:
-            from vibro_io.errors import RecordingError
             raise RecordingError("frame_source: parameter 'recording' is required")
+        if self.window < 1:
+            raise RecordingError(f"frame_source: parameter 'window' must be >= 1, got {self.window}")
+        if self.rate_hz < 0:
+            raise RecordingError(f"frame_source: parameter 'rate_hz' must be >= 0, got {self.rate_hz}")
         self.recording = open_recording(path)
         self.total = len(self.recording.frames)
         self._frames = iter(self.recording.frames)
@@ -58,7 +61,7 @@ class FrameSource(Node):
         self.last_index_sent = -1
         self.last_index_acked = -1
         self.exhausted = False
-        self.done = Future()
+        self._acked_or_lingered = False
         self._started_at: float | None = None
         self._last_progress = time.monotonic()
         self.health = Health(self)
@@ -69,6 +72,10 @@ class FrameSource(Node):
         self.guard.watch(topics.DIC)
         self.pub = self.create_publisher(Image, topics.FRAMES.name, STREAM_QOS)
         self.create_subscription(DicFrame, topics.DIC.name, self._on_ack, STREAM_QOS)
+        # nothing is sent before every declared reader (dic_tracker, recorder) has matched
+        self.gate = ReaderGate(self, health=self.health, default_readers=("dic_tracker",))
+        self.gate.start_clock()
+        self.done = self.gate.done
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{self.total} frames from {self.recording.frames.source}")
 
@@ -107,10 +114,10 @@ class FrameSource(Node):
             self.status.publish(self.sent, self.lost, True)
 
     def _tick(self) -> None:
-        if self.done.done():
+        if self.done.done() or self._acked_or_lingered:
             return
         if self._started_at is None:
-            if self.pub.get_subscription_count() < self.min_subscribers:
+            if not self.gate.open:
                 return
             self._started_at = time.monotonic()
             self._last_progress = self._started_at
@@ -130,7 +137,8 @@ class FrameSource(Node):
             self.status.publish(self.sent, self.lost, True)
             self.get_logger().info(
                 f"done: {self.sent} published, {self.lost} unreadable, {self.acked} acknowledged of {self.total}")
-            self.done.set_result(True)
+            self._acked_or_lingered = True
+            self.gate.finish(always=True)
 
 
 def main(args: list[str] | None = None) -> int:

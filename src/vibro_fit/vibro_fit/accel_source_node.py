@@ -4,8 +4,8 @@ Blocks of ``block_s`` seconds, stamped with the DAQ time of their first sample, 
 paced at ``speed`` x real time or (``speed = 0``) as fast as DDS takes them. The stream
 is a latched history (reliable, transient local, ``history_depth`` blocks) and blocks are numbered, so
 a receiver detects a gap and a node restarted mid-run receives every block again: with
-``keep_history`` (vibro graph sets it) the source keeps running once done, until stopped, because the
-history lives in the publisher. Each block carries the run id (parameter ``run_id``).
+``keep_history_until`` (the node table sets it: its stateful readers' final streams) the source stays
+up once done until those readers have ended, because the history lives in the publisher. Each block carries the run id (parameter ``run_id``).
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import time
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.task import Future
 
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import (Health, StatusPublisher, declare, history_depth_parameter, history_qos,
                                    run_id_parameter, run_node, stamp_from_seconds)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import AccelBlock
 
@@ -31,11 +31,6 @@ class AccelSource(Node):
         path = declare(self, "recording", "", "recording directory whose rig.yaml names accel.csv")
         block_s = float(declare(self, "block_s", 0.02, "duration of one published block (s)"))
         self.speed = float(declare(self, "speed", 0.0, "pacing as a multiple of real time; 0 = as fast as possible"))
-        self.min_subscribers = int(declare(self, "wait_for_subscribers", 1,
-                                           "start once this many subscribers match the accel topic"))
-        self.keep_history = bool(declare(self, "keep_history", False,
-                                         "once done, keep running until stopped, so that the latched history of "
-                                         "vibro/accel stays available to a node restarted mid-run"))
         self.run_id = run_id_parameter(self)
         depth = history_depth_parameter(self)
         if not path:
@@ -54,13 +49,16 @@ class AccelSource(Node):
                 f"{len(self.starts)} blocks but history_depth {depth}: a node restarted mid-run cannot receive "
                 f"blocks 0..{len(self.starts) - depth - 1} again and will stop with an error")
         self.next_block = 0
-        self._finished = False
-        self.done = Future()
         self._t_start: float | None = None
         self.health = Health(self)
         self.health.rate_counter = "blocks"
         self.status = StatusPublisher(self, "accel")
         self.pub = self.create_publisher(AccelBlock, topics.ACCEL.name, history_qos(depth))
+        # nothing is sent before every declared reader (impact_detector, trajectory_fitter, recorder) has
+        # matched; the node exits once they have acknowledged every block and the end-of-stream status
+        self.gate = ReaderGate(self, health=self.health, default_readers=("trajectory_fitter",))
+        self.gate.start_clock()
+        self.done = self.gate.done
         self.create_timer(0.005, self._tick)
         self.get_logger().info(f"{len(data)} samples at {self.rate_hz:.0f} Hz in {len(self.starts)} blocks")
 
@@ -76,10 +74,10 @@ class AccelSource(Node):
         return msg
 
     def _tick(self) -> None:
-        if self.done.done() or self._finished:
+        if self.done.done() or self.next_block >= len(self.starts) > 0:
             return
         if self._t_start is None:
-            if self.pub.get_subscription_count() < self.min_subscribers:
+            if not self.gate.open:
                 return
             self._t_start = time.monotonic()
         n = len(self.starts)
@@ -92,16 +90,8 @@ class AccelSource(Node):
         finished = self.next_block >= n
         self.status.publish(self.next_block, 0, finished)
         if finished:
-            self._finished = True
-            self.get_logger().info(f"done: {n} blocks published"
-                                   + ("; keeping their history until stopped" if self.keep_history else ""))
-            if not self.keep_history:
-                self.done.set_result(True)
-
-    def close(self) -> None:
-        """Give reliable delivery a moment to drain before the process exits."""
-        if not self.keep_history:
-            time.sleep(0.5)
+            self.get_logger().info(f"done: {n} blocks published")
+            self.gate.finish(always=True)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -21,6 +21,7 @@ from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
                                    run_node, stamp_from_seconds)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
 
@@ -64,6 +65,8 @@ class ImpactDetector(Node):
         results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block,
                              history_qos(history_depth_parameter(self)))
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
+        self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
+        self.done = self.gate.done
 
     def _publish(self, impacts: list[Impact]) -> None:
         for impact in impacts:
@@ -106,6 +109,7 @@ class ImpactDetector(Node):
                 self._publish(self.detector.finish())
             self.status.publish(self.sent, self.gaps, True)
             self.get_logger().info(f"done: {self.sent} impacts from {self.next_block} blocks")
+            self.gate.finish()
 
 
 def main(args: list[str] | None = None) -> int:

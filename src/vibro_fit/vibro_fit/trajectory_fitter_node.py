@@ -34,6 +34,7 @@ from vibro_ros.convert import flight_to_message, impact_to_message, structure_to
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter,
                                    history_qos, run_node)
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
@@ -98,6 +99,8 @@ class TrajectoryFitter(Node):
             results_subscription(self, AccelBlock, topics.ACCEL.name, self._on_block, history)
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_timer(0.5, self._maybe_finish)
+        self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
+        self.done = self.gate.done
 
     # ---------------------------------------------------------------- streaming
     def _on_dic(self, msg: DicFrame) -> None:
@@ -211,6 +214,7 @@ class TrajectoryFitter(Node):
             self.get_logger().error(f"identification failed: {exc}")
             self.flights_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
+            self.gate.finish()
             return
         smsg = structure_to_message(structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0),
                                                              structure_moves(ident)))
@@ -225,6 +229,7 @@ class TrajectoryFitter(Node):
         self.status.publish(len(ident.impacts), 0, True)
         self.get_logger().info(f"final: {len(ident.flights)} flights, {len(ident.impacts)} impacts, "
                                f"regime {ident.regime.name}")
+        self.gate.finish()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -111,6 +111,11 @@ def _scan_class(cls: type, interface: NodeInterface, seen: set[type]) -> None:
             direction = "publishes" if fname == "create_publisher" else "subscribes"
             for name, msg_type in _topic_names(call.args[1], namespace, loops):
                 interface.topics.append(TopicDoc(name, msg_type or _ros_type_name(msg_cls), direction))
+        elif fname in ("results_subscription", "ResultsSubscription") and len(call.args) >= 3:
+            # vibro_ros.adaptive_qos: (node, msg class, topic, ...) -- one subscription as far as users are concerned
+            msg_cls = _evaluate(call.args[1], namespace)
+            for name, msg_type in _topic_names(call.args[2], namespace, loops):
+                interface.topics.append(TopicDoc(name, msg_type or _ros_type_name(msg_cls), "subscribes"))
         elif any(isinstance(a, ast.Name) and a.id in ("self", "node") for a in call.args):
             helper = _evaluate(func, namespace)  # a helper class the node hands itself to
             if isinstance(helper, type):

@@ -249,7 +249,7 @@ def spin_until_done(executor, done=None, slice_s: float = 0.5) -> None:
     from rclpy.task import Future
 
     done = done if done is not None else Future()
-    while rclpy.ok() and not done.done():
+    while rclpy.ok() and not done.done() and not stop_requested():
         executor.spin_until_future_complete(done, timeout_sec=slice_s)
 
 
@@ -257,8 +257,10 @@ _stop_signals: list[int] = []
 
 
 def _note_stop(signum: int, _frame) -> None:
-    """Python-level SIGINT/SIGTERM handler, called after rclpy's own (which shuts the context down):
-    remember the stop instead of raising KeyboardInterrupt in the middle of a callback."""
+    """The SIGINT/SIGTERM handler: remember the stop (the spin loop ends within one slice) instead of
+    raising KeyboardInterrupt in the middle of a callback. rclpy's own handlers are not installed: after
+    the first signal they leave SIGINT at its default action, so a second SIGINT (Ctrl-C to the process
+    group plus launch's own SIGINT) killed the node (exit code -2 in ros2 launch)."""
     _stop_signals.append(signum)
 
 
@@ -271,12 +273,15 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, spin the node until SIGINT/SIGTERM or until it is done, then shut down cleanly.
 
     A node that ends by itself has a ``done`` attribute (an ``rclpy.task.Future``) and sets
-    its result. Bad input raised while building the node (``RecordingError``), or set as the
-    exception of ``done`` (foreign input, vibro_ros.guard), is logged as one line and gives exit code 2.
+    its result; its ``exit_code`` attribute (default 0) is then the exit code. Bad input raised while
+    building the node (``RecordingError``), or set as the exception of ``done`` (foreign input,
+    vibro_ros.guard), is logged as one line and gives exit code 2. SIGINT/SIGTERM: exit code 0.
     ``--help`` (before ``--ros-args``) prints the node's usage and gives 0 without starting it; any other
     non-ROS argument gives 2 (``node_help``). ``factory`` is the node class (its source gives the usage).
     """
     import sys
+
+    from rclpy.signals import SignalHandlerOptions
 
     from vibro_io.errors import RecordingError
 
@@ -288,8 +293,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         return handled
 
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _note_stop)  # before rclpy.init, whose handlers chain to these
-    rclpy.init(args=argv)
+        signal.signal(sig, _note_stop)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
     try:
@@ -300,6 +305,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         spin_until_done(executor, done)
         if done is not None and done.done() and done.exception() is not None:
             raise done.exception()  # e.g. vibro_ros.guard.ForeignInputError: one line, exit code 2
+        code = int(getattr(node, "exit_code", 0) or 0)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RecordingError as exc:
@@ -324,5 +330,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
                 flush_publishers(node)
             node.destroy_node()
         if rclpy.ok():
-            rclpy.shutdown()
+            rclpy.shutdown(uninstall_handlers=False)  # uninstalling what was never installed: SIGINT -> SIG_DFL
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        # the node has stopped; the interpreter's finalisation resets Python handlers to SIG_DFL (not SIG_IGN),
+        # so a second Ctrl-C arriving now would still kill the process with -2
+        signal.signal(sig, signal.SIG_IGN)
     return code

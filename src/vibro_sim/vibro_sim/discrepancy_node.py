@@ -19,6 +19,7 @@ from vibro_io.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
 from vibro_ros.convert import finding_to_message
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_model.results import Discrepancy as DiscrepancyBlock
 from vibro_msgs.msg import DiscrepancyFinding
@@ -45,6 +46,8 @@ class Discrepancy(Node):
         self.status = StatusPublisher(self, "discrepancy")
         self.pub = self.create_publisher(DiscrepancyFinding, topics.DISCREPANCY.name, RESULTS_QOS)
         self.results = FinalFitResults(self, self._maybe_run, self.dic_wait_s)
+        self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
+        self.done = self.gate.done
 
     def _maybe_run(self) -> None:
         if self.ran or (self.wait_for_simulation and "simulation" not in self.results.finished):
@@ -52,6 +55,7 @@ class Discrepancy(Node):
         if self.results.complete():
             self.ran = True
             self.analyse()
+            self.gate.finish()
 
     def analyse(self) -> None:
         r = self.results

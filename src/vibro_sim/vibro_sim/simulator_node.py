@@ -21,6 +21,7 @@ from vibro_model.results import SimulationRun
 from vibro_model.units import mm_to_m
 from vibro_ros.convert import simulation_run_to_message
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node
+from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import SimulationResult
 
@@ -52,12 +53,15 @@ class Simulator(Node):
         self.status = StatusPublisher(self, "simulation")
         self.pub = self.create_publisher(SimulationResult, topics.SIMULATION.name, RESULTS_QOS)
         self.results = FinalFitResults(self, self._maybe_run, dic_wait_s)
+        self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
+        self.done = self.gate.done
 
     def _maybe_run(self) -> None:
         """Simulate once, when the fitter's final results and the DIC frames are complete (any order)."""
         if not self.ran and self.results.complete():
             self.ran = True
             self.simulate()
+            self.gate.finish()
 
     def simulate(self) -> None:
         s = self.results.structure

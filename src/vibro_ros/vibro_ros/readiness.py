@@ -1,0 +1,265 @@
+"""A node's outputs wait for their DECLARED readers, by node name, so the graph starts in any order.
+
+The node table (``vibro_bringup.graph_spec``) says which nodes read each node's outputs; the
+launch file and ``vibro graph`` pass that list to the node as the parameter ``readers``
+(e.g. ``frame_source: readers: [dic_tracker, recorder]``). With :class:`ReaderGate`:
+
+* a source sends nothing, and ``dic_tracker`` holds its results, until every declared reader
+  is matched on the node's topics (seen by node name in its own namespace in the ROS graph,
+  and counted as matched by DDS, for ``settle_s``) -- :attr:`ReaderGate.open`;
+* a node that has finished (``finish()``) exits only once every declared reader it still
+  expects is matched and has acknowledged everything the node published, so its latched
+  results and end-of-stream status reach readers that started late. A reader seen earlier
+  that has left since is not waited for (it finished, or it died and will be restarted);
+* while readers are missing, it logs who every ``log_every_s`` and says so on /diagnostics;
+  after ``wait_for_readers_s`` it fails loudly: an error naming the missing readers and exit
+  code 1, never streaming to nobody.
+
+``exit_when_done`` (true for a recording, false for a live graph) decides whether a
+processing node exits once its inputs have ended; sources always end with their file.
+
+``keep_history_until`` (stream names; the node table fills it for the publishers of a latched
+history, vibro/dic and vibro/accel): once finished, the node stays up until each of these streams
+has announced its end on vibro/status, so that a stateful reader restarted mid-run (fitter,
+simulator, ...) still receives the whole history from it.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Sequence
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.task import Future
+
+#: Parameter names, one definition for the nodes and the node table.
+READERS = "readers"
+WAIT_FOR_READERS_S = "wait_for_readers_s"
+EXIT_WHEN_DONE = "exit_when_done"
+
+
+def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()) -> tuple[list[str], float, bool]:
+    """Declare ``readers`` (default ``default_readers``), ``wait_for_readers_s`` and ``exit_when_done``;
+    return their values."""
+    def declare(name, default, text):
+        node.declare_parameter(name, default, ParameterDescriptor(description=text, read_only=True))
+        return node.get_parameter(name).value
+
+    readers = declare(READERS, list(default_readers) or [""],
+                      "node names (in this node's namespace) that read its outputs: its data waits until all "
+                      "have matched, and it exits only once they acknowledged")
+    wait_s = float(declare(WAIT_FOR_READERS_S, 60.0, "fail (exit code 1, naming the readers) when declared "
+                                                     "readers are still missing after this long (s)"))
+    exit_when_done = bool(declare(EXIT_WHEN_DONE, True, "exit once the inputs have ended and the final outputs "
+                                                        "are acknowledged (false: stay up, live graph)"))
+    from vibro_io.errors import RecordingError
+
+    names = [str(r).strip() for r in readers if str(r).strip()]
+    bad = [r for r in names if "/" in r or " " in r]
+    if bad:
+        raise RecordingError(f"{node.get_name()}: parameter '{READERS}' takes plain node names, got {bad}")
+    if not wait_s > 0:
+        raise RecordingError(f"{node.get_name()}: parameter '{WAIT_FOR_READERS_S}' must be > 0, got {wait_s}")
+    return sorted(set(names)), wait_s, exit_when_done
+
+
+def declare_keep_history_until(node: Node) -> list[str]:
+    """Declare ``keep_history_until`` (see the module doc) and return its stream names."""
+    node.declare_parameter("keep_history_until", [""], ParameterDescriptor(
+        description="end-of-stream statuses (vibro/status stream names) to wait for before exiting, keeping this "
+                    "node's latched history for a reader restarted mid-run", read_only=True))
+    return sorted({str(v).strip() for v in node.get_parameter("keep_history_until").value if str(v).strip()})
+
+
+class ReaderGate:
+    """The declared readers of a node's outputs (see the module doc). The node spins; the gate polls.
+
+    ``done`` completes when the node may exit (after :meth:`finish`, or on failure);
+    ``exit_code`` is then 0, or 1 when the declared readers never came.
+    """
+
+    def __init__(self, node: Node, *, on_open: Callable[[], None] | None = None, health=None,
+                 settle_s: float = 0.3, poll_s: float = 0.05, log_every_s: float = 5.0,
+                 default_readers: Sequence[str] = ()):
+        self.node = node
+        self.readers, self.wait_s, self.exit_when_done = declare_readiness_parameters(node, default_readers)
+        self.keep_until = declare_keep_history_until(node)
+        self.streams_ended: set[str] = set()
+        if self.keep_until:
+            from vibro_msgs.msg import StreamStatus
+
+            from .adaptive_qos import results_subscription
+            from .topics import STATUS
+
+            results_subscription(node, StreamStatus, STATUS.name,
+                                 lambda m: self.streams_ended.add(m.stream) if m.finished else None)
+        self.health = health
+        self.settle_s = settle_s
+        self.log_every_s = log_every_s
+        self.on_open = on_open
+        self.done = Future()
+        self.exit_code = 0
+        self.open = not self.readers
+        self.seen: set[str] = set()
+        self.present: set[str] = set()
+        self._matched_since: float | None = None
+        self._waiting_since: float | None = None  # data held (or exit requested) since
+        self._finishing = False
+        self._last_log = 0.0
+        self._ticks = 0
+        self._timer = node.create_timer(poll_s, self._poll)
+
+    # ------------------------------------------------------------------ what the node calls
+    def start_clock(self) -> None:
+        """Data is waiting for the readers from now on (the ``wait_for_readers_s`` limit runs)."""
+        if self._waiting_since is None and not self.open:
+            self._waiting_since = time.monotonic()
+
+    def finish(self, always: bool = False) -> None:
+        """The node's outputs are final: exit once the readers have them (when ``exit_when_done``, or
+        ``always``: a source ends with its input)."""
+        if (self.exit_when_done or always) and not self._finishing:
+            self._finishing = True
+            self._waiting_since = time.monotonic()
+            self._poll()
+
+    @property
+    def publishers(self) -> list[Publisher]:
+        """Every output of the node: its data or results, vibro/status, /diagnostics."""
+        return [p for p in self.node.publishers if p.topic_name != "/parameter_events"]
+
+    # ------------------------------------------------------------------ polling
+    def _matched(self) -> set[str]:
+        """Declared readers subscribed to any of the publishers' topics, in this node's namespace, where DDS
+        has matched at least as many subscriptions as the ROS graph names."""
+        ns = self.node.get_namespace()
+        found: set[str] = set()
+        short = False
+        for pub in self.publishers:
+            names = {i.node_name for i in self.node.get_subscriptions_info_by_topic(pub.topic_name)
+                     if i.node_namespace == ns and i.node_name in self.readers}
+            if pub.get_subscription_count() < len(names):
+                short = True  # named in the graph, not yet matched by DDS: not yet
+            found |= names
+        return set() if short else found
+
+    def missing(self) -> list[str]:
+        """Declared readers the node is waiting for now (at the end: not counting those that came and left)."""
+        expected = set(self.readers) - self.seen if self._finishing else set(self.readers)
+        return sorted(expected - self.present)
+
+    def _acknowledged(self, timeout_s: float = 5.0) -> bool:
+        """Every reliable reader has acknowledged everything published so far (blocks up to ``timeout_s``:
+        acknowledgements follow the writer's periodic heartbeats, and with nothing else to do the node
+        publishes nothing new meanwhile; a zero timeout is never true across processes)."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + timeout_s
+        for pub in self.node.publishers:
+            try:
+                left = max(0.001, deadline - time.monotonic())
+                if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                    return False
+            except Exception:  # a best-effort publisher has no acknowledgements to wait for
+                continue
+        return True
+
+    def _poll(self) -> None:
+        if self.done.done():
+            return
+        self._ticks += 1
+        if self.open and not self._finishing and self._ticks % 10:
+            return  # streaming: only keep track of who has come (seen), at a tenth of the rate
+        self.present = self._matched() if self.readers else set()
+        self.seen |= self.present
+        now = time.monotonic()
+        missing = self.missing()
+        if not self.open:
+            if missing:
+                self._matched_since = None
+            else:
+                self._matched_since = self._matched_since or now
+                if now - self._matched_since >= self.settle_s:
+                    self.open = True
+                    if not self._finishing:
+                        self._waiting_since = None
+                    self.node.get_logger().info(f"readers matched: {', '.join(self.readers)}")
+                    if self.health is not None and self.health.message.startswith("waiting for readers"):
+                        self.health.level, self.health.message = DiagnosticStatus.OK, "ok"
+                    if self.on_open is not None:
+                        self.on_open()
+        if self._finishing and not missing and self.history_released() and self._acknowledged():
+            self.done.set_result(True)
+            return
+        if missing and self._waiting_since is not None:
+            self._report_missing(missing, now)
+
+    def history_released(self) -> bool:
+        """Every stream in ``keep_history_until`` has ended (its readers need the history no more)."""
+        return set(self.keep_until) <= self.streams_ended
+
+    def _report_missing(self, missing: list[str], now: float) -> None:
+        waited = now - self._waiting_since
+        what = "to acknowledge its final outputs" if self._finishing else "to match before its data goes out"
+        topics = ", ".join(sorted({p.topic_name for p in self.publishers}))
+        if waited >= self.wait_s:
+            msg = (f"declared readers {', '.join(missing)} never matched {topics} (waited {waited:.0f} s "
+                   f"{what}; parameter {READERS}: {self.readers}); failing rather than sending to nobody")
+            self.node.get_logger().error(msg)
+            if self.health is not None:
+                self.health.error(msg)
+            self.exit_code = 1
+            self.node.exit_code = 1  # run_node's exit code
+            self.done.set_result(False)
+        elif now - self._last_log >= self.log_every_s and waited >= 1.0:
+            self._last_log = now
+            msg = f"waiting for readers {', '.join(missing)} {what} ({waited:.0f} of {self.wait_s:g} s)"
+            self.node.get_logger().info(msg)
+            if self.health is not None:
+                self.health.warn(msg)
+
+
+class WriterWatch:
+    """A sink's inputs have ended: every declared writer (parameter ``writers``) has been seen publishing
+    on ``topic_names`` (this node's namespace) and all of them have left since. Writers wait for their
+    declared readers' acknowledgements before they exit, so by then everything has arrived; ``done``
+    completes ``drain_s`` later (callbacks still queued), when ``exit_when_done``."""
+
+    def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5):
+        from rcl_interfaces.msg import ParameterDescriptor as Descriptor
+
+        node.declare_parameter("writers", [""], Descriptor(
+            description="node names whose outputs this node takes; it exits once all have come and gone "
+                        "(with exit_when_done)", read_only=True))
+        self.writers = sorted({str(w).strip() for w in node.get_parameter("writers").value if str(w).strip()})
+        _, _, self.exit_when_done = declare_readiness_parameters(node)
+        self.node = node
+        self.topic_names = [node.resolve_topic_name(t) for t in topic_names]
+        self.drain_s = drain_s
+        self.seen: set[str] = set()
+        self.done = Future()
+        self.exit_code = 0
+        self._ended_at: float | None = None
+        if self.writers and self.exit_when_done:
+            node.create_timer(poll_s, self._poll)
+
+    def present(self) -> set[str]:
+        ns = self.node.get_namespace()
+        return {i.node_name for t in self.topic_names for i in self.node.get_publishers_info_by_topic(t)
+                if i.node_namespace == ns and i.node_name in self.writers}
+
+    def _poll(self) -> None:
+        if self.done.done():
+            return
+        now_present = self.present()
+        self.seen |= now_present
+        if self.seen >= set(self.writers) and not now_present:
+            self._ended_at = self._ended_at or time.monotonic()
+            if time.monotonic() - self._ended_at >= self.drain_s:
+                self.node.get_logger().info(f"inputs ended: {', '.join(self.writers)} came and went")
+                self.done.set_result(True)
+        else:
+            self._ended_at = None

@@ -1,0 +1,151 @@
+"""The launch file's node set (graph_spec.launch_nodes) started the way ros2 launch starts it -- separate
+processes, console-script mains, the function's own parameters and remappings -- in shuffled order with
+random delays, gives what `vibro graph` gives on the same recording, and every node exits by itself."""
+
+from __future__ import annotations
+
+import os
+import random
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from vibro_sim.synth import SynthConfig, synthesize
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from launch_like import console_scripts, run_as_launch  # noqa: E402
+
+VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """300 frames with asymmetric restitution, so that the discrepancy analysis has a finding to compare."""
+    out = tmp_path_factory.mktemp("launch") / "rec"
+    synthesize(out, SynthConfig(frames=300, seed=11, effects={"asymmetric_restitution": {}}), progress=False)
+    return out
+
+
+def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, tmp_path: Path) -> None:
+    from vibro_bringup.graph_spec import launch_nodes
+
+    scripts = console_scripts()
+    nodes = launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path)
+    assert {n.spec.name for n in nodes} == {"recorder", "dic_tracker", "impact_detector", "trajectory_fitter",
+                                           "simulator", "discrepancy", "frame_source", "accel_source"}
+    for n in nodes:
+        assert scripts[(n.spec.package, n.spec.executable)] == f"{n.spec.module}:main", n.spec
+    # live: no file source, the camera topic remapped, processing nodes stay up and respawn
+    live = {n.spec.name: n for n in launch_nodes(recording, None, live=True, camera_topic="/camera/image_raw")}
+    assert "frame_source" not in live and "recorder" not in live
+    assert live["dic_tracker"].remappings == (("vibro/frames", "/camera/image_raw"),)
+    assert live["dic_tracker"].respawn and live["dic_tracker"].parameters["exit_when_done"] is False
+    assert live["dic_tracker"].parameters["readers"] == ["discrepancy", "simulator", "trajectory_fitter"]
+
+
+def test_launch_in_any_order_equals_vibro_graph(recording: Path, tmp_path: Path) -> None:
+    from vibro_bringup.bag_results import results_from_bag
+    from vibro_bringup.graph_spec import launch_nodes
+    from vibro_ros.bags import deserialize, make_typestore, read_messages
+
+    # 1. vibro graph (the supervisor's order: recorder, processing, sources)
+    domain = random.Random(os.getpid()).randint(1, 100)
+    graph = subprocess.run([*VIBRO, "graph", str(recording), "--bag", str(tmp_path / "graph_bag"), "--domain-id",
+                            str(domain), "--timeout-s", "150"], capture_output=True, text=True, timeout=200)
+    assert graph.returncode == 0, graph.stdout + graph.stderr
+    assert "frames in 300 / tracked 300 / lost 0" in graph.stdout, graph.stdout
+
+    # 2. the launch file's nodes, shuffled, each waiting for its declared readers, exiting by itself
+    nodes = launch_nodes(recording, tmp_path / "launch_bag", reference_dir=tmp_path)
+    seed = random.randrange(10 ** 6)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    t0 = time.monotonic()
+    codes = run_as_launch(nodes, logs, env, seed)
+    elapsed = time.monotonic() - t0
+    texts = {p.stem: p.read_text() for p in logs.glob("*.log")}
+    assert codes == {n.spec.name: 0 for n in nodes}, (seed, codes, {k: v[-1500:] for k, v in texts.items()})
+    assert not [k for k, v in texts.items() if "Traceback" in v], seed
+
+    # 3. the same results: the same CDR-identical frames through the same deterministic code
+    a, b = results_from_bag(tmp_path / "graph_bag"), results_from_bag(tmp_path / "launch_bag")
+    assert len(a["impacts"]) == len(b["impacts"]) >= 8
+    for x, y in zip(a["impacts"], b["impacts"]):
+        assert x["plate"] == y["plate"] and abs(x["cor"] - y["cor"]) < 1e-6 and abs(x["t"] - y["t"]) < 1e-9
+    for model in ("cor_model", "hertz_model"):
+        assert abs(a["simulation"][model]["deviation"] - b["simulation"][model]["deviation"]) < 1e-6
+    fa, fb = a["discrepancy"]["findings"], b["discrepancy"]["findings"]
+    assert [f["effect"] for f in fa] == [f["effect"] for f in fb] == ["asymmetric_restitution"], (fa, fb)
+    for x, y in zip(fa, fb):
+        assert x["parameters"].keys() == y["parameters"].keys()
+        assert all(abs(x["parameters"][k] - y["parameters"][k]) < 1e-6 for k in x["parameters"])
+        assert abs(x["deviation_after"] - y["deviation_after"]) < 1e-6
+
+    # 4. every frame accounted for in the launched graph's bag: 300 images, one tracked DicFrame each
+    store = make_typestore()
+    frames = sum(1 for _ in read_messages(tmp_path / "launch_bag", {"vibro/frames"}))
+    dic = {m.frame_index: m for m in (deserialize(x, store)
+                                      for x in read_messages(tmp_path / "launch_bag", {"vibro/dic"}))}
+    assert frames == 300 and sorted(dic) == list(range(300)) and not any(m.lost for m in dic.values())
+    print(f"launch order seed {seed}: all {len(nodes)} nodes exited 0 in {elapsed:.1f} s; "
+          f"max |dCOR| {max(abs(x['cor'] - y['cor']) for x, y in zip(a['impacts'], b['impacts'])):.2e}, "
+          f"D cor_model {a['simulation']['cor_model']['deviation']:.6g} vs "
+          f"{b['simulation']['cor_model']['deviation']:.6g}, "
+          f"D hertz_model {a['simulation']['hertz_model']['deviation']:.6g} vs "
+          f"{b['simulation']['hertz_model']['deviation']:.6g}, finding cor_top "
+          f"{fa[0]['parameters']['cor_top']:.6g} vs {fb[0]['parameters']['cor_top']:.6g}")
+
+
+def _main_of(module: str) -> list[str]:
+    """A node started as its console script does it (``sys.exit(main())``)."""
+    return [sys.executable, "-c", f"import sys; from {module} import main; sys.exit(main())"]
+
+
+def test_ctrl_c_to_the_process_group_and_launchs_own_sigint_exit_0(tiny_recording: Path, ros_domain: str) -> None:
+    """ros2 launch: Ctrl-C reaches every process of the group, then launch sends SIGINT itself. rclpy's own
+    signal handlers leave SIGINT at its default action after the first one, so the second killed the node
+    (launch: "process has died ... exit code -2"); the nodes must stop with 0 and no traceback."""
+    import signal
+
+    proc = subprocess.Popen([*_main_of("vibro_dic.frame_source_node"), "--ros-args", "-p",
+                             f"recording:={tiny_recording}", "-p", "readers:=[nobody]"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        line = ""
+        while "frames from" not in line:  # the node is up (rclpy initialised), waiting for its reader
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, "frame_source exited early"
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "Traceback" not in out, (proc.returncode, out)
+
+
+def test_readers_are_matched_by_name_in_the_nodes_namespace_or_the_node_fails(tiny_recording: Path,
+                                                                              ros_domain: str) -> None:
+    """A dic_tracker in another namespace is not this frame_source's declared reader: after
+    wait_for_readers_s the source fails (exit 1) naming the missing reader, and has sent nothing."""
+    tracker = subprocess.Popen([*_main_of("vibro_dic.dic_tracker_node"), "--ros-args", "-r", "__ns:=/elsewhere",
+                                "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        res = subprocess.run([*_main_of("vibro_dic.frame_source_node"), "--ros-args", "-r", "__ns:=/here",
+                              "-p", f"recording:={tiny_recording}", "-p", "readers:=[dic_tracker]",
+                              "-p", "wait_for_readers_s:=4.0"], capture_output=True, text=True, timeout=60)
+    finally:
+        tracker.terminate()
+        tracker.wait(timeout=30)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert re.search(r"declared readers dic_tracker never matched [^;]*/here/vibro/frames", res.stderr), res.stderr
+    assert "waiting for readers dic_tracker" in res.stderr  # said while waiting, before failing
+    assert "streaming:" not in res.stderr and "Traceback" not in res.stderr

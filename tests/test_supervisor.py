@@ -1,0 +1,129 @@
+"""vibro graph's process supervisor (vibro_bringup.supervisor) with tiny dummy child processes."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from vibro_bringup.graph_spec import NodeSpec
+from vibro_bringup.supervisor import Supervisor
+
+#: A dummy node: notes its start, then exits with CODE after DELAY s, or (CODE "run") runs until SIGINT,
+#: noting when it got it; "deaf" ignores SIGINT.
+CHILD = r'''
+import signal, sys, time
+name, code, delay, journal = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
+def note(text):
+    with open(journal, "a") as f:
+        f.write(f"{time.monotonic():.4f} {text} {name}\n")
+note("start")
+print(f"{name}: working", flush=True)
+if code in ("run", "deaf"):
+    stop = []
+    signal.signal(signal.SIGINT, (lambda *a: stop.append(1)) if code == "run" else signal.SIG_IGN)
+    while not stop:
+        time.sleep(0.01)
+    note("stop")
+    sys.exit(0)
+time.sleep(delay)
+print(f"{name}: boom, giving up with {code}", flush=True)
+sys.exit(int(code))
+'''
+
+
+def _spec(name: str, role: str) -> NodeSpec:
+    return NodeSpec(name, "pkg", name, f"pkg.{name}", role)
+
+
+@pytest.fixture
+def make(tmp_path: Path):
+    script = tmp_path / "child.py"
+    script.write_text(CHILD)
+    journal = tmp_path / "journal.txt"
+
+    def build(behaviour: dict[str, tuple[str, str, float]], respawn: int = 2) -> Supervisor:
+        specs = [_spec(name, role) for name, (role, _, _) in behaviour.items()]
+
+        def command(spec: NodeSpec) -> list[str]:
+            build.started.append(spec.name)  # the order in which the supervisor starts processes
+            _, code, delay = behaviour[spec.name]
+            return [sys.executable, str(script), spec.name, code, str(delay), str(journal)]
+
+        return Supervisor(specs, command, tmp_path, respawn=respawn, announce=lambda text: None)
+
+    build.journal = journal
+    build.started = []
+    return build
+
+
+def _journal(path: Path) -> list[tuple[float, str, str]]:
+    return [(float(t), what, name) for t, what, name in (line.split() for line in path.read_text().splitlines())]
+
+
+def _run_until(sup: Supervisor, until, timeout_s: float = 20.0) -> list:
+    failures = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not until(failures):
+        failures += sup.poll()
+        time.sleep(0.02)
+    return failures
+
+
+def test_starts_sink_then_processing_then_sources_and_sees_them_finish(make) -> None:
+    sup = make({"src": ("source", "0", 0.1), "proc_a": ("processing", "0", 0.3), "rec": ("sink", "0", 0.5),
+                "proc_b": ("processing", "0", 0.2)})
+    sup.start_all()
+    failures = _run_until(sup, lambda f: f or sup.all_finished())
+    assert not failures and sup.all_finished() and sup.finished == {"src", "proc_a", "proc_b", "rec"}
+    assert make.started == ["rec", "proc_a", "proc_b", "src"]  # sink, processing (table order), sources
+    assert sorted(n for _, what, n in _journal(make.journal) if what == "start") == sorted(make.started)
+    assert not sup.restarts
+
+
+def test_a_processing_node_is_restarted_then_given_up_with_its_log(make, tmp_path: Path) -> None:
+    sup = make({"proc": ("processing", "3", 0.05), "rec": ("sink", "run", 0)}, respawn=2)
+    sup.start_all()
+    failures = _run_until(sup, lambda f: f)
+    assert [f.name for f in failures] == ["proc"] and failures[0].code == 3 and failures[0].restarts == 2
+    assert sup.restarts == {"proc": 2}
+    assert sum(1 for _, what, n in _journal(make.journal) if what == "start" and n == "proc") == 3
+    log = (tmp_path / "proc.log").read_text()
+    assert log.count("restarted (") == 2 and "restarted (2/2)" in log
+    assert "proc: boom, giving up with 3" in failures[0].describe()
+    assert not sup.all_finished()
+    sup.stop(grace_s=5)
+
+
+def test_a_dead_source_fails_at_once_and_is_not_restarted(make) -> None:
+    sup = make({"src": ("source", "2", 0.05), "proc": ("processing", "run", 0), "rec": ("sink", "run", 0)})
+    t0 = time.monotonic()
+    sup.start_all()
+    failures = _run_until(sup, lambda f: f)
+    assert time.monotonic() - t0 < 5.0
+    assert [(f.name, f.code, f.restarts) for f in failures] == [("src", 2, 0)] and not sup.restarts
+    assert "src: boom, giving up with 2" in failures[0].tail
+    # a dead recorder is a failure too (never restarted: it cannot resume the bag)
+    sup.procs["rec"].kill()
+    later = _run_until(sup, lambda f: f)
+    assert [(f.name, f.code) for f in later] == [("rec", -9)]
+    sup.stop(grace_s=5)
+
+
+def test_stops_sources_then_processing_then_drains_before_the_sink(make) -> None:
+    sup = make({"rec": ("sink", "run", 0), "proc": ("processing", "run", 0), "src": ("source", "run", 0),
+                "deaf": ("processing", "deaf", 0)})
+    sup.start_all()
+    deadline = time.monotonic() + 10
+    while len([1 for _, what, _ in _journal(make.journal) if what == "start"]) < 4 if make.journal.exists() else True:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    killed = sup.stop(grace_s=2.0, drain_s=0.4)
+    assert killed == ["deaf"]  # ignores SIGINT: killed once the grace time is over
+    stops = {name: t for t, what, name in _journal(make.journal) if what == "stop"}
+    assert set(stops) == {"rec", "proc", "src"}
+    assert stops["src"] < stops["proc"] < stops["rec"]
+    assert stops["rec"] - stops["proc"] >= 0.4  # the drain before the recorder
+    assert all(p.poll() is not None for p in sup.procs.values())
