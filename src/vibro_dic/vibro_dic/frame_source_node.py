@@ -86,8 +86,10 @@ class FrameSource(Node):
         self.last_index_acked = max(self.last_index_acked, int(msg.frame_index))
         self._last_progress = time.monotonic()
         if self.rate_hz <= 0:
-            # the tracker answers every frame slot (gaps too), so its last index paces the window
-            self._send_until(self.last_index_acked + 1 + self.window)
+            # the tracker answers every frame slot (gaps too), so its last index paces the window; slots are
+            # counted from the recording's first frame number (frame 0 may be missing)
+            answered = self.last_index_acked + 1 - self.recording.frames.first_index
+            self._send_until(answered + self.window)
 
     def _send_one(self) -> bool:
         """Publish the next readable frame; False when the recording is exhausted."""
