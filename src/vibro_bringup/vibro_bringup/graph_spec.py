@@ -90,15 +90,12 @@ def _reads(reader: NodeSpec, writer: NodeSpec) -> bool:
 #: End-of-stream status (vibro/status ``stream``) each stateful processing node announces when it is done.
 FINAL_STREAM = {"dic_tracker": "dic", "impact_detector": "accel_impacts", "trajectory_fitter": "impacts",
                 "simulator": "simulation", "discrepancy": "discrepancy"}
-#: Nodes that publish a latched history (vibro/dic, vibro/accel) a restarted reader recovers its state from.
-HISTORY_PUBLISHERS = ("dic_tracker", "accel_source", "bag_source")
 
 
 def history_kept_until(name: str, present: Iterable[str]) -> list[str]:
-    """For a history publisher: the final streams of its stateful readers among ``present``; it stays up
-    (keeping its latched history for a reader restarted mid-run) until all of them have ended."""
-    if name not in HISTORY_PUBLISHERS:
-        return []
+    """The final streams of node ``name``'s stateful readers among ``present``: it stays up until all of them
+    have ended, so that a reader restarted mid-run still finds what it needs from it (the latched histories
+    of vibro/dic and vibro/accel, the latched results and end-of-stream statuses of the other nodes)."""
     return sorted(FINAL_STREAM[n] for n in readers_of(name, present) if n in FINAL_STREAM)
 
 

@@ -18,10 +18,11 @@ launch file and ``vibro graph`` pass that list to the node as the parameter ``re
 ``exit_when_done`` (true for a recording, false for a live graph) decides whether a
 processing node exits once its inputs have ended; sources always end with their file.
 
-``keep_history_until`` (stream names; the node table fills it for the publishers of a latched
-history, vibro/dic and vibro/accel): once finished, the node stays up until each of these streams
-has announced its end on vibro/status, so that a stateful reader restarted mid-run (fitter,
-simulator, ...) still receives the whole history from it.
+``keep_history_until`` (stream names; the node table fills it with the final streams of the node's
+stateful readers): once finished, the node stays up until each of these streams has announced its
+end on vibro/status, so that a reader restarted mid-run (tracker, fitter, simulator, ...) still
+receives what it needs from it: the latched histories of vibro/dic and vibro/accel, latched results,
+and the end-of-stream statuses (a source that has exited cannot repeat its own).
 """
 
 from __future__ import annotations
