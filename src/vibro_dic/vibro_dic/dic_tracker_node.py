@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 
 import numpy as np
 from rclpy.node import Node
@@ -73,6 +74,9 @@ class DicTrackerNode(Node):
         self.zncc_min = float(declare(self, "zncc_min", 0.6, "a mesh point below this ZNCC is rejected"))
         live = bool(declare(self, "live_camera", False,
                             "true: best-effort sensor QoS for a camera driver's image_raw"))
+        self.end_wait_s = float(declare(
+            self, "end_wait_s", 5.0, "once the frame source has ended, finish after this long without an image (s): "
+            "a tracker restarted after the last frame gets none; the slots it never answered count as lost downstream"))
         reference = declare(self, "reference_image", "",
                             "image file (PNG/TIFF) of frame 0, the DIC reference; empty = the first image received")
         if not rig_file:
@@ -92,6 +96,8 @@ class DicTrackerNode(Node):
         self.next_index = 0
         self.reference_index: int | None = 0 if self.reference is not None else None  # the stream begins here
         self.published = self.lost = self.received = 0
+        self._last_image_at = time.monotonic()  # since start: a tracker restarted after the end gets no image
+        self._warned_idle = False
         self.frames_finished: StreamStatus | None = None
         self.health = Health(self)
         self.health.rate_counter = "tracked"
@@ -144,6 +150,7 @@ class DicTrackerNode(Node):
         if not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
             return
         self.received += 1
+        self._last_image_at = time.monotonic()
         t = self.rig.camera.frame_time_s(k)
         try:
             image = image_array(msg)
@@ -195,11 +202,27 @@ class DicTrackerNode(Node):
 
     @property
     def finished(self) -> bool:
-        """Every image the frame source announced has been tracked."""
+        """Every image the frame source announced has been tracked, or none has come for ``end_wait_s`` since
+        the source ended (a tracker restarted after the last frame)."""
         src = self.frames_finished
         # every image announced arrived, or every frame slot up to the last has been answered
         return src is not None and (self.received >= src.items_sent
-                                    or self.next_index >= src.items_sent + src.items_lost)
+                                    or self.next_index >= src.items_sent + src.items_lost
+                                    or self._idle_after_end)
+
+    @property
+    def _idle_after_end(self) -> bool:
+        if self.frames_finished is None or time.monotonic() - self._last_image_at < self.end_wait_s:
+            return False
+        if not self._warned_idle:
+            self._warned_idle = True
+            src = self.frames_finished
+            msg = (f"the frame source has ended ({src.items_sent} images sent) and none came for "
+                   f"{self.end_wait_s:g} s: finishing after {self.received} images from frame {self.next_index}; "
+                   "slots this tracker never answered count as lost downstream")
+            self.get_logger().warning(msg)
+            self.health.warn(msg)
+        return True
 
     def _maybe_finish(self) -> None:
         if self.finished and self._released:
@@ -207,6 +230,7 @@ class DicTrackerNode(Node):
             self.gate.finish()
 
     def _report(self) -> None:
+        self._maybe_finish()
         self.health.values["frames_lost"] = self.lost
         self.status.publish(self.published, self.lost, self.finished and self._released)
 
