@@ -116,7 +116,8 @@ class BagSource(Node):
                 return
             self._started = True
             # frame numbers from the stamps, as the tracker computes them (k = (t - t0_s) * fps)
-            self._indices = [int(round((seconds_from_stamp(deserialize_message(d, Image).header, self.recorded_origin_ns)
+            origin = self.recorded_origin_ns
+            self._indices = [int(round((seconds_from_stamp(deserialize_message(d, Image).header, origin)
                                         - self.camera.t0_s) * self.camera.fps)) for d in self.frames]
             for data in self.accel:
                 self.pub_accel.publish(data)

@@ -2,8 +2,9 @@
 
 The frame index comes from the image stamp (k = round((t - t0_s) * fps), t = stamp -
 ``time_origin_unix_ns``, :mod:`vibro_ros.lab_clock`), as with a live camera (whose driver stamps
-with its wall clock: the origin must then be the wall time of frame 0 minus t0_s). A missing index (a frame dropped or unreadable upstream) is answered with a lost
-DicFrame, so the gap is visible downstream and the frame source's flow control keeps going.
+with its wall clock: the origin must then be the wall time of frame 0 minus t0_s). A missing
+index (a frame dropped or unreadable upstream) is answered with a lost DicFrame, so the gap is
+visible downstream and the frame source's flow control keeps going.
 The DIC reference (ROIs from rig.yaml) is the image file named by the parameter
 ``reference_image`` (``vibro graph`` sets it to frame 0 of the recording, so a tracker that
 is restarted mid-run still measures displacement since frame 0), else the first image received.
