@@ -8,9 +8,11 @@ import random
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from vibro_sim.synth import SynthConfig, synthesize
 
@@ -29,10 +31,58 @@ def recording(tmp_path_factory) -> Path:
     return out
 
 
+#: Data-time field of each stamped message type (its header stamp must be origin + this).
+DATA_TIME_FIELDS = {"vibro_msgs/msg/DicFrame": "t_s", "vibro_msgs/msg/AccelBlock": "t_start_s",
+                    "vibro_msgs/msg/AccelImpact": "t_s", "vibro_msgs/msg/ImpactEstimate": "t_s",
+                    "vibro_msgs/msg/FreeFlight": "t_end_s"}
+
+
+def _stamps_on_the_lab_clock(bag: Path, frame0_window_ns: tuple[int, int], duration_s: float) -> dict[int, int]:
+    """Check the header stamps of every data message in ``bag`` against the lab clock; return
+    {DicFrame frame_index: stamp ns}. The origin comes from the bag's metadata; frame 0 (rig t0_s) must be
+    at a wall time in ``frame0_window_ns``; every stamp within the run's data span after the origin, and
+    stamp - origin == the message's own data time to 1 us."""
+    from vibro_io.rig import parse_rig
+    from vibro_ros.bags import deserialize, make_typestore, read_custom_data, read_messages
+
+    custom = read_custom_data(bag)
+    origin = int(custom["vibro.time_origin_unix_ns"])
+    cam = parse_rig(yaml.safe_load(custom["vibro.rig_yaml"])).camera
+    frame0 = origin + round(cam.t0_s * 1e9)
+    assert frame0_window_ns[0] <= frame0 <= frame0_window_ns[1], (frame0, frame0_window_ns)
+    store = make_typestore()
+    checked: dict[str, int] = {}
+    dic_stamps = {}
+    for m in read_messages(bag):
+        msg = deserialize(m, store)
+        if not hasattr(msg, "header"):
+            continue
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if m.msg_type == "diagnostic_msgs/msg/DiagnosticArray" or m.msg_type.endswith("StreamStatus"):
+            continue  # stamped with the node's clock when sent, not with data time
+        # every data stamp is on the wall clock of the run, within the recording's span after the origin
+        assert origin - 1_000_000_000 <= stamp <= origin + round((cam.t0_s + duration_s + 1) * 1e9), (m.topic, stamp)
+        field = DATA_TIME_FIELDS.get(m.msg_type)
+        if field is not None:
+            assert abs((stamp - origin) - getattr(msg, field) * 1e9) <= 1000, (m.topic, stamp, getattr(msg, field))
+        if m.msg_type == "sensor_msgs/msg/Image":  # a frame time t0_s + k/fps, to 1 us
+            k = round(((stamp - origin) * 1e-9 - cam.t0_s) * cam.fps)
+            assert abs((stamp - origin) - (cam.t0_s + k / cam.fps) * 1e9) <= 1000
+        if m.msg_type == "vibro_msgs/msg/DicFrame":
+            dic_stamps[int(msg.frame_index)] = stamp
+        checked[m.msg_type] = checked.get(m.msg_type, 0) + 1
+    assert {"sensor_msgs/msg/Image", *DATA_TIME_FIELDS} <= set(checked), checked
+    return dic_stamps
+
+
 def test_graph_results_equal_the_offline_cli(recording: Path, tmp_path: Path) -> None:
     bag = tmp_path / "bags" / "run"
+    before_ns = time.time_ns()
     graph = _vibro("graph", str(recording), "--bag", str(bag))
+    after_ns = time.time_ns()
     assert graph.returncode == 0, graph.stdout + graph.stderr
+    # header stamps on the lab's wall clock: frame 0 at the start of the run (no start time in rig.yaml)
+    _stamps_on_the_lab_clock(bag, (before_ns, after_ns), 0.3)
     assert "frames in 300 / tracked 300 / lost 0" in graph.stdout, graph.stdout
     offline = _vibro("analyze", str(recording), "--out", str(tmp_path / "an"), "--no-progress", "--no-report")
     assert offline.returncode == 0, offline.stderr
@@ -75,11 +125,22 @@ def test_graph_refuses_bad_input_before_starting(tmp_path: Path, recording: Path
 
 
 def test_replaying_a_bag_reproduces_its_results(recording: Path, tmp_path: Path) -> None:
+    # the recording's start on the wall clock is known (rig.yaml camera.start_time_unix_s): stamps use it
+    rec = tmp_path / "rec"
+    shutil.copytree(recording, rec)
+    rig = yaml.safe_load((rec / "rig.yaml").read_text())
+    rig["camera"]["start_time_unix_s"] = 1718000000.123456
+    (rec / "rig.yaml").write_text(yaml.safe_dump(rig))
+    frame0_ns = 1_718_000_000_123_456_000
     bag = tmp_path / "orig"
-    orig = _vibro("graph", str(recording), "--bag", str(bag), "--timeout-s", "150")
+    orig = _vibro("graph", str(rec), "--bag", str(bag), "--timeout-s", "150")
     assert orig.returncode == 0, orig.stdout + orig.stderr
     replay = _vibro("replay", str(bag), "--out", str(tmp_path / "re"))
     assert replay.returncode == 0, replay.stdout + replay.stderr
+    # both runs stamp on the recording's own start, identically (frame 0 exactly at the given time)
+    stamps = _stamps_on_the_lab_clock(bag, (frame0_ns, frame0_ns), 0.3)
+    assert _stamps_on_the_lab_clock(tmp_path / "re" / "bag", (frame0_ns, frame0_ns), 0.3) == stamps
+    assert len(stamps) == 300
     assert "frames in 300 / tracked 300 / lost 0" in replay.stdout, replay.stdout
     assert _vibro("results", str(bag), "--out", str(tmp_path / "orig_res")).returncode == 0
     a = json.loads((tmp_path / "orig_res" / "results.json").read_text())

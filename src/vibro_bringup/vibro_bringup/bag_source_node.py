@@ -1,6 +1,8 @@
 """ROS node ``bag_source``: republish a bag's raw topics (frames, accelerometer blocks) for a replay.
 
-Messages go out as recorded (serialized CDR, no re-encoding). Frames are flow-controlled
+Messages go out as recorded (serialized CDR, no re-encoding), stamps included: their lab clock is
+the bag's (metadata ``vibro.time_origin_unix_ns``, 0 for an older bag), which ``vibro replay`` gives
+every node as ``time_origin_unix_ns``; another nonzero value is refused. Frames are flow-controlled
 like ``frame_source`` (never more than ``window`` ahead of the tracker's DicFrames), so a
 replay loses nothing; accelerometer blocks go out in order. End-of-stream statuses
 "frames" and "accel" carry the counts, as the live sources' do.
@@ -17,10 +19,11 @@ from sensor_msgs.msg import Image
 
 from vibro_ros import topics
 from vibro_ros.bags import read_custom_data, read_messages
+from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY, TIME_ORIGIN_PARAMETER, origin_from_custom_data
 from vibro_io.errors import RecordingError
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (STREAM_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
-                                   run_id_parameter, run_node, seconds_from_stamp)
+                                   run_id_parameter, run_node, seconds_from_stamp, time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import parse_rig
 from vibro_msgs.msg import AccelBlock, DicFrame
@@ -34,12 +37,22 @@ class BagSource(Node):
         self.linger_s = float(declare(self, "linger_s", 3.0, "seconds to wait for the last acknowledgements"))
         if not bag:
             raise RecordingError("bag_source: parameter 'bag' is required")
-        rig_text = read_custom_data(bag).get("vibro.rig_yaml")
+        custom = read_custom_data(bag)
+        rig_text = custom.get("vibro.rig_yaml")
         if not rig_text:
             raise RecordingError(f"{bag}: the bag's metadata holds no rig.yaml (custom_data 'vibro.rig_yaml')")
         import yaml
 
         self.camera = parse_rig(yaml.safe_load(rig_text), f"{bag} (recorded rig.yaml)").camera
+        try:
+            self.recorded_origin_ns = origin_from_custom_data(custom, str(bag))
+        except ValueError as exc:
+            raise RecordingError(str(exc)) from None
+        origin = time_origin_parameter(self)
+        if origin not in (0, self.recorded_origin_ns):
+            raise RecordingError(f"bag_source: parameter '{TIME_ORIGIN_PARAMETER}' is {origin} but the frames of {bag} "
+                                 f"are stamped on origin {self.recorded_origin_ns} (metadata '{BAG_TIME_ORIGIN_KEY}'): "
+                                 "the replayed stamps keep it; give every node that origin")
         raw = list(read_messages(bag, {topics.FRAMES.name, topics.ACCEL.name}))
         self.frames = [m.data for m in raw if m.topic == topics.FRAMES.name]
         self.run_id = run_id_parameter(self)
@@ -103,7 +116,8 @@ class BagSource(Node):
                 return
             self._started = True
             # frame numbers from the stamps, as the tracker computes them (k = (t - t0_s) * fps)
-            self._indices = [int(round((seconds_from_stamp(deserialize_message(d, Image).header)
+            origin = self.recorded_origin_ns
+            self._indices = [int(round((seconds_from_stamp(deserialize_message(d, Image).header, origin)
                                         - self.camera.t0_s) * self.camera.fps)) for d in self.frames]
             for data in self.accel:
                 self.pub_accel.publish(data)

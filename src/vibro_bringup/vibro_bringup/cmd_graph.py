@@ -28,8 +28,8 @@ from typing import Callable
 from vibro_io.errors import RecordingError
 from vibro_io.recording import open_recording
 
-from .graph_spec import (ALL_SPECS, MONITOR, NodeSpec, graph_nodes, node_parameters, write_params_file,
-                         write_reference_frame)
+from .graph_spec import (ALL_SPECS, MONITOR, NodeSpec, graph_nodes, node_parameters, run_time_origin,
+                         write_params_file, write_reference_frame)
 from .supervisor import Failure, Supervisor
 from .isolation import RunIdentity, namespace_argument, new_run_identity
 
@@ -251,7 +251,8 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
 def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, params_base: str | None,
                   timeout_s: float, env: dict[str, str], extra_params: dict | None = None, respawn: int = 2,
                   reference: Callable[[Path], Path | None] | None = None, namespace: str | None = None,
-                  history_depth: int | None = None) -> tuple[bool, GraphSummary, Path]:
+                  history_depth: int | None = None, time_origin_ns: int | None = None
+                  ) -> tuple[bool, GraphSummary, Path]:
     """Run the graph (processing nodes, the recorder to ``bag``, ``sources``) until every node has exited by
     itself, a node fails, or ``timeout_s``; stop what still runs; check the bag's counts.
 
@@ -260,6 +261,8 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
     run's temporary folder for dic_tracker's ``reference_image``; ``respawn``: restarts allowed per node.
     The run gets a new run id and lives in ``namespace`` (default ``/vibro_<run id>``); ``history_depth``:
     items the latched histories of vibro/dic and vibro/accel keep (default: the nodes' own).
+    ``time_origin_ns``: every node's ``time_origin_unix_ns``, the lab clock of the header stamps (default:
+    rig.yaml's ``camera.start_time_unix_s``, else frame 0 = the wall clock now; graph_spec.run_time_origin).
     """
     identity = new_run_identity(namespace)
     replay = any(s.name == "bag_source" for s in sources)
@@ -273,10 +276,12 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
     log_dir = bag.parent / f"{bag.name}.logs"
     log_dir.mkdir(exist_ok=True)
     ok = False
+    if time_origin_ns is None:
+        time_origin_ns = run_time_origin(rig_dir / "rig.yaml")
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
         ref_png = reference(Path(tmp)) if reference is not None else None
         params = node_parameters(rig_dir, bag, params_base, with_accel, reference_image=ref_png, nodes=nodes,
-                                 extra_readers=[MONITOR])
+                                 extra_readers=[MONITOR], time_origin_ns=time_origin_ns)
         for spec in nodes:  # one run: its id, and histories a restarted node can recover from
             params.setdefault(spec.name, {})["run_id"] = identity.run_id
             if history_depth is not None:
@@ -286,6 +291,7 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         params_file = write_params_file(params, Path(tmp) / "params.yaml")
         summary.identity = identity.describe(env)
         print(summary.identity, flush=True)
+        print(f"stamps: {describe_origin(time_origin_ns)}", flush=True)
 
         def command(spec: NodeSpec) -> list[str]:
             return [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
@@ -323,6 +329,17 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         print("vibro graph: the graph did not finish; nodes not finished: "
               f"{', '.join(waiting) or 'none'}; the bag holds what was recorded", file=sys.stderr)
     return ok and not summary.count_problems, summary, log_dir
+
+
+def describe_origin(origin_ns: int) -> str:
+    """One line on the lab clock of a run's header stamps (origin as UTC, and in ns since the Unix epoch)."""
+    from datetime import datetime, timezone
+
+    if origin_ns == 0:
+        return "header stamps = data time (time_origin_unix_ns 0)"
+    utc = datetime.fromtimestamp(origin_ns // 1_000_000_000, timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    return (f"header stamps = {utc}.{origin_ns % 1_000_000_000:09d} UTC + camera time "
+            f"(time_origin_unix_ns {origin_ns})")
 
 
 #: stream (StreamStatus.stream) -> (topic, key of one item, only final=True messages count)

@@ -19,7 +19,7 @@ from vibro_model.codec import write_results
 
 from .bag_results import document_from_bag
 from .cmd_graph import add_run_options, bag_outputs, execute_graph, new_bag_path, prepare_environment, print_summary
-from .graph_spec import BAG_SOURCE, reference_from_bag
+from .graph_spec import BAG_SOURCE, bag_time_origin_ns, reference_from_bag
 
 REPLAY_BAG = "bag"
 REPLAY_OUTPUTS = ("rig.yaml", "results.json", *bag_outputs(REPLAY_BAG))  # what --overwrite may replace
@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     if not rig_text:
         raise RecordingError(f"{source_bag}: the bag holds no rig.yaml (metadata custom_data 'vibro.rig_yaml'); "
                              "it was not recorded by vibro graph")
+    time_origin_ns = bag_time_origin_ns(source_bag)  # the replayed frames keep their stamps: the same clock
     out = Path(args.out) if args.out else source_bag.parent / f"{source_bag.name}.replay"
     if (out / REPLAY_BAG).resolve() == source_bag.resolve():
         raise RecordingError(f"{out}: the replay writes its own bag to {out / REPLAY_BAG}, which is the source bag; "
@@ -54,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
                                          timeout_s=args.timeout_s, env=env,
                                          extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
                                          respawn=args.respawn, namespace=args.namespace,
+                                         time_origin_ns=time_origin_ns,
                                          reference=lambda folder: reference_from_bag(
                                              source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")

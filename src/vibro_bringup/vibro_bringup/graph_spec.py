@@ -9,6 +9,7 @@ from typing import Any, Iterable
 import yaml
 
 from vibro_ros import topics as T
+from vibro_ros.lab_clock import TIME_ORIGIN_PARAMETER
 
 #: The in-process node ``vibro graph`` watches the graph with; a declared reader of every node there.
 MONITOR = "vibro_graph_monitor"
@@ -163,9 +164,33 @@ def write_reference_frame(recording: str | Path, out_png: str | Path) -> Path | 
     return out_png
 
 
+def run_time_origin(rig_yaml: str | Path) -> int:
+    """The lab-clock origin (ns since the Unix epoch) of a run on the recording of ``rig_yaml``: the wall time of
+    data time 0, from ``camera.start_time_unix_s`` (wall time of frame 0) when rig.yaml gives it, else with
+    frame 0 at the wall clock now (:func:`vibro_ros.lab_clock.run_time_origin_ns`)."""
+    from vibro_io.rig import load_rig
+    from vibro_ros.lab_clock import run_time_origin_ns
+
+    cam = load_rig(rig_yaml).camera
+    return run_time_origin_ns(cam.t0_s, cam.start_time_unix_s)
+
+
+def bag_time_origin_ns(bag: str | Path) -> int:
+    """The lab-clock origin a bag's stamps are on (metadata custom_data ``vibro.time_origin_unix_ns``; 0 for a bag
+    recorded without it, whose stamps are data time); RecordingError for a malformed value."""
+    from vibro_io.errors import RecordingError
+    from vibro_ros.bags import read_custom_data
+    from vibro_ros.lab_clock import origin_from_custom_data
+
+    try:
+        return origin_from_custom_data(read_custom_data(bag), f"{bag}/metadata.yaml")
+    except ValueError as exc:
+        raise RecordingError(str(exc)) from None
+
+
 def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Path) -> Path | None:
-    """Write the recorded ``vibro/frames`` image of frame 0 (index from its stamp and rig.yaml's camera)
-    to ``out_png``; None when the bag holds no frame 0."""
+    """Write the recorded ``vibro/frames`` image of frame 0 (index from its stamp on the bag's lab clock and
+    rig.yaml's camera) to ``out_png``; None when the bag holds no frame 0."""
     import cv2
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image
@@ -177,9 +202,10 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
     from vibro_io.rig import load_rig
 
     cam = load_rig(rig_yaml).camera
+    origin_ns = bag_time_origin_ns(bag)
     for m in read_messages(bag, {topics.FRAMES.name}):
         msg = deserialize_message(m.data, Image)
-        if int(round((seconds_from_stamp(msg.header) - cam.t0_s) * cam.fps)) != 0:
+        if int(round((seconds_from_stamp(msg.header, origin_ns) - cam.t0_s) * cam.fps)) != 0:
             continue
         out_png = Path(out_png)
         return out_png if cv2.imwrite(str(out_png), image_array(msg)) else None
@@ -189,8 +215,9 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
 def node_parameters(recording: str | Path, bag: str | Path | None, base: str | Path | None = None,
                     with_accel: bool = True, reference_image: str | Path | None = None, *,
                     nodes: Iterable[NodeSpec] | None = None, extra_readers: Iterable[str] = (),
-                    live: bool = False) -> dict[str, dict[str, Any]]:
+                    live: bool = False, time_origin_ns: int | None = None) -> dict[str, dict[str, Any]]:
     """Parameters per node for one run: the defaults file, then the recording and bag paths,
+    every node's ``time_origin_unix_ns`` (``time_origin_ns``, default :func:`run_time_origin`),
     ``reference_image`` (frame 0 as an image file) for dic_tracker when given, and from the node table
     each node's declared ``readers`` (plus ``extra_readers``, e.g. vibro graph's monitor), the recorder's
     ``writers`` and ``exit_when_done`` (not ``live``). ``nodes``: the run's nodes (default
@@ -210,8 +237,11 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
         params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
     present = [s.name for s in (nodes if nodes is not None else graph_nodes(bag=bag is not None,
                                                                             with_accel=with_accel, live=live))]
+    if time_origin_ns is None:
+        time_origin_ns = run_time_origin(rec / "rig.yaml")
     for name in present:
         p = params.setdefault(name, {})
+        p[TIME_ORIGIN_PARAMETER] = int(time_origin_ns)
         p["readers"] = readers_of(name, present) + sorted(set(extra_readers) - set(present))
         p["exit_when_done"] = not live
         p["keep_history_until"] = history_kept_until(name, present) or [""]

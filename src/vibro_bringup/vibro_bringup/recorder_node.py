@@ -24,7 +24,8 @@ from vibro_ros import topics
 from vibro_ros.adaptive_qos import ResultsSubscription, discovered_offers, publishers_identified
 from vibro_ros.bags import BagWriter
 from vibro_io.errors import RecordingError
-from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node
+from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY
+from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node, time_origin_parameter
 from vibro_ros.qos_format import adapt_request_to_offers
 
 #: How often the recorder looks for publishers of the topics it does not record yet (s), as rosbag2.
@@ -56,6 +57,8 @@ class Recorder(Node):
             from pathlib import Path
 
             custom["vibro.rig_yaml"] = Path(rig_file).read_text(encoding="utf-8")
+        # the lab clock of the header stamps (stamp = origin + data time), so a replay stamps identically
+        custom[BAG_TIME_ORIGIN_KEY] = str(time_origin_parameter(self))
         self.writer = BagWriter(bag, chunk_size=chunk_kb * 1024, custom_data=custom,
                                 compression=compression)
         self.health = Health(self)

@@ -1,8 +1,10 @@
 """ROS node ``dic_tracker``: sensor_msgs/Image in, one vibro_msgs/DicFrame out per frame slot.
 
-The frame index comes from the image stamp (k = round((t - t0_s) * fps)), as with a live
-camera. A missing index (a frame dropped or unreadable upstream) is answered with a lost
-DicFrame, so the gap is visible downstream and the frame source's flow control keeps going.
+The frame index comes from the image stamp (k = round((t - t0_s) * fps), t = stamp -
+``time_origin_unix_ns``, :mod:`vibro_ros.lab_clock`), as with a live camera (whose driver stamps
+with its wall clock: the origin must then be the wall time of frame 0 minus t0_s). A missing
+index (a frame dropped or unreadable upstream) is answered with a lost DicFrame, so the gap is
+visible downstream and the frame source's flow control keeps going.
 The DIC reference (ROIs from rig.yaml) is the image file named by the parameter
 ``reference_image`` (``vibro graph`` sets it to frame 0 of the recording, so a tracker that
 is restarted mid-run still measures displacement since frame 0), else the first image received.
@@ -28,7 +30,7 @@ from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare,
                                    history_depth_parameter, history_qos, run_node, seconds_from_stamp,
-                                   stamp_from_seconds)
+                                   stamp_from_seconds, time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
@@ -36,6 +38,8 @@ from vibro_msgs.msg import DicFrame, StreamStatus
 
 from .tracker import METHODS, DicTracker
 
+#: Longest run (s of camera time) a frame stamp may lie after the time origin.
+MAX_RUN_S = 86400.0
 _DTYPES = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16}
 
 
@@ -55,14 +59,15 @@ def image_array(msg: Image) -> np.ndarray:
 
 
 def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "", reference_frame_index: int = 0,
-                run_id: str = "") -> DicFrame:
+                run_id: str = "", origin_ns: int = 0) -> DicFrame:
+    """The DicFrame of ``row``: ``t_s`` camera time, the header stamped with it on the lab clock of ``origin_ns``."""
     msg = DicFrame(frame_index=row.frame, t_s=row.t_s, ball_mm=row.ball_mm, structure_mm=row.structure_mm,
                    ball_valid_points=row.ball_valid, structure_valid_points=row.structure_valid,
                    ball_mesh_points=mesh_points[0], structure_mesh_points=mesh_points[1],
                    ball_mean_zncc=row.ball_zncc, structure_mean_zncc=row.structure_zncc,
                    lost=row.lost, status=status, reference_frame_index=reference_frame_index, run_id=run_id)
     msg.header.frame_id = "camera"
-    stamp_from_seconds(msg.header, row.t_s)
+    stamp_from_seconds(msg.header, row.t_s, origin_ns)
     return msg
 
 
@@ -84,6 +89,7 @@ class DicTrackerNode(Node):
         if self.method not in METHODS:
             raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
         self.rig = load_rig(rig_file)
+        self.time_origin_ns = time_origin_parameter(self)
         self.reference_file = str(reference)
         self.reference: np.ndarray | None = None
         if self.reference_file:
@@ -127,13 +133,25 @@ class DicTrackerNode(Node):
 
     def _index_of(self, msg: Image) -> int:
         cam = self.rig.camera
-        return int(round((seconds_from_stamp(msg.header) - cam.t0_s) * cam.fps))
+        return int(round((seconds_from_stamp(msg.header, self.time_origin_ns) - cam.t0_s) * cam.fps))
+
+    def _plausible(self, k: int, msg: Image) -> bool:
+        """False (and the node stops, exit code 2) for a frame whose stamp is not within a day after the
+        time origin: a camera driver stamping with its wall clock while ``time_origin_unix_ns`` is not
+        the wall time of its frame 0 (the index would be negative or count billions of missing frames)."""
+        t_s = seconds_from_stamp(msg.header, self.time_origin_ns)
+        if k >= 0 and t_s - self.rig.camera.t0_s <= MAX_RUN_S:
+            return True
+        self.guard.fail(f"{topics.FRAMES.name}: image stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} s "
+                        f"is {t_s:.3f} s from time_origin_unix_ns={self.time_origin_ns} (frame index {k}): set "
+                        "time_origin_unix_ns to the wall time (ns) of the camera's frame 0 minus rig.yaml t0_s")
+        return False
 
     def _publish(self, row: FrameTrack, status: str = "") -> None:
         mesh = (len(self.tracker.ball.points), len(self.tracker.structure.points)) if self.tracker else (0, 0)
         if self.reference_index is None:  # no reference file: the stream begins at the first frame answered
             self.reference_index = row.frame
-        msg = dic_message(row, mesh, status, self.reference_index, self.guard.run_id)
+        msg = dic_message(row, mesh, status, self.reference_index, self.guard.run_id, self.time_origin_ns)
         if self._released:
             self.pub.publish(msg)
         else:
@@ -147,6 +165,8 @@ class DicTrackerNode(Node):
 
     def _on_image(self, msg: Image) -> None:
         k = self._index_of(msg)
+        if not self._plausible(k, msg):
+            return
         if not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
             return
         self.received += 1

@@ -1,7 +1,8 @@
 """ROS node ``frame_source``: publish a recording's frames as ``sensor_msgs/Image``.
 
-Stamps are camera time (t0_s + k/fps), so a subscriber recovers the frame index from
-the stamp, exactly as with a live camera driver. With ``rate_hz = 0`` it sends as fast as
+Stamps are camera time (t0_s + k/fps) on the lab clock (+ ``time_origin_unix_ns``,
+:mod:`vibro_ros.lab_clock`), so a subscriber recovers the frame index from the stamp, exactly
+as with a live camera driver. With ``rate_hz = 0`` it sends as fast as
 the DIC tracker keeps up, never more than ``window`` frames ahead of the tracker's
 acknowledgements (its DicFrame messages): no frame is ever dropped. A frame that cannot be
 read is reported (log, diagnostics, StreamStatus.items_lost) and the tracker sees the gap.
@@ -18,21 +19,23 @@ from sensor_msgs.msg import Image
 from vibro_ros import topics
 from vibro_io.frames import Frame
 from vibro_ros.guard import InputGuard
-from vibro_ros.node_support import STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds
+from vibro_ros.node_support import (STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds,
+                                   time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import DicFrame
 
 
-def image_message(frame: Frame, frame_id: str) -> Image:
-    """A mono8/mono16 Image of ``frame`` stamped with its camera time."""
+def image_message(frame: Frame, frame_id: str, origin_ns: int = 0) -> Image:
+    """A mono8/mono16 Image of ``frame`` stamped with its camera time on the lab clock of ``origin_ns``
+    (:mod:`vibro_ros.lab_clock`)."""
     img = frame.image
     msg = Image(height=img.shape[0], width=img.shape[1], is_bigendian=0)
     msg.encoding = "mono8" if img.dtype.itemsize == 1 else "mono16"
     msg.step = img.shape[1] * img.dtype.itemsize
     msg.data = img.tobytes()
     msg.header.frame_id = frame_id
-    stamp_from_seconds(msg.header, frame.t_s)
+    stamp_from_seconds(msg.header, frame.t_s, origin_ns)
     return msg
 
 
@@ -44,6 +47,7 @@ class FrameSource(Node):
                                      "frames/s to publish at; 0 = as fast as the tracker acknowledges (lossless)"))
         self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker (rate_hz = 0)"))
         self.frame_id = declare(self, "frame_id", "camera", "header.frame_id of the images")
+        self.time_origin_ns = time_origin_parameter(self)
         self.linger_s = float(declare(self, "linger_s", 3.0,
                                       "seconds to wait for the last acknowledgements before exiting"))
         from vibro_io.errors import RecordingError
@@ -95,7 +99,7 @@ class FrameSource(Node):
         """Publish the next readable frame; False when the recording is exhausted."""
         for frame in self._frames:
             if frame.ok:
-                self.pub.publish(image_message(frame, self.frame_id))
+                self.pub.publish(image_message(frame, self.frame_id, self.time_origin_ns))
                 self.sent += 1
                 self.last_index_sent = frame.index
                 self.health.count("published")

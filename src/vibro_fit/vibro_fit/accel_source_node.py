@@ -19,7 +19,7 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.node_support import (Health, StatusPublisher, declare, history_depth_parameter, history_qos,
-                                   run_id_parameter, run_node, stamp_from_seconds)
+                                   run_id_parameter, run_node, stamp_from_seconds, time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import AccelBlock
@@ -32,6 +32,7 @@ class AccelSource(Node):
         block_s = float(declare(self, "block_s", 0.02, "duration of one published block (s)"))
         self.speed = float(declare(self, "speed", 0.0, "pacing as a multiple of real time; 0 = as fast as possible"))
         self.run_id = run_id_parameter(self)
+        self.time_origin_ns = time_origin_parameter(self)
         depth = history_depth_parameter(self)
         if not path:
             raise RecordingError("accel_source: parameter 'recording' is required")
@@ -70,7 +71,7 @@ class AccelSource(Node):
         msg.upper_ms2 = self.data.upper_ms2[s:e].tolist()
         msg.lower_ms2 = self.data.lower_ms2[s:e].tolist()
         msg.header.frame_id = "daq"
-        stamp_from_seconds(msg.header, msg.t_start_s)
+        stamp_from_seconds(msg.header, msg.t_start_s, self.time_origin_ns)
         return msg
 
     def _tick(self) -> None:

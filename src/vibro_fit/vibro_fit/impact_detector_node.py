@@ -20,7 +20,7 @@ from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
-                                   run_node, stamp_from_seconds)
+                                   run_node, stamp_from_seconds, time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
@@ -29,13 +29,14 @@ from .accel_impacts import AccelImpact as Impact
 from .accel_impacts import AccelImpactDetector
 
 
-def impact_message(index: int, impact: Impact) -> AccelImpact:
+def impact_message(index: int, impact: Impact, origin_ns: int = 0) -> AccelImpact:
+    """The AccelImpact of ``impact``: ``t_s`` DAQ time, the header stamped with it on the lab clock of ``origin_ns``."""
     msg = AccelImpact(index=index, t_s=impact.t_s, plate=impact.plate, peak_ms2=impact.peak_ms2,
                       upper_energy_m2s3=impact.energy_upper, lower_energy_m2s3=impact.energy_lower,
                       clipped=impact.clipped)
     msg.dominant_frequencies_hz = [float(f) for f in impact.dominant_frequencies_hz]
     msg.header.frame_id = "daq"
-    stamp_from_seconds(msg.header, impact.t_s)
+    stamp_from_seconds(msg.header, impact.t_s, origin_ns)
     return msg
 
 
@@ -50,6 +51,7 @@ class ImpactDetector(Node):
         if self.highpass_hz <= 0 or self.k_sigma <= 0:
             raise RecordingError("impact_detector: 'highpass_hz' and 'k_sigma' must be > 0")
         self.frequency_hz = load_rig(rig_file).excitation.frequency_hz
+        self.time_origin_ns = time_origin_parameter(self)
         self.detector: AccelImpactDetector | None = None
         self.next_block = 0
         self.sent = 0
@@ -70,7 +72,7 @@ class ImpactDetector(Node):
 
     def _publish(self, impacts: list[Impact]) -> None:
         for impact in impacts:
-            self.pub.publish(impact_message(self.sent, impact))
+            self.pub.publish(impact_message(self.sent, impact, self.time_origin_ns))
             self.sent += 1
             if impact.clipped:
                 self.health.warn(f"impact at {impact.t_s:.5f} s clipped on the {impact.plate} plate's sensor")

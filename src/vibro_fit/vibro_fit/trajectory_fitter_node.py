@@ -33,7 +33,7 @@ from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import flight_to_message, impact_to_message, structure_to_message
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter,
-                                   history_qos, run_node)
+                                   history_qos, run_node, time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
@@ -45,14 +45,16 @@ from .results import flight_model, impact_model, structure_model, structure_move
 from .streaming import StreamingFitter
 
 
-def flight_message(fl: FlightFit, mass_kg: float, final: bool = False) -> FreeFlight:
-    """A fitted flight as published (``final``: the end-of-stream fit)."""
-    return flight_to_message(flight_model(fl, mass_kg), final)
+def flight_message(fl: FlightFit, mass_kg: float, final: bool = False, origin_ns: int = 0) -> FreeFlight:
+    """A fitted flight as published (``final``: the end-of-stream fit), stamped at its last frame on the lab
+    clock of ``origin_ns``."""
+    return flight_to_message(flight_model(fl, mass_kg), final, origin_ns)
 
 
-def impact_message(est: Estimate, final: bool = False) -> ImpactEstimate:
-    """An impact estimate as published (``final``: the end-of-stream estimate)."""
-    return impact_to_message(impact_model(est), final)
+def impact_message(est: Estimate, final: bool = False, origin_ns: int = 0) -> ImpactEstimate:
+    """An impact estimate as published (``final``: the end-of-stream estimate), stamped at the impact on the
+    lab clock of ``origin_ns``."""
+    return impact_to_message(impact_model(est), final, origin_ns)
 
 
 class TrajectoryFitter(Node):
@@ -74,6 +76,7 @@ class TrajectoryFitter(Node):
             raise RecordingError("trajectory_fitter: parameter 'weights' must be none or dic_valid")
         self.weights = None if weights == "none" else weights
         self.rig = load_rig(rig_file)
+        self.time_origin_ns = time_origin_parameter(self)
         self.stream = StreamingFitter(self.rig.excitation.frequency_hz,
                                       method="paper" if self.method == "joint" else self.method)
         self.rows: list[FrameTrack] = []
@@ -126,10 +129,10 @@ class TrajectoryFitter(Node):
         self.rows.append(row)
         self.health.count("frames")
         for est in self.stream.push(row):
-            self.pub_impacts.publish(impact_message(est))
+            self.pub_impacts.publish(impact_message(est, origin_ns=self.time_origin_ns))
             self.health.count("streamed_impacts")
         for fl in self.stream.pop_flights():
-            self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg))
+            self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg, origin_ns=self.time_origin_ns))
 
     def _on_block(self, msg: AccelBlock) -> None:
         if not self.guard.accept(topics.ACCEL.name, run_id=msg.run_id, index=msg.block_index, first_index=0,
@@ -205,7 +208,7 @@ class TrajectoryFitter(Node):
             return
         self.done_final = True
         for est in self.stream.finish():
-            self.pub_impacts.publish(impact_message(est))
+            self.pub_impacts.publish(impact_message(est, origin_ns=self.time_origin_ns))
         track = DicTrack.from_frames(self.rows)
         try:
             ident = identify(track, self.rig, self._accel(), method=self.method, weights=self.weights)
@@ -217,12 +220,13 @@ class TrajectoryFitter(Node):
             self.gate.finish()
             return
         smsg = structure_to_message(structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0),
-                                                             structure_moves(ident)))
+                                                             structure_moves(ident)),
+                                    float(track.t_s[-1]) if len(track.t_s) else None, self.time_origin_ns)
         self.pub_structure.publish(smsg)
         for fl in ident.flights:
-            self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True))
+            self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True, origin_ns=self.time_origin_ns))
         for est in ident.impacts:
-            self.pub_impacts.publish(impact_message(est, final=True))
+            self.pub_impacts.publish(impact_message(est, final=True, origin_ns=self.time_origin_ns))
         for w in ident.warnings:
             self.get_logger().warning(w)
         self.flights_status.publish(len(ident.flights), 0, True)

@@ -39,6 +39,9 @@ class CameraConfig:
     fps: float
     t0_s: float
     mm_per_px: float
+    #: Wall-clock time (Unix s, UTC) of frame 0, when rig.yaml gives it (optional): the lab clock of the
+    #: node graph's header stamps (vibro_ros.lab_clock). None: vibro graph uses its own start time.
+    start_time_unix_s: float | None = None
 
     def frame_time_s(self, index: int) -> float:
         """Time (s) of frame ``index``: t0_s + index / fps."""
@@ -107,6 +110,8 @@ class RigConfig:
         out["dic"]["structure_roi"] = self.dic.structure_roi.as_list()
         if self.accelerometers is None:
             out.pop("accelerometers")
+        if self.camera.start_time_unix_s is None:
+            out["camera"].pop("start_time_unix_s")
         return out
 
 
@@ -241,6 +246,24 @@ def _check(value: Any, kind: str, where: str) -> Any:
     return value
 
 
+#: Optional keys per section (kind, as in _SCHEMA): absent = None.
+_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time"}}
+#: 2000-01-01T00:00:00Z: an earlier recording start is a wrong unit or a camera clock, not a date.
+_EARLIEST_UNIX_S = 946684800.0
+
+
+def _check_unix_time(value: Any, where: str) -> float:
+    """A wall-clock time in Unix seconds: a finite number after 2000-01-01 and before now + 1 day."""
+    import time
+
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise RigError(f"{where}: expected a Unix time in seconds (a number, e.g. 1718000000.25), got {value!r}")
+    if not _EARLIEST_UNIX_S <= value <= time.time() + 86400.0:
+        raise RigError(f"{where}: expected a Unix time in seconds between 2000-01-01 and tomorrow, got {value!r} "
+                       "(milliseconds or nanoseconds instead of seconds? a camera clock instead of the wall clock?)")
+    return value
+
+
 def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src: str) -> dict[str, Any]:
     if name not in data:
         raise RigError(f"{src}: missing required key '{name}'")
@@ -252,8 +275,11 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
         if key not in block:
             raise RigError(f"{src}: missing required key '{name}.{key}'")
         out[key] = _check(block[key], kind, f"{src}: key '{name}.{key}'")
+    for key in _OPTIONAL.get(name, {}):
+        if key in block and block[key] is not None:
+            out[key] = _check_unix_time(block[key], f"{src}: key '{name}.{key}'")
     for key in block:
-        if key not in schema:
+        if key not in schema and key not in _OPTIONAL.get(name, {}):
             log.warning("%s: unknown key '%s.%s' ignored", src, name, key)
     return out
 

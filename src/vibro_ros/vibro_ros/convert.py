@@ -27,16 +27,18 @@ from vibro_model.results import DiscrepancyFinding, Flight, Impact, SimulationRu
 from vibro_model.units import m_to_mm, mm_to_m
 
 
-def _stamp(msg: Any, t_s: float | None) -> Any:
-    if t_s is not None:
+def _stamp(msg: Any, t_s: float | None, origin_ns: int) -> Any:
+    """Stamp ``msg.header`` with data time ``t_s`` on the lab clock of ``origin_ns`` (vibro_ros.lab_clock);
+    an unknown time (None, NaN) leaves the stamp at 0."""
+    if t_s is not None and np.isfinite(t_s):
         from .node_support import stamp_from_seconds
 
-        stamp_from_seconds(msg.header, t_s)
+        stamp_from_seconds(msg.header, t_s, origin_ns)
     return msg
 
 
 # ---------------------------------------------------------------- structure
-def structure_to_message(s: StructureMotion, stamp_s: float | None = None):
+def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origin_ns: int = 0):
     from vibro_msgs.msg import StructureMotion as Msg
 
     msg = Msg(amplitude_mm=nan_if_none(m_to_mm(s.amplitude_m)), frequency_hz=nan_if_none(s.frequency_hz),
@@ -46,7 +48,7 @@ def structure_to_message(s: StructureMotion, stamp_s: float | None = None):
               offset_std_mm=nan_if_none(m_to_mm(s.offset_std_m)),
               rms_residual_mm=nan_if_none(m_to_mm(s.rms_residual_m)), frames_used=int(s.n_points or 0),
               ball_offset_mm=nan_if_none(m_to_mm(s.ball_offset_m)))
-    return _stamp(msg, stamp_s)
+    return _stamp(msg, stamp_s, origin_ns)
 
 
 def structure_from_message(msg: Any) -> StructureMotion:
@@ -59,7 +61,7 @@ def structure_from_message(msg: Any) -> StructureMotion:
 
 
 # ---------------------------------------------------------------- flights
-def flight_to_message(f: Flight, final: bool = False):
+def flight_to_message(f: Flight, final: bool = False, origin_ns: int = 0):
     """A FreeFlight stamped at its last fitted frame; ``final``: the end-of-stream fit."""
     from vibro_msgs.msg import FreeFlight
 
@@ -70,7 +72,7 @@ def flight_to_message(f: Flight, final: bool = False):
                      friction_std_n=nan_if_none(f.friction_std_n),
                      rms_residual_mm=nan_if_none(m_to_mm(f.rms_residual_m)), points_used=int(f.n_points or 0),
                      fitted=bool(f.free), note=f.reason, final=bool(final))
-    return _stamp(msg, f.t_last_frame_s)
+    return _stamp(msg, f.t_last_frame_s, origin_ns)
 
 
 def flight_from_message(msg: Any) -> Flight:
@@ -82,7 +84,7 @@ def flight_from_message(msg: Any) -> Flight:
 
 
 # ---------------------------------------------------------------- impacts
-def impact_to_message(i: Impact, final: bool = False):
+def impact_to_message(i: Impact, final: bool = False, origin_ns: int = 0):
     """An ImpactEstimate stamped at the impact time; ``final``: the end-of-stream estimate."""
     from vibro_msgs.msg import ImpactEstimate
 
@@ -92,7 +94,7 @@ def impact_to_message(i: Impact, final: bool = False):
                          v_ball_after_m_per_s=nan_if_none(i.v_ball_after_mps),
                          v_structure_m_per_s=nan_if_none(i.v_structure_mps), flight_before=int(i.flight_before),
                          flight_after=int(i.flight_after), final=bool(final))
-    return _stamp(msg, i.t_s)
+    return _stamp(msg, i.t_s, origin_ns)
 
 
 def impact_from_message(msg: Any) -> Impact:
@@ -103,14 +105,14 @@ def impact_from_message(msg: Any) -> Impact:
 
 
 # ---------------------------------------------------------------- simulation
-def simulation_run_to_message(run: SimulationRun, stamp_s: float | None = None):
+def simulation_run_to_message(run: SimulationRun, stamp_s: float | None = None, origin_ns: int = 0):
     from vibro_msgs.msg import SimulationResult
 
     msg = SimulationResult(model=run.model, deviation=nan_if_none(run.deviation), impacts=int(run.n_impacts or 0))
     msg.t_s = np.asarray(run.t_s, dtype=float).tolist()
     msg.ball_mm = m_to_mm(np.asarray(run.ball_m, dtype=float)).tolist()
     msg.measured_ball_mm = m_to_mm(np.asarray(run.measured_ball_m, dtype=float)).tolist()
-    return _stamp(msg, stamp_s)
+    return _stamp(msg, stamp_s, origin_ns)
 
 
 def simulation_run_from_message(msg: Any) -> SimulationRun:
@@ -120,7 +122,8 @@ def simulation_run_from_message(msg: Any) -> SimulationRun:
 
 
 # ---------------------------------------------------------------- discrepancy findings
-def finding_to_message(finding: DiscrepancyFinding, index: int, stamp_s: float | None = None):
+def finding_to_message(finding: DiscrepancyFinding, index: int, stamp_s: float | None = None,
+                       origin_ns: int = 0):
     """Finding number ``index`` of a run (parameters as parallel name/value/std arrays, NaN when unknown)."""
     from vibro_msgs.msg import DiscrepancyFinding as Msg
 
@@ -131,7 +134,7 @@ def finding_to_message(finding: DiscrepancyFinding, index: int, stamp_s: float |
     msg.parameter_std = [nan_if_none(stds.get(k)) for k in finding.parameters]
     msg.deviation_before = nan_if_none(finding.deviation_before)
     msg.deviation_after = nan_if_none(finding.deviation_after)
-    return _stamp(msg, stamp_s)
+    return _stamp(msg, stamp_s, origin_ns)
 
 
 def finding_from_message(msg: Any) -> DiscrepancyFinding:

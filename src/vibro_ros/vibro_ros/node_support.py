@@ -92,19 +92,55 @@ def history_depth_parameter(node: Node) -> int:
     return depth
 
 
-def stamp_from_seconds(header: Header, t_s: float) -> Header:
-    """Set ``header.stamp`` to ``t_s`` seconds (camera or DAQ time), rounded to the nearest ns.
+def time_origin_parameter(node: Node) -> int:
+    """The node's ``time_origin_unix_ns`` parameter (declared on first use): the lab-clock origin of its
+    header stamps (:mod:`vibro_ros.lab_clock`: stamp = origin + data time, ns since the Unix epoch).
+    ``vibro graph``/``vibro replay`` set it for every node; 0 (a node started by hand without it) keeps
+    stamps on the data clock, which the node says once in its log. RecordingError when negative."""
+    from vibro_io.errors import RecordingError
+
+    from .lab_clock import TIME_ORIGIN_PARAMETER
+
+    if not node.has_parameter(TIME_ORIGIN_PARAMETER):
+        declare(node, TIME_ORIGIN_PARAMETER, 0,
+                "wall time (ns since the Unix epoch) of data time 0: header stamps = it + camera/DAQ time "
+                "(vibro graph sets it: rig.yaml camera.start_time_unix_s or the start of the run); "
+                "0 = stamps are the data time itself")
+        origin = int(node.get_parameter(TIME_ORIGIN_PARAMETER).value)
+        if origin < 0:
+            raise RecordingError(f"{node.get_name()}: parameter '{TIME_ORIGIN_PARAMETER}' must be >= 0 "
+                                 f"(ns since the Unix epoch), got {origin}")
+        if origin == 0:
+            node.get_logger().info(f"parameter '{TIME_ORIGIN_PARAMETER}' not set: header stamps are the data "
+                                   "time (camera/DAQ s), not the lab's wall clock")
+    return int(node.get_parameter(TIME_ORIGIN_PARAMETER).value)
+
+
+def stamp_from_seconds(header: Header, t_s: float, origin_ns: int = 0) -> Header:
+    """Set ``header.stamp`` to data time ``t_s`` seconds (camera or DAQ time) on the lab clock: ``origin_ns``
+    (:func:`time_origin_parameter`) + ``t_s``, rounded to the nearest ns, in integer ns
+    (:func:`vibro_ros.lab_clock.stamp_ns_from_data_time`).
 
     A fraction that rounds up to a whole second carries into ``sec`` (0.9999999999 s is 1 s 0 ns,
     not 0 s 0 ns, which would put the item one second early).
     """
-    header.stamp.sec, header.stamp.nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+    from .lab_clock import NS_PER_S, stamp_ns_from_data_time
+
+    header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns_from_data_time(origin_ns, t_s), NS_PER_S)
     return header
 
 
-def seconds_from_stamp(header: Header) -> float:
-    """``header.stamp`` in seconds (inverse of :func:`stamp_from_seconds` to within 0.5 ns)."""
-    return header.stamp.sec + header.stamp.nanosec * 1e-9
+def stamp_ns(header: Any) -> int:
+    """``header.stamp`` as integer ns (any object with ``stamp.sec``/``stamp.nanosec``, e.g. from a bag)."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def seconds_from_stamp(header: Any, origin_ns: int = 0) -> float:
+    """The data time (s) of ``header.stamp`` on the lab clock of ``origin_ns`` (inverse of
+    :func:`stamp_from_seconds` to within 0.5 ns)."""
+    from .lab_clock import data_time_from_stamp_ns
+
+    return data_time_from_stamp_ns(origin_ns, stamp_ns(header))
 
 
 class Health:

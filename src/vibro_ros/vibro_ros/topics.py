@@ -25,7 +25,8 @@ class Topic:
 
 
 FRAMES = Topic("vibro/frames", "sensor_msgs/msg/Image", "stream", "frame_source",
-               "camera frames, mono8/mono16, stamp = t0_s + k/fps (remap to a camera driver's image_raw)",
+               "camera frames, mono8/mono16, stamp = time_origin_unix_ns + t0_s + k/fps (remap to a camera "
+               "driver's image_raw)",
                ("frame_source", "bag_source"))
 DIC = Topic("vibro/dic", "vibro_msgs/msg/DicFrame", "history", "dic_tracker",
             "per-frame ball and structure displacement (mm, + up), valid points, ZNCC, lost flag", ("dic_tracker",))

@@ -18,7 +18,7 @@ from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
 from vibro_ros.convert import finding_to_message
-from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_model.results import Discrepancy as DiscrepancyBlock
@@ -41,6 +41,7 @@ class Discrepancy(Node):
         if not rig_file:
             raise RecordingError("discrepancy: parameter 'rig_file' is required")
         self.rig = load_rig(rig_file)
+        self.time_origin_ns = time_origin_parameter(self)
         self.ran = False
         self.health = Health(self)
         self.status = StatusPublisher(self, "discrepancy")
@@ -75,7 +76,7 @@ class Discrepancy(Node):
         t_last = max(float(m.t_s) for m in r.frames.values())
         block = DiscrepancyBlock.from_dict(doc)
         for k, finding in enumerate(block.findings):
-            msg = finding_to_message(finding, k, t_last)
+            msg = finding_to_message(finding, k, t_last, self.time_origin_ns)
             self.pub.publish(msg)
             self.get_logger().info(f"finding {k}: {msg.effect} {dict(zip(msg.parameter_names, msg.parameter_values))}"
                                    f"; D {msg.deviation_before:.4g} -> {msg.deviation_after:.4g}")

@@ -20,7 +20,7 @@ from vibro_ros.fit_results import FinalFitResults
 from vibro_model.results import SimulationRun
 from vibro_model.units import mm_to_m
 from vibro_ros.convert import simulation_run_to_message
-from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import SimulationResult
@@ -47,6 +47,7 @@ class Simulator(Node):
             raise RecordingError(f"simulator: parameter 'models' has unknown entries {bad} (known: {MODELS})")
         self.models = models
         self.rig = load_rig(rig_file)
+        self.time_origin_ns = time_origin_parameter(self)
         self.cavity = BallCavity.from_rig(self.rig)
         self.ran = False
         self.health = Health(self)
@@ -94,7 +95,7 @@ class Simulator(Node):
             step = max(1, int(np.ceil(score["t_s"].size / self.max_points)))
             run = SimulationRun(model, float(score["deviation"]), int(score["impacts"]), score["t_s"][::step],
                                 mm_to_m(score["ball_mm"][::step]), mm_to_m(score["measured_mm"][::step]))
-            msg = simulation_run_to_message(run, float(score["t_s"][-1]))
+            msg = simulation_run_to_message(run, float(score["t_s"][-1]), self.time_origin_ns)
             self.pub.publish(msg)
             sent += 1
             self.get_logger().info(f"{model}: D = {100 * score['deviation']:.2f} %")
