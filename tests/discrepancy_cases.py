@@ -20,8 +20,9 @@ NOISE_MM = 2.5e-4
 
 
 def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float = NOISE_MM,
-              accel_ms2: float = 27.0, frequency_hz: float = 22.0):
-    """(sections, track, rig, truth) for a synthetic recording with ``effects`` (contract names)."""
+              accel_ms2: float = 27.0, frequency_hz: float = 22.0, cor_scatter: float = 0.0):
+    """(sections, track, rig, truth) for a synthetic recording with ``effects`` (contract names);
+    ``cor_scatter``: per-impact COR scatter of the rig (SynthConfig.cor_scatter)."""
     from vibro_fit.identify import identify
     from vibro_fit.results import results_document
     from vibro_fit.synthetic import paper_rig
@@ -29,7 +30,7 @@ def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float =
     from vibro_sim.synth.trajectory import simulate_window
 
     cfg = SynthConfig(effects=effects, seed=seed, frames=frames, accel_ms2=accel_ms2, frequency_hz=frequency_hz,
-                      accel=False)
+                      accel=False, cor_scatter=cor_scatter)
     rng = np.random.default_rng(seed)
     phase = float(rng.uniform(0.0, 2 * math.pi))
     models = build_models(cfg, phase)

@@ -16,7 +16,8 @@ from discrepancy_cases import make_case
 from vibro_io.errors import RecordingError
 from vibro_sim.discrepancy import EFFECTS, analyse_discrepancy, run_discrepancy
 from vibro_sim.discrepancy.library import CoulombFriction, GravityTilt
-from vibro_eval.truth import main_parameter, score_case, true_model_measured_run, true_model_run
+from vibro_eval.truth import (main_parameter, score_case, true_model_measured_run, true_model_restarted_run,
+                              true_model_run)
 
 # (effects, seed): every family once, parameters away from the synth defaults (concealed: the engine
 # is never told); controls with different seeds (phase) and noise levels.
@@ -71,7 +72,16 @@ def test_each_effect_identified_with_its_parameter(analysed, name):
     # the identification's impact times (both second order in the effect)
     std = f["parameters_std"][key]
     assert abs(f["parameters"][key] - true_value) <= 5 * std + 0.01 * abs(true_value), (f, true_value)
-    assert f["deviation_after"] < f["deviation_before"]
+    if name in ("asymmetric_restitution", "velocity_dependent_restitution"):
+        # deviation_before/after are the restarted D_r, which replays every measured post-impact velocity:
+        # a COR law cannot change it (it only acts if a simulated flight reaches a plate before the measured
+        # impact); the COR law shows in the paper's free-running D and in the COR variance it explains
+        assert f["deviation_after"] <= f["deviation_before"] * (1 + 1e-6)
+        assert f["paper_deviation_after"] < f["paper_deviation_before"]
+        assert f["cor_variance_share"] > 0.8
+    else:
+        assert f["deviation_after"] < f["deviation_before"]
+        assert f["paper_deviation_after"] is not None and f["paper_deviation_before"] is not None
     assert f["where"]
 
 
@@ -79,18 +89,30 @@ def test_each_effect_identified_with_its_parameter(analysed, name):
 def test_final_deviation_close_to_the_true_models(analysed, name):
     # goal: D after within 1.5x of the D the true model reaches on the same noisy data: the true laws and
     # parameters replayed exactly like the analysis replays its own model, from the state measured after
-    # the same first impact (vibro_eval.truth.true_model_measured_run)
+    # the same first impact (vibro_eval.truth.true_model_measured_run). The paper's free-running D is
+    # paper_final_deviation; final_deviation is the restarted D_r, compared with the true model's D_r.
     run, truth = analysed[name]
+    doc = run.document
     d_true = true_model_measured_run(run.measured, truth).deviation
     # and the true model from the true state (an oracle: no measurement error in the initial state)
     _, _, d_oracle = true_model_run(run.measured, truth, float(run.final_run.t_s[0]))
     assert d_true <= 1.5 * d_oracle + 2e-5
-    assert run.document["final_deviation"] <= 1.5 * d_true + 2e-5, (run.document["final_deviation"], d_true)
+    assert doc["paper_final_deviation"] <= 1.5 * d_true + 2e-5, (doc["paper_final_deviation"], d_true)
+    dr_true = true_model_restarted_run(run.measured, truth).deviation
+    assert doc["final_deviation"] <= 1.5 * dr_true + 2e-5, (doc["final_deviation"], dr_true)
     if truth["effects"][0]["parameters"].get("cor_sigma", 0.0) > 0:
         # random COR scatter: no law predicts it, D stays well above noise for the true model too
-        assert run.document["baseline_deviation"] > run.document["final_deviation"]
+        assert doc["paper_baseline_deviation"] > doc["paper_final_deviation"]
     else:
-        assert run.document["baseline_deviation"] > 3 * run.document["final_deviation"]
+        assert doc["paper_baseline_deviation"] > 3 * doc["paper_final_deviation"]
+    if name == "structure_harmonics":
+        # restarted from each measured flight state, the structure shows only where the plates end the
+        # flights (impact timing): D_r falls, from ~2.5 noise floors
+        assert doc["baseline_deviation"] > doc["final_deviation"]
+    elif name not in ("asymmetric_restitution", "velocity_dependent_restitution"):
+        # flight laws: D_r of the baseline is many noise floors; COR laws leave D_r unchanged (it replays
+        # the measured CORs)
+        assert doc["baseline_deviation"] > 3 * doc["final_deviation"]
 
 
 def test_look_alikes_separated(analysed):

@@ -144,3 +144,11 @@ def relative(a: float | None, b: float | None) -> float | None:
     if a is None or b is None or not math.isfinite(a) or not math.isfinite(b) or b == 0:
         return None
     return a / b
+
+
+def true_model_restarted_run(meas: Measured, truth: Mapping[str, Any]):
+    """Restarted run (D_r) of :func:`true_fitted_model`, exactly as the analysis scores its own model
+    (:func:`vibro_sim.discrepancy.engine.restarted_run`): the D_r the true model reaches on the data."""
+    from vibro_sim.discrepancy.engine import restarted_run
+
+    return restarted_run(meas, true_fitted_model(meas, truth))

@@ -38,6 +38,9 @@ def register(sub) -> None:
     p.add_argument("--blur", action="store_true", help="motion blur over a 0.5 ms exposure")
     p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="T",
                    help="accelerometer clock minus camera clock (ms)")
+    p.add_argument("--cor-scatter", type=float, default=0.0, metavar="SIGMA",
+                   help="per-impact COR scatter of every scenario: each impact's COR drawn N(law, SIGMA), e.g. "
+                        "0.015 as the paper's Fig. 14-16 show (default 0: no scatter)")
     p.add_argument("--frames", type=int, default=1500, help="number of frames (1000 fps)")
     p.add_argument("--still", action="store_true", help="nothing moves (noise study)")
     p.add_argument("--drift", action="store_true", help="with --still: slow camera drift")
@@ -61,7 +64,7 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,
-                       accel=not args.no_accel, **kw)
+                       accel=not args.no_accel, cor_scatter=args.cor_scatter, **kw)
 
 
 def run(args: argparse.Namespace) -> int:

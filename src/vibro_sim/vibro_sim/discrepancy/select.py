@@ -51,10 +51,14 @@ class Decision:
     explained: float
     accepted: bool
     note: str = ""
+    variance_share: float | None = None   # COR laws: share of the COR variance beyond noise explained
 
     def to_dict(self) -> dict:
-        return {"candidate": self.label, "statistic": _f(self.statistic), "p_value": _f(self.p_value),
-                "explained": _f(self.explained), "accepted": self.accepted, "note": self.note}
+        out = {"candidate": self.label, "statistic": _f(self.statistic), "p_value": _f(self.p_value),
+               "explained": _f(self.explained), "accepted": self.accepted, "note": self.note}
+        if self.variance_share is not None:
+            out["variance_share"] = _f(self.variance_share)
+        return out
 
 
 @dataclass
@@ -196,7 +200,9 @@ def select_cor(impacts: ImpactSet, cor_noise: float) -> tuple[str, dict, StageRe
                                                  np.sum(impacts.plate == "bottom") < 2):
             good = False
         ok[kind] = good
-        stage.decisions.append(Decision(kind, F, p, ex, good, f"COR RMS change {ex:.4f} (floor {floor:.4f})"))
+        share = law_variance_share(impacts, f)
+        stage.decisions.append(Decision(kind, F, p, ex, good, f"COR RMS change {ex:.4f} (floor {floor:.4f})",
+                                        share))
     if ok["asymmetric_restitution"] and ok["velocity_dependent_restitution"]:
         kind, why, alt = _separate(impacts, fits)
         stage.notes.append(why)
@@ -210,6 +216,18 @@ def select_cor(impacts: ImpactSet, cor_noise: float) -> tuple[str, dict, StageRe
         kind = "none"
     stage.chosen = (kind,) if kind != "none" else ()
     return kind, fits, stage
+
+
+def law_variance_share(impacts: ImpactSet, fit) -> float | None:
+    """Share of the per-impact COR variance the fitted law ``fit`` explains beyond the COR measurement
+    noise (mean cor_std^2 of the impacts): :func:`vibro_sim.deviation.cor_variance_share`."""
+    from ..deviation import cor_variance_share
+
+    if impacts.cor.size == 0:
+        return None
+    stds = np.asarray(impacts.cor_std, dtype=float)
+    noise_var = float(np.mean(stds[np.isfinite(stds)] ** 2)) if np.isfinite(stds).any() else 0.0
+    return cor_variance_share(impacts.cor, impacts.cor - fit.residual, noise_var, fit.p)
 
 
 def _separate(impacts: ImpactSet, fits: dict) -> tuple[str, str, str]:

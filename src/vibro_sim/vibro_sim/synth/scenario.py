@@ -82,6 +82,10 @@ class SynthConfig:
     accel          write accel.csv (50 kHz) and the rig's accelerometers block.
     accel_rate_hz  accelerometer sample rate (50 kHz).
     accel_noise_ms2  accelerometer noise sigma (m/s^2).
+    cor_scatter    per-impact COR scatter of every scenario (dimensionless): impact i's COR
+                   is the law's value + cor_scatter z_i, z_i ~ N(0, 1) from the seed, clipped
+                   to [0, 1] (0 = none; the paper's Fig. 14-16 show 0.01-0.02). With
+                   ``asymmetric_restitution``'s own ``cor_sigma`` the two add in quadrature.
     """
 
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -107,6 +111,7 @@ class SynthConfig:
     accel: bool = True
     accel_rate_hz: float = 50_000.0
     accel_noise_ms2: float = 0.5
+    cor_scatter: float = 0.0
     ball_mass_kg: float = BALL_MASS_KG
     ball_diameter_mm: float = BALL_DIAMETER_M * 1e3
     gap_mm: float = GAP_M * 1e3
@@ -124,6 +129,7 @@ class SynthConfig:
             ("height_px", isinstance(self.height_px, int) and self.height_px >= 128, "an integer >= 128"),
             ("accel_rate_hz", self.accel_rate_hz > 0, "> 0"), ("accel_noise_ms2", self.accel_noise_ms2 >= 0, ">= 0"),
             ("gap_mm", self.gap_mm > self.ball_diameter_mm, "larger than ball_diameter_mm"),
+            ("cor_scatter", 0.0 <= self.cor_scatter <= 0.3, "in [0, 0.3]"),
         ]
         for name, ok, expect in checks:
             value = getattr(self, name)
@@ -222,6 +228,8 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                         tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
     law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
+    if cfg.cor_scatter > 0:
+        law = Scattered(law, cfg.cor_scatter, seed=cfg.seed + 104729)
     return Models(structure, cavity, law, force)
 
 
