@@ -184,7 +184,8 @@ def summarize(rate_hz: float, cam: dict, seen: dict, cpu: dict[str, float], trut
         "frames_published": n,
         "publish_rate_hz": (n - 1) / (pub_t[-1] - pub_t[0]),
         "publish_late_max_ms": 1e3 * float(np.max(np.diff(pub_t))) - 1e3 / rate_hz,
-        "frames_per_s_tracked": (len(arrivals) - 1) / span if span > 0 else math.nan,
+        "frames_per_s_tracked": tracked / span if span > 0 else math.nan,  # lost=false DicFrames only
+        "dic_frames_per_s": (len(arrivals) - 1) / span if span > 0 else math.nan,  # every answered slot
         "frames_tracked": tracked,
         "frames_lost_flagged": len(lost_flag),
         "frames_lost_image_not_received": not_received,
