@@ -29,64 +29,15 @@ import re
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from proc_cpu import CpuSampler  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
 DOMAIN = "77"
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-class CpuSampler:
-    """Samples the CPU time (s) of this bench's node processes (by ROS_DOMAIN_ID) every 0.1 s."""
-
-    def __init__(self, domain: str):
-        self.domain = domain.encode()
-        self.samples: list[tuple[float, dict[str, float]]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def __enter__(self) -> "CpuSampler":
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join()
-
-    def _snapshot(self) -> dict[str, float]:
-        snap = {}
-        for pid in os.listdir("/proc"):
-            if not pid.isdigit():
-                continue
-            try:
-                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-                if b"vibro_bringup.child" in cmd:
-                    name = cmd[cmd.index(b"vibro_bringup.child") + 1].decode().rsplit(".", 1)[-1]
-                elif b"vibro_bringup.cli" in cmd or (len(cmd) > 2 and cmd[1] == b"-m" and cmd[2].endswith(b"_node")):
-                    name = "vibro graph (monitor)" if b"vibro_bringup.cli" in cmd else cmd[2].decode().rsplit(".", 1)[-1]
-                else:
-                    continue
-                if b"ROS_DOMAIN_ID=" + self.domain not in Path(f"/proc/{pid}/environ").read_bytes().split(b"\0"):
-                    continue
-                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-                snap[name] = (int(fields[11]) + int(fields[12])) / CLK_TCK
-            except (OSError, ValueError, IndexError):
-                continue  # the process ended between listing and reading
-        return snap
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self.samples.append((time.time(), self._snapshot()))
-            time.sleep(0.1)
-
-    def cpu_between(self, t0: float, t1: float) -> dict[str, float]:
-        """CPU seconds each process used between wall times t0 and t1 (nearest samples)."""
-        a = min(self.samples, key=lambda s: abs(s[0] - t0))[1]
-        b = min(self.samples, key=lambda s: abs(s[0] - t1))[1]
-        return {k: b[k] - a.get(k, 0.0) for k in b}
 
 
 def stage_costs(rec: Path, n: int = 300) -> dict[str, float]:

@@ -1,0 +1,78 @@
+"""A camera-like source for bench_live: raw mono8 sensor_msgs/Image at a fixed rate, as a driver publishes.
+
+    python bench/camera_peer.py RECORDING OUT.json --rate-hz 1000 [--topic camera/image_raw] \
+        --ros-args -r __node:=camera_driver
+
+Pre-loads every frame of RECORDING as an Image message (decoded once, so no file I/O or PNG decoding
+while streaming), waits for a subscriber on the topic plus ``--settle-s``, then publishes frame k at
+wall time start + k / rate_hz (absolute schedule: a late frame goes out at once, the schedule does not
+slip), stamped with the frame's data time (t0_s + k / fps, like a driver's header stamp), best-effort
+sensor QoS (qos_profile_sensor_data) like a camera driver's image_raw. Writes OUT.json: the wall time
+(time.time(), s) at which each frame was handed to the publisher, by frame index.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+
+from vibro_dic.frame_source_node import image_message
+from vibro_io.recording import open_recording
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recording", type=Path)
+    parser.add_argument("out", type=Path, help="JSON file of publish wall times")
+    parser.add_argument("--rate-hz", type=float, required=True)
+    parser.add_argument("--topic", default="camera/image_raw")
+    parser.add_argument("--settle-s", type=float, default=1.0, help="wait after the first subscriber matched")
+    parser.add_argument("--wait-s", type=float, default=60.0, help="give up when no subscriber after this")
+    args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
+    if args.rate_hz <= 0:
+        print(f"camera_peer: --rate-hz must be > 0, got {args.rate_hz}", file=sys.stderr)
+        return 2
+    frames = [f for f in open_recording(args.recording).frames if f.ok]
+    messages = [image_message(f, "camera") for f in frames]
+    indices = [f.index for f in frames]
+    del frames
+    if any(m.encoding != "mono8" for m in messages):
+        print("camera_peer: the recording's frames are not 8-bit (mono8 expected)", file=sys.stderr)
+        return 2
+    rclpy.init(args=argv)
+    node = rclpy.create_node("camera_driver")
+    pub = node.create_publisher(Image, args.topic, qos_profile_sensor_data)
+    deadline = time.monotonic() + args.wait_s
+    while pub.get_subscription_count() == 0:
+        if time.monotonic() > deadline:
+            print(f"camera_peer: no subscriber on {args.topic} after {args.wait_s:g} s", file=sys.stderr)
+            return 1
+        time.sleep(0.05)
+    time.sleep(args.settle_s)
+    published_at = []
+    period_s = 1.0 / args.rate_hz
+    start = time.time() + 0.05
+    for k, msg in enumerate(messages):
+        delay = start + k * period_s - time.time()
+        if delay > 0:
+            time.sleep(delay)
+        published_at.append(time.time())
+        pub.publish(msg)
+    time.sleep(0.5)  # let the last best-effort samples leave before the participant goes
+    args.out.write_text(json.dumps({"rate_hz": args.rate_hz, "frame_index": indices,
+                                    "published_at_s": published_at}))
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
