@@ -149,7 +149,8 @@ def test_killed_recorder_bag_is_read_then_reindexed_for_rosbags_and_mcap(tiny_re
         time.sleep(1.0)
         # 250 accelerometer samples in blocks of 1 sample: 250 reliable, transient-local messages
         src = subprocess.run([sys.executable, "-m", "vibro_fit.accel_source_node", "--ros-args",
-                              "-p", f"recording:={tiny_recording}", "-p", "block_s:=0.00002"],
+                              "-p", f"recording:={tiny_recording}", "-p", "block_s:=0.00002",
+                              "-p", "readers:=[recorder]"],
                              capture_output=True, text=True, timeout=60)
         assert src.returncode == 0, src.stderr
         time.sleep(2.5)  # the recorder finishes its chunk in progress once a second

@@ -295,10 +295,10 @@ def test_launch_without_a_bag_runs_to_the_end_without_a_recorder(short_recording
 
 def test_a_source_that_dies_ends_the_run_at_once_with_its_error(short_recording: Path, tmp_path: Path,
                                                                 ros_domain: str) -> None:
-    from vibro_bringup.graph_spec import default_params_file
+    from vibro_bringup.graph_spec import default_params_file, params_file_key
 
     data = yaml.safe_load(default_params_file().read_text())
-    data["frame_source"]["ros__parameters"]["window"] = 0  # refused by frame_source: exit code 2
+    data[params_file_key("frame_source")]["ros__parameters"]["window"] = 0  # refused by frame_source: exit code 2
     params = tmp_path / "params.yaml"
     params.write_text(yaml.safe_dump(data))
     t0 = time.monotonic()

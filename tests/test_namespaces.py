@@ -17,6 +17,7 @@ import pytest
 from ros_probe import Probe
 from vibro_bringup.graph_spec import BAG_SOURCE, NODES, node_parameters, write_params_file
 from vibro_ros import topics
+from vibro_ros.node_support import history_qos
 from vibro_ros.node_help import node_interface
 
 
@@ -76,7 +77,8 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
     procs = []
     with Probe() as probe:
         diagnostics = probe.subscribe(DiagnosticArray, "/diagnostics")
-        dic = {ns: probe.subscribe(DicFrame, f"{ns}/vibro/dic", STREAM_QOS) for ns in labs}
+        # vibro/dic is a latched history: the probe (in /, so no declared reader of a /labN tracker) gets it all
+        dic = {ns: probe.subscribe(DicFrame, f"{ns}/vibro/dic", history_qos(100)) for ns in labs}
         frames = {ns: probe.subscribe(Image, f"{ns}/vibro/frames", STREAM_QOS) for ns in labs}
         for ns, (rec, _, zncc_min) in labs.items():
             # the params file as `vibro graph` writes it, applied to namespaced nodes

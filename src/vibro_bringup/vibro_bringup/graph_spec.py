@@ -291,9 +291,18 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
                        not live and spec.role == "processing", respawn_delay_s) for spec in nodes]
 
 
+class _QuotedStrings(yaml.SafeDumper):
+    """Every string value single-quoted: rcl's params-file parser types an unquoted ``7983e209`` as a
+    double and ``1234`` as an integer, whatever PyYAML meant."""
+
+
+_QuotedStrings.add_representer(str, lambda dumper, text: dumper.represent_scalar("tag:yaml.org,2002:str", text,
+                                                                                 style="'"))
+
+
 def write_params_file(params: dict[str, dict[str, Any]], path: str | Path) -> Path:
     """Write a ROS 2 parameters YAML (``/**/node: ros__parameters: {...}``: applies in any namespace)."""
     path = Path(path)
-    path.write_text(yaml.safe_dump({params_file_key(n): {"ros__parameters": p} for n, p in params.items()},
-                                   sort_keys=False), encoding="utf-8")
+    path.write_text(yaml.dump({params_file_key(n): {"ros__parameters": p} for n, p in params.items()},
+                              Dumper=_QuotedStrings, sort_keys=False), encoding="utf-8")
     return path

@@ -45,5 +45,5 @@ class RunIdentity:
 
 def new_run_identity(namespace: str | None = None) -> RunIdentity:
     """A fresh run id; the namespace is ``namespace`` or ``/vibro_<run id>``."""
-    run_id = uuid.uuid4().hex[:8]
+    run_id = "r" + uuid.uuid4().hex[:7]  # starts with a letter: never read as a number from a params file
     return RunIdentity(run_id, namespace or f"/vibro_{run_id}")

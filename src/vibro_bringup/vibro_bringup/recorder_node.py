@@ -70,10 +70,13 @@ class Recorder(Node):
         self._first_seen: dict[str, float] = {}
         # subscribed at once with the topic table's profile, so sources waiting for the recorder see it;
         # a publisher that profile cannot match (best-effort camera, volatile replay) gets a companion reader
-        self.subscriptions_by_topic = {
-            name: ResultsSubscription(self, message_class(t.msg_type), name,
-                                      lambda data, n=name: self._on_message(n, data), QOS_BY_KIND[t.qos], raw=True)
-            for name, t in self.pending.items()}
+        self.subscriptions_by_topic = {}
+        for topic in topics.ALL_TOPICS:
+            name = self.resolve_topic_name(topic.name)
+            if name in self.pending:
+                self.subscriptions_by_topic[name] = ResultsSubscription(
+                    self, message_class(topic.msg_type), topic.name, lambda data, n=name: self._on_message(n, data),
+                    QOS_BY_KIND[topic.qos], raw=True)
         self.create_timer(DISCOVERY_S, self._discover)
         self.create_timer(0.2, self.writer.flush_if_due)
         self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag}")

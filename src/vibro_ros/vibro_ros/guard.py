@@ -164,6 +164,6 @@ class InputGuard:
     def _stop(self, message: str) -> None:
         self.error = message
         self._pending = None
-        done = getattr(self._node, "done", None) or self._done  # the node's current one (e.g. its ReaderGate's)
+        done = getattr(self.node, "done", None) or self._done  # the node's current one (e.g. its ReaderGate's)
         if not done.done():
             done.set_exception(ForeignInputError(message))
