@@ -144,7 +144,8 @@ class DicTrackerNode(Node):
             return True
         self.guard.fail(f"{topics.FRAMES.name}: image stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} s "
                         f"is {t_s:.3f} s from time_origin_unix_ns={self.time_origin_ns} (frame index {k}): set "
-                        "time_origin_unix_ns to the wall time (ns) of the camera's frame 0 minus rig.yaml t0_s")
+                        "time_origin_unix_ns to the wall time (ns) of the camera's frame 0 minus rig.yaml t0_s",
+                        topics.FRAMES.name)
         return False
 
     def _publish(self, row: FrameTrack, status: str = "") -> None:
@@ -164,6 +165,8 @@ class DicTrackerNode(Node):
         self.health.count("tracked")
 
     def _on_image(self, msg: Image) -> None:
+        if not self.guard.check_publishers():  # a foreign camera first: its stamps would mislead the checks below
+            return
         k = self._index_of(msg)
         if not self._plausible(k, msg):
             return

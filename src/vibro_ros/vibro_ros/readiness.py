@@ -36,6 +36,10 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.task import Future
 
+from vibro_msgs.msg import StreamStatus
+
+from . import topics
+
 #: Parameter names, one definition for the nodes and the node table.
 READERS = "readers"
 WAIT_FOR_READERS_S = "wait_for_readers_s"
@@ -90,12 +94,9 @@ class ReaderGate:
         self.keep_until = declare_keep_history_until(node)
         self.streams_ended: set[str] = set()
         if self.keep_until:
-            from vibro_msgs.msg import StreamStatus
-
             from .adaptive_qos import results_subscription
-            from .topics import STATUS
 
-            results_subscription(node, StreamStatus, STATUS.name,
+            results_subscription(node, StreamStatus, topics.STATUS.name,
                                  lambda m: self.streams_ended.add(m.stream) if m.finished else None)
         self.health = health
         self.settle_s = settle_s
