@@ -107,7 +107,9 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
     for ns, (rec, n_frames, zncc_min) in labs.items():
         # each tracker saw only its own source's frames: a leak would add /lab1's frames 3, 4 to /lab2
         assert [m.frame_index for m in dic[ns]] == list(range(n_frames)), ns
-        assert len(frames[ns]) == n_frames, ns
+        # frames are a volatile stream the source sends once its declared reader (the tracker) has matched: the
+        # probe may join late and miss some, never get more (/lab1's 5 frames leaking into /lab2 would)
+        assert len(frames[ns]) <= n_frames, ns
         assert not any(m.lost for m in dic[ns]), ns
         # the params file applied under the namespace (a bare `dic_tracker:` key would not)
         assert got_params[ns] == {"zncc_min": zncc_min, "rig_file": str((rec / "rig.yaml").resolve())}
