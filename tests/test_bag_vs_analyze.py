@@ -25,6 +25,8 @@ NOT_CARRIED = {
     "regime": "identify()'s regime: no message",
     "identification": "identify()'s method, noise, plate levels, short flights, contact phases: no message",
     "accelerometers": "identify()'s accelerometer analysis: no message",
+    "motion": "identify()'s motion state (still / structure only / impacting): no message",
+    "rig_consistency": "identify()'s rig.yaml consistency checks: no message",
     "impacts[].method": "ImpactEstimate has no method field",
     "discrepancy.*": "the engine's extras (model, noise floors, location, stages, notes): no message",
     "discrepancy.findings[].*": "the engine's per-finding extras (one-step errors, alternatives): no message",
@@ -125,8 +127,8 @@ def _cut_before_final_pass(bag: Path, out: Path) -> int:
     writer = BagWriter(out)
     kept = 0
     for m in read_messages(bag):
-        if m.topic == "vibro/structure" or (m.topic in ("vibro/flights", "vibro/impacts")
-                                             and deserialize(m, store).final):
+        rel = m.topic[m.topic.index("vibro/"):] if "vibro/" in m.topic else m.topic  # recorded in the run's namespace
+        if rel == "vibro/structure" or (rel in ("vibro/flights", "vibro/impacts") and deserialize(m, store).final):
             break
         writer.add_topic(m.topic, m.msg_type)
         writer.write(m.topic, m.timestamp_ns, m.data)
