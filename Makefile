@@ -37,7 +37,7 @@ demo: setup
 	@scripts/demo.sh $(DEMO_DIR)
 
 test: setup
-	@. scripts/env.sh && $(PY) -m pytest -q $(PYTEST_ARGS) tests
+	@. scripts/env.sh && $(PY) -m pytest -q --durations=15 $(PYTEST_ARGS) tests
 
 BENCH_STAMP := $(VENV)/.bench-$(shell cat requirements-bench.txt | sha256sum | cut -c1-16)
 
