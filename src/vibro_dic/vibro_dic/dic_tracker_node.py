@@ -142,6 +142,8 @@ class DicTrackerNode(Node):
         t_s = seconds_from_stamp(msg.header, self.time_origin_ns)
         if k >= 0 and t_s - self.rig.camera.t0_s <= MAX_RUN_S:
             return True
+        if not self.guard.check_publishers():  # a foreign camera explains the stamp: it is named instead
+            return False
         self.guard.fail(f"{topics.FRAMES.name}: image stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} s "
                         f"is {t_s:.3f} s from time_origin_unix_ns={self.time_origin_ns} (frame index {k}): set "
                         "time_origin_unix_ns to the wall time (ns) of the camera's frame 0 minus rig.yaml t0_s",
@@ -165,8 +167,6 @@ class DicTrackerNode(Node):
         self.health.count("tracked")
 
     def _on_image(self, msg: Image) -> None:
-        if not self.guard.check_publishers():  # a foreign camera first: its stamps would mislead the checks below
-            return
         k = self._index_of(msg)
         if not self._plausible(k, msg):
             return
