@@ -120,16 +120,27 @@ def test_bag_results_equal_analyze_field_for_field(runs: dict) -> None:
 
 def _cut_before_final_pass(bag: Path, out: Path) -> int:
     """Copy ``bag`` up to (not including) the fitter's first final message: what a recorder killed just
-    before the end-of-stream pass leaves. Returns the number of messages kept."""
+    before the end-of-stream pass leaves. Returns the number of messages kept.
+
+    The cut is by log time, not file order: the recorder holds a topic's messages until its publishers
+    are identified, so a held topic's early messages may lie after later ones in the file."""
     from vibro_ros.bags import BagWriter, deserialize, make_typestore, read_messages
 
     store = make_typestore()
+
+    def relative(topic: str) -> str:  # recorded in the run's namespace
+        return topic[topic.index("vibro/"):] if "vibro/" in topic else topic
+
+    def is_final(m) -> bool:
+        rel = relative(m.topic)
+        return rel == "vibro/structure" or (rel in ("vibro/flights", "vibro/impacts") and deserialize(m, store).final)
+
+    first_final_ns = min(m.timestamp_ns for m in read_messages(bag) if is_final(m))
     writer = BagWriter(out)
     kept = 0
     for m in read_messages(bag):
-        rel = m.topic[m.topic.index("vibro/"):] if "vibro/" in m.topic else m.topic  # recorded in the run's namespace
-        if rel == "vibro/structure" or (rel in ("vibro/flights", "vibro/impacts") and deserialize(m, store).final):
-            break
+        if m.timestamp_ns >= first_final_ns:
+            continue
         writer.add_topic(m.topic, m.msg_type)
         writer.write(m.topic, m.timestamp_ns, m.data)
         kept += 1

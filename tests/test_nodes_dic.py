@@ -94,20 +94,26 @@ def test_diagnostics_report_lag_behind_the_camera_clock(tiny_recording: Path, ro
     # 5 frames of a 1000 fps camera sent at 10 frames/s: between the first and the last frame
     # 4/10 s of wall time pass for 4/1000 s of camera time, so the source runs 0.396 s behind
     # real time. The send schedule is checked by a 10 ms timer, so allow 0.08 s of jitter.
+    # The echo keeps every report until the source has exited (the source reports once a second and once
+    # more when it stops; how many reports fall before the last frame depends on discovery time).
     echo = _start(str(HERE / "ros_echo.py"), "diagnostic_msgs/msg/DiagnosticArray", "/diagnostics",
-                  "--count", "2", "--seconds", "60")
+                  "--count", "1000", "--seconds", "60")
     try:
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
             [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={tiny_recording}",
              "-p", "rate_hz:=10.0", "-p", "readers:=[vibro_test_echo]", "-p", "linger_s:=2.5"],
             capture_output=True, text=True, timeout=60)
-        out, _ = echo.communicate(timeout=60)
+        time.sleep(1.0)  # the stop report in flight
+        echo.send_signal(signal.SIGINT)
+        out, _ = echo.communicate(timeout=30)
     finally:
         echo.kill()
     assert source.returncode == 0, source.stderr
     statuses = [s for line in out.splitlines() if line.startswith("{")
                 for s in json.loads(line)["status"] if s["name"].endswith("frame_source")]
-    values = {kv["key"]: kv["value"] for kv in statuses[-1]["values"]}
+    # the source lingers 2.5 s after its last frame, so reports made after the last frame exist
+    values = max(({kv["key"]: kv["value"] for kv in s["values"]} for s in statuses),
+                 key=lambda v: int(v["published_count"]))
     assert values["published_count"] == "5"
     assert abs(float(values["lag_s"]) - 4 * (1 / 10 - 1 / 1000)) < 0.08
