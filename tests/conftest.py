@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import os
-import random
 from pathlib import Path
 
 import pytest
+from domains import private_domain
 
 REPO = Path(__file__).resolve().parents[1]
 FIXTURES = REPO / "tests" / "fixtures"
@@ -22,7 +22,69 @@ def tiny_recording() -> Path:
 @pytest.fixture
 def ros_domain(monkeypatch: pytest.MonkeyPatch) -> str:
     """A private ROS_DOMAIN_ID so parallel test runs on this machine do not cross-talk."""
-    domain = str(random.Random(os.getpid() ^ id(monkeypatch)).randint(1, 100))
+    domain = private_domain()
     monkeypatch.setenv("ROS_DOMAIN_ID", domain)
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     return domain
+
+
+@pytest.fixture(scope="session")
+def reference_run(tmp_path_factory) -> dict:
+    """One clean ``vibro graph`` run shared by every test that only reads its outputs (a graph run costs
+    ~30 s; the suite must stay under 8 minutes): 300 synthetic frames with asymmetric restitution (so the
+    discrepancy analysis has a finding), its bag, ``vibro analyze`` of the recording and ``vibro results``
+    of the bag. Made once per test run, also under pytest-xdist (the first worker makes it under a file
+    lock, the others read it). Tests copy what they change; nothing here may be modified.
+
+    Keys: rec, bag, tmp, env (the run's ROS environment), graph_stdout, wall_ns (time before, after the
+    run), analyze, bag_doc (the two results.json documents), truth (the synthetic truth).
+    """
+    import fcntl
+    import json
+
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the base temp directory all workers of this run share
+    tmp = shared / "reference_run"
+    with open(shared / "reference_run.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (tmp / "run.json").is_file():
+            _make_reference_run(tmp)
+    run = json.loads((tmp / "run.json").read_text())
+    return {"rec": tmp / "rec", "bag": tmp / "bag", "tmp": tmp, "env": dict(os.environ, **run["env"]),
+            "graph_stdout": run["graph_stdout"], "wall_ns": tuple(run["wall_ns"]),
+            "analyze": json.loads((tmp / "an" / "results.json").read_text()),
+            "bag_doc": json.loads((tmp / "bagres" / "results.json").read_text()),
+            "truth": json.loads((tmp / "rec.truth.json").read_text())}
+
+
+def _make_reference_run(tmp: Path) -> None:
+    import json
+    import shutil
+    import subprocess
+    import sys
+    import time
+
+    from vibro_sim.synth import SynthConfig, synthesize
+
+    if tmp.exists():
+        shutil.rmtree(tmp)  # a run that failed half-way
+    tmp.mkdir(parents=True)
+    rec = tmp / "rec"
+    synthesize(rec, SynthConfig(frames=300, seed=11, effects={"asymmetric_restitution": {}}), progress=False)
+    ros_env = {"ROS_DOMAIN_ID": private_domain(), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    env = dict(os.environ, **ros_env)
+    vibro = [sys.executable, "-m", "vibro_bringup.cli"]
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        res = subprocess.run([*vibro, *args], capture_output=True, text=True, timeout=300, env=env)
+        assert res.returncode == 0, f"vibro {' '.join(args)}: exit {res.returncode}\n{res.stdout}\n{res.stderr}"
+        return res
+
+    before_ns = time.time_ns()
+    graph = run("graph", str(rec), "--bag", str(tmp / "bag"), "--timeout-s", "150")
+    after_ns = time.time_ns()
+    run("analyze", str(rec), "--out", str(tmp / "an"), "--no-progress", "--no-report")
+    run("results", str(tmp / "bag"), "--out", str(tmp / "bagres"))
+    (tmp / "run.json").write_text(json.dumps({"env": ros_env, "graph_stdout": graph.stdout,
+                                              "wall_ns": [before_ns, after_ns]}))

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import random
 import re
 import subprocess
 import sys
@@ -38,25 +36,10 @@ def _vibro(*args: str, env: dict, timeout: float = 300) -> subprocess.CompletedP
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict:
-    """One synthetic recording, one graph run (bag), its ``vibro results`` and ``vibro analyze``."""
-    tmp = tmp_path_factory.mktemp("bag_vs_analyze")
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.Random(os.getpid()).randint(101, 200)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    rec = tmp / "rec"
-    synth = _vibro("synth", "--out", str(rec), "--frames", "400", "--seed", "5", "--effect", "coulomb_friction",
-                  "--no-progress", env=env)
-    assert synth.returncode == 0, synth.stderr
-    bag = tmp / "bag"
-    graph = _vibro("graph", str(rec), "--bag", str(bag), "--timeout-s", "150", env=env, timeout=240)
-    assert graph.returncode == 0, graph.stdout + graph.stderr
-    analyze = _vibro("analyze", str(rec), "--out", str(tmp / "an"), "--no-progress", "--no-report", env=env)
-    assert analyze.returncode == 0, analyze.stderr
-    results = _vibro("results", str(bag), "--out", str(tmp / "bagres"), env=env)
-    assert results.returncode == 0, results.stderr
-    return {"tmp": tmp, "rec": rec, "bag": bag, "env": env,
-            "analyze": json.loads((tmp / "an" / "results.json").read_text()),
-            "bag_doc": json.loads((tmp / "bagres" / "results.json").read_text())}
+def runs(reference_run: dict) -> dict:
+    """The shared graph run (conftest ``reference_run``): its bag, ``vibro results`` and ``vibro analyze``."""
+    return {"tmp": reference_run["tmp"], "rec": reference_run["rec"], "bag": reference_run["bag"],
+            "env": reference_run["env"], "analyze": reference_run["analyze"], "bag_doc": reference_run["bag_doc"]}
 
 
 def _not_carried(path: str) -> bool:

@@ -184,19 +184,9 @@ def test_killed_recorder_bag_is_read_then_reindexed_for_rosbags_and_mcap(tiny_re
 
 
 @pytest.fixture(scope="module")
-def graph_bag(tmp_path_factory) -> Path:
-    """One real vibro graph run (small synthetic recording) recorded by vibro's recorder."""
-    import random
-
-    from vibro_sim.synth import SynthConfig, synthesize
-
-    root = tmp_path_factory.mktemp("rosbag2")
-    synthesize(root / "rec", SynthConfig(frames=150, seed=5), progress=False)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(101, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    res = subprocess.run([*VIBRO, "graph", str(root / "rec"), "--bag", str(root / "bag")],
-                         capture_output=True, text=True, timeout=300, env=env)
-    assert res.returncode == 0, res.stdout + res.stderr
-    return root / "bag"
+def graph_bag(reference_run: dict) -> Path:
+    """One real vibro graph run recorded by vibro's recorder (the shared ``reference_run``)."""
+    return reference_run["bag"]
 
 
 @pytest.mark.parametrize("prefix", ["/lab2/", ""], ids=["rosbag2-namespaced", "old-relative"])

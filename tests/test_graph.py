@@ -4,31 +4,29 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+
+from domains import private_domain
 import yaml
 
-from vibro_sim.synth import SynthConfig, synthesize
 
 VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
 
 
 def _vibro(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(101, 200)))
+    env = dict(os.environ, ROS_DOMAIN_ID=private_domain(), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     return subprocess.run([*VIBRO, *args], capture_output=True, text=True, timeout=timeout, env=env)
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("graph") / "rec"
-    synthesize(out, SynthConfig(frames=300, seed=11), progress=False)
-    return out
+def recording(reference_run: dict) -> Path:
+    """The shared run's recording (300 frames); tests copy it before changing anything."""
+    return reference_run["rec"]
 
 
 #: Data-time field of each stamped message type (its header stamp must be origin + this).
@@ -75,45 +73,47 @@ def _stamps_on_the_lab_clock(bag: Path, frame0_window_ns: tuple[int, int], durat
     return dic_stamps
 
 
-def test_graph_results_equal_the_offline_cli(recording: Path, tmp_path: Path) -> None:
-    bag = tmp_path / "bags" / "run"
-    before_ns = time.time_ns()
-    graph = _vibro("graph", str(recording), "--bag", str(bag))
-    after_ns = time.time_ns()
-    assert graph.returncode == 0, graph.stdout + graph.stderr
+def test_graph_results_equal_the_offline_cli(reference_run: dict) -> None:
+    run = reference_run
+    bag, graph_stdout = run["bag"], run["graph_stdout"]
     # header stamps on the lab's wall clock: frame 0 at the start of the run (no start time in rig.yaml)
-    _stamps_on_the_lab_clock(bag, (before_ns, after_ns), 0.3)
-    assert "frames in 300 / tracked 300 / lost 0" in graph.stdout, graph.stdout
-    offline = _vibro("analyze", str(recording), "--out", str(tmp_path / "an"), "--no-progress", "--no-report")
-    assert offline.returncode == 0, offline.stderr
-    extracted = _vibro("results", str(bag), "--out", str(tmp_path / "bagres"))
-    assert extracted.returncode == 0, extracted.stderr
-    a = json.loads((tmp_path / "an" / "results.json").read_text())
-    b = json.loads((tmp_path / "bagres" / "results.json").read_text())
+    _stamps_on_the_lab_clock(bag, run["wall_ns"], 0.3)
+    assert "frames in 300 / tracked 300 / lost 0" in graph_stdout, graph_stdout
+    a, b = run["analyze"], run["bag_doc"]
     assert len(a["impacts"]) >= 8 and len(a["impacts"]) == len(b["impacts"])
     for x, y in zip(a["impacts"], b["impacts"]):
         assert x["plate"] == y["plate"]
         assert abs(x["cor"] - y["cor"]) < 1e-6 and abs(x["t"] - y["t"]) < 1e-9
     for model in ("cor_model", "hertz_model"):
         assert abs(a["simulation"][model]["deviation"] - b["simulation"][model]["deviation"]) < 1e-6
-    # the truth: this synthetic run has one constant COR, which the graph must recover; the fitted
-    # method's error on a noise-free-ish DIC track is far below 0.01 (bench_fit: ~1e-4)
-    truth = json.loads(Path(str(recording) + ".truth.json").read_text())
-    true_cors = {round(i["cor"], 9) for i in truth["impacts"]}
-    assert len(true_cors) == 1
-    true_cor = true_cors.pop()
-    assert all(abs(i["cor"] - true_cor) < 0.01 for i in b["impacts"])
+    # the truth: every impact of this synthetic run has its own COR (per-plate law plus scatter), which the
+    # graph must recover impact by impact; the fitted method's error on a clean DIC track is far below 0.01
+    # (bench_fit: ~1e-4 without scatter; the scatter does not enter the estimate of one impact)
+    truth = run["truth"]["impacts"]
+    for est in b["impacts"]:
+        nearest = min(truth, key=lambda i: abs(i["t"] - est["t"]))
+        assert abs(nearest["t"] - est["t"]) < 1e-3, (est, nearest)
+        assert abs(est["cor"] - nearest["cor"]) < 0.01, (est, nearest)
 
 
-def test_graph_reports_a_dropped_frame(recording: Path, tmp_path: Path) -> None:
+def test_graph_reports_a_dropped_frame_and_stamps_on_the_recordings_start(recording: Path, tmp_path: Path) -> None:
+    # the recording's start on the wall clock is known (rig.yaml camera.start_time_unix_s): stamps use it
     rec = tmp_path / "rec"
     shutil.copytree(recording, rec)
+    rig = yaml.safe_load((rec / "rig.yaml").read_text())
+    rig["camera"]["start_time_unix_s"] = 1718000000.123456
+    (rec / "rig.yaml").write_text(yaml.safe_dump(rig))
+    frame0_ns = 1_718_000_000_123_456_000
     (rec / "frames" / "000150.png").unlink()
     (rec / "frames" / "000151.png").write_bytes(b"corrupt")
     graph = _vibro("graph", str(rec), "--bag", str(tmp_path / "bag"))
     assert graph.returncode == 0, graph.stdout + graph.stderr
     assert "frames in 300 / tracked 298 / lost 2" in graph.stdout
     assert "no image received" in graph.stdout
+    # frame 0 exactly at the given time; the two lost frames are answered without a DIC result stamp
+    stamps = _stamps_on_the_lab_clock(tmp_path / "bag", (frame0_ns, frame0_ns), 0.3)
+    fps = float(rig["camera"]["fps"])
+    assert abs(stamps[0] - frame0_ns) <= 1000 and abs(stamps[299] - (frame0_ns + 299 / fps * 1e9)) <= 1000
 
 
 def test_graph_refuses_bad_input_before_starting(tmp_path: Path, recording: Path) -> None:
@@ -124,33 +124,32 @@ def test_graph_refuses_bad_input_before_starting(tmp_path: Path, recording: Path
     assert res.returncode == 2 and "already exists" in res.stderr
 
 
-def test_replaying_a_bag_reproduces_its_results(recording: Path, tmp_path: Path) -> None:
-    # the recording's start on the wall clock is known (rig.yaml camera.start_time_unix_s): stamps use it
-    rec = tmp_path / "rec"
-    shutil.copytree(recording, rec)
-    rig = yaml.safe_load((rec / "rig.yaml").read_text())
-    rig["camera"]["start_time_unix_s"] = 1718000000.123456
-    (rec / "rig.yaml").write_text(yaml.safe_dump(rig))
-    frame0_ns = 1_718_000_000_123_456_000
-    bag = tmp_path / "orig"
-    orig = _vibro("graph", str(rec), "--bag", str(bag), "--timeout-s", "150")
-    assert orig.returncode == 0, orig.stdout + orig.stderr
+def test_replaying_a_bag_reproduces_its_results(reference_run: dict, tmp_path: Path) -> None:
+    from vibro_ros.bags import read_custom_data
+
+    bag = reference_run["bag"]
     replay = _vibro("replay", str(bag), "--out", str(tmp_path / "re"))
     assert replay.returncode == 0, replay.stdout + replay.stderr
-    # both runs stamp on the recording's own start, identically (frame 0 exactly at the given time)
-    stamps = _stamps_on_the_lab_clock(bag, (frame0_ns, frame0_ns), 0.3)
-    assert _stamps_on_the_lab_clock(tmp_path / "re" / "bag", (frame0_ns, frame0_ns), 0.3) == stamps
+    # the replay stamps on the original run's lab clock, identically (its frame 0 where the original's was)
+    from vibro_io.rig import parse_rig
+
+    custom = read_custom_data(bag)
+    t0_s = parse_rig(yaml.safe_load(custom["vibro.rig_yaml"])).camera.t0_s
+    frame0 = int(custom["vibro.time_origin_unix_ns"]) + round(t0_s * 1e9)
+    stamps = _stamps_on_the_lab_clock(bag, (frame0, frame0), 0.3)
+    assert _stamps_on_the_lab_clock(tmp_path / "re" / "bag", (frame0, frame0), 0.3) == stamps
     assert len(stamps) == 300
     assert "frames in 300 / tracked 300 / lost 0" in replay.stdout, replay.stdout
-    assert _vibro("results", str(bag), "--out", str(tmp_path / "orig_res")).returncode == 0
-    a = json.loads((tmp_path / "orig_res" / "results.json").read_text())
+    a = reference_run["bag_doc"]
     b = json.loads((tmp_path / "re" / "results.json").read_text())
     # the same CDR frames through the same deterministic code: the same numbers
     assert len(a["impacts"]) == len(b["impacts"]) > 0
     assert all(abs(x["cor"] - y["cor"]) < 1e-9 for x, y in zip(a["impacts"], b["impacts"]))
     assert abs(a["simulation"]["cor_model"]["deviation"] - b["simulation"]["cor_model"]["deviation"]) < 1e-9
     # every node of both runs stopped cleanly: no Python traceback in any node's log
-    for log in [*(tmp_path / "orig.logs").glob("*.log"), *(tmp_path / "re").rglob("*.log")]:
+    logs = [*Path(f"{bag}.logs").glob("*.log"), *(tmp_path / "re").rglob("*.log")]
+    assert logs
+    for log in logs:
         assert "Traceback" not in log.read_text(), log
 
 

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from vibro_sim.synth import SynthConfig, synthesize
+from domains import private_domain
+
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_like import console_scripts, run_as_launch  # noqa: E402
@@ -23,11 +24,10 @@ VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    """300 frames with asymmetric restitution, so that the discrepancy analysis has a finding to compare."""
-    out = tmp_path_factory.mktemp("launch") / "rec"
-    synthesize(out, SynthConfig(frames=300, seed=11, effects={"asymmetric_restitution": {}}), progress=False)
-    return out
+def recording(reference_run: dict) -> Path:
+    """The shared run's recording: 300 frames with asymmetric restitution, so that the discrepancy analysis
+    has a finding to compare."""
+    return reference_run["rec"]
 
 
 def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, tmp_path: Path) -> None:
@@ -47,17 +47,15 @@ def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, t
     assert live["dic_tracker"].parameters["readers"] == ["discrepancy", "simulator", "trajectory_fitter"]
 
 
-def test_launch_in_any_order_equals_vibro_graph(recording: Path, tmp_path: Path) -> None:
+def test_launch_in_any_order_equals_vibro_graph(recording: Path, reference_run: dict, tmp_path: Path) -> None:
     from vibro_bringup.bag_results import results_from_bag
     from vibro_bringup.graph_spec import launch_nodes
     from vibro_ros.bags import deserialize, make_typestore, read_messages
 
-    # 1. vibro graph (the supervisor's order: recorder, processing, sources)
-    domain = random.Random(os.getpid()).randint(1, 100)
-    graph = subprocess.run([*VIBRO, "graph", str(recording), "--bag", str(tmp_path / "graph_bag"), "--domain-id",
-                            str(domain), "--timeout-s", "150"], capture_output=True, text=True, timeout=200)
-    assert graph.returncode == 0, graph.stdout + graph.stderr
-    assert "frames in 300 / tracked 300 / lost 0" in graph.stdout, graph.stdout
+    # 1. vibro graph (the supervisor's order: recorder, processing, sources): the shared run of this recording
+    graph_stdout = reference_run["graph_stdout"]
+    assert "frames in 300 / tracked 300 / lost 0" in graph_stdout, graph_stdout
+    domain = private_domain()
 
     # 2. the launch file's nodes, shuffled, each waiting for its declared readers, exiting by itself
     nodes = launch_nodes(recording, tmp_path / "launch_bag", reference_dir=tmp_path)
@@ -73,7 +71,7 @@ def test_launch_in_any_order_equals_vibro_graph(recording: Path, tmp_path: Path)
     assert not [k for k, v in texts.items() if "Traceback" in v], seed
 
     # 3. the same results: the same CDR-identical frames through the same deterministic code
-    a, b = results_from_bag(tmp_path / "graph_bag"), results_from_bag(tmp_path / "launch_bag")
+    a, b = results_from_bag(reference_run["bag"]), results_from_bag(tmp_path / "launch_bag")
     assert len(a["impacts"]) == len(b["impacts"]) >= 8
     for x, y in zip(a["impacts"], b["impacts"]):
         assert x["plate"] == y["plate"] and abs(x["cor"] - y["cor"]) < 1e-6 and abs(x["t"] - y["t"]) < 1e-9

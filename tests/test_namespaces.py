@@ -12,7 +12,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 from ros_probe import Probe
 from vibro_bringup.graph_spec import BAG_SOURCE, NODES, node_parameters, write_params_file

@@ -90,6 +90,16 @@ def test_missing_parameter_is_one_clear_line(ros_domain: str) -> None:
     assert "parameter 'rig_file' is required" in res.stderr and "Traceback" not in res.stderr
 
 
+def test_a_misspelt_stream_to_keep_history_for_is_refused_not_waited_for(tiny_recording: Path,
+                                                                          ros_domain: str) -> None:
+    # a stream name no node ever finishes would keep the node up until the run's timeout
+    res = subprocess.run([sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p",
+                          f"recording:={tiny_recording}", "-p", "keep_history_until:=[dics]"],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == 2, res.stderr
+    assert "keep_history_until" in res.stderr and "'dics'" in res.stderr and "Traceback" not in res.stderr
+
+
 def test_diagnostics_report_lag_behind_the_camera_clock(tiny_recording: Path, ros_domain: str) -> None:
     # 5 frames of a 1000 fps camera sent at 10 frames/s: between the first and the last frame
     # 4/10 s of wall time pass for 4/1000 s of camera time, so the source runs 0.396 s behind
@@ -114,6 +124,6 @@ def test_diagnostics_report_lag_behind_the_camera_clock(tiny_recording: Path, ro
                 for s in json.loads(line)["status"] if s["name"].endswith("frame_source")]
     # the source lingers 2.5 s after its last frame, so reports made after the last frame exist
     values = max(({kv["key"]: kv["value"] for kv in s["values"]} for s in statuses),
-                 key=lambda v: int(v["published_count"]))
+                 key=lambda v: int(v.get("published_count", 0)))
     assert values["published_count"] == "5"
     assert abs(float(values["lag_s"]) - 4 * (1 / 10 - 1 / 1000)) < 0.08

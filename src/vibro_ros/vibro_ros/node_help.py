@@ -44,6 +44,8 @@ class NodeInterface:
 
 
 _UNRESOLVED = object()
+#: a default computed when the node starts (e.g. the readers a node declares for itself)
+NODE_DEFAULT = object()
 
 
 def _evaluate(expr: ast.expr, namespace: dict[str, Any]) -> Any:
@@ -83,7 +85,8 @@ def _topic_names(expr: ast.expr, namespace: dict[str, Any], loops: dict[str, ast
     return [(f"<{ast.unparse(expr)}>", "")]
 
 
-def _scan_class(cls: type, interface: NodeInterface, seen: set[type]) -> None:
+def _scan_class(cls: Any, interface: NodeInterface, seen: set) -> None:
+    """Parameters and topics declared in the source of ``cls`` (a class or a function taking the node)."""
     if cls in seen:
         return
     seen.add(cls)
@@ -104,7 +107,7 @@ def _scan_class(cls: type, interface: NodeInterface, seen: set[type]) -> None:
             description = _evaluate(call.args[3], namespace)
             interface.parameters.append(ParameterDoc(
                 str(name) if name is not _UNRESOLVED else ast.unparse(call.args[1]),
-                default if default is not _UNRESOLVED else ast.unparse(call.args[2]),
+                default if default is not _UNRESOLVED else NODE_DEFAULT,
                 str(description) if description is not _UNRESOLVED else ast.unparse(call.args[3])))
         elif fname in ("create_publisher", "create_subscription") and len(call.args) >= 2:
             msg_cls = _evaluate(call.args[0], namespace)
@@ -117,8 +120,8 @@ def _scan_class(cls: type, interface: NodeInterface, seen: set[type]) -> None:
             for name, msg_type in _topic_names(call.args[2], namespace, loops):
                 interface.topics.append(TopicDoc(name, msg_type or _ros_type_name(msg_cls), "subscribes"))
         elif any(isinstance(a, ast.Name) and a.id in ("self", "node") for a in call.args):
-            helper = _evaluate(func, namespace)  # a helper class the node hands itself to
-            if isinstance(helper, type):
+            helper = _evaluate(func, namespace)  # a helper class or function the node hands itself to
+            if isinstance(helper, type) or inspect.isfunction(helper):
                 _scan_class(helper, interface, seen)
 
 
@@ -179,8 +182,9 @@ def usage(node_class: type, executable: str | None = None) -> str:
              "parameters (-p NAME:=VALUE or a params file; lab defaults: share/vibro_bringup/config/vibro.yaml):"]
     width = max((len(p.name) for p in interface.parameters), default=0)
     for p in interface.parameters:
-        lines.append(f"  {p.name:<{width}}  {_type_name(p.default)}, default {_format_default(p.default)}: "
-                     f"{p.description}")
+        default = ("default set by the node" if p.default is NODE_DEFAULT
+                   else f"{_type_name(p.default)}, default {_format_default(p.default)}")
+        lines.append(f"  {p.name:<{width}}  {default}: {p.description}")
     for direction, title in (("subscribes", "reads (subscribes to)"), ("publishes", "writes (publishes)")):
         lines += ["", f"{title}:"]
         found = [t for t in interface.topics if t.direction == direction]

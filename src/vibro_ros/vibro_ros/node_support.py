@@ -21,6 +21,7 @@ from std_msgs.msg import Header
 from vibro_msgs.msg import StreamStatus
 
 from . import topics
+from .lab_clock import TIME_ORIGIN_PARAMETER
 
 #: Data streams: reliable, deep queue; senders also apply credit-based flow control
 #: (frame_source waits for the tracker's acknowledgements), so nothing is dropped.
@@ -98,8 +99,6 @@ def time_origin_parameter(node: Node) -> int:
     ``vibro graph``/``vibro replay`` set it for every node; 0 (a node started by hand without it) keeps
     stamps on the data clock, which the node says once in its log. RecordingError when negative."""
     from vibro_io.errors import RecordingError
-
-    from .lab_clock import TIME_ORIGIN_PARAMETER
 
     if not node.has_parameter(TIME_ORIGIN_PARAMETER):
         declare(node, TIME_ORIGIN_PARAMETER, 0,
@@ -219,6 +218,8 @@ class StatusPublisher:
     """
 
     def __init__(self, node: Node, stream: str):
+        if stream not in topics.STATUS_STREAMS:
+            raise ValueError(f"StatusPublisher: unknown stream {stream!r} (vibro_ros.topics.STATUS_STREAMS)")
         self._node = node
         self._stream = stream
         self._last: tuple[int, int, bool] | None = None

@@ -31,7 +31,6 @@ import time
 from typing import Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.task import Future
@@ -49,16 +48,14 @@ EXIT_WHEN_DONE = "exit_when_done"
 def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()) -> tuple[list[str], float, bool]:
     """Declare ``readers`` (default ``default_readers``), ``wait_for_readers_s`` and ``exit_when_done``;
     return their values."""
-    def declare(name, default, text):
-        node.declare_parameter(name, default, ParameterDescriptor(description=text, read_only=True))
-        return node.get_parameter(name).value
+    from .node_support import declare
 
-    readers = declare(READERS, list(default_readers) or [""],
+    readers = declare(node, READERS, list(default_readers) or [""],
                       "node names (in this node's namespace) that read its outputs: its data waits until all "
                       "have matched, and it exits only once they acknowledged")
-    wait_s = float(declare(WAIT_FOR_READERS_S, 60.0, "fail (exit code 1, naming the readers) when declared "
+    wait_s = float(declare(node, WAIT_FOR_READERS_S, 60.0, "fail (exit code 1, naming the readers) when declared "
                                                      "readers are still missing after this long (s)"))
-    exit_when_done = bool(declare(EXIT_WHEN_DONE, True, "exit once the inputs have ended and the final outputs "
+    exit_when_done = bool(declare(node, EXIT_WHEN_DONE, True, "exit once the inputs have ended and the final outputs "
                                                         "are acknowledged (false: stay up, live graph)"))
     from vibro_io.errors import RecordingError
 
@@ -73,10 +70,19 @@ def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()
 
 def declare_keep_history_until(node: Node) -> list[str]:
     """Declare ``keep_history_until`` (see the module doc) and return its stream names."""
-    node.declare_parameter("keep_history_until", [""], ParameterDescriptor(
-        description="end-of-stream statuses (vibro/status stream names) to wait for before exiting, keeping this "
-                    "node's latched history for a reader restarted mid-run", read_only=True))
-    return sorted({str(v).strip() for v in node.get_parameter("keep_history_until").value if str(v).strip()})
+    from .node_support import declare
+
+    values = declare(node, "keep_history_until", [""],
+                     "end-of-stream statuses (vibro/status stream names) to wait for before exiting, keeping this "
+                     "node's latched history for a reader restarted mid-run")
+    names = sorted({str(v).strip() for v in values if str(v).strip()})
+    unknown = [n for n in names if n not in topics.STATUS_STREAMS]
+    if unknown:  # a typo would keep the node waiting for a status that never comes, until the run's timeout
+        from vibro_io.errors import RecordingError
+
+        raise RecordingError(f"{node.get_name()}: parameter 'keep_history_until' names unknown streams {unknown}; "
+                             f"known: {', '.join(topics.STATUS_STREAMS)}")
+    return names
 
 
 class ReaderGate:

@@ -51,3 +51,6 @@ DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "defa
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
               STATUS, DIAGNOSTICS)
+
+#: The streams a vibro/status StreamStatus names (``stream``): the data topics' last name component.
+STATUS_STREAMS = ("frames", "dic", "accel", "accel_impacts", "flights", "impacts", "simulation", "discrepancy")
