@@ -3,8 +3,9 @@
 Three series of the final model's residuals are tested for a pattern, each with its own noise:
 
 - the structure track (every frame; noise sigma_s from 5th differences of the track, known): drive
-  harmonics 1..5 are projected out first (the catalogue's ``structure_harmonics`` owns 2 and 3), then
-  a trend in time, a step, and a tone at any other frequency (least-squares periodogram);
+  harmonics 1..5 are fitted first (the baseline's sine and the catalogue's ``structure_harmonics`` are
+  drive-locked), then a trend in time, a step, and a tone at any other frequency (least-squares
+  periodogram);
 - each plate's contact level: the ball's position relative to the measured structure at each impact,
   y_flight(t_i) - Y_s,measured(t_i) (the model's flights, whose meeting point is the impact time, and the
   structure track, so a structure-model error does not leak in): the plate's height in the structure's
@@ -62,6 +63,7 @@ class Mismatch:
     plate: str | None = None
     frequency_hz: float | None = None
     step_time_s: float | None = None
+    step_between_s: tuple[float, float] | None = None   # the samples either side of the step (s)
     size_ms: float | None = None   # contact level: the impact-time shift it causes (ms)
     fit: np.ndarray | None = None  # the pattern's values on the series (for subtraction)
 
@@ -75,7 +77,9 @@ class Mismatch:
         if self.shape == "trend":
             what = f"drifts by {self.size:+.3g}{u} over {span}{ms}"
         elif self.shape == "step":
-            what = f"steps by {self.size:+.3g}{u} at t = {self.step_time_s:.3f} s (within {span}){ms}"
+            between = (f" (between the impacts at {self.step_between_s[0]:.3f} and {self.step_between_s[1]:.3f} s)"
+                       if self.step_between_s is not None and self.series != "structure" else "")
+            what = f"steps by {self.size:+.3g}{u} at t = {self.step_time_s:.3f} s{between}{ms}"
         elif self.shape == "periodic":
             what = (f"oscillates at {self.frequency_hz:.2f} Hz (not a drive harmonic) with amplitude "
                     f"{self.size:.3g}{u} over {span}")
@@ -97,6 +101,8 @@ class Mismatch:
             out["frequency_hz"] = _num(self.frequency_hz)
         if self.step_time_s is not None:
             out["step_time_s"] = _num(self.step_time_s)
+        if self.step_between_s is not None:
+            out["step_between_s"] = [_num(x) for x in self.step_between_s]
         if self.size_ms is not None:
             out["size_ms"] = _num(self.size_ms)
         return out
@@ -133,7 +139,8 @@ def _step(t: np.ndarray, r: np.ndarray, min_side: int):
     fit = np.where(np.arange(n) >= kk, jump * kk / n, -jump * (n - kk) / n)
     out = np.empty_like(fit)
     out[order] = fit
-    return float(drop[j]), out, {"size": float(jump), "step_time_s": 0.5 * float(t[kk - 1] + t[kk])}, k.size
+    return float(drop[j]), out, {"size": float(jump), "step_time_s": 0.5 * float(t[kk - 1] + t[kk]),
+                                 "step_between_s": (float(t[kk - 1]), float(t[kk]))}, k.size
 
 
 def _periodogram(t: np.ndarray, r: np.ndarray, f_lo: float, f_hi: float, exclude_hz: list[float], width_hz: float):
@@ -229,13 +236,50 @@ def _joint_fit(t: np.ndarray, r0: np.ndarray, f0: float, accepted: list[tuple[st
     return r0 - X @ c, parts
 
 
-def structure_mismatch(t: np.ndarray, residual_m: np.ndarray, sigma_m: float, f0_hz: float, fps: float,
-                       n_tests: int = N_SERIES) -> list[Mismatch]:
-    """Trend, step and tones (not at drive harmonics) in the final structure model's residual (m); sizes
-    in um. Each accepted pattern is refitted jointly with the drive harmonics and the patterns before it."""
-    r0 = np.asarray(residual_m, float)
-    r, _ = _joint_fit(t, r0, f0_hz, [])
+def _refine(sse, x0: float, half_width: float) -> float:
+    """1-D bounded minimisation of ``sse`` around x0 (kept if it does not improve)."""
+    from scipy.optimize import minimize_scalar
+
+    res = minimize_scalar(sse, bounds=(x0 - half_width, x0 + half_width), method="bounded",
+                          options={"xatol": 1e-4 * half_width})
+    return float(res.x) if res.success and sse(res.x) <= sse(x0) else x0
+
+
+def _refine_frequencies(t: np.ndarray, r0: np.ndarray, f0: float, accepted: list[tuple[str, dict]]) -> float:
+    """Refine the drive frequency and each accepted tone's frequency (within 1/T) in the joint fit: a line
+    at a slightly wrong frequency leaves side lobes that would pass for other tones. Returns the drive
+    frequency; tone frequencies are updated in place."""
     T = float(t[-1] - t[0])
+
+    def sse_drive(f):
+        left, _ = _joint_fit(t, r0, f, accepted)
+        return float(left @ left)
+
+    f0 = _refine(sse_drive, f0, 1.0 / T)
+    for shape, info in accepted:
+        if shape != "periodic":
+            continue
+
+        def sse_tone(f, info=info):
+            old = info["frequency_hz"]
+            info["frequency_hz"] = f
+            left, _ = _joint_fit(t, r0, f0, accepted)
+            info["frequency_hz"] = old
+            return float(left @ left)
+
+        info["frequency_hz"] = _refine(sse_tone, info["frequency_hz"], 0.5 / T)
+    return f0
+
+
+def structure_mismatch(t: np.ndarray, structure_m: np.ndarray, sigma_m: float, f0_hz: float, fps: float,
+                       n_tests: int = N_SERIES) -> list[Mismatch]:
+    """Trend, step and tones in the structure track (m) beyond any drive-locked motion (harmonics 1..5 at
+    the drive frequency refined on the track: every structure model of the library is one), sizes in um.
+    Each accepted pattern is refitted jointly with the harmonics and the patterns before it."""
+    r0 = np.asarray(structure_m, float)
+    T = float(t[-1] - t[0])
+    f0_hz = _refine_frequencies(t, r0, f0_hz, [])
+    r, _ = _joint_fit(t, r0, f0_hz, [])
     accepted: list[tuple[str, dict, float, float]] = []
     for _ in range(MAX_COMPONENTS):
         cands = []
@@ -254,6 +298,7 @@ def structure_mismatch(t: np.ndarray, residual_m: np.ndarray, sigma_m: float, f0
         if p >= ALPHA_FAMILY or abs(info["size"]) < MIN_STRUCTURE_SIGMA * sigma_m:
             break
         accepted.append((shape, info, p, stat))
+        f0_hz = _refine_frequencies(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
         r, _ = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
     _, parts = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
     return [Mismatch("structure", shape, size * 1e6, "um", float(t[0]), float(t[-1]), p, stat,
@@ -294,7 +339,8 @@ def _series_pursuit(series: str, t: np.ndarray, r: np.ndarray, columns: dict, fl
         if not (p < ALPHA_FAMILY) or not size_ok:
             break
         out.append(Mismatch(series, shape, info["size"] * unit_scale, unit, float(t.min()), float(t.max()), p, stat,
-                            plate=plate, step_time_s=info.get("step_time_s"), fit=fit))
+                            plate=plate, step_time_s=info.get("step_time_s"),
+                            step_between_s=info.get("step_between_s"), fit=fit))
         r = r - fit
         n_par += 2 if shape == "step" else 1
     return out
@@ -370,9 +416,7 @@ def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual:
 def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, sigma_f_m: float,
                         fps: float) -> list[Mismatch]:
     """Every systematic pattern the final ``model`` leaves (see the module docstring)."""
-    s = model.structure
-    res = meas.structure_m - np.asarray(model.motion.position(meas.t_s), float) if s is not None else None
-    out = structure_mismatch(meas.t_s, res, sigma_s_m, meas.sine.frequency_hz, fps)
+    out = structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.sine.frequency_hz, fps)
     out += level_mismatch(meas, model, sigma_f_m)
     imp = model.impacts
     out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.sine.frequency_hz)
