@@ -2,9 +2,10 @@
 library (vibro_sim.discrepancy.library) models, so the analysis must report them as ``unexplained``
 with where and what. They exist to test that; a lab recording may show any of them.
 
-- ``cor_drift``: the COR drifts slowly over the recording (wear, heating of the contact):
-  e_i = law(i) + drift_per_s * (t_i - t_mid), linear in the impact count at the rig's two impacts per
-  cycle (t_i ~ i / (2 f)); t_mid is the middle of the camera window.
+- ``cor_drift``: the COR drifts slowly over the recording (wear, heating of the contact): from frame 0
+  on, e_i = law(i) + drift_per_s * (i - i0) / (2 f), i0 the first impact in the camera window: linear in
+  the impact count, so in time at the rig's two impacts per cycle (t_i - t_i0 ~ (i - i0) / (2 f)); the
+  lead-in runs with the law alone, so the regime is settled when the drift starts.
 - ``structure_tone``: a second structure tone not at a harmonic of the drive (another mode, a beat):
   Y_s += tone_amplitude_um * sin(2 pi tone_frequency_hz t + tone_phase_rad) on both plates.
 - ``plate_step``: the upper plate's height steps mid-recording (a loosening screw): at camera time
@@ -79,18 +80,18 @@ class StructureWithTone(StructureMotion):
 
 @dataclass(frozen=True)
 class DriftingCOR(RestitutionLaw):
-    """e_i = base(plate, v, i) + drift_per_impact * (i - index_mid), clipped to [0, 1]."""
+    """e_i = base(plate, v, i) + drift_per_impact * (i - first_index), clipped to [0, 1]."""
 
     base: RestitutionLaw
     drift_per_impact: float
-    index_mid: float
+    first_index: int
 
     @property
     def effect(self) -> str:  # type: ignore[override]
         return "cor_drift"
 
     def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
-        e = self.base.cor(plate, v_rel_ms, impact_index) + self.drift_per_impact * (impact_index - self.index_mid)
+        e = self.base.cor(plate, v_rel_ms, impact_index) + self.drift_per_impact * (impact_index - self.first_index)
         return float(min(1.0, max(0.0, e)))
 
 
@@ -109,12 +110,9 @@ class IndexShifted(RestitutionLaw):
         return self.base.cor(plate, v_rel_ms, impact_index + self.shift)
 
 
-def drifting_law(base: RestitutionLaw, drift_per_s: float, frequency_hz: float, lead_in_s: float,
-                 window_s: float) -> DriftingCOR:
-    """The ``cor_drift`` law: two impacts per cycle map the impact count to time (t ~ i / (2 f) - lead-in,
-    the simulation starting ``lead_in_s`` before frame 0); zero drift at the middle of the window."""
-    per_impact = drift_per_s / (2.0 * frequency_hz)
-    return DriftingCOR(base, per_impact, 2.0 * frequency_hz * (lead_in_s + 0.5 * window_s))
+def drift_per_impact(drift_per_s: float, frequency_hz: float) -> float:
+    """``cor_drift``'s COR change per impact at the rig's two impacts per cycle."""
+    return drift_per_s / (2.0 * frequency_hz)
 
 
 def tone_structure(S: StructureMotion, tone: dict[str, float]) -> StructureWithTone:

@@ -20,7 +20,7 @@ from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
 from ..structure import StructureMotion
-from .invented import INVENTED_EFFECTS, check_invented, drifting_law, tone_structure
+from .invented import INVENTED_EFFECTS, DriftingCOR, check_invented, drift_per_impact, tone_structure
 
 
 class SynthError(RecordingError):
@@ -221,6 +221,20 @@ class Models:
     force: ForceLaw
     law_without_scatter: RestitutionLaw | None = None   # the COR law before the per-impact scatter
     plate_step: dict[str, float] | None = None          # the invented plate_step effect's parameters
+    cor_drift_per_impact: float = 0.0                   # the invented cor_drift (from frame 0 on)
+    law_before_scatter: RestitutionLaw | None = None    # the law before cor_scatter (with asymmetric's own)
+    cor_scatter: float = 0.0
+    scatter_seed: int = 0
+
+    def window_laws(self, first_index: int) -> tuple[RestitutionLaw, RestitutionLaw | None]:
+        """(COR law, the same without scatter) from the camera window's first impact ``first_index`` on:
+        the lead-in's laws unless ``cor_drift`` starts drifting there."""
+        if not self.cor_drift_per_impact:
+            return self.restitution, self.law_without_scatter
+        law: RestitutionLaw = DriftingCOR(self.law_before_scatter, self.cor_drift_per_impact, first_index)
+        if self.cor_scatter > 0:
+            law = Scattered(law, self.cor_scatter, seed=self.scatter_seed)
+        return law, DriftingCOR(self.law_without_scatter, self.cor_drift_per_impact, first_index)
 
 
 def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
@@ -240,13 +254,12 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
         structure = tone_structure(structure, eff["structure_tone"])
     law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
     plain_law = effect_laws(eff)[0]   # the same law without any per-impact scatter (truth: cor_law)
-    if "cor_drift" in eff:
-        window_s = (cfg.frames - 1) / cfg.fps
-        law, plain_law = (drifting_law(x, eff["cor_drift"]["drift_per_s"], cfg.frequency_hz, cfg.lead_in_s,
-                                       window_s) for x in (law, plain_law))
+    before_scatter = law
     if cfg.cor_scatter > 0:
         law = Scattered(law, cfg.cor_scatter, seed=cfg.seed + 104729)
-    return Models(structure, cavity, law, force, plain_law, eff.get("plate_step"))
+    drift = drift_per_impact(eff["cor_drift"]["drift_per_s"], cfg.frequency_hz) if "cor_drift" in eff else 0.0
+    return Models(structure, cavity, law, force, plain_law, eff.get("plate_step"), drift, before_scatter,
+                  cfg.cor_scatter, cfg.seed + 104729)
 
 
 def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None

@@ -163,7 +163,8 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
 
 def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
     S = models.structure
-    plain = models.law_without_scatter
+    first = traj.impacts[0].index if traj.impacts else 0
+    plain = models.window_laws(first)[1]
     impacts = [{"index": j, "t": i.t_s, "plate": i.plate, "cor": i.cor,
                 "v_ball_before": i.v_ball_before_ms, "v_ball_after": i.v_ball_after_ms,
                 "v_structure": i.v_structure_ms, "sim_index": i.index,
