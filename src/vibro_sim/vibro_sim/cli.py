@@ -7,6 +7,7 @@ import logging
 import sys
 
 from .synth import EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args, synthesize, truth_path
+from .synth.invented import INVENTED_EFFECTS, INVENTED_HELP
 
 log = logging.getLogger(__name__)
 
@@ -14,7 +15,10 @@ log = logging.getLogger(__name__)
 def _effects_help() -> str:
     parts = [f"{name} ({', '.join(f'{k}={d:g}' for k, (d, _, _) in spec.items())})"
              for name, spec in EFFECTS.items()]
-    return "; ".join(parts)
+    invented = [f"{name} ({', '.join(f'{k}={d:g}' for k, (d, _, _) in spec.items())}: {INVENTED_HELP[name]})"
+                for name, spec in INVENTED_EFFECTS.items()]
+    return ("; ".join(parts) + ". Invented effects OUTSIDE the discrepancy catalogue (no term models them: "
+            "the analysis must report them as 'unexplained', located): " + "; ".join(invented))
 
 
 def register(sub) -> None:

@@ -50,6 +50,7 @@ from .locate import locate, structure_words
 from .model import FittedModel, fit_model, plate_levels
 from .onestep import OneStep, one_step
 from .select import UNEXPLAINED_RATIO, law_variance_share, select_cor, select_flights, select_structure
+from .systematic import contact_scatter, systematic_mismatch
 
 log = logging.getLogger(__name__)
 
@@ -179,42 +180,6 @@ def _cor_where(meas: Measured, steps: OneStep, model_after: FittedModel, cor_noi
     return f"{words}; measured " + ", ".join(parts)
 
 
-def impact_leftovers(model: FittedModel, steps: OneStep, cor_noise: float) -> list[str]:
-    """Mismatches at the impacts that the final model leaves: impact times off by more than
-    IMPACT_FLAG noise floors on most impacts (the plates are not where the model puts them), or CORs
-    drifting over the recording (a linear trend in time of the law's residual, F-test at ALPHA_COR,
-    changing the COR by at least MIN_COR_RMS RMS)."""
-    from scipy import stats
-
-    from .locate import IMPACT_FLAG, impact_ratios
-    from .select import ALPHA_COR, MIN_COR_RMS
-
-    out = []
-    _, rt = impact_ratios(steps, cor_noise)
-    ok = np.isfinite(rt)
-    if ok.sum() >= 4 and float(np.median(rt[ok])) > IMPACT_FLAG:
-        late = float(np.median(steps.impact_dt_s[ok]))
-        out.append(f"impacts: the model's impacts come {'later' if late > 0 else 'earlier'} than measured by a median "
-                   f"{abs(late) * 1e6:.1f} us ({float(np.median(rt[ok])):.1f}x the noise floor) on "
-                   f"{int(np.sum(rt[ok] > IMPACT_FLAG))}/{int(ok.sum())} impacts")
-    r = model.cor.residual
-    t = model.impacts.t_s
-    if r.size >= 6:
-        X = np.column_stack([np.ones_like(t), t - t.mean()])
-        c, *_ = np.linalg.lstsq(X, r, rcond=None)
-        rr = r - X @ c
-        sse1, sse0 = float(rr @ rr), float(((r - r.mean()) ** 2).sum())
-        dof = r.size - 2
-        if sse1 > 0 and dof > 0:
-            F = (sse0 - sse1) / (sse1 / dof)
-            p = float(stats.f.sf(F, 1, dof))
-            trend = float(np.sqrt(np.mean((X[:, 1] * c[1]) ** 2)))
-            if p < ALPHA_COR and trend >= MIN_COR_RMS:
-                out.append(f"impacts: the COR drifts by {c[1] * (t[-1] - t[0]):+.3f} over the recording "
-                           f"({t[0]:.3f} to {t[-1]:.3f} s), which no COR law of the library follows")
-    return out
-
-
 def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig,
                     flight_terms: tuple[FlightTerm, ...] = FLIGHT_TERMS, cor_terms=("asymmetric_restitution",
                                                                                      "velocity_dependent_restitution"),
@@ -315,11 +280,12 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
             extra["note"] = "; ".join(c_stage.notes)
         add(kind, m, params, stds, where, extra)
 
-    # whatever is left: unexplained -----------------------------------------------------------------
+    # whatever is left: unexplained (systematic patterns the final model leaves; random COR scatter is not)
     final_loc = locate(current_steps, cor_noise)
+    patterns = systematic_mismatch(meas, current, sig_s, sig_f, 1.0 / float(np.median(np.diff(meas.t_s))))
     leftovers = []
     s_ratio = s_stage.residual_ratio if s_stage is not None else s1.sigma / sig_s
-    if s_ratio > UNEXPLAINED_RATIO:
+    if s_ratio > UNEXPLAINED_RATIO and not any(p.series == "structure" for p in patterns):
         leftovers.append(structure_words(current.structure.residual, meas.t_s, sig_s, s1.frequency_hz)
                          .replace("the pure sine misses", "the model misses"))
     if f_stage is not None and f_stage.unexplained:
@@ -328,13 +294,14 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
         ratio = math.sqrt(current.flights.sse / max(current.flights.n_points, 1)) / sig_f
         if ratio > 1.5:
             leftovers.append(final_loc["words"][0] if final_loc["words"] else "flights")
-    leftovers += impact_leftovers(current, current_steps, cor_noise)
+    leftovers += [p.words() for p in patterns]
     if leftovers:
         findings.append({"effect": UNEXPLAINED, "parameters": {}, "where": "; ".join(leftovers),
                          "deviation_before": _num(current_restarted.deviation),
                          "deviation_after": _num(current_restarted.deviation),
                          "paper_deviation_before": _num(current_run.deviation),
-                         "paper_deviation_after": _num(current_run.deviation)})
+                         "paper_deviation_after": _num(current_run.deviation),
+                         "mismatches": [p.to_dict() for p in patterns]})
 
     stages = {}
     for st in (s_stage, f_stage, c_stage):
@@ -354,6 +321,7 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
         "noise_floor": {"ball_mm_per_frame": _num(sig_f * 1e3), "structure_mm_per_frame": _num(sig_s * 1e3),
                         "cor": _num(cor_noise)},
         "cor_scatter": _num(math.sqrt(current.cor.sse / max(current.cor.dof, 1))) if current.cor.n else None,
+        "contact_scatter": contact_scatter(current, patterns),
         "one_step": {"baseline": base_steps.summary(), "final": current_steps.summary()},
         "location": {k: v for k, v in where_base.items() if k != "words"},
         "stages": stages,

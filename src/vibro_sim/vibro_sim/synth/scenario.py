@@ -4,7 +4,8 @@ Effects use the contract's names and parameter names (docs/recording-format.md);
 every parameter name belongs to exactly one effect, so ``--param key=value`` finds its
 effect by the key. Extra (non-contract) knobs: ``cor_sigma`` (per-impact Gaussian COR
 scatter of ``asymmetric_restitution``, default 0.04 as in the paper's Table 2) and
-``h2_phase_rad``/``h3_phase_rad`` of ``structure_harmonics``.
+``h2_phase_rad``/``h3_phase_rad`` of ``structure_harmonics``. Invented effects outside the
+discrepancy catalogue (``cor_drift``, ``structure_tone``, ``plate_step``): :mod:`.invented`.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
 from ..structure import StructureMotion
+from .invented import INVENTED_EFFECTS, DriftingCOR, check_invented, drift_per_impact, tone_structure
 
 
 class SynthError(RecordingError):
@@ -41,8 +43,10 @@ EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
                             "h2_phase_rad": (0.5, -2 * math.pi, 2 * math.pi),
                             "h3_phase_rad": (-0.8, -2 * math.pi, 2 * math.pi)},
 }
-EFFECT_NAMES = tuple(EFFECTS) + ("none",)
-_PARAM_OWNER = {p: eff for eff, ps in EFFECTS.items() for p in ps}
+# every effect the rig simulates: the catalogue's (contract names) and the invented ones outside it
+_ALL_EFFECTS = {**EFFECTS, **INVENTED_EFFECTS}
+EFFECT_NAMES = tuple(EFFECTS) + tuple(INVENTED_EFFECTS) + ("none",)
+_PARAM_OWNER = {p: eff for eff, ps in _ALL_EFFECTS.items() for p in ps}
 _RESTITUTION = ("asymmetric_restitution", "velocity_dependent_restitution")
 _FORCES = ("coulomb_friction", "viscous_drag", "quadratic_drag")
 
@@ -141,6 +145,9 @@ class SynthConfig:
             raise SynthError(f"synth option 'mm_per_px' must be > 0, got {self.mm_per_px!r}")
         if not math.isfinite(self.clock_offset_s) or abs(self.clock_offset_s) > 1.0:
             raise SynthError(f"synth option 'clock_offset_s' must be within +-1 s, got {self.clock_offset_s!r}")
+        why = check_invented(self.effects, self.frequency_hz)
+        if why is not None:
+            raise SynthError(why)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -152,9 +159,9 @@ def normalise_effects(effects: Mapping[str, Mapping[str, Any]] | None) -> dict[s
     for name, params in (effects or {}).items():
         if name == "none":
             continue
-        if name not in EFFECTS:
+        if name not in _ALL_EFFECTS:
             raise SynthError(f"unknown effect '{name}' (choose from: {', '.join(EFFECT_NAMES)})")
-        spec = EFFECTS[name]
+        spec = _ALL_EFFECTS[name]
         values = {k: d for k, (d, _, _) in spec.items()}
         for key, value in (params or {}).items():
             if key not in spec:
@@ -212,6 +219,22 @@ class Models:
     cavity: BallCavity
     restitution: RestitutionLaw
     force: ForceLaw
+    law_without_scatter: RestitutionLaw | None = None   # the COR law before the per-impact scatter
+    plate_step: dict[str, float] | None = None          # the invented plate_step effect's parameters
+    cor_drift_per_impact: float = 0.0                   # the invented cor_drift (from frame 0 on)
+    law_before_scatter: RestitutionLaw | None = None    # the law before cor_scatter (with asymmetric's own)
+    cor_scatter: float = 0.0
+    scatter_seed: int = 0
+
+    def window_laws(self, first_index: int) -> tuple[RestitutionLaw, RestitutionLaw | None]:
+        """(COR law, the same without scatter) from the camera window's first impact ``first_index`` on:
+        the lead-in's laws unless ``cor_drift`` starts drifting there."""
+        if not self.cor_drift_per_impact:
+            return self.restitution, self.law_without_scatter
+        law: RestitutionLaw = DriftingCOR(self.law_before_scatter, self.cor_drift_per_impact, first_index)
+        if self.cor_scatter > 0:
+            law = Scattered(law, self.cor_scatter, seed=self.scatter_seed)
+        return law, DriftingCOR(self.law_without_scatter, self.cor_drift_per_impact, first_index)
 
 
 def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
@@ -227,10 +250,16 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                         free_play_m=0.5e-3 * (cfg.gap_mm - cfg.ball_diameter_mm),
                         tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
+    if "structure_tone" in eff:
+        structure = tone_structure(structure, eff["structure_tone"])
     law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
+    plain_law = effect_laws(eff)[0]   # the same law without any per-impact scatter (truth: cor_law)
+    before_scatter = law
     if cfg.cor_scatter > 0:
         law = Scattered(law, cfg.cor_scatter, seed=cfg.seed + 104729)
-    return Models(structure, cavity, law, force)
+    drift = drift_per_impact(eff["cor_drift"]["drift_per_s"], cfg.frequency_hz) if "cor_drift" in eff else 0.0
+    return Models(structure, cavity, law, force, plain_law, eff.get("plate_step"), drift, before_scatter,
+                  cfg.cor_scatter, cfg.seed + 104729)
 
 
 def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None
@@ -263,4 +292,11 @@ def effects_truth(cfg: SynthConfig) -> list[dict[str, Any]]:
     """The truth file's ``effects`` list (contract parameter names; extras kept)."""
     if not cfg.effects:
         return [{"effect": "none", "parameters": {}}]
-    return [{"effect": name, "parameters": dict(params)} for name, params in cfg.effects.items()]
+    out = []
+    for name, params in cfg.effects.items():
+        row: dict[str, Any] = {"effect": name, "parameters": dict(params)}
+        if name in INVENTED_EFFECTS:
+            # not a contract effect: the discrepancy analysis has no term for it and must report it unexplained
+            row.update(out_of_catalogue=True, expected_finding="unexplained")
+        out.append(row)
+    return out

@@ -7,7 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dataclasses import replace
+
 from ..cor_model import FlightRecord, ImpactEvent, SimResult, simulate_cor
+from .invented import IndexShifted, stepped_cavity
 from .scenario import Models, SynthConfig
 
 
@@ -46,13 +49,60 @@ def simulate_window(cfg: SynthConfig, models: Models) -> Trajectory:
         res = simulate_cor(S, models.cavity, models.restitution, models.force,
                            float(S.position(t_start)) - b, 0.0, t_start, t_end)
         return Trajectory(res, t_frames, ball, np.asarray(S.position(t_frames), dtype=float), [], [])
-    res = simulate_cor(S, models.cavity, models.restitution, models.force,
-                       float(S.position(t_start)), 0.0, t_start, t_end)
+    splits = []
+    if models.cor_drift_per_impact:
+        splits.append(float(t_frames[0]))
+    if models.plate_step is not None:
+        splits.append(float(models.plate_step["step_time_s"]))
+    splits = sorted(x for x in set(splits) if t_start < x < t_end)
+    if splits:
+        res = _simulate_pieces(models, [t_start] + splits + [t_end], float(t_frames[0]))
+    else:
+        res = simulate_cor(S, models.cavity, models.restitution, models.force,
+                           float(S.position(t_start)), 0.0, t_start, t_end)
     lo, hi = float(t_frames[0]), float(t_frames[-1])
     impacts = [i for i in res.impacts if lo <= i.t_s <= hi]
     flights = [f for f in res.flights if f.t_end_s > lo and f.t_start_s < hi]
     return Trajectory(res, t_frames, np.asarray(res.sample(t_frames), dtype=float),
                       np.asarray(S.position(t_frames), dtype=float), impacts, flights)
+
+
+def _simulate_pieces(models: Models, bounds: list[float], t_window_s: float) -> SimResult:
+    """The invented effects that change the physics at a time: simulate piece by piece between ``bounds``,
+    each piece from the ball's state at the end of the one before, and splice them into one result on
+    the unstepped structure (the lower plate, which DIC tracks): impacts and flights numbered on (the COR
+    law sees the impact count go on), a flight across a boundary merged. From ``plate_step``'s time on the
+    cavity is the stepped one (:func:`.invented.stepped_cavity`; it only grows, so the ball stays inside);
+    from frame 0 (``t_window_s``) on the COR law is the window's (``cor_drift``: :meth:`Models.window_laws`)."""
+    S = models.structure
+    step_t = float(models.plate_step["step_time_s"]) if models.plate_step is not None else math.inf
+    pieces: list[SimResult] = []
+    y, v = float(S.position(bounds[0])), 0.0
+    n_imp = 0
+    law = models.restitution
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        S_k, cav_k = (stepped_cavity(S, models.cavity, models.plate_step) if a >= step_t
+                      else (S, models.cavity))
+        if a >= t_window_s and models.cor_drift_per_impact and law is models.restitution:
+            law = models.window_laws(n_imp)[0]
+        res = simulate_cor(S_k, cav_k, IndexShifted(law, n_imp), models.force, y, v, a, b)
+        res.impacts = [replace(i, index=i.index + n_imp) for i in res.impacts]
+        n_imp += len(res.impacts)
+        y, v = float(res.sample(b)), float(res.velocity(b))
+        pieces.append(res)
+    impacts, flights, stuck, segments = [], [], [], []
+    for res in pieces:
+        later = [replace(f, index=f.index + len(flights)) for f in res.flights]
+        if flights and later and flights[-1].end_plate is None and later[0].start_plate is None:
+            a_, b_ = flights.pop(), later.pop(0)
+            later = [replace(b_, index=a_.index, t_start_s=a_.t_start_s, start_plate=a_.start_plate)] + \
+                [replace(f, index=f.index - 1) for f in later]
+        impacts += res.impacts
+        flights += later
+        stuck += res.stuck
+        segments += res.segments
+    return SimResult(structure=S, cavity=models.cavity, t0_s=bounds[0], t_end_s=pieces[-1].t_end_s, impacts=impacts,
+                     flights=flights, stuck=stuck, segments=segments, truncated=any(r.truncated for r in pieces))
 
 
 def regime(traj: Trajectory, frequency_hz: float) -> dict:

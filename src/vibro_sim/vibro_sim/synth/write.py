@@ -163,9 +163,13 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
 
 def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
     S = models.structure
+    first = traj.impacts[0].index if traj.impacts else 0
+    plain = models.window_laws(first)[1]
     impacts = [{"index": j, "t": i.t_s, "plate": i.plate, "cor": i.cor,
                 "v_ball_before": i.v_ball_before_ms, "v_ball_after": i.v_ball_after_ms,
-                "v_structure": i.v_structure_ms, "sim_index": i.index}
+                "v_structure": i.v_structure_ms, "sim_index": i.index,
+                # the COR law's value before the per-impact scatter
+                "cor_law": float(plain.cor(i.plate, i.v_rel_before_ms, i.index)) if plain is not None else i.cor}
                for j, i in enumerate(traj.impacts)]
     first_flight = traj.flights[0].index if traj.flights else 0
     flights = [{"index": f.index - first_flight, "t_start": f.t_start_s, "t_end": f.t_end_s,
@@ -203,6 +207,15 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
         "regime": regime(traj, cfg.frequency_hz) if not cfg.still else None,
         "config": cfg_dict,
     }
+    if hasattr(S, "tone_frequency_hz"):
+        truth["structure"].update(tone_amplitude_mm=S.tone_amplitude_m * 1e3, tone_frequency_hz=S.tone_frequency_hz,
+                                  tone_phase_rad=S.tone_phase_rad,
+                                  convention=truth["structure"]["convention"] + " + tone_amplitude sin(2 pi "
+                                  "tone_frequency t + tone_phase)")
+    if models.plate_step is not None:
+        truth["plate_step"] = {"plate": "top", "t_s": models.plate_step["step_time_s"],
+                               "step_mm": models.plate_step["step_um"] * 1e-3,
+                               "note": "the upper plate is step_mm higher (the cavity larger) from t_s on"}
     if cfg.still and cfg.drift:
         truth["camera_drift_mm"] = drift.tolist()
         truth["camera_drift_note"] = ("apparent upward shift of the whole scene; DIC measures "

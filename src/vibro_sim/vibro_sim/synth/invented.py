@@ -1,0 +1,128 @@
+"""Out-of-catalogue effects of the synthetic rig (issue 13.3): physics that no term of the discrepancy
+library (vibro_sim.discrepancy.library) models, so the analysis must report them as ``unexplained``
+with where and what. They exist to test that; a lab recording may show any of them.
+
+- ``cor_drift``: the COR drifts slowly over the recording (wear, heating of the contact): from frame 0
+  on, e_i = law(i) + drift_per_s * (i - i0) / (2 f), i0 the first impact in the camera window: linear in
+  the impact count, so in time at the rig's two impacts per cycle (t_i - t_i0 ~ (i - i0) / (2 f)); the
+  lead-in runs with the law alone, so the regime is settled when the drift starts.
+- ``structure_tone``: a second structure tone not at a harmonic of the drive (another mode, a beat):
+  Y_s += tone_amplitude_um * sin(2 pi tone_frequency_hz t + tone_phase_rad) on both plates.
+- ``plate_step``: the upper plate's height steps mid-recording (a loosening screw): at camera time
+  ``step_time_s`` it backs off upwards by ``step_um``; the cavity grows, the lower plate and the
+  tracked structure (the ROI sits on the lower plate) stay. The images draw the upper plate where it
+  was (the step is about a pixel; DIC never tracks the upper plate).
+
+Parameters: {effect: {parameter: (default, min, max)}}, SI except the explicit ``_um``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..restitution import RestitutionLaw
+from ..structure import StructureMotion
+
+INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
+    "cor_drift": {"drift_per_s": (-0.2, -2.0, 2.0)},
+    "structure_tone": {"tone_amplitude_um": (15.0, 0.0, 500.0), "tone_frequency_hz": (7.3, 0.5, 200.0),
+                       "tone_phase_rad": (0.4, -2 * math.pi, 2 * math.pi)},
+    "plate_step": {"step_um": (60.0, 0.0, 1000.0), "step_time_s": (0.15, 0.0, 100.0)},
+}
+
+INVENTED_HELP = {
+    "cor_drift": "the COR drifts linearly in time by drift_per_s per second (wear/heating)",
+    "structure_tone": "a second structure tone of tone_amplitude_um at tone_frequency_hz, not a drive harmonic",
+    "plate_step": "at step_time_s the upper plate backs off upwards by step_um (a loosening screw)",
+}
+
+#: the tone must stay this far (Hz) from every drive harmonic 1..MAX_HARMONIC, else it is a harmonic
+TONE_CLEARANCE_HZ = 1.0
+MAX_HARMONIC = 5
+
+
+def check_invented(effects: dict[str, dict[str, float]], frequency_hz: float) -> str | None:
+    """Why a set of invented-effect parameters cannot be simulated, or None."""
+    tone = effects.get("structure_tone")
+    if tone is not None:
+        f = tone["tone_frequency_hz"]
+        for k in range(1, MAX_HARMONIC + 1):
+            if abs(f - k * frequency_hz) < TONE_CLEARANCE_HZ:
+                return (f"parameter 'tone_frequency_hz' of effect 'structure_tone' ({f} Hz) is within "
+                        f"{TONE_CLEARANCE_HZ} Hz of drive harmonic {k} ({k * frequency_hz} Hz): that is "
+                        f"structure_harmonics, not an out-of-catalogue tone")
+    return None
+
+
+@dataclass(frozen=True)
+class StructureWithTone(StructureMotion):
+    """StructureMotion plus a tone of ``tone_amplitude_m`` at ``tone_frequency_hz`` (any frequency)."""
+
+    tone_amplitude_m: float = 0.0
+    tone_frequency_hz: float = 0.0
+    tone_phase_rad: float = 0.0
+
+    def _sum(self, t, order: int):
+        base = super()._sum(t, order)
+        w = 2.0 * math.pi * self.tone_frequency_hz
+        tone = self.tone_amplitude_m * w ** order * np.sin(w * np.asarray(t, dtype=float) + self.tone_phase_rad
+                                                           + order * 0.5 * math.pi)
+        out = base + tone
+        return out if np.ndim(out) else float(out)
+
+    def bound(self, order: int) -> float:
+        return super().bound(order) + self.tone_amplitude_m * (2.0 * math.pi * self.tone_frequency_hz) ** order
+
+
+
+@dataclass(frozen=True)
+class DriftingCOR(RestitutionLaw):
+    """e_i = base(plate, v, i) + drift_per_impact * (i - first_index), clipped to [0, 1]."""
+
+    base: RestitutionLaw
+    drift_per_impact: float
+    first_index: int
+
+    @property
+    def effect(self) -> str:  # type: ignore[override]
+        return "cor_drift"
+
+    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+        e = self.base.cor(plate, v_rel_ms, impact_index) + self.drift_per_impact * (impact_index - self.first_index)
+        return float(min(1.0, max(0.0, e)))
+
+
+@dataclass(frozen=True)
+class IndexShifted(RestitutionLaw):
+    """A law seen from a simulation restarted after ``shift`` impacts: impact i is impact i + shift."""
+
+    base: RestitutionLaw
+    shift: int
+
+    @property
+    def effect(self) -> str:  # type: ignore[override]
+        return getattr(self.base, "effect", "none")
+
+    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+        return self.base.cor(plate, v_rel_ms, impact_index + self.shift)
+
+
+def drift_per_impact(drift_per_s: float, frequency_hz: float) -> float:
+    """``cor_drift``'s COR change per impact at the rig's two impacts per cycle."""
+    return drift_per_s / (2.0 * frequency_hz)
+
+
+def tone_structure(S: StructureMotion, tone: dict[str, float]) -> StructureWithTone:
+    """``S`` plus the ``structure_tone`` effect's tone."""
+    return StructureWithTone(**S.to_dict(), tone_amplitude_m=tone["tone_amplitude_um"] * 1e-6,
+                             tone_frequency_hz=tone["tone_frequency_hz"], tone_phase_rad=tone["tone_phase_rad"])
+
+
+def stepped_cavity(S: StructureMotion, cavity, step: dict[str, float]):
+    """(structure, cavity) after a ``plate_step``: the cavity's free play grows by step/2 and its centre
+    moves up by step/2, so the upper plate is ``step_um`` higher and the lower plate stays."""
+    half = 0.5e-6 * step["step_um"]
+    return replace(S, offset_m=S.offset_m + half), replace(cavity, free_play_m=cavity.free_play_m + half)
