@@ -21,8 +21,11 @@ does not change them; ``unexplained`` has no model. Without such a finding, or f
 model does not see from both sides (a flight too short to fit), the identification's values stay and
 the impact's ``cor_method`` is ``"paper"``.
 
-Plain module (no rclpy, no vibro_fit): ``vibro analyze`` (:mod:`vibro_bringup.analyze`) applies it to
-its results document.
+Plain module (no rclpy, no vibro_fit), the one place this is done: ``vibro analyze``
+(:mod:`vibro_bringup.analyze`) applies :func:`reidentify_document` to its results document; the graph's
+``discrepancy`` node applies it to the document of the fitter's messages and publishes the re-measured
+impacts (``vibro/impacts_final_model``), which ``vibro results <bag>`` puts back with
+:func:`reidentified_from_impacts` and :func:`apply_reidentification`.
 """
 
 from __future__ import annotations
@@ -186,7 +189,10 @@ def reidentify_impacts(meas: Measured, model: FittedModel) -> list[ReidentifiedI
         if not all(math.isfinite(float(x[j])) for x in (imps.t_s, imps.v_before, imps.v_after, imps.v_structure,
                                                          imps.cor)):
             continue
-        t_std, cor_std = impact_stds(meas, model, j)
+        try:
+            t_std, cor_std = impact_stds(meas, model, j)
+        except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
+            continue  # no uncertainty, no claim: the impact keeps the identification's values
         out.append(ReidentifiedImpact(float(imp.t_s), float(imps.t_s[j]), t_std, float(imps.v_before[j]),
                                       float(imps.v_after[j]), float(imps.v_structure[j]), float(imps.cor[j]),
                                       cor_std))
@@ -198,7 +204,7 @@ def _keep_paper(imp: Impact) -> Impact:
 
 
 def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
-                           measured: Sequence[ReidentifiedImpact], model_label: str = "") -> ResultsDocument:
+                           measured: Sequence[ReidentifiedImpact]) -> ResultsDocument:
     """``doc`` with its impacts measured under the final model: ``cor``, ``cor_std``, ``t``, ``t_std``,
     ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
     ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact; ``cor_summary`` from the new CORs; the
@@ -221,8 +227,7 @@ def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
     n_cor = sum(i.cor is not None for i in doc.impacts)
     section = {"cor_method": method if n_done else PAPER, "effects": list(effects) if n_done else [],
                "n_reidentified": n_done, "n_paper": n_cor - n_done}
-    if effects:
-        section["model"] = model_label
+    if effects and n_done:
         section["description"] = (
             f"cor, cor_std, t, t_std, v_* of {n_done}/{n_cor} impacts measured under the final model "
             f"({', '.join(effects)}): impact time where its flights meet, structure velocity from its structure "
@@ -230,6 +235,9 @@ def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
             "t_paper are the identification's (Eq. 15-16)"
             + (f"; {n_cor - n_done} impact(s) without a fitted flight on both sides keep them" if n_cor > n_done
                else ""))
+    elif effects:
+        section["description"] = (f"no impact was measured again under the final model ({', '.join(effects)}): "
+                                  "cor is the identification's (Eq. 15-16)")
     else:
         section["description"] = ("no finding changes how an impact is measured: cor is the identification's "
                                   "(Eq. 15-16)")
@@ -241,10 +249,25 @@ def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
 
 
 def reidentify_document(doc: ResultsDocument, run) -> ResultsDocument:
-    """``doc`` (with its ``discrepancy`` section filled from ``run``, a
+    """``doc`` (with its ``discrepancy`` findings from ``run``, a
     :class:`~vibro_sim.discrepancy.engine.DiscrepancyRun` or None) re-identified with the engine's final
     model when a finding changes how the impacts are measured; else with every impact marked "paper"."""
     effects = measurement_effects(doc.discrepancy.findings)
     if run is None or run.final is None or run.measured is None or not effects:
         return apply_reidentification(doc, [], [])
-    return apply_reidentification(doc, effects, reidentify_impacts(run.measured, run.final), run.final.label())
+    return apply_reidentification(doc, effects, reidentify_impacts(run.measured, run.final))
+
+
+def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[ReidentifiedImpact]:
+    """The re-identified impacts as a graph run carries them (the ``discrepancy`` node's
+    ``vibro/impacts_final_model`` messages, converted to :class:`Impact`), matched by index to ``doc``'s
+    identified impacts (whose time names them); an index ``doc`` does not hold is dropped."""
+    t_identified = {i.index: i.t_s for i in doc.impacts if i.t_s is not None}
+    out = []
+    for c in corrected:
+        if c.index not in t_identified or None in (c.t_s, c.cor, c.v_ball_before_mps, c.v_ball_after_mps,
+                                                   c.v_structure_mps):
+            continue
+        out.append(ReidentifiedImpact(t_identified[c.index], c.t_s, c.t_std_s, c.v_ball_before_mps,
+                                      c.v_ball_after_mps, c.v_structure_mps, c.cor, c.cor_std))
+    return out
