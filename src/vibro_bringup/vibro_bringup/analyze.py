@@ -139,10 +139,11 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     mapping."""
     from vibro_fit.identify import identify
     from vibro_fit.report import REPORT_HTML, write_figures, write_html
-    from vibro_fit.results import RESULTS_JSON, results_model, write_csv_tables
+    from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_model.codec import write_results
     from vibro_model.results import Discrepancy, Simulation
     from vibro_sim.discrepancy.engine import discrepancy_for_results
+    from vibro_sim.discrepancy.reidentify import reidentify_document
 
     out = Path(out_dir)
     bar = _bar(4, progress, "analyze")
@@ -167,12 +168,15 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         document.discrepancy = Discrepancy.from_dict(disc)
         if disc_error:
             document.warnings.append(disc_error)
+        # the physics found corrects the measurement: impacts re-measured under the final model
+        document = reidentify_document(document, disc_run)
+        document.sections["cor_statistics"] = cor_statistics_section(document.impacts)
         write_results(out / RESULTS_JSON, document)
         write_csv_tables(document, out)
         doc = document.to_dict()
         if report:
             bar.set_description("report")
-            figs = write_figures(track, ident, out, sim)
+            figs = write_figures(track, ident, out, sim, impacts=document.impacts)
             if disc_run is not None:
                 fig = _write_discrepancy_figure(disc_run, out / DISCREPANCY_PNG)
                 if fig is not None:

@@ -4,7 +4,9 @@ The messages become model types through :mod:`vibro_ros.convert` and the documen
 codec (:mod:`vibro_model.codec`), so a graph run's document has the keys and meanings of
 ``vibro analyze``'s: flights' ``t_start``/``t_end`` are the impacts that open/close them (the first/last
 fitted frame in ``t_first_frame``/``t_last_frame``), ``free`` says whether a flight is free,
-``cor_statistics`` is computed from the impacts as analyze does.
+``cor_statistics`` is computed from the impacts as analyze does. The impacts the discrepancy node measured
+again under its final model (vibro/impacts_final_model) replace the fitter's, which stay beside them as
+``cor_paper``/``t_paper`` (:mod:`vibro_sim.discrepancy.reidentify`, as analyze does).
 
 Flights and impacts marked ``final`` (the fitter's end-of-stream pass) replace the streamed previews with
 the same index. A bag is complete when every stream the fitter, simulator and discrepancy node announced
@@ -30,6 +32,8 @@ from vibro_ros.convert import (finding_from_message, flight_from_message, impact
 #: end-of-stream statuses a complete graph run has, and the result topic each one counts
 EXPECTED_STREAMS = {"flights": topics.FLIGHTS.name, "impacts": topics.IMPACTS.name,
                     "simulation": topics.SIMULATION.name, "discrepancy": topics.DISCREPANCY.name}
+#: the discrepancy node's stream of impacts re-measured under its final model (not in bags recorded before it)
+FINAL_MODEL_STREAM = "impacts_final_model"
 
 
 class BagResults:
@@ -42,10 +46,11 @@ class BagResults:
         self.final: dict[str, dict[int, object]] = {topics.FLIGHTS.name: {}, topics.IMPACTS.name: {}}
         self.simulation: dict[str, object] = {}
         self.findings: dict[int, object] = {}
+        self.final_model: dict[int, object] = {}  # vibro/impacts_final_model by index
         self.finished: dict[str, int] = {}  # stream -> items the node announced at its end
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
-                  topics.DISCREPANCY.name, topics.STATUS.name}
+                  topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name}
         for m in read_messages(bag, wanted):
             msg = deserialize(m, store)
             if m.topic == topics.STRUCTURE.name:
@@ -56,6 +61,8 @@ class BagResults:
                 self.simulation[str(msg.model)] = msg
             elif m.topic == topics.DISCREPANCY.name:
                 self.findings[int(msg.index)] = msg
+            elif m.topic == topics.IMPACTS_FINAL_MODEL.name:
+                self.final_model[int(msg.index)] = msg
             elif msg.finished:
                 self.finished[str(msg.stream)] = int(msg.items_sent)
 
@@ -75,6 +82,11 @@ class BagResults:
                 out.append(f"no end-of-stream status '{stream}'")
             elif self.received(stream) < self.finished[stream]:
                 out.append(f"{self.received(stream)} of the {self.finished[stream]} announced {topic} messages")
+        # optional: a bag recorded before the discrepancy node re-measured impacts has no such status
+        announced = self.finished.get(FINAL_MODEL_STREAM)
+        if announced is not None and len(self.final_model) < announced:
+            out.append(f"{len(self.final_model)} of the {announced} announced {topics.IMPACTS_FINAL_MODEL.name} "
+                       "messages")
         return out
 
     def merged(self, topic: str) -> list:
@@ -85,6 +97,8 @@ class BagResults:
 def document_from_bag(bag: str | Path) -> ResultsDocument:
     """The results document of a recorded graph run (``complete`` False when the bag is not whole)."""
     from vibro_fit.results import cor_statistics_section
+    from vibro_sim.discrepancy.reidentify import apply_reidentification, measurement_effects, \
+        reidentified_from_impacts
 
     r = BagResults(bag)
     missing = r.missing()
@@ -102,10 +116,14 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
     discrepancy = Discrepancy(findings[0].deviation_before if findings else None, findings,
                               findings[-1].deviation_after if findings else None)
     simulation = Simulation({name: simulation_run_from_message(m) for name, m in r.simulation.items()})
-    return ResultsDocument.build(
+    doc = ResultsDocument.build(
         str(bag), None if r.structure is None else structure_from_message(r.structure), flights, impacts,
-        simulation=simulation, discrepancy=discrepancy, warnings=warnings, complete=not missing,
-        sections={"cor_statistics": cor_statistics_section(impacts)})
+        simulation=simulation, discrepancy=discrepancy, warnings=warnings, complete=not missing)
+    remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
+    effects = measurement_effects(findings)
+    doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))
+    doc.sections["cor_statistics"] = cor_statistics_section(doc.impacts)
+    return doc
 
 
 def results_from_bag(bag: str | Path) -> dict:

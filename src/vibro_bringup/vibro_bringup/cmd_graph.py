@@ -352,6 +352,7 @@ STREAM_TOPICS: dict[str, tuple[str, str | None, bool]] = {
     "impacts": ("vibro/impacts", "index", True),
     "simulation": ("vibro/simulation", "model", False),
     "discrepancy": ("vibro/discrepancy", "index", False),
+    "impacts_final_model": ("vibro/impacts_final_model", "index", True),
 }
 
 

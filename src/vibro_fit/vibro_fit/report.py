@@ -93,15 +93,25 @@ def fig_displacements(track: DicTrack, ident: Identification, path: Path, zoom_c
     return _save(fig, path)
 
 
-def fig_cor(ident: Identification, path: Path) -> Path:
+def _reidentified(impacts) -> bool:
+    return any(getattr(i, "cor_method", None) not in (None, "paper") for i in impacts)
+
+
+def fig_cor(impacts, path: Path) -> Path:
+    """COR per impact with its propagated 1 sigma; ``impacts``: anything with ``index``, ``plate``, ``cor``,
+    ``cor_std`` (and, when re-identified under the discrepancy's final model, ``cor_paper``, shown beside)."""
     fig, ax = plt.subplots(figsize=(9, 4))
+    impacts = list(impacts)
     for plate in ("bottom", "top"):
-        imps = [i for i in ident.impacts if i.plate == plate]
+        imps = [i for i in impacts if i.plate == plate]
         if imps:
             ax.errorbar([i.index for i in imps], [i.cor for i in imps], yerr=[i.cor_std for i in imps], fmt="o",
                         ms=4, color=PLATE_COLORS[plate], label=f"{plate} (n={len(imps)})")
+            if _reidentified(imps):
+                ax.plot([i.index for i in imps], [i.cor_paper for i in imps], "x", ms=4, color=PLATE_COLORS[plate],
+                        alpha=0.5, label=f"{plate}, paper's Eq. 16 (before correction)")
     ax.set_xlabel("impact index")
-    ax.set_ylabel("COR e (Eq. 16)")
+    ax.set_ylabel("COR e" + (" (final model)" if _reidentified(impacts) else " (Eq. 16)"))
     ax.set_title("Coefficient of restitution per impact (error bars: propagated 1 sigma)")
     _legend(ax)
     return _save(fig, path)
@@ -140,13 +150,16 @@ def fig_accel(ident: Identification, path: Path) -> Path | None:
     return _save(fig, path)
 
 
-def fig_hist_qq(ident: Identification, path: Path) -> Path | None:
-    plates = [p for p in ("bottom", "top") if sum(i.plate == p for i in ident.impacts) >= 3]
+def fig_hist_qq(impacts, path: Path) -> Path | None:
+    """Histogram and normal Q-Q of the CORs per plate (plates with >= 3 impacts); ``impacts`` as in
+    :func:`fig_cor`."""
+    impacts = list(impacts)
+    plates = [p for p in ("bottom", "top") if sum(i.plate == p for i in impacts) >= 3]
     if not plates:
         return None
     fig, axes = plt.subplots(len(plates), 2, figsize=(10, 3.6 * len(plates)), squeeze=False)
     for row, plate in zip(axes, plates):
-        vals = [i.cor for i in ident.impacts if i.plate == plate]
+        vals = [i.cor for i in impacts if i.plate == plate]
         nc = normal_check(vals)
         ax = row[0]
         ax.hist(vals, bins=nc.edges, density=True, color=PLATE_COLORS[plate], alpha=0.6)
@@ -193,18 +206,21 @@ def fig_errorbars(rows: list[dict], path: Path) -> Path:
     return _save(fig, path)
 
 
-def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, sim: dict | None = None
-                  ) -> dict[str, Path]:
+def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, sim: dict | None = None,
+                  impacts=None) -> dict[str, Path]:
     """Write the PNG figures into ``out_dir``; ``sim`` = {"t_s", "measured_mm", "curves": {name: mm},
-    "deviations": {name: D}} for the simulated-vs-measured figure. Returns {name: path}."""
+    "deviations": {name: D}} for the simulated-vs-measured figure; ``impacts``: the CORs the COR figures
+    show (the results document's, re-identified under the final model; default the identification's).
+    Returns {name: path}."""
     out = Path(out_dir)
     files = {name: out / file for name, file in FIGURE_FILES.items()}
+    impacts = ident.impacts if impacts is None else [i for i in impacts if i.cor is not None]
     figs: dict[str, Path | None] = {
         "displacements": fig_displacements(track, ident, files["displacements"]),
-        "cor": fig_cor(ident, files["cor"]),
+        "cor": fig_cor(impacts, files["cor"]),
         "friction": fig_friction(ident, files["friction"]),
         "accelerometer_spectrum": fig_accel(ident, files["accelerometer_spectrum"]),
-        "histogram_qq": fig_hist_qq(ident, files["histogram_qq"]),
+        "histogram_qq": fig_hist_qq(impacts, files["histogram_qq"]),
     }
     if sim and sim.get("curves"):
         figs["simulated_vs_measured"] = fig_simulated(sim["t_s"], sim["measured_mm"], sim["curves"],
@@ -260,6 +276,8 @@ def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: 
     cor_rows = "".join(
         f"<tr><td>{p}</td><td>{fmt(d.get('mean'))}</td><td>{fmt(d.get('std'))}</td><td>{d.get('n', 0)}</td></tr>"
         for p, d in cor.items())
+    imodel = results.get("impacts_model") or {}
+    cor_model = f"<p>{e(str(imodel['description']))}.</p>" if imodel.get("description") else ""
     sim = results.get("simulation", {})
     sim_rows = "".join(f"<tr><td>{e(k)}</td><td>{fmt(v.get('deviation'), 100.0, '.2f', ' %')}</td></tr>"
                        for k, v in sim.items() if isinstance(v, dict))
@@ -278,7 +296,7 @@ td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
 <p>Regime: <b>{e(str(regime.get('name', '?')))}</b>; {len(results.get('flights', []))} flights,
 {len(results.get('impacts', []))} impacts; method {e(str(results.get('identification', {}).get('method', '')))}.</p>
 <h2>Structure (Eq. 2)</h2><table>{rows}</table>
-<h2>COR per plate (Table 2)</h2><table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>{cor_rows}</table>
+<h2>COR per plate (Table 2)</h2>{cor_model}<table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>{cor_rows}</table>
 <h2>Simulation deviation D (Eq. 18)</h2><table>{sim_rows}</table>
 {disc_html}
 <h2>Warnings</h2><ul>{warns}</ul>

@@ -127,7 +127,13 @@ class Flight:
 @dataclass
 class Impact:
     """One impact (Eq. 15, 16): time (s), plate, COR e = -(v_after - v_s) / (v_before - v_s), velocities
-    (m/s, + up) and the indices of the flights that end / start there."""
+    (m/s, + up) and the indices of the flights that end / start there.
+
+    ``cor_method`` says which model measured ``t``, ``cor``, ``cor_std`` and ``v_*``: ``"paper"`` (the
+    identification, Eq. 15-16) or the '+'-joined names of the discrepancy findings whose model re-measured
+    them (:mod:`vibro_sim.discrepancy.reidentify`); ``cor_paper``, ``cor_std_paper``, ``t_paper_s`` keep
+    the identification's values beside them. All four are None in a document written before they existed
+    (or rebuilt from a graph run's messages) and are then not written."""
 
     index: int
     t_s: float | None
@@ -141,6 +147,10 @@ class Impact:
     flight_before: int | None = None
     flight_after: int | None = None
     method: str | None = None
+    cor_method: str | None = None
+    cor_paper: float | None = None
+    cor_std_paper: float | None = None
+    t_paper_s: float | None = None
 
     def to_dict(self) -> dict:
         out = {"index": self.index, "t": self.t_s, "t_std": self.t_std_s, "plate": self.plate, "cor": self.cor,
@@ -150,6 +160,9 @@ class Impact:
         out = {k: json_number(v) if not isinstance(v, str) else v for k, v in out.items()}
         if self.method is not None:
             out["method"] = self.method
+        if self.cor_method is not None:
+            out.update({"cor_method": self.cor_method, "cor_paper": json_number(self.cor_paper),
+                        "cor_std_paper": json_number(self.cor_std_paper), "t_paper": json_number(self.t_paper_s)})
         return out
 
     @classmethod
@@ -158,7 +171,9 @@ class Impact:
         return cls(f.integer("index"), f.number("t"), f.string("plate", choices=PLATES), f.number("cor"),
                    f.number("cor_std"), f.number("v_ball_before"), f.number("v_ball_after"),
                    f.number("v_structure"), f.number("t_std", False), f.integer("flight_before", False, True),
-                   f.integer("flight_after", False, True), f.string("method", False))
+                   f.integer("flight_after", False, True), f.string("method", False),
+                   f.string("cor_method", False), f.number("cor_paper", False), f.number("cor_std_paper", False),
+                   f.number("t_paper", False))
 
 
 @dataclass

@@ -44,13 +44,18 @@ SIMULATION = Topic("vibro/simulation", "vibro_msgs/msg/SimulationResult", "resul
                    "simulated trajectory and deviation D (Eq. 18) per model", ("simulator",))
 DISCREPANCY = Topic("vibro/discrepancy", "vibro_msgs/msg/DiscrepancyFinding", "results", "discrepancy",
                     "physics the baseline model left out, with parameters and D before/after", ("discrepancy",))
+IMPACTS_FINAL_MODEL = Topic("vibro/impacts_final_model", "vibro_msgs/msg/ImpactEstimate", "results", "discrepancy",
+                            "the impacts measured again under the discrepancy analysis' final model (only when a "
+                            "finding changes how an impact is measured: harmonics, a flight force); final=True",
+                            ("discrepancy",))
 STATUS = Topic("vibro/status", "vibro_msgs/msg/StreamStatus", "results", "every node",
                "items sent/lost per stream and end-of-stream markers")
 DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
                     "health: rate, lag, dropped/lost counts")
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
-              STATUS, DIAGNOSTICS)
+              IMPACTS_FINAL_MODEL, STATUS, DIAGNOSTICS)
 
 #: The streams a vibro/status StreamStatus names (``stream``): the data topics' last name component.
-STATUS_STREAMS = ("frames", "dic", "accel", "accel_impacts", "flights", "impacts", "simulation", "discrepancy")
+STATUS_STREAMS = ("frames", "dic", "accel", "accel_impacts", "flights", "impacts", "simulation", "discrepancy",
+                  "impacts_final_model")

@@ -3,9 +3,12 @@
 Collects what the fitter published (structure motion, final free flights and impacts) and the DIC
 frames; when the simulator reports its stream "simulation" finished, every final flight and impact
 the fitter announced has arrived and the tracker's DIC frames are complete (its "dic" status, or no
-new frame for ``dic_wait_s``), it runs :func:`vibro_sim.discrepancy.analyse_discrepancy` (the same
-core as ``vibro analyze``) and publishes one DiscrepancyFinding per finding, then its own status
-(stream "discrepancy", finished). No finding: only the status (items_sent = 0).
+new frame for ``dic_wait_s``), it runs :func:`vibro_sim.discrepancy.run_discrepancy` (the same
+core as ``vibro analyze``); when a finding changes how an impact is measured (harmonics, a flight force)
+it publishes the impacts measured again under the final model (:mod:`vibro_sim.discrepancy.reidentify`,
+as ``vibro analyze`` does) on vibro/impacts_final_model (ImpactEstimate, final) with the status of stream
+"impacts_final_model"; then one DiscrepancyFinding per finding and its own status (stream "discrepancy",
+finished). No finding: only the statuses (items_sent = 0).
 """
 
 from __future__ import annotations
@@ -17,15 +20,19 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
-from vibro_ros.convert import finding_to_message
+from vibro_ros.convert import finding_to_message, impact_to_message
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_model.results import Discrepancy as DiscrepancyBlock
-from vibro_msgs.msg import DiscrepancyFinding
+from vibro_msgs.msg import DiscrepancyFinding, ImpactEstimate
 
-from .discrepancy import analyse_discrepancy
-from .discrepancy.from_messages import sections_from_messages, track_from_messages
+from .discrepancy import run_discrepancy
+from .discrepancy.from_messages import document_from_messages, track_from_messages
+from .discrepancy.reidentify import PAPER, reidentify_document
+
+#: the stream (vibro/status) of the re-measured impacts on vibro/impacts_final_model
+FINAL_MODEL_STREAM = "impacts_final_model"
 
 
 class Discrepancy(Node):
@@ -46,6 +53,8 @@ class Discrepancy(Node):
         self.health = Health(self)
         self.status = StatusPublisher(self, "discrepancy")
         self.pub = self.create_publisher(DiscrepancyFinding, topics.DISCREPANCY.name, RESULTS_QOS)
+        self.final_model_status = StatusPublisher(self, FINAL_MODEL_STREAM)
+        self.pub_impacts = self.create_publisher(ImpactEstimate, topics.IMPACTS_FINAL_MODEL.name, RESULTS_QOS)
         self.results = FinalFitResults(self, self._maybe_run, self.dic_wait_s)
         self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
         self.done = self.gate.done
@@ -63,18 +72,29 @@ class Discrepancy(Node):
         if r.structure is None or not r.frames or not r.flights:
             self.health.warn("nothing to analyse (no structure fit, flights or DIC frames received)")
             self.get_logger().warning("nothing to analyse: no structure fit, flight or DIC frame received")
+            self.final_model_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
             return
         try:
-            sections = sections_from_messages(r.structure, r.flights.values(), r.impacts.values())
-            doc = analyse_discrepancy(sections, track_from_messages(r.frames.values()), self.rig)
+            identified = document_from_messages(r.structure, r.flights.values(), r.impacts.values())
+            sections = {k: v for k, v in identified.to_dict().items() if k in ("structure", "flights", "impacts")}
+            run = run_discrepancy(sections, track_from_messages(r.frames.values()), self.rig)
         except RecordingError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"discrepancy analysis not possible: {exc}")
+            self.final_model_status.publish(0, 0, True)
             self.status.publish(0, 0, True)
             return
         t_last = max(float(m.t_s) for m in r.frames.values())
-        block = DiscrepancyBlock.from_dict(doc)
+        block = DiscrepancyBlock.from_dict(run.document)
+        identified.discrepancy = block
+        remeasured = [i for i in reidentify_document(identified, run).impacts if i.cor_method != PAPER]
+        for imp in remeasured:
+            self.pub_impacts.publish(impact_to_message(imp, final=True, origin_ns=self.time_origin_ns))
+        if remeasured:
+            self.get_logger().info(f"{len(remeasured)} impacts measured again under the final model "
+                                   f"({remeasured[0].cor_method})")
+        self.final_model_status.publish(len(remeasured), 0, True)
         for k, finding in enumerate(block.findings):
             msg = finding_to_message(finding, k, t_last, self.time_origin_ns)
             self.pub.publish(msg)
