@@ -12,6 +12,8 @@ PTH := $(VENV)/lib/python3.11/site-packages/vibro_src.pth
 PACKAGES := vibro_model vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_eval vibro_bringup
 DEMO_DIR ?= demo
 PYTEST_ARGS ?=
+# test processes (pytest-xdist); each test file runs whole in one worker (module fixtures made once)
+TEST_WORKERS ?= 2
 
 .PHONY: setup demo test msgs clean bench
 
@@ -37,7 +39,7 @@ demo: setup
 	@scripts/demo.sh $(DEMO_DIR)
 
 test: setup
-	@. scripts/env.sh && $(PY) -m pytest -q --durations=15 $(PYTEST_ARGS) tests
+	@. scripts/env.sh && $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 $(PYTEST_ARGS) tests
 
 BENCH_STAMP := $(VENV)/.bench-$(shell cat requirements-bench.txt | sha256sum | cut -c1-16)
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 import itertools
 import os
 
-#: ROS 2 domain ids usable with Fast DDS's default ports go to 232; 4 workers x 50
-BAND = 50
-_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0) % 4
+#: ROS 2 domain ids usable with Fast DDS's default ports go to 232: 200 of them shared among the workers
+_WORKERS = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+BAND = max(1, 200 // _WORKERS)
+_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:] or 0) % _WORKERS
 _NEXT = itertools.count(os.getpid() % BAND)
 
 
