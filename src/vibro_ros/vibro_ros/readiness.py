@@ -230,6 +230,11 @@ class ReaderGate:
                 self.health.warn(msg)
 
 
+def streams_published_by(node_name: str) -> set[str]:
+    """The vibro/status streams ``node_name`` announces (its topics' last name components)."""
+    return {t.name.rsplit("/", 1)[-1] for t in topics.ALL_TOPICS if node_name in t.nodes} & set(topics.STATUS_STREAMS)
+
+
 class WriterWatch:
     """A sink's inputs have ended: every declared writer (parameter ``writers``) has been seen publishing
     on ``topic_names`` (this node's namespace) and all of them have left since. Writers wait for their
@@ -238,6 +243,8 @@ class WriterWatch:
 
     def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5):
         from rcl_interfaces.msg import ParameterDescriptor as Descriptor
+
+        from .node_support import run_id_parameter
 
         node.declare_parameter("writers", [""], Descriptor(
             description="node names whose outputs this node takes; it exits once all have come and gone "
@@ -251,8 +258,32 @@ class WriterWatch:
         self.done = Future()
         self.exit_code = 0
         self._ended_at: float | None = None
+        # A writer's end-of-stream statuses also say it is done: DDS has been seen (two graphs on one domain,
+        # loaded machine) to deliver a writer's data while this node's ROS graph view never lists it.
+        self._run_id = run_id_parameter(node)
+        self.finished_streams: set[str] = set()
+        self.streams_of = {w: streams_published_by(w) for w in self.writers}
+        self._unlisted_logged: set[str] = set()
         if self.writers and self.exit_when_done:
+            from .adaptive_qos import results_subscription
+
+            results_subscription(node, StreamStatus, topics.STATUS.name, self._on_status)
             node.create_timer(poll_s, self._poll)
+
+    def _on_status(self, msg: StreamStatus) -> None:
+        if msg.finished and (not self._run_id or not msg.run_id or msg.run_id == self._run_id):
+            self.finished_streams.add(str(msg.stream))
+
+    def _ended_unlisted(self) -> set[str]:
+        """Writers never listed in the graph whose every stream has announced its end."""
+        out = {w for w in self.writers if w not in self.seen and self.streams_of[w]
+               and self.streams_of[w] <= self.finished_streams}
+        for w in sorted(out - self._unlisted_logged):
+            self.node.get_logger().warning(
+                f"{w} never appeared in this node's ROS graph view, but its streams ended "
+                f"({', '.join(sorted(self.streams_of[w]))}): taken as gone")
+            self._unlisted_logged.add(w)
+        return out
 
     def present(self) -> set[str]:
         ns = self.node.get_namespace()
@@ -264,7 +295,7 @@ class WriterWatch:
             return
         now_present = self.present()
         self.seen |= now_present
-        if self.seen >= set(self.writers) and not now_present:
+        if (self.seen | self._ended_unlisted()) >= set(self.writers) and not now_present:
             self._ended_at = self._ended_at or time.monotonic()
             if time.monotonic() - self._ended_at >= self.drain_s:
                 self.node.get_logger().info(f"inputs ended: {', '.join(self.writers)} came and went")
