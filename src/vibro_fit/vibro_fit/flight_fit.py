@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_model.constants import G_MPS2 as G_MS2
+from vibro_model.constants import G_MPS2
 
 
 @dataclass
@@ -38,22 +38,22 @@ class FlightFit:
         tc = np.asarray(t_s) - self.t_ref_s
         return (self.coef[0] * tc + self.coef[1]) * tc + self.coef[2]
 
-    def velocity_ms(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def velocity_mps(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """Ball velocity (m/s)."""
         tc = np.asarray(t_s) - self.t_ref_s
         return 1e-3 * (2.0 * self.coef[0] * tc + self.coef[1])
 
     @property
-    def acceleration_ms2(self) -> float:
+    def acceleration_mps2(self) -> float:
         return 2e-3 * float(self.coef[0])
 
     @property
-    def acceleration_std_ms2(self) -> float:
+    def acceleration_std_mps2(self) -> float:
         return 2e-3 * float(np.sqrt(max(self.cov[0, 0], 0.0)))
 
-    def friction_n(self, mass_kg: float, g_ms2: float = G_MS2) -> tuple[float, float]:
+    def friction_n(self, mass_kg: float, g_mps2: float = G_MPS2) -> tuple[float, float]:
         """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N)."""
-        return mass_kg * (self.acceleration_ms2 + g_ms2), mass_kg * self.acceleration_std_ms2
+        return mass_kg * (self.acceleration_mps2 + g_mps2), mass_kg * self.acceleration_std_mps2
 
     def abs_coefficients(self) -> tuple[float, float, float]:
         """(a, b, c) for Y[mm] = a t^2 + b t + c, t absolute camera time (s)."""

@@ -38,9 +38,9 @@ class ImpactEstimate:
     plate: str                # "top" | "bottom"
     cor: float
     cor_std: float
-    v_ball_before_ms: float
-    v_ball_after_ms: float
-    v_structure_ms: float
+    v_ball_before_mps: float
+    v_ball_after_mps: float
+    v_structure_mps: float
     y_rel_mm: float           # ball - structure displacement at t_i (track coordinates, mm)
     flight_before: int
     flight_after: int
@@ -90,7 +90,7 @@ def _quantities(pc, p_ref, qc, q_ref, sp, s_fit: StructureFit, t_lo, t_hi):
     vm = 1e-3 * (2.0 * pc[0] * (t_i - p_ref) + pc[1])
     vp = 1e-3 * (2.0 * qc[0] * (t_i - q_ref) + qc[1])
     s = with_params(s_fit, sp) if sp is not None else s_fit
-    vs = float(s.velocity_ms(t_i))
+    vs = float(s.velocity_mps(t_i))
     return t_i, vm, vp, vs, -(vp - vs) / (vm - vs)
 
 
@@ -167,7 +167,7 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
         extra = [w * (th[k] - mu) for k, mu, w in priors]
         return np.concatenate([mp - yp, mq - yq, extra])
 
-    th0 = np.array([0.0, est.v_ball_before_ms * 1e3, p.coef[0], est.v_ball_after_ms * 1e3, q.coef[0]])
+    th0 = np.array([0.0, est.v_ball_before_mps * 1e3, p.coef[0], est.v_ball_after_mps * 1e3, q.coef[0]])
     res = least_squares(resid, th0, method="lm", x_scale=np.array([1e-4, 100.0, 1e3, 100.0, 1e3]),
                         xtol=1e-14, ftol=1e-14, gtol=1e-14)
     th = res.x
@@ -180,10 +180,10 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
         cov_th = np.full((5, 5), np.nan)
     t_i = t0 + th[0]
     vm, vp = 1e-3 * th[1], 1e-3 * th[3]
-    vs = float(s_fit.velocity_ms(t_i))
+    vs = float(s_fit.velocity_mps(t_i))
     e = -(vp - vs) / (vm - vs)
     # gradient of e over theta (t_i enters through v_s only; v-, v+ are the values at t_i)
-    dvs_dt = float(s_fit.acceleration_ms2(t_i))
+    dvs_dt = float(s_fit.acceleration_mps2(t_i))
     de_dvs = (vm - vp) / (vm - vs) ** 2
     g_th = np.zeros(5)
     g_th[0] = de_dvs * dvs_dt
@@ -203,7 +203,7 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
             for sgn in (1.0, -1.0):
                 sp = sp0.copy()
                 sp[j] += sgn * h
-                vs2 = float(with_params(s_fit, sp).velocity_ms(t_i))
+                vs2 = float(with_params(s_fit, sp).velocity_mps(t_i))
                 vals.append(-(vp - vs2) / (vm - vs2))
             gs[j] = (vals[0] - vals[1]) / (2 * h)
         var += float(gs @ s_fit.cov_ref @ gs)

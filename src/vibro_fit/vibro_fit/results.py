@@ -61,8 +61,8 @@ def flight_model(fl: FlightFit, mass_kg: float) -> Flight:
 
 def impact_model(est: ImpactEstimate) -> Impact:
     return Impact(int(est.index), none_if_nan(est.t_s), est.plate, none_if_nan(est.cor), none_if_nan(est.cor_std),
-                  none_if_nan(est.v_ball_before_ms), none_if_nan(est.v_ball_after_ms),
-                  none_if_nan(est.v_structure_ms), none_if_nan(est.t_std_s), int(est.flight_before),
+                  none_if_nan(est.v_ball_before_mps), none_if_nan(est.v_ball_after_mps),
+                  none_if_nan(est.v_structure_mps), none_if_nan(est.t_std_s), int(est.flight_before),
                   int(est.flight_after), est.method)
 
 

@@ -165,8 +165,8 @@ class StreamingFitter:
             return False
         i, j, k = g[pos - 1], g[pos], g[pos + 1]
         acc, fac = accel_estimate(np.array([t[i], t[j], t[k]]), np.array([self.ball[i], self.ball[j], self.ball[k]]))
-        thr = max(self.cfg.k_sigma * fac * float(self.noise_mm), self.cfg.min_threshold_ms2)
-        if abs(acc + self.cfg.g_ms2) > thr:
+        thr = max(self.cfg.k_sigma * fac * float(self.noise_mm), self.cfg.min_threshold_mps2)
+        if abs(acc + self.cfg.g_mps2) > thr:
             return True
         if self.ext_times:
             # an accelerometer impact in (t_i, t_k]: this frame is next to it
@@ -275,9 +275,9 @@ class StreamingFitter:
         if fl.rms_residual_mm > limit:
             fl.is_free = False
             fl.reason = f"residual {fl.rms_residual_mm:.4f} mm > {limit:.4f} mm: not a parabola (contact?)"
-        elif abs(fl.acceleration_ms2 + c.g_ms2) > c.max_friction_g * c.g_ms2:
+        elif abs(fl.acceleration_mps2 + c.g_mps2) > c.max_friction_g * c.g_mps2:
             fl.is_free = False
-            fl.reason = (f"acceleration {fl.acceleration_ms2:.2f} m/s^2 too far from -g: not a free flight")
+            fl.reason = (f"acceleration {fl.acceleration_mps2:.2f} m/s^2 too far from -g: not a free flight")
 
     def _structure_window(self, p: FlightFit, q: FlightFit):
         # good frames with t in [t_start(p) - history_s, t_end(q)], found backwards from the end

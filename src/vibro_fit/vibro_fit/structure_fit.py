@@ -37,13 +37,13 @@ class StructureFit:
         a, f, psi, b = self.params_ref
         return a * np.sin(2.0 * np.pi * f * (np.asarray(t_s) - self.t_ref_s) + psi) + b
 
-    def velocity_ms(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def velocity_mps(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """dY_s/dt in m/s."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f
         return 1e-3 * a * w * np.cos(w * (np.asarray(t_s) - self.t_ref_s) + psi)
 
-    def acceleration_ms2(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def acceleration_mps2(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """d2Y_s/dt2 in m/s^2."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f

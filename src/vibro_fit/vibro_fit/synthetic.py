@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 
 from vibro_io.dictrack import DicTrack
 
-from vibro_model.constants import G_MPS2 as G_MS2
+from vibro_model.constants import G_MPS2
 
 
 @dataclass
@@ -24,14 +24,14 @@ class TruthImpact:
     t_s: float
     plate: str
     cor: float
-    v_ball_before_ms: float
-    v_ball_after_ms: float
-    v_structure_ms: float
+    v_ball_before_mps: float
+    v_ball_after_mps: float
+    v_structure_mps: float
 
 
 @dataclass
 class Truth:
-    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_ms, a_ms2) per flight."""
+    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_mps, a_ms2) per flight."""
 
     amplitude_m: float
     frequency_hz: float
@@ -40,7 +40,7 @@ class Truth:
     free_play_m: float
     pieces: list[tuple[float, float, float, float]]
     impacts: list[TruthImpact]
-    flight_accel_ms2: list[float]
+    flight_accel_mps2: list[float]
 
     def structure_m(self, t):
         return self.amplitude_m * np.sin(2 * np.pi * self.frequency_hz * np.asarray(t) + self.phase_rad) + self.offset_m
@@ -57,7 +57,7 @@ class Truth:
 def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: float = 0.3,
              free_play_m: float = 5.915e-3, cor_top=0.6, cor_bottom=0.75, duration_s: float = 1.6,
              force_up_n: float = 0.0, force_down_n: float = 0.0, mass_kg: float = 1.82e-4,
-             cor_jitter: float = 0.0, seed: int = 0, y0_rel_m: float = 0.0, v0_ms: float = 0.0) -> Truth:
+             cor_jitter: float = 0.0, seed: int = 0, y0_rel_m: float = 0.0, v0_mps: float = 0.0) -> Truth:
     """Event-driven exact simulation. ``force_up_n`` acts on flights that start moving up relative to the
     structure (usually negative: friction opposes motion), ``force_down_n`` on the others.
     ``cor_jitter`` adds N(0, jitter) scatter to each impact's COR (seeded)."""
@@ -71,12 +71,12 @@ def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: f
     def vs(t):
         return A * w * np.cos(w * t + ph)
 
-    t0, y0, v0 = 0.0, ys(0.0) + y0_rel_m, vs(0.0) + v0_ms
+    t0, y0, v0 = 0.0, ys(0.0) + y0_rel_m, vs(0.0) + v0_mps
     pieces, impacts, accs = [], [], []
     step = 2e-5
     while t0 < duration_s:
         up = (v0 - vs(t0)) > 0
-        a = -G_MS2 + (force_up_n if up else force_down_n) / mass_kg
+        a = -G_MPS2 + (force_up_n if up else force_down_n) / mass_kg
         pieces.append((t0, y0, v0, a))
         accs.append(a)
 

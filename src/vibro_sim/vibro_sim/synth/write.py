@@ -166,10 +166,10 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
     first = traj.impacts[0].index if traj.impacts else 0
     plain = models.window_laws(first)[1]
     impacts = [{"index": j, "t": i.t_s, "plate": i.plate, "cor": i.cor,
-                "v_ball_before": i.v_ball_before_ms, "v_ball_after": i.v_ball_after_ms,
-                "v_structure": i.v_structure_ms, "sim_index": i.index,
+                "v_ball_before": i.v_ball_before_mps, "v_ball_after": i.v_ball_after_mps,
+                "v_structure": i.v_structure_mps, "sim_index": i.index,
                 # the COR law's value before the per-impact scatter
-                "cor_law": float(plain.cor(i.plate, i.v_rel_before_ms, i.index)) if plain is not None else i.cor}
+                "cor_law": float(plain.cor(i.plate, i.v_rel_before_mps, i.index)) if plain is not None else i.cor}
                for j, i in enumerate(traj.impacts)]
     first_flight = traj.flights[0].index if traj.flights else 0
     flights = [{"index": f.index - first_flight, "t_start": f.t_start_s, "t_end": f.t_end_s,
