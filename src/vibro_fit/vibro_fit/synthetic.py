@@ -17,21 +17,12 @@ from scipy.optimize import brentq
 from vibro_io.dictrack import DicTrack
 
 from vibro_model.constants import G_MPS2
-
-
-@dataclass
-class TruthImpact:
-    t_s: float
-    plate: str
-    cor: float
-    v_ball_before_mps: float
-    v_ball_after_mps: float
-    v_structure_mps: float
+from vibro_model.results import Impact
 
 
 @dataclass
 class Truth:
-    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_mps, a_ms2) per flight."""
+    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_mps, a_mps2) per flight."""
 
     amplitude_m: float
     frequency_hz: float
@@ -39,7 +30,7 @@ class Truth:
     offset_m: float
     free_play_m: float
     pieces: list[tuple[float, float, float, float]]
-    impacts: list[TruthImpact]
+    impacts: list[Impact]          # exact: no stds; impact k ends flight k
     flight_accel_mps2: list[float]
 
     def structure_m(self, t):
@@ -98,7 +89,9 @@ def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: f
         vst = vs(ti)
         e = (cor_top if plate == "top" else cor_bottom) + cor_jitter * rng.standard_normal()
         vb_after = vst - e * (vb - vst)
-        impacts.append(TruthImpact(ti, plate, float(e), float(vb), float(vb_after), float(vst)))
+        impacts.append(Impact(index=len(impacts), t_s=ti, plate=plate, cor=float(e), cor_std=None,
+                              v_ball_before_mps=float(vb), v_ball_after_mps=float(vb_after),
+                              v_structure_mps=float(vst)))
         t0, y0, v0 = ti, ys(ti) + target, vb_after
         if abs(vb_after - vst) < 1e-3:
             break

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vibro_model.results import Impact
+
 from .events import first_root
 from .flight import Segment, Stuck, make_flight_segment
 from .forces import ForceLaw, NoForce
@@ -32,27 +34,6 @@ from .structure import StructureMotion
 log = logging.getLogger(__name__)
 
 GAP_TOL_M = 1e-12
-
-
-@dataclass(frozen=True)
-class ImpactEvent:
-    """One impact: time (s), plate, COR used, ball velocity before/after and structure velocity (m/s)."""
-
-    t_s: float
-    plate: str
-    cor: float
-    v_ball_before_mps: float
-    v_ball_after_mps: float
-    v_structure_mps: float
-    index: int
-
-    @property
-    def v_rel_before_mps(self) -> float:
-        return self.v_ball_before_mps - self.v_structure_mps
-
-    @property
-    def v_rel_after_mps(self) -> float:
-        return self.v_ball_after_mps - self.v_structure_mps
 
 
 @dataclass(frozen=True)
@@ -91,7 +72,7 @@ class SimResult:
     cavity: BallCavity
     t0_s: float
     t_end_s: float
-    impacts: list[ImpactEvent] = field(default_factory=list)
+    impacts: list[Impact] = field(default_factory=list)
     flights: list[FlightRecord] = field(default_factory=list)
     stuck: list[StuckPhase] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
@@ -135,6 +116,13 @@ class SimResult:
     def relative_position(self, t_s):
         """Ball centre minus cavity centre, y - Y_s (m): +b touches the top, -b the bottom."""
         return self.sample(t_s) - self.structure.position(t_s)
+
+
+def sim_impact(index: int, t_s: float, plate: str, cor: float, v_before_mps: float, v_after_mps: float,
+               v_structure_mps: float) -> Impact:
+    """A simulated impact as the model type: exact, so no std; the flights on each side are not linked."""
+    return Impact(index=index, t_s=t_s, plate=plate, cor=cor, cor_std=None, v_ball_before_mps=v_before_mps,
+                  v_ball_after_mps=v_after_mps, v_structure_mps=v_structure_mps)
 
 
 def force_array(force: ForceLaw, v, flight_index: int):
@@ -328,7 +316,7 @@ class _Simulator:
         if abs(vrel_after) < self.stick_speed:
             vrel_after = 0.0
         v_after = vs + vrel_after
-        res.impacts.append(ImpactEvent(tr, plate, e, vb, v_after, vs, ii))
+        res.impacts.append(sim_impact(ii, tr, plate, e, vb, v_after, vs))
         return tr, float(S.position(tr)) + (b if plate == "top" else -b), v_after
 
     def _close_flight(self, res, fi, t_start, t_end, v_start, v_end, start_plate, end_plate):

@@ -37,7 +37,7 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .cor_model import ImpactEvent, SimResult, _Simulator
+from .cor_model import SimResult, _Simulator, sim_impact
 from .flight import Segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
@@ -163,7 +163,7 @@ class _HertzSimulator(_Simulator):
         v_out = vs_out + v_rel_out
         self.contact_durations.append(t_out - tr)
         self.effective_cors.append(-v_rel_out / vrel if vrel else float("nan"))
-        res.impacts.append(ImpactEvent(tr, plate, e, vb, v_out, vs, ii))
+        res.impacts.append(sim_impact(ii, tr, plate, e, vb, v_out, vs))
         return t_out, float(S.position(t_out)) + side * b, v_out
 
 
