@@ -12,7 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vibro_model.codec import none_if_nan
 from vibro_model.constants import G_MPS2
+from vibro_model.results import Flight
+from vibro_model.units import mm_to_m
 
 
 @dataclass
@@ -60,6 +63,16 @@ class FlightFit:
         a_, b_, c_ = (float(v) for v in self.coef)
         r = self.t_ref_s
         return a_, b_ - 2.0 * a_ * r, a_ * r * r - b_ * r + c_
+
+    def model(self, mass_kg: float) -> Flight:
+        """The fitted flight as the model type (SI, NaN -> None); friction from Eq. 17 with the ball mass
+        ``mass_kg``, only for a free flight."""
+        a, b, c = (mm_to_m(none_if_nan(v)) for v in self.abs_coefficients())
+        f_n, f_std = self.friction_n(mass_kg)
+        return Flight(int(self.index), none_if_nan(self.t_start_s), none_if_nan(self.t_end_s), a, b, c,
+                      self.direction or "", none_if_nan(f_n) if self.is_free else None,
+                      none_if_nan(f_std) if self.is_free else None, mm_to_m(none_if_nan(self.rms_residual_mm)),
+                      int(self.n_points), bool(self.is_free), self.reason or "")
 
 
 def fit_parabola(t_s: np.ndarray, y_mm: np.ndarray, weights: np.ndarray | None = None

@@ -16,11 +16,12 @@ from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_io.rig import RigConfig
+from vibro_model.results import StructureMotion
 
 from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
 from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
-from .impacts import ImpactEstimate, joint_impact
+from .impacts import ImpactFit, joint_impact
 from .landings import Landing, find_landings
 from .motion_state import MotionState, classify_motion, structure_moves
 from .regimes import Regime, classify_regime, y_rel_range
@@ -41,7 +42,7 @@ class Identification:
 
     structure: StructureFit
     flights: list[FlightFit]
-    impacts: list[ImpactEstimate]
+    impacts: list[ImpactFit]
     friction: list[dict]
     cor_summary: dict
     regime: Regime
@@ -60,6 +61,12 @@ class Identification:
     landings: list[Landing] = field(default_factory=list)   # impacts without a COR (short rebound, chatter)
     accel_unseen_s: list[float] | None = None  # accelerometer impacts (camera clock) the camera does not see
     rig_consistency: list[RigStatement] = field(default_factory=list)
+
+    def structure_motion(self) -> StructureMotion:
+        """The identified structure as the model type, with the ball offset from the plate levels; no
+        frequency or phase when the structure did not move beyond DIC noise."""
+        moves = self.motion.structure_moves if self.motion is not None else True
+        return self.structure.motion(self.plate_levels.get("offset_mm", 0.0), moves)
 
     @property
     def rig_consistent(self) -> bool:

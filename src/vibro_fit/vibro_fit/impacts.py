@@ -19,33 +19,34 @@ Methods
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+
+from vibro_model.codec import none_if_nan
+from vibro_model.results import Impact
 
 from .flight_fit import FlightFit
 from .structure_fit import StructureFit, with_params
 
 
 @dataclass
-class ImpactEstimate:
-    """One impact between flight ``flight_before`` and ``flight_after``."""
+class ImpactFit(Impact):
+    """One impact between flights ``flight_before`` and ``flight_after`` as the fit estimates it: the model
+    :class:`~vibro_model.results.Impact` (SI; NaN where the fit gives no number) plus the fit context the
+    joint refit and the plate levels use. :meth:`model` gives the plain Impact the results and messages carry."""
 
-    index: int
-    t_s: float
-    t_std_s: float
-    plate: str                # "top" | "bottom"
-    cor: float
-    cor_std: float
-    v_ball_before_mps: float
-    v_ball_after_mps: float
-    v_structure_mps: float
-    y_rel_mm: float           # ball - structure displacement at t_i (track coordinates, mm)
-    flight_before: int
-    flight_after: int
-    method: str = "paper"
-    structure: StructureFit | None = None
+    y_rel_mm: float = math.nan                 # ball - structure displacement at t_i (track coordinates, mm)
+    structure: StructureFit | None = None      # the local structure fit that gave v_structure
+
+    def model(self) -> Impact:
+        """The plain model Impact (NaN -> None: unknown)."""
+        return Impact(int(self.index), none_if_nan(self.t_s), self.plate, none_if_nan(self.cor),
+                      none_if_nan(self.cor_std), none_if_nan(self.v_ball_before_mps),
+                      none_if_nan(self.v_ball_after_mps), none_if_nan(self.v_structure_mps),
+                      none_if_nan(self.t_std_s), int(self.flight_before), int(self.flight_after), self.method)
 
 
 def _shift(coef: np.ndarray, t_ref: float, t_new: float) -> tuple[float, float, float]:
@@ -94,7 +95,7 @@ def _quantities(pc, p_ref, qc, q_ref, sp, s_fit: StructureFit, t_lo, t_hi):
     return t_i, vm, vp, vs, -(vp - vs) / (vm - vs)
 
 
-def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) -> ImpactEstimate | None:
+def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) -> ImpactFit | None:
     """Impact between fitted flights p (before) and q (after) with the paper's plain method, or None
     when the parabolas do not meet inside the gap or the relative velocity does not reverse."""
     t_lo, t_hi = p.t_end_s, q.t_start_s
@@ -128,14 +129,15 @@ def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) ->
         jac[1, j] = (outs[0][4] - outs[1][4]) / (2 * h)
     var = jac @ cov @ jac.T
     y_rel = float(p.position_mm(t_i) - s_fit.position_mm(t_i))
-    return ImpactEstimate(index, float(t_i), float(np.sqrt(max(var[0, 0], 0))), "top" if vm - vs > 0 else "bottom",
-                          float(e), float(np.sqrt(max(var[1, 1], 0))), float(vm), float(vp), float(vs), y_rel,
-                          p.index, q.index, "paper", s_fit)
+    return ImpactFit(index=index, t_s=float(t_i), t_std_s=float(np.sqrt(max(var[0, 0], 0))),
+                     plate="top" if vm - vs > 0 else "bottom", cor=float(e), cor_std=float(np.sqrt(max(var[1, 1], 0))),
+                     v_ball_before_mps=float(vm), v_ball_after_mps=float(vp), v_structure_mps=float(vs),
+                     y_rel_mm=y_rel, flight_before=p.index, flight_after=q.index, method="paper", structure=s_fit)
 
 
-def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_mm: np.ndarray,
+def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_mm: np.ndarray,
                  y_plate_mm: float, accel_priors: tuple | None = None, noise_mm: float | None = None
-                 ) -> ImpactEstimate:
+                 ) -> ImpactFit:
     """Refit the two flights around ``est`` jointly, constrained to meet on the plate at relative position
     ``y_plate_mm`` (mm, track coordinates). Starts from the paper estimate; returns a new estimate.
 
@@ -207,9 +209,10 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
                 vals.append(-(vp - vs2) / (vm - vs2))
             gs[j] = (vals[0] - vals[1]) / (2 * h)
         var += float(gs @ s_fit.cov_ref @ gs)
-    return ImpactEstimate(est.index, float(t_i), float(np.sqrt(max(cov_th[0, 0], 0))), est.plate, float(e),
-                          float(np.sqrt(max(var, 0))), float(vm), float(vp), vs,
-                          float(y_plate_mm), est.flight_before, est.flight_after, "joint", s_fit)
+    return ImpactFit(index=est.index, t_s=float(t_i), t_std_s=float(np.sqrt(max(cov_th[0, 0], 0))), plate=est.plate,
+                     cor=float(e), cor_std=float(np.sqrt(max(var, 0))), v_ball_before_mps=float(vm),
+                     v_ball_after_mps=float(vp), v_structure_mps=vs, y_rel_mm=float(y_plate_mm),
+                     flight_before=est.flight_before, flight_after=est.flight_after, method="joint", structure=s_fit)
 
 
 def finite_difference_cor(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np.ndarray,

@@ -15,6 +15,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vibro_io.errors import RecordingError
+from vibro_model.codec import none_if_nan
+from vibro_model.results import StructureMotion
+from vibro_model.units import mm_to_m
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,21 @@ class StructureFit:
     def std(self) -> np.ndarray:
         """Standard deviations of (amplitude_mm, frequency_hz, phase_rad, offset_mm)."""
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    def motion(self, ball_offset_mm: float | None = None, moving: bool = True) -> StructureMotion:
+        """The fitted sine as the model type (SI; stds from the covariance, None without one). A structure
+        that does not move beyond DIC noise (``moving`` False) has no frequency or phase: a sine fitted to
+        noise would claim one. ``ball_offset_mm``: ball centre minus cavity centre at frame 0 (mm)."""
+        sd = [None] * 4 if self.cov is None else [none_if_nan(v) for v in self.std]
+        freq, phase = none_if_nan(self.frequency_hz), none_if_nan(self.phase_rad)
+        note = ""
+        if not moving:
+            freq = phase = sd[1] = sd[2] = None
+            note = "the structure does not move beyond DIC noise: no frequency or phase"
+        return StructureMotion(mm_to_m(none_if_nan(self.amplitude_mm)), freq, phase,
+                               mm_to_m(none_if_nan(self.offset_mm)), mm_to_m(none_if_nan(self.rms_residual_mm)),
+                               mm_to_m(sd[0]), sd[1], sd[2], mm_to_m(sd[3]), int(self.n_points),
+                               mm_to_m(none_if_nan(ball_offset_mm)), bool(moving), note)
 
 
 def _model(p: np.ndarray, tc: np.ndarray) -> np.ndarray:
