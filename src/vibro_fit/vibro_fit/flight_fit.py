@@ -3,7 +3,8 @@
 Each flight is fitted in centred time tc = t - t_ref (t_ref = mid time of its frames) for
 conditioning: Y[mm] = A tc^2 + B tc + C, with the covariance s^2 (X^T X)^-1, s^2 = SSR / (n - 3).
 :meth:`FlightFit.abs_coefficients` gives a, b, c for Y[mm] = a t^2 + b t + c with t the absolute
-camera time (s), as results.json wants. Ball acceleration 2A is in mm/s^2 (x 1e-3 for m/s^2).
+camera time (s), as results.json wants; :meth:`FlightFit.model` gives the SI model type. Velocities and
+accelerations are returned in m/s and m/s^2 (:func:`vibro_model.units.mm_to_m` of the mm/s terms).
 """
 
 from __future__ import annotations
@@ -44,15 +45,15 @@ class FlightFit:
     def velocity_mps(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """Ball velocity (m/s)."""
         tc = np.asarray(t_s) - self.t_ref_s
-        return 1e-3 * (2.0 * self.coef[0] * tc + self.coef[1])
+        return mm_to_m(2.0 * self.coef[0] * tc + self.coef[1])
 
     @property
     def acceleration_mps2(self) -> float:
-        return 2e-3 * float(self.coef[0])
+        return 2.0 * mm_to_m(float(self.coef[0]))
 
     @property
     def acceleration_std_mps2(self) -> float:
-        return 2e-3 * float(np.sqrt(max(self.cov[0, 0], 0.0)))
+        return 2.0 * mm_to_m(float(np.sqrt(max(self.cov[0, 0], 0.0))))
 
     def friction_n(self, mass_kg: float, g_mps2: float = G_MPS2) -> tuple[float, float]:
         """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N)."""

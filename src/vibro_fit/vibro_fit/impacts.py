@@ -27,6 +27,7 @@ from scipy.optimize import least_squares
 
 from vibro_model.codec import none_if_nan
 from vibro_model.results import Impact
+from vibro_model.units import m_to_mm, mm_to_m
 
 from .flight_fit import FlightFit
 from .structure_fit import StructureFit, with_params
@@ -88,8 +89,8 @@ def _quantities(pc, p_ref, qc, q_ref, sp, s_fit: StructureFit, t_lo, t_hi):
     t_i = gap_root(pc, p_ref, qc, q_ref, t_lo, t_hi)
     if t_i is None:
         return None
-    vm = 1e-3 * (2.0 * pc[0] * (t_i - p_ref) + pc[1])
-    vp = 1e-3 * (2.0 * qc[0] * (t_i - q_ref) + qc[1])
+    vm = mm_to_m(2.0 * pc[0] * (t_i - p_ref) + pc[1])
+    vp = mm_to_m(2.0 * qc[0] * (t_i - q_ref) + qc[1])
     s = with_params(s_fit, sp) if sp is not None else s_fit
     vs = float(s.velocity_mps(t_i))
     return t_i, vm, vp, vs, -(vp - vs) / (vm - vs)
@@ -169,7 +170,7 @@ def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_
         extra = [w * (th[k] - mu) for k, mu, w in priors]
         return np.concatenate([mp - yp, mq - yq, extra])
 
-    th0 = np.array([0.0, est.v_ball_before_mps * 1e3, p.coef[0], est.v_ball_after_mps * 1e3, q.coef[0]])
+    th0 = np.array([0.0, m_to_mm(est.v_ball_before_mps), p.coef[0], m_to_mm(est.v_ball_after_mps), q.coef[0]])
     res = least_squares(resid, th0, method="lm", x_scale=np.array([1e-4, 100.0, 1e3, 100.0, 1e3]),
                         xtol=1e-14, ftol=1e-14, gtol=1e-14)
     th = res.x
@@ -181,7 +182,7 @@ def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_
     except np.linalg.LinAlgError:
         cov_th = np.full((5, 5), np.nan)
     t_i = t0 + th[0]
-    vm, vp = 1e-3 * th[1], 1e-3 * th[3]
+    vm, vp = mm_to_m(th[1]), mm_to_m(th[3])
     vs = float(s_fit.velocity_mps(t_i))
     e = -(vp - vs) / (vm - vs)
     # gradient of e over theta (t_i enters through v_s only; v-, v+ are the values at t_i)
@@ -189,8 +190,9 @@ def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_
     de_dvs = (vm - vp) / (vm - vs) ** 2
     g_th = np.zeros(5)
     g_th[0] = de_dvs * dvs_dt
-    g_th[1] = 1e-3 * (vp - vs) / (vm - vs) ** 2
-    g_th[3] = -1e-3 / (vm - vs)
+    dv_dth = mm_to_m(1.0)  # theta's velocities are in mm/s: v (m/s) = mm_to_m(theta)
+    g_th[1] = dv_dth * (vp - vs) / (vm - vs) ** 2
+    g_th[3] = -dv_dth / (vm - vs)
     var = float(g_th @ cov_th @ g_th)
     # structure contribution (theta held fixed)
     if s_fit.cov_ref is not None:
@@ -228,7 +230,7 @@ def finite_difference_cor(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np
         return None
 
     def cd(y, i):
-        return 1e-3 * (y[i + 1] - y[i - 1]) / (t_s[i + 1] - t_s[i - 1])
+        return mm_to_m(y[i + 1] - y[i - 1]) / (t_s[i + 1] - t_s[i - 1])
 
     vm, vsm = cd(ball_mm, k - 1), cd(structure_mm, k - 1)
     vp, vsp = cd(ball_mm, k + 2), cd(structure_mm, k + 2)

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vibro_model.constants import G_MPS2
+from vibro_model.units import m_to_mm, mm_to_m
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,7 @@ def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray) -> float:
     if d2.size < 3:
         return float("nan")
     # remove the free-flight gravity term before the MAD
-    d2 = d2 + 1e3 * G_MPS2 * dt * dt
+    d2 = d2 + m_to_mm(G_MPS2) * dt * dt
     mad = float(np.median(np.abs(d2 - np.median(d2))))
     return 1.4826 * mad / np.sqrt(6.0)
 
@@ -84,7 +85,7 @@ def accel_estimate(t3: np.ndarray, y3_mm: np.ndarray) -> tuple[float, float]:
     h2 = t3[2] - t3[1]
     acc = 2.0 * ((y3_mm[2] - y3_mm[1]) / h2 - (y3_mm[1] - y3_mm[0]) / h1) / (h1 + h2)
     fac = 2.0 / (h1 + h2) * np.sqrt(1 / h2 ** 2 + (1 / h1 + 1 / h2) ** 2 + 1 / h1 ** 2)
-    return 1e-3 * acc, 1e-3 * fac
+    return mm_to_m(acc), mm_to_m(fac)
 
 
 def plate_levels(impacts, free_play_mm: float | None = None) -> dict[str, float]:

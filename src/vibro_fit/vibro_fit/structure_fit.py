@@ -3,7 +3,8 @@
 Model: Y_s(t) = A sin(2 pi f t + phi) + B with t the absolute camera time (s), Y in mm.
 Internally the fit uses a centred time t - t_ref for conditioning (phase psi about t_ref);
 ``phase_rad`` and ``cov`` are reported about t = 0 as the contract wants.
-Velocities are returned in m/s (mm/ms = m/s, so d/dt of mm in s is divided by 1e3).
+Velocities and accelerations are returned in m/s and m/s^2 (:func:`vibro_model.units.mm_to_m`);
+:meth:`StructureFit.motion` gives the SI model type.
 """
 
 from __future__ import annotations
@@ -44,13 +45,13 @@ class StructureFit:
         """dY_s/dt in m/s."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f
-        return 1e-3 * a * w * np.cos(w * (np.asarray(t_s) - self.t_ref_s) + psi)
+        return mm_to_m(a * w * np.cos(w * (np.asarray(t_s) - self.t_ref_s) + psi))
 
     def acceleration_mps2(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """d2Y_s/dt2 in m/s^2."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f
-        return -1e-3 * a * w * w * np.sin(w * (np.asarray(t_s) - self.t_ref_s) + psi)
+        return -mm_to_m(a * w * w * np.sin(w * (np.asarray(t_s) - self.t_ref_s) + psi))
 
     @property
     def std(self) -> np.ndarray:

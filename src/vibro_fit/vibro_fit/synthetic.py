@@ -18,6 +18,7 @@ from vibro_io.dictrack import DicTrack
 
 from vibro_model.constants import G_MPS2
 from vibro_model.results import Impact
+from vibro_model.units import m_to_mm
 
 
 @dataclass
@@ -103,8 +104,8 @@ def sample_track(truth: Truth, fps: float = 1000.0, n_frames: int = 1500, t0_s: 
     """A DicTrack (mm since frame 0, positive up) sampled from ``truth`` plus white noise (mm)."""
     rng = np.random.default_rng(seed)
     t = t0_s + np.arange(n_frames) / fps
-    ball = 1e3 * truth.ball_m(t)
-    st = 1e3 * truth.structure_m(t)
+    ball = m_to_mm(truth.ball_m(t))
+    st = m_to_mm(truth.structure_m(t))
     ball = ball - ball[0] + noise_mm * rng.standard_normal(n_frames) + ball_offset_mm
     st = st - st[0] + noise_mm * rng.standard_normal(n_frames)
     n = n_frames

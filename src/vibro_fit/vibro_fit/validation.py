@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from vibro_model.constants import G_MPS2
+from vibro_model.units import s_to_ms
 
 FORCE_EFFECTS = ("coulomb_friction", "viscous_drag", "quadratic_drag")
 
@@ -35,7 +36,7 @@ def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_mps2: float =
     out: dict = {"n_matched": len(cor_err), "n_results": len(results.get("impacts", [])), "n_truth": int(t_true.size)}
     if cor_err:
         out.update(cor_mae=float(np.mean(cor_err)), cor_max=float(np.max(cor_err)),
-                   t_mae_ms=1e3 * float(np.mean(t_err)), t_max_ms=1e3 * float(np.max(t_err)),
+                   t_mae_ms=s_to_ms(float(np.mean(t_err))), t_max_ms=s_to_ms(float(np.max(t_err))),
                    plate_agreement=float(np.mean(plate_ok)))
     s, st = results.get("structure", {}), truth.get("structure", {})
     if st.get("amplitude_mm"):
