@@ -17,25 +17,24 @@ from scipy.optimize import brentq
 from vibro_io.dictrack import DicTrack
 
 from vibro_model.constants import G_MPS2
-from vibro_model.results import Impact
+from vibro_model.results import Impact, StructureMotion
 from vibro_model.units import m_to_mm
 
 
 @dataclass
 class Truth:
-    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_mps, a_mps2) per flight."""
+    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_mps, a_mps2) per flight; the structure's
+    exact sine as the model type (SI)."""
 
-    amplitude_m: float
-    frequency_hz: float
-    phase_rad: float
-    offset_m: float
+    structure: StructureMotion
     free_play_m: float
     pieces: list[tuple[float, float, float, float]]
     impacts: list[Impact]          # exact: no stds; impact k ends flight k
     flight_accel_mps2: list[float]
 
     def structure_m(self, t):
-        return self.amplitude_m * np.sin(2 * np.pi * self.frequency_hz * np.asarray(t) + self.phase_rad) + self.offset_m
+        s = self.structure
+        return s.amplitude_m * np.sin(2 * np.pi * s.frequency_hz * np.asarray(t) + s.phase_rad) + s.offset_m
 
     def ball_m(self, t):
         t = np.asarray(t, float)
@@ -96,7 +95,7 @@ def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: f
         t0, y0, v0 = ti, ys(ti) + target, vb_after
         if abs(vb_after - vst) < 1e-3:
             break
-    return Truth(A, frequency_hz, ph, 0.0, b, pieces, impacts, accs)
+    return Truth(StructureMotion(A, frequency_hz, ph, 0.0), b, pieces, impacts, accs)
 
 
 def sample_track(truth: Truth, fps: float = 1000.0, n_frames: int = 1500, t0_s: float = 0.0,
@@ -143,8 +142,9 @@ def accel_signals(truth: Truth, fs_hz: float = 50_000.0, duration_s: float = 1.5
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration_s * fs_hz)) / fs_hz + offset_s
     tc = t - offset_s
-    w = 2 * np.pi * truth.frequency_hz
-    base = -truth.amplitude_m * w * w * np.sin(w * tc + truth.phase_rad)
+    s = truth.structure
+    w = 2 * np.pi * s.frequency_hz
+    base = -s.amplitude_m * w * w * np.sin(w * tc + s.phase_rad)
     up = base + noise_ms2 * rng.standard_normal(t.size)
     lo = base + noise_ms2 * rng.standard_normal(t.size)
     for imp in truth.impacts:
