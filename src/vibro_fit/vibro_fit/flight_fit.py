@@ -21,7 +21,9 @@ from vibro_model.units import mm_to_m
 
 @dataclass
 class FlightFit:
-    """One free flight. ``frames`` are the track indices used; ``coef`` = (A, B, C) about ``t_ref_s``."""
+    """The parabola fit of one flight in track units (mm, centred time) with its covariance, the segmentation's
+    verdict (free or not, why) and its frames (track indices); ``coef`` = (A, B, C) about ``t_ref_s``.
+    Not the model type: :meth:`model` gives the SI :class:`~vibro_model.results.Flight`."""
 
     index: int
     frames: np.ndarray

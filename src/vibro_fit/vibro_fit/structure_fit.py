@@ -23,7 +23,9 @@ from vibro_model.units import mm_to_m
 
 @dataclass(frozen=True)
 class StructureFit:
-    """Fitted structure motion. ``cov`` is the 4x4 covariance of (amplitude_mm, frequency_hz, phase_rad, offset_mm)."""
+    """The sine fit of the structure track (mm) with its covariance, also about the reference time the fit used
+    (for error propagation). ``cov`` is the 4x4 covariance of (amplitude_mm, frequency_hz, phase_rad, offset_mm).
+    Not the model type: :meth:`motion` gives the SI :class:`~vibro_model.results.StructureMotion`."""
 
     amplitude_mm: float
     frequency_hz: float
