@@ -47,7 +47,7 @@ def scenario_per_flight(seed: int, noise: float):
     forces = tuple(M_KG * G * rng.uniform(-0.08, 0.08, 400))
     S = StructureMotion(3e-3, 22.0, 0.3, 0.0)
     res = simulate_cor(S, BallCavity(), Scattered(PerPlate(top=0.6, bottom=0.75), 0.03, seed=seed),
-                       PerFlight(forces), y0_m=0.0, v0_ms=0.0, t0_s=0.0, t_end_s=N / FPS + 0.01)
+                       PerFlight(forces), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=N / FPS + 0.01)
     t = np.arange(N) / FPS
     r = np.random.default_rng(seed)
     ball = 1e3 * (res.sample(t) - res.sample(0.0)) + noise * r.standard_normal(N)
@@ -65,7 +65,7 @@ def scenario_direction(seed: int, noise: float):
     track = sample_track(truth, noise_mm=noise, n_frames=N, seed=seed)
     imps = [(i.t_s, i.cor) for i in truth.impacts]
     starts = [p[0] for p in truth.pieces] + [1e9]
-    flights = [(starts[k], starts[k + 1], M_KG * (truth.flight_accel_ms2[k] + G)) for k in range(len(truth.pieces))]
+    flights = [(starts[k], starts[k + 1], M_KG * (truth.flight_accel_mps2[k] + G)) for k in range(len(truth.pieces))]
     return track, imps, flights
 
 

@@ -31,7 +31,7 @@ def sim_track(noise_mm: float, n_frames: int = 400, seed: int = 1, sim_seed: int
     S = StructureMotion(3e-3, 22.0, 0.3, 0.0)
     cav = BallCavity()
     res = simulate_cor(S, cav, Scattered(PerPlate(top=0.6, bottom=0.75), 0.03, seed=sim_seed),
-                       PerFlight(forces), y0_m=0.0, v0_ms=0.0, t0_s=0.0, t_end_s=n_frames / FPS + 0.01)
+                       PerFlight(forces), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=n_frames / FPS + 0.01)
     t = np.arange(n_frames) / FPS
     r = np.random.default_rng(seed)
     ball = 1e3 * (res.sample(t) - res.sample(t[0])) + noise_mm * r.standard_normal(n_frames)
@@ -193,7 +193,7 @@ def test_outlier_frame_does_not_create_an_impact():
 def test_one_impact_per_cycle_regime():
     # small excitation: the ball only bounces on the bottom plate, once per cycle
     truth = simulate(amplitude_m=0.3e-3, frequency_hz=22.0, phase_rad=0.0, cor_bottom=0.8, cor_top=0.8,
-                     duration_s=1.0, y0_rel_m=-5.9e-3, v0_ms=0.25)
+                     duration_s=1.0, y0_rel_m=-5.9e-3, v0_mps=0.25)
     late = [i for i in truth.impacts if i.t_s > 0.3]
     assert late and all(i.plate == "bottom" for i in late)
     track = sample_track(truth, n_frames=900, noise_mm=0.0005)
@@ -270,14 +270,14 @@ def test_cavity_offset_and_free_play_from_impacts():
     # ball starts 2 mm above the cavity centre: DIC displacements hide it (both start at 0); the
     # relative positions at the impacts give it back. Impact positions are known to ~ the track noise
     # (0.0005 mm) x a few, medians over ~15 impacts: 0.005 mm is a generous bound.
-    truth = simulate(amplitude_m=3e-3, duration_s=0.45, y0_rel_m=2e-3, v0_ms=0.0)
+    truth = simulate(amplitude_m=3e-3, duration_s=0.45, y0_rel_m=2e-3, v0_mps=0.0)
     track = sample_track(truth, n_frames=420)
     lv = identify(track, paper_rig()).plate_levels
     assert lv["offset_mm"] == pytest.approx(2.0, abs=0.005)
     assert lv["free_play_mm"] == pytest.approx(5.915, abs=0.005)
     # one plate only (ball bouncing on the bottom): offset from the rig's free play
     truth = simulate(amplitude_m=0.3e-3, phase_rad=0.0, cor_bottom=0.8, cor_top=0.8, duration_s=0.6,
-                     y0_rel_m=-5.9e-3, v0_ms=0.25)
+                     y0_rel_m=-5.9e-3, v0_mps=0.25)
     lv = identify(sample_track(truth, n_frames=550), paper_rig()).plate_levels
     assert "top" not in lv
     assert lv["offset_mm"] == pytest.approx(-5.9, abs=0.005)

@@ -62,9 +62,9 @@ def test_noise_free_recovers_exact_impact():
         assert est.t_s == pytest.approx(ti.t_s, abs=1e-9)
         assert est.cor == pytest.approx(ti.cor, abs=1e-7)
         assert est.plate == ti.plate
-        assert est.v_ball_before_ms == pytest.approx(ti.v_ball_before_ms, abs=1e-6)
-        assert est.v_ball_after_ms == pytest.approx(ti.v_ball_after_ms, abs=1e-6)
-        assert est.v_structure_ms == pytest.approx(ti.v_structure_ms, abs=1e-6)
+        assert est.v_ball_before_mps == pytest.approx(ti.v_ball_before_mps, abs=1e-6)
+        assert est.v_ball_after_mps == pytest.approx(ti.v_ball_after_mps, abs=1e-6)
+        assert est.v_structure_mps == pytest.approx(ti.v_structure_mps, abs=1e-6)
 
 
 def test_cor_std_matches_monte_carlo():

@@ -45,7 +45,7 @@ def test_velocity_matches_analytic_derivative():
     tt = np.linspace(0.1, 1.2, 7)
     # d/dt [A sin(wt+phi)] in mm/s -> m/s (x 1e-3); noise-free so only round-off remains
     expect = 1e-3 * 3.0 * 2 * np.pi * 22.0 * np.cos(2 * np.pi * 22.0 * tt + 0.3)
-    assert np.allclose(fit.velocity_ms(tt), expect, atol=1e-9)
+    assert np.allclose(fit.velocity_mps(tt), expect, atol=1e-9)
 
 
 def test_spectral_peak_refined_and_gaps_tolerated():

@@ -48,7 +48,7 @@ def test_every_flight_is_a_parabola_with_gravity_curvature():
     for fl in r.flights[1:-1]:
         t = np.linspace(fl.t_start_s, fl.t_end_s, 20)
         y0 = r.sample(fl.t_start_s)
-        v0 = r.impacts[fl.index - 1].v_ball_after_ms
+        v0 = r.impacts[fl.index - 1].v_ball_after_mps
         tau = t - fl.t_start_s
         np.testing.assert_allclose(r.sample(t), y0 + v0 * tau - 0.5 * G * tau ** 2, atol=1e-13)
         # Eq. 17 with no friction: the identified force is zero (rounding only)
@@ -64,7 +64,7 @@ def test_impacts_lie_on_the_plates():
         assert abs(rel - expect) < 1e-12
         # moving into the plate before, away after (relative)
         side = 1 if imp.plate == "top" else -1
-        assert side * imp.v_rel_before_ms > 0 and side * imp.v_rel_after_ms <= 0
+        assert side * imp.v_rel_before_mps > 0 and side * imp.v_rel_after_mps <= 0
     rel = r.relative_position(np.linspace(0, 0.5, 20001))
     assert np.all(np.abs(rel) <= B + 1e-12)
 
@@ -73,7 +73,7 @@ def test_elastic_impacts_keep_relative_speed():
     r = simulate_cor(shaker(), CAV, Constant(1.0), NoForce(), 0.0, 0.3, 0.0, 0.5)
     assert len(r.impacts) > 5
     for imp in r.impacts:
-        assert imp.v_rel_after_ms == pytest.approx(-imp.v_rel_before_ms, rel=1e-12)
+        assert imp.v_rel_after_mps == pytest.approx(-imp.v_rel_before_mps, rel=1e-12)
 
 
 @pytest.mark.parametrize("law", [Constant(0.7), PerPlate(0.6, 0.75), VelocityDependent(0.9, 0.2),
@@ -83,9 +83,9 @@ def test_energy_across_impact_scales_with_e_squared(law):
     r = simulate_cor(shaker(), CAV, law, NoForce(), 0.0, 0.0, 0.0, 0.4)
     assert len(r.impacts) > 5
     for imp in r.impacts:
-        ratio = imp.v_rel_after_ms ** 2 / imp.v_rel_before_ms ** 2
+        ratio = imp.v_rel_after_mps ** 2 / imp.v_rel_before_mps ** 2
         assert ratio == pytest.approx(imp.cor ** 2, rel=1e-12, abs=1e-15)
-        assert imp.cor == pytest.approx(law.cor(imp.plate, imp.v_rel_before_ms, imp.index), abs=0)
+        assert imp.cor == pytest.approx(law.cor(imp.plate, imp.v_rel_before_mps, imp.index), abs=0)
 
 
 def _reference_ode(S, cav, law, force, y0, v0, t_end, max_step=2e-5):

@@ -201,7 +201,7 @@ def test_asymmetric_restitution_means_and_scatter():
 def test_velocity_dependent_restitution_is_followed():
     _, _, traj = _short({"velocity_dependent_restitution": {"cor_at_zero": 0.9, "slope_s_per_m": 0.2}})
     for i in traj.impacts:
-        assert i.cor == pytest.approx(0.9 - 0.2 * abs(i.v_rel_before_ms), abs=1e-12)
+        assert i.cor == pytest.approx(0.9 - 0.2 * abs(i.v_rel_before_mps), abs=1e-12)
 
 
 def test_structure_harmonics_are_in_the_truth_motion():

@@ -3,7 +3,8 @@
 Each flight is fitted in centred time tc = t - t_ref (t_ref = mid time of its frames) for
 conditioning: Y[mm] = A tc^2 + B tc + C, with the covariance s^2 (X^T X)^-1, s^2 = SSR / (n - 3).
 :meth:`FlightFit.abs_coefficients` gives a, b, c for Y[mm] = a t^2 + b t + c with t the absolute
-camera time (s), as results.json wants. Ball acceleration 2A is in mm/s^2 (x 1e-3 for m/s^2).
+camera time (s), as results.json wants; :meth:`FlightFit.model` gives the SI model type. Velocities and
+accelerations are returned in m/s and m/s^2 (:func:`vibro_model.units.mm_to_m` of the mm/s terms).
 """
 
 from __future__ import annotations
@@ -12,12 +13,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_model.constants import G_MPS2 as G_MS2
+from vibro_model.codec import none_if_nan
+from vibro_model.constants import G_MPS2
+from vibro_model.results import Flight
+from vibro_model.units import mm_to_m
 
 
 @dataclass
 class FlightFit:
-    """One free flight. ``frames`` are the track indices used; ``coef`` = (A, B, C) about ``t_ref_s``."""
+    """The parabola fit of one flight in track units (mm, centred time) with its covariance, the segmentation's
+    verdict (free or not, why) and its frames (track indices); ``coef`` = (A, B, C) about ``t_ref_s``.
+    Not the model type: :meth:`model` gives the SI :class:`~vibro_model.results.Flight`."""
 
     index: int
     frames: np.ndarray
@@ -38,28 +44,38 @@ class FlightFit:
         tc = np.asarray(t_s) - self.t_ref_s
         return (self.coef[0] * tc + self.coef[1]) * tc + self.coef[2]
 
-    def velocity_ms(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def velocity_mps(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """Ball velocity (m/s)."""
         tc = np.asarray(t_s) - self.t_ref_s
-        return 1e-3 * (2.0 * self.coef[0] * tc + self.coef[1])
+        return mm_to_m(2.0 * self.coef[0] * tc + self.coef[1])
 
     @property
-    def acceleration_ms2(self) -> float:
-        return 2e-3 * float(self.coef[0])
+    def acceleration_mps2(self) -> float:
+        return 2.0 * mm_to_m(float(self.coef[0]))
 
     @property
-    def acceleration_std_ms2(self) -> float:
-        return 2e-3 * float(np.sqrt(max(self.cov[0, 0], 0.0)))
+    def acceleration_std_mps2(self) -> float:
+        return 2.0 * mm_to_m(float(np.sqrt(max(self.cov[0, 0], 0.0))))
 
-    def friction_n(self, mass_kg: float, g_ms2: float = G_MS2) -> tuple[float, float]:
+    def friction_n(self, mass_kg: float, g_mps2: float = G_MPS2) -> tuple[float, float]:
         """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N)."""
-        return mass_kg * (self.acceleration_ms2 + g_ms2), mass_kg * self.acceleration_std_ms2
+        return mass_kg * (self.acceleration_mps2 + g_mps2), mass_kg * self.acceleration_std_mps2
 
     def abs_coefficients(self) -> tuple[float, float, float]:
         """(a, b, c) for Y[mm] = a t^2 + b t + c, t absolute camera time (s)."""
         a_, b_, c_ = (float(v) for v in self.coef)
         r = self.t_ref_s
         return a_, b_ - 2.0 * a_ * r, a_ * r * r - b_ * r + c_
+
+    def model(self, mass_kg: float) -> Flight:
+        """The fitted flight as the model type (SI, NaN -> None); friction from Eq. 17 with the ball mass
+        ``mass_kg``, only for a free flight."""
+        a, b, c = (mm_to_m(none_if_nan(v)) for v in self.abs_coefficients())
+        f_n, f_std = self.friction_n(mass_kg)
+        return Flight(int(self.index), none_if_nan(self.t_start_s), none_if_nan(self.t_end_s), a, b, c,
+                      self.direction or "", none_if_nan(f_n) if self.is_free else None,
+                      none_if_nan(f_std) if self.is_free else None, mm_to_m(none_if_nan(self.rms_residual_mm)),
+                      int(self.n_points), bool(self.is_free), self.reason or "")
 
 
 def fit_parabola(t_s: np.ndarray, y_mm: np.ndarray, weights: np.ndarray | None = None

@@ -16,11 +16,12 @@ from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_io.rig import RigConfig
+from vibro_model.results import StructureMotion
 
 from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
 from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
-from .impacts import ImpactEstimate, joint_impact
+from .impacts import ImpactFit, joint_impact
 from .landings import Landing, find_landings
 from .motion_state import MotionState, classify_motion, structure_moves
 from .regimes import Regime, classify_regime, y_rel_range
@@ -41,7 +42,7 @@ class Identification:
 
     structure: StructureFit
     flights: list[FlightFit]
-    impacts: list[ImpactEstimate]
+    impacts: list[ImpactFit]
     friction: list[dict]
     cor_summary: dict
     regime: Regime
@@ -60,6 +61,12 @@ class Identification:
     landings: list[Landing] = field(default_factory=list)   # impacts without a COR (short rebound, chatter)
     accel_unseen_s: list[float] | None = None  # accelerometer impacts (camera clock) the camera does not see
     rig_consistency: list[RigStatement] = field(default_factory=list)
+
+    def structure_motion(self) -> StructureMotion:
+        """The identified structure as the model type, with the ball offset from the plate levels; no
+        frequency or phase when the structure did not move beyond DIC noise."""
+        moves = self.motion.structure_moves if self.motion is not None else True
+        return self.structure.motion(self.plate_levels.get("offset_mm", 0.0), moves)
 
     @property
     def rig_consistent(self) -> bool:
@@ -214,8 +221,8 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         if not fl.direction:
             # no impact next to it: the sign of the relative velocity (ball - structure) at mid-flight
             tm = 0.5 * (fl.t_start_s + fl.t_end_s)
-            fl.direction = "up" if fl.velocity_ms(tm) - structure.velocity_ms(tm) > 0 else "down"
-        f_n, f_std = fl.friction_n(rig.ball.mass_kg, cfg.g_ms2)
+            fl.direction = "up" if fl.velocity_mps(tm) - structure.velocity_mps(tm) > 0 else "down"
+        f_n, f_std = fl.friction_n(rig.ball.mass_kg, cfg.g_mps2)
         friction.append({"flight": fl.index, "friction_n": f_n, "friction_std_n": f_std,
                          "direction": fl.direction, "free": fl.is_free})
     for fl in sf.flights:
@@ -226,7 +233,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     landings = _landings(sf, structure, rig, t, ball, st, cfg, levels)
     for ld in landings:
         warnings.append(f"impact without COR at t = {ld.t_s:.4f} s on the {ld.plate} plate (relative speed "
-                        f"{abs(ld.v_rel_before_ms):.3f} m/s, end of flight {ld.flight_before}): {ld.reason}")
+                        f"{abs(ld.v_rel_before_mps):.3f} m/s, end of flight {ld.flight_before}): {ld.reason}")
     unseen = None
     if accel_res is not None:
         unseen = _accel_unseen(accel_cam_s, impacts, landings, sf.flights, t, rig.camera.fps)
@@ -250,7 +257,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     if motion.state != "impacting":
         warnings.append(motion.message())
     daq_f = excitation_on_daq_clock_hz(accel, f_nom) if accel is not None and moving else None
-    rig_state = check_rig(rig, structure, moving, impacts, sf.flights, float(noise), cfg.g_ms2, daq_f)
+    rig_state = check_rig(rig, structure, moving, impacts, sf.flights, float(noise), cfg.g_mps2, daq_f)
     for r in rig_state:
         warnings.append(f"rig description inconsistent with the measurement: {r.message}")
     return Identification(structure, list(sf.flights), impacts, friction, cor_summary(impacts), regime, levels,

@@ -19,33 +19,35 @@ Methods
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+
+from vibro_model.codec import none_if_nan
+from vibro_model.results import Impact
+from vibro_model.units import m_to_mm, mm_to_m
 
 from .flight_fit import FlightFit
 from .structure_fit import StructureFit, with_params
 
 
 @dataclass
-class ImpactEstimate:
-    """One impact between flight ``flight_before`` and ``flight_after``."""
+class ImpactFit(Impact):
+    """One impact between flights ``flight_before`` and ``flight_after`` as the fit estimates it: the model
+    :class:`~vibro_model.results.Impact` (SI; NaN where the fit gives no number) plus the fit context the
+    joint refit and the plate levels use. :meth:`model` gives the plain Impact the results and messages carry."""
 
-    index: int
-    t_s: float
-    t_std_s: float
-    plate: str                # "top" | "bottom"
-    cor: float
-    cor_std: float
-    v_ball_before_ms: float
-    v_ball_after_ms: float
-    v_structure_ms: float
-    y_rel_mm: float           # ball - structure displacement at t_i (track coordinates, mm)
-    flight_before: int
-    flight_after: int
-    method: str = "paper"
-    structure: StructureFit | None = None
+    y_rel_mm: float = math.nan                 # ball - structure displacement at t_i (track coordinates, mm)
+    structure: StructureFit | None = None      # the local structure fit that gave v_structure
+
+    def model(self) -> Impact:
+        """The plain model Impact (NaN -> None: unknown)."""
+        return Impact(int(self.index), none_if_nan(self.t_s), self.plate, none_if_nan(self.cor),
+                      none_if_nan(self.cor_std), none_if_nan(self.v_ball_before_mps),
+                      none_if_nan(self.v_ball_after_mps), none_if_nan(self.v_structure_mps),
+                      none_if_nan(self.t_std_s), int(self.flight_before), int(self.flight_after), self.method)
 
 
 def _shift(coef: np.ndarray, t_ref: float, t_new: float) -> tuple[float, float, float]:
@@ -87,14 +89,14 @@ def _quantities(pc, p_ref, qc, q_ref, sp, s_fit: StructureFit, t_lo, t_hi):
     t_i = gap_root(pc, p_ref, qc, q_ref, t_lo, t_hi)
     if t_i is None:
         return None
-    vm = 1e-3 * (2.0 * pc[0] * (t_i - p_ref) + pc[1])
-    vp = 1e-3 * (2.0 * qc[0] * (t_i - q_ref) + qc[1])
+    vm = mm_to_m(2.0 * pc[0] * (t_i - p_ref) + pc[1])
+    vp = mm_to_m(2.0 * qc[0] * (t_i - q_ref) + qc[1])
     s = with_params(s_fit, sp) if sp is not None else s_fit
-    vs = float(s.velocity_ms(t_i))
+    vs = float(s.velocity_mps(t_i))
     return t_i, vm, vp, vs, -(vp - vs) / (vm - vs)
 
 
-def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) -> ImpactEstimate | None:
+def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) -> ImpactFit | None:
     """Impact between fitted flights p (before) and q (after) with the paper's plain method, or None
     when the parabolas do not meet inside the gap or the relative velocity does not reverse."""
     t_lo, t_hi = p.t_end_s, q.t_start_s
@@ -128,14 +130,15 @@ def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) ->
         jac[1, j] = (outs[0][4] - outs[1][4]) / (2 * h)
     var = jac @ cov @ jac.T
     y_rel = float(p.position_mm(t_i) - s_fit.position_mm(t_i))
-    return ImpactEstimate(index, float(t_i), float(np.sqrt(max(var[0, 0], 0))), "top" if vm - vs > 0 else "bottom",
-                          float(e), float(np.sqrt(max(var[1, 1], 0))), float(vm), float(vp), float(vs), y_rel,
-                          p.index, q.index, "paper", s_fit)
+    return ImpactFit(index=index, t_s=float(t_i), t_std_s=float(np.sqrt(max(var[0, 0], 0))),
+                     plate="top" if vm - vs > 0 else "bottom", cor=float(e), cor_std=float(np.sqrt(max(var[1, 1], 0))),
+                     v_ball_before_mps=float(vm), v_ball_after_mps=float(vp), v_structure_mps=float(vs),
+                     y_rel_mm=y_rel, flight_before=p.index, flight_after=q.index, method="paper", structure=s_fit)
 
 
-def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_mm: np.ndarray,
+def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_mm: np.ndarray,
                  y_plate_mm: float, accel_priors: tuple | None = None, noise_mm: float | None = None
-                 ) -> ImpactEstimate:
+                 ) -> ImpactFit:
     """Refit the two flights around ``est`` jointly, constrained to meet on the plate at relative position
     ``y_plate_mm`` (mm, track coordinates). Starts from the paper estimate; returns a new estimate.
 
@@ -167,7 +170,7 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
         extra = [w * (th[k] - mu) for k, mu, w in priors]
         return np.concatenate([mp - yp, mq - yq, extra])
 
-    th0 = np.array([0.0, est.v_ball_before_ms * 1e3, p.coef[0], est.v_ball_after_ms * 1e3, q.coef[0]])
+    th0 = np.array([0.0, m_to_mm(est.v_ball_before_mps), p.coef[0], m_to_mm(est.v_ball_after_mps), q.coef[0]])
     res = least_squares(resid, th0, method="lm", x_scale=np.array([1e-4, 100.0, 1e3, 100.0, 1e3]),
                         xtol=1e-14, ftol=1e-14, gtol=1e-14)
     th = res.x
@@ -179,16 +182,17 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
     except np.linalg.LinAlgError:
         cov_th = np.full((5, 5), np.nan)
     t_i = t0 + th[0]
-    vm, vp = 1e-3 * th[1], 1e-3 * th[3]
-    vs = float(s_fit.velocity_ms(t_i))
+    vm, vp = mm_to_m(th[1]), mm_to_m(th[3])
+    vs = float(s_fit.velocity_mps(t_i))
     e = -(vp - vs) / (vm - vs)
     # gradient of e over theta (t_i enters through v_s only; v-, v+ are the values at t_i)
-    dvs_dt = float(s_fit.acceleration_ms2(t_i))
+    dvs_dt = float(s_fit.acceleration_mps2(t_i))
     de_dvs = (vm - vp) / (vm - vs) ** 2
     g_th = np.zeros(5)
     g_th[0] = de_dvs * dvs_dt
-    g_th[1] = 1e-3 * (vp - vs) / (vm - vs) ** 2
-    g_th[3] = -1e-3 / (vm - vs)
+    dv_dth = mm_to_m(1.0)  # theta's velocities are in mm/s: v (m/s) = mm_to_m(theta)
+    g_th[1] = dv_dth * (vp - vs) / (vm - vs) ** 2
+    g_th[3] = -dv_dth / (vm - vs)
     var = float(g_th @ cov_th @ g_th)
     # structure contribution (theta held fixed)
     if s_fit.cov_ref is not None:
@@ -203,13 +207,14 @@ def joint_impact(est: ImpactEstimate, p: FlightFit, q: FlightFit, t_s: np.ndarra
             for sgn in (1.0, -1.0):
                 sp = sp0.copy()
                 sp[j] += sgn * h
-                vs2 = float(with_params(s_fit, sp).velocity_ms(t_i))
+                vs2 = float(with_params(s_fit, sp).velocity_mps(t_i))
                 vals.append(-(vp - vs2) / (vm - vs2))
             gs[j] = (vals[0] - vals[1]) / (2 * h)
         var += float(gs @ s_fit.cov_ref @ gs)
-    return ImpactEstimate(est.index, float(t_i), float(np.sqrt(max(cov_th[0, 0], 0))), est.plate, float(e),
-                          float(np.sqrt(max(var, 0))), float(vm), float(vp), vs,
-                          float(y_plate_mm), est.flight_before, est.flight_after, "joint", s_fit)
+    return ImpactFit(index=est.index, t_s=float(t_i), t_std_s=float(np.sqrt(max(cov_th[0, 0], 0))), plate=est.plate,
+                     cor=float(e), cor_std=float(np.sqrt(max(var, 0))), v_ball_before_mps=float(vm),
+                     v_ball_after_mps=float(vp), v_structure_mps=vs, y_rel_mm=float(y_plate_mm),
+                     flight_before=est.flight_before, flight_after=est.flight_after, method="joint", structure=s_fit)
 
 
 def finite_difference_cor(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np.ndarray,
@@ -225,7 +230,7 @@ def finite_difference_cor(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np
         return None
 
     def cd(y, i):
-        return 1e-3 * (y[i + 1] - y[i - 1]) / (t_s[i + 1] - t_s[i - 1])
+        return mm_to_m(y[i + 1] - y[i - 1]) / (t_s[i + 1] - t_s[i - 1])
 
     vm, vsm = cd(ball_mm, k - 1), cd(structure_mm, k - 1)
     vp, vsp = cd(ball_mm, k + 2), cd(structure_mm, k + 2)

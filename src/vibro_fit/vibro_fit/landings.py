@@ -30,12 +30,12 @@ class Landing:
 
     t_s: float
     plate: str
-    v_rel_before_ms: float     # ball minus structure velocity just before the impact (m/s)
+    v_rel_before_mps: float     # ball minus structure velocity just before the impact (m/s)
     flight_before: int
     reason: str
 
     def to_dict(self) -> dict:
-        return {"t": float(self.t_s), "plate": self.plate, "v_rel_before": float(self.v_rel_before_ms),
+        return {"t": float(self.t_s), "plate": self.plate, "v_rel_before": float(self.v_rel_before_mps),
                 "flight_before": int(self.flight_before), "reason": self.reason}
 
 
@@ -79,7 +79,7 @@ def find_landings(flights, impacts, clusters, short_flights, structure, plate_le
             rest = None
         else:
             continue                          # a COR impact was rejected for another reason (reported there)
-        v_end = float(fl.velocity_ms(fl.t_end_s) - structure.velocity_ms(fl.t_end_s))
+        v_end = float(fl.velocity_mps(fl.t_end_s) - structure.velocity_mps(fl.t_end_s))
         plate = "bottom" if v_end < 0 else "top"
         level = plate_levels.get(plate)
         if level is None and rest is not None:
@@ -95,7 +95,7 @@ def find_landings(flights, impacts, clusters, short_flights, structure, plate_le
         if t_hit is None:
             i0 = int(first.frames[0])
             t_hit = float(0.5 * (t_s[i0] + t_s[min(i0 + 1, t_s.size - 1)]))
-        v_rel = float(fl.velocity_ms(t_hit) - structure.velocity_ms(t_hit))
+        v_rel = float(fl.velocity_mps(t_hit) - structure.velocity_mps(t_hit))
         if not fl.is_free:
             reason += f"; the flight before is not free ({fl.reason}): time and speed approximate"
         out.append(Landing(t_hit, plate, v_rel, int(fl.index), reason))

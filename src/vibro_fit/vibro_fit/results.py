@@ -14,56 +14,15 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from vibro_model.codec import json_number, json_value, none_if_nan, write_results
-from vibro_model.results import Flight, Impact, ResultsDocument, Simulation, StructureMotion
-from vibro_model.units import mm_to_m
+from vibro_model.codec import json_number, json_value, write_results
+from vibro_model.results import ResultsDocument, Simulation
 
 from vibro_io.outputs import atomic_open
 
-from .flight_fit import FlightFit
 from .identify import Identification
-from .impacts import ImpactEstimate
-from .structure_fit import StructureFit
 
 RESULTS_JSON = "results.json"
 CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in this order
-
-
-def structure_model(s: StructureFit, ball_offset_mm: float | None = None, moving: bool = True) -> StructureMotion:
-    """The fitted sine as the model type (stds from the covariance, None without one). A structure that
-    does not move beyond DIC noise (``moving`` False) has no frequency or phase: a sine fitted to noise
-    would claim one."""
-    sd = [None] * 4 if s.cov is None else [none_if_nan(v) for v in s.std]
-    freq, phase = none_if_nan(s.frequency_hz), none_if_nan(s.phase_rad)
-    note = ""
-    if not moving:
-        freq = phase = sd[1] = sd[2] = None
-        note = "the structure does not move beyond DIC noise: no frequency or phase"
-    return StructureMotion(mm_to_m(none_if_nan(s.amplitude_mm)), freq, phase, mm_to_m(none_if_nan(s.offset_mm)),
-                           mm_to_m(none_if_nan(s.rms_residual_mm)), mm_to_m(sd[0]), sd[1], sd[2], mm_to_m(sd[3]),
-                           int(s.n_points), mm_to_m(none_if_nan(ball_offset_mm)), bool(moving), note)
-
-
-def structure_moves(ident: Identification) -> bool:
-    """Whether the identification saw the structure move beyond DIC noise (True when not assessed)."""
-    return ident.motion.structure_moves if ident.motion is not None else True
-
-
-def flight_model(fl: FlightFit, mass_kg: float) -> Flight:
-    """One fitted flight (friction from Eq. 17 with the ball mass, only for a free flight)."""
-    a, b, c = fl.abs_coefficients()
-    f_n, f_std = fl.friction_n(mass_kg)
-    return Flight(int(fl.index), none_if_nan(fl.t_start_s), none_if_nan(fl.t_end_s), mm_to_m(none_if_nan(a)),
-                  mm_to_m(none_if_nan(b)), mm_to_m(none_if_nan(c)), fl.direction or "",
-                  none_if_nan(f_n) if fl.is_free else None, none_if_nan(f_std) if fl.is_free else None,
-                  mm_to_m(none_if_nan(fl.rms_residual_mm)), int(fl.n_points), bool(fl.is_free), fl.reason or "")
-
-
-def impact_model(est: ImpactEstimate) -> Impact:
-    return Impact(int(est.index), none_if_nan(est.t_s), est.plate, none_if_nan(est.cor), none_if_nan(est.cor_std),
-                  none_if_nan(est.v_ball_before_ms), none_if_nan(est.v_ball_after_ms),
-                  none_if_nan(est.v_structure_ms), none_if_nan(est.t_std_s), int(est.flight_before),
-                  int(est.flight_after), est.method)
 
 
 def cor_statistics_section(impacts: Iterable) -> dict:
@@ -123,11 +82,9 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
 
 def results_model(ident: Identification, recording: str, simulation: Simulation | None = None) -> ResultsDocument:
     """The results document of an identification (discrepancy left empty: the caller adds it)."""
-    impacts = [impact_model(i) for i in ident.impacts]
+    impacts = [i.model() for i in ident.impacts]
     sections = {"cor_statistics": cor_statistics_section(impacts), **identification_extras(ident)}
-    return ResultsDocument.build(recording, structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0),
-                                                                  structure_moves(ident)),
-                                 [flight_model(f, ident.mass_kg) for f in ident.flights], impacts,
+    return ResultsDocument.build(recording, ident.structure_motion(), [f.model(ident.mass_kg) for f in ident.flights], impacts,
                                  simulation=simulation, warnings=ident.warnings, sections=sections)
 
 

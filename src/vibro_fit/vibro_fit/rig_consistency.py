@@ -68,17 +68,17 @@ def free_play_ratio(impacts, free_play_rig_mm: float, noise_mm: float) -> tuple[
     return b / free_play_rig_mm, sb / free_play_rig_mm
 
 
-def fall_ratio(flights, g_ms2: float) -> tuple[float, float, int] | None:
+def fall_ratio(flights, g_mps2: float) -> tuple[float, float, int] | None:
     """(k_a, std, n) = |mean of the up and down flights' median acceleration| / g over the free flights
     (one direction alone when the other has none)."""
     meds, vars_ = [], []
     n = 0
     for d in ("up", "down"):
-        a = np.array([f.acceleration_ms2 for f in flights if f.is_free and f.direction == d])
+        a = np.array([f.acceleration_mps2 for f in flights if f.is_free and f.direction == d])
         if a.size == 0:
             continue
         n += a.size
-        sd_fit = float(np.median([f.acceleration_std_ms2 for f in flights if f.is_free and f.direction == d]))
+        sd_fit = float(np.median([f.acceleration_std_mps2 for f in flights if f.is_free and f.direction == d]))
         spread = 1.4826 * float(np.median(np.abs(a - np.median(a)))) if a.size > 2 else sd_fit
         meds.append(float(np.median(a)))
         vars_.append((max(spread, sd_fit) ** 2) * (math.pi / 2.0) / a.size)
@@ -86,7 +86,7 @@ def fall_ratio(flights, g_ms2: float) -> tuple[float, float, int] | None:
         return None
     a_mean = float(np.mean(meds))
     sd = math.sqrt(sum(vars_)) / len(meds)
-    return abs(a_mean) / g_ms2, sd / g_ms2, n
+    return abs(a_mean) / g_mps2, sd / g_mps2, n
 
 
 def excitation_on_daq_clock_hz(accel, nominal_hz: float) -> float | None:
@@ -107,14 +107,14 @@ def excitation_on_daq_clock_hz(accel, nominal_hz: float) -> float | None:
     return spectral_peak_hz(t[::step], x[::step])
 
 
-def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm: float, g_ms2: float,
+def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm: float, g_mps2: float,
               daq_frequency_hz: float | None = None) -> list[RigStatement]:
     """Statements of inconsistency between rig.yaml and the measurement (see module rules)."""
     out: list[RigStatement] = []
     f_nom = rig.excitation.frequency_hz
     fps = rig.camera.fps
     time_scale = None  # camera time per true time, when a wrong fps is established
-    fall = fall_ratio(flights, g_ms2)
+    fall = fall_ratio(flights, g_mps2)
     if structure_moves:
         f_cam = float(structure.frequency_hz)
         sf = float(structure.std[1]) if np.isfinite(structure.std[1]) else 0.0
@@ -141,7 +141,7 @@ def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm:
                 fall_words = ""
                 keys = ["camera.fps", "excitation.frequency_hz"]
                 if fall is not None and fall[2] >= 3:
-                    fall_words = (f"; flights fall at {fall[0] * g_ms2:.2f} m/s^2 "
+                    fall_words = (f"; flights fall at {fall[0] * g_mps2:.2f} m/s^2 "
                                   f"({fall[0]:.3f} g, a time scale of {r_nom:.3f} gives {r_nom ** 2:.3f} g)")
                     if abs(fall[0] - r_nom ** 2) <= N_SIGMA * fall[1] + 0.05 * r_nom ** 2:
                         keys = ["camera.fps"]
@@ -157,7 +157,7 @@ def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm:
                     f"{' / '.join(keys)}: the structure moves at {f_cam:.3f} Hz on the camera clock vs "
                     f"excitation.frequency_hz {f_nom:g} Hz{ratio_words}{fall_words}: {what}",
                     {"structure_frequency_hz": f_cam, "frequency_ratio": r_nom,
-                     **({"fall_acceleration_ms2": fall[0] * g_ms2} if fall else {})},
+                     **({"fall_acceleration_ms2": fall[0] * g_mps2} if fall else {})},
                     {"camera.fps": fps / r_nom}))
     if time_scale is not None:
         return out  # every length-per-time ratio below is scaled by the wrong clock: no further test
@@ -179,8 +179,8 @@ def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm:
             measured))
         return out
     ka, ska, _ = fall
-    measured.update({"fall_acceleration_ms2": ka * g_ms2, "fall_ratio": ka})
-    fall_words = f"flights fall at {ka * g_ms2:.2f} m/s^2 ({ka:.3f} g)"
+    measured.update({"fall_acceleration_ms2": ka * g_mps2, "fall_ratio": ka})
+    fall_words = f"flights fall at {ka * g_mps2:.2f} m/s^2 ({ka:.3f} g)"
     if abs(ka - kb) <= N_SIGMA * math.hypot(ska, skb) + ACCEL_TOL + GEOMETRY_TOL:
         k = (ka / ska ** 2 + kb / skb ** 2) / (1 / ska ** 2 + 1 / skb ** 2) if ska > 0 and skb > 0 else kb
         mm = rig.camera.mm_per_px

@@ -10,7 +10,7 @@ track itself, which is cheaper to test frame by frame and does not need the stru
    second divided difference acc_j = 2 [ (y_k - y_j)/(t_k - t_j) - (y_j - y_i)/(t_j - t_i) ] / (t_k - t_i).
    In free flight acc_j = -g + F/m (a few % of g). An impact between frames k and k+1 makes the
    estimates at k and k+1 jump by about dv/dt_frame (hundreds of m/s^2).
-2. Frame j is a *contact frame* when |acc_j + g| > max(k_sigma * sigma_acc_j, min_threshold_ms2), with
+2. Frame j is a *contact frame* when |acc_j + g| > max(k_sigma * sigma_acc_j, min_threshold_mps2), with
    sigma_acc_j the noise of that estimate from the position noise sigma (itself from the median absolute
    deviation of the second differences of the whole track, or of a warm-up window when streaming).
    Frames next to an accelerometer impact time (the last before and the first after) are contact frames
@@ -36,7 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .flight_fit import G_MS2
+from vibro_model.constants import G_MPS2
+from vibro_model.units import m_to_mm, mm_to_m
 
 
 @dataclass(frozen=True)
@@ -44,13 +45,13 @@ class SegmentationConfig:
     """Parameters of the segmentation rule (see module docstring)."""
 
     k_sigma: float = 6.0
-    min_threshold_ms2: float = 3.0
+    min_threshold_mps2: float = 3.0
     max_impact_frames: int = 4
     min_points: int = 6
     rms_factor: float = 3.0
     rms_floor_mm: float = 0.002
     max_friction_g: float = 0.5
-    g_ms2: float = G_MS2
+    g_mps2: float = G_MPS2
 
 
 def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray) -> float:
@@ -72,7 +73,7 @@ def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray) -> float:
     if d2.size < 3:
         return float("nan")
     # remove the free-flight gravity term before the MAD
-    d2 = d2 + 1e3 * G_MS2 * dt * dt
+    d2 = d2 + m_to_mm(G_MPS2) * dt * dt
     mad = float(np.median(np.abs(d2 - np.median(d2))))
     return 1.4826 * mad / np.sqrt(6.0)
 
@@ -84,7 +85,7 @@ def accel_estimate(t3: np.ndarray, y3_mm: np.ndarray) -> tuple[float, float]:
     h2 = t3[2] - t3[1]
     acc = 2.0 * ((y3_mm[2] - y3_mm[1]) / h2 - (y3_mm[1] - y3_mm[0]) / h1) / (h1 + h2)
     fac = 2.0 / (h1 + h2) * np.sqrt(1 / h2 ** 2 + (1 / h1 + 1 / h2) ** 2 + 1 / h1 ** 2)
-    return 1e-3 * acc, 1e-3 * fac
+    return mm_to_m(acc), mm_to_m(fac)
 
 
 def plate_levels(impacts, free_play_mm: float | None = None) -> dict[str, float]:

@@ -21,7 +21,7 @@ import numpy as np
 from vibro_io.dictrack import FrameTrack
 
 from .flight_fit import FlightFit, fit_flight
-from .impacts import ImpactEstimate, joint_impact, paper_impact
+from .impacts import ImpactFit, joint_impact, paper_impact
 from .segmentation import SegmentationConfig, accel_estimate, noise_sigma_mm
 from .structure_fit import fit_structure
 
@@ -78,7 +78,7 @@ class StreamingFitter:
         self.flags: list[bool] = []          # per good position
         self.ext_times: list[float] = []     # accelerometer impact times (camera clock, s)
         self.flights: list[FlightFit] = []
-        self.impacts: list[ImpactEstimate] = []
+        self.impacts: list[ImpactFit] = []
         self.clusters: list[Cluster] = []
         self.short_flights: list[FlightFit] = []
         self.rejected: list[str] = []
@@ -98,7 +98,7 @@ class StreamingFitter:
         self.ext_times.append(float(t_s))
         self.ext_times.sort()
 
-    def push(self, frame: FrameTrack) -> list[ImpactEstimate]:
+    def push(self, frame: FrameTrack) -> list[ImpactFit]:
         """Add one frame (in order); returns the impacts estimated because of it (usually none)."""
         idx = len(self.t)
         self.t.append(float(frame.t_s))
@@ -116,7 +116,7 @@ class StreamingFitter:
                 self.noise_mm = 0.0
         return self._advance()
 
-    def finish(self) -> list[ImpactEstimate]:
+    def finish(self) -> list[ImpactFit]:
         """End of data: close the open flight. Returns impacts emitted by that."""
         if self._finished:
             return []
@@ -165,8 +165,8 @@ class StreamingFitter:
             return False
         i, j, k = g[pos - 1], g[pos], g[pos + 1]
         acc, fac = accel_estimate(np.array([t[i], t[j], t[k]]), np.array([self.ball[i], self.ball[j], self.ball[k]]))
-        thr = max(self.cfg.k_sigma * fac * float(self.noise_mm), self.cfg.min_threshold_ms2)
-        if abs(acc + self.cfg.g_ms2) > thr:
+        thr = max(self.cfg.k_sigma * fac * float(self.noise_mm), self.cfg.min_threshold_mps2)
+        if abs(acc + self.cfg.g_mps2) > thr:
             return True
         if self.ext_times:
             # an accelerometer impact in (t_i, t_k]: this frame is next to it
@@ -175,8 +175,8 @@ class StreamingFitter:
                 return True
         return False
 
-    def _advance(self) -> list[ImpactEstimate]:
-        out: list[ImpactEstimate] = []
+    def _advance(self) -> list[ImpactFit]:
+        out: list[ImpactFit] = []
         n = len(self.good_frames)
         # a flag needs the right neighbour: positions 0..n-2 can be evaluated
         while len(self.flags) < n - 1:
@@ -207,13 +207,13 @@ class StreamingFitter:
             self.clusters.append(cl)
         self._prev_cluster = cl
 
-    def _close_flight(self, p0: int, p1: int) -> list[ImpactEstimate]:
+    def _close_flight(self, p0: int, p1: int) -> list[ImpactFit]:
         g = self.good_frames
         frames = np.array([g[p] for p in range(p0, p1 + 1)], int)
         fl = self._fit(self._n_flight, frames)
         cluster_before = self._prev_cluster
         self._prev_cluster = None
-        out: list[ImpactEstimate] = []
+        out: list[ImpactFit] = []
         if not fl.fitted:
             self.short_flights.append(fl)
             self._last_flight = None
@@ -275,9 +275,9 @@ class StreamingFitter:
         if fl.rms_residual_mm > limit:
             fl.is_free = False
             fl.reason = f"residual {fl.rms_residual_mm:.4f} mm > {limit:.4f} mm: not a parabola (contact?)"
-        elif abs(fl.acceleration_ms2 + c.g_ms2) > c.max_friction_g * c.g_ms2:
+        elif abs(fl.acceleration_mps2 + c.g_mps2) > c.max_friction_g * c.g_mps2:
             fl.is_free = False
-            fl.reason = (f"acceleration {fl.acceleration_ms2:.2f} m/s^2 too far from -g: not a free flight")
+            fl.reason = (f"acceleration {fl.acceleration_mps2:.2f} m/s^2 too far from -g: not a free flight")
 
     def _structure_window(self, p: FlightFit, q: FlightFit):
         # good frames with t in [t_start(p) - history_s, t_end(q)], found backwards from the end
@@ -294,7 +294,7 @@ class StreamingFitter:
         return fit_structure(np.array([self.t[i] for i in sel]), np.array([self.struct[i] for i in sel]),
                              f0_hz=self.frequency_hz)
 
-    def _impact(self, p: FlightFit, q: FlightFit) -> ImpactEstimate | None:
+    def _impact(self, p: FlightFit, q: FlightFit) -> ImpactFit | None:
         s_fit = self._structure_window(p, q)
         est = paper_impact(self._n_impact, p, q, s_fit)
         if est is None:
@@ -311,7 +311,7 @@ class StreamingFitter:
         return est
 
     @staticmethod
-    def _set_directions(p: FlightFit, q: FlightFit, est: ImpactEstimate) -> None:
+    def _set_directions(p: FlightFit, q: FlightFit, est: ImpactFit) -> None:
         if not p.direction:
             p.direction = "up" if est.plate == "top" else "down"
         q.direction = "down" if est.plate == "top" else "up"

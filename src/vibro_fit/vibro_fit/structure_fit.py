@@ -3,7 +3,8 @@
 Model: Y_s(t) = A sin(2 pi f t + phi) + B with t the absolute camera time (s), Y in mm.
 Internally the fit uses a centred time t - t_ref for conditioning (phase psi about t_ref);
 ``phase_rad`` and ``cov`` are reported about t = 0 as the contract wants.
-Velocities are returned in m/s (mm/ms = m/s, so d/dt of mm in s is divided by 1e3).
+Velocities and accelerations are returned in m/s and m/s^2 (:func:`vibro_model.units.mm_to_m`);
+:meth:`StructureFit.motion` gives the SI model type.
 """
 
 from __future__ import annotations
@@ -15,11 +16,16 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from vibro_io.errors import RecordingError
+from vibro_model.codec import none_if_nan
+from vibro_model.results import StructureMotion
+from vibro_model.units import mm_to_m
 
 
 @dataclass(frozen=True)
 class StructureFit:
-    """Fitted structure motion. ``cov`` is the 4x4 covariance of (amplitude_mm, frequency_hz, phase_rad, offset_mm)."""
+    """The sine fit of the structure track (mm) with its covariance, also about the reference time the fit used
+    (for error propagation). ``cov`` is the 4x4 covariance of (amplitude_mm, frequency_hz, phase_rad, offset_mm).
+    Not the model type: :meth:`motion` gives the SI :class:`~vibro_model.results.StructureMotion`."""
 
     amplitude_mm: float
     frequency_hz: float
@@ -37,22 +43,37 @@ class StructureFit:
         a, f, psi, b = self.params_ref
         return a * np.sin(2.0 * np.pi * f * (np.asarray(t_s) - self.t_ref_s) + psi) + b
 
-    def velocity_ms(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def velocity_mps(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """dY_s/dt in m/s."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f
-        return 1e-3 * a * w * np.cos(w * (np.asarray(t_s) - self.t_ref_s) + psi)
+        return mm_to_m(a * w * np.cos(w * (np.asarray(t_s) - self.t_ref_s) + psi))
 
-    def acceleration_ms2(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def acceleration_mps2(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """d2Y_s/dt2 in m/s^2."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f
-        return -1e-3 * a * w * w * np.sin(w * (np.asarray(t_s) - self.t_ref_s) + psi)
+        return -mm_to_m(a * w * w * np.sin(w * (np.asarray(t_s) - self.t_ref_s) + psi))
 
     @property
     def std(self) -> np.ndarray:
         """Standard deviations of (amplitude_mm, frequency_hz, phase_rad, offset_mm)."""
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    def motion(self, ball_offset_mm: float | None = None, moving: bool = True) -> StructureMotion:
+        """The fitted sine as the model type (SI; stds from the covariance, None without one). A structure
+        that does not move beyond DIC noise (``moving`` False) has no frequency or phase: a sine fitted to
+        noise would claim one. ``ball_offset_mm``: ball centre minus cavity centre at frame 0 (mm)."""
+        sd = [None] * 4 if self.cov is None else [none_if_nan(v) for v in self.std]
+        freq, phase = none_if_nan(self.frequency_hz), none_if_nan(self.phase_rad)
+        note = ""
+        if not moving:
+            freq = phase = sd[1] = sd[2] = None
+            note = "the structure does not move beyond DIC noise: no frequency or phase"
+        return StructureMotion(mm_to_m(none_if_nan(self.amplitude_mm)), freq, phase,
+                               mm_to_m(none_if_nan(self.offset_mm)), mm_to_m(none_if_nan(self.rms_residual_mm)),
+                               mm_to_m(sd[0]), sd[1], sd[2], mm_to_m(sd[3]), int(self.n_points),
+                               mm_to_m(none_if_nan(ball_offset_mm)), bool(moving), note)
 
 
 def _model(p: np.ndarray, tc: np.ndarray) -> np.ndarray:

@@ -16,34 +16,25 @@ from scipy.optimize import brentq
 
 from vibro_io.dictrack import DicTrack
 
-from vibro_model.constants import G_MPS2 as G_MS2
-
-
-@dataclass
-class TruthImpact:
-    t_s: float
-    plate: str
-    cor: float
-    v_ball_before_ms: float
-    v_ball_after_ms: float
-    v_structure_ms: float
+from vibro_model.constants import G_MPS2
+from vibro_model.results import Impact, StructureMotion
+from vibro_model.units import m_to_mm
 
 
 @dataclass
 class Truth:
-    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_ms, a_ms2) per flight."""
+    """Piecewise-parabolic ball motion; ``pieces`` = (t0, y0_m, v0_mps, a_mps2) per flight; the structure's
+    exact sine as the model type (SI)."""
 
-    amplitude_m: float
-    frequency_hz: float
-    phase_rad: float
-    offset_m: float
+    structure: StructureMotion
     free_play_m: float
     pieces: list[tuple[float, float, float, float]]
-    impacts: list[TruthImpact]
-    flight_accel_ms2: list[float]
+    impacts: list[Impact]          # exact: no stds; impact k ends flight k
+    flight_accel_mps2: list[float]
 
     def structure_m(self, t):
-        return self.amplitude_m * np.sin(2 * np.pi * self.frequency_hz * np.asarray(t) + self.phase_rad) + self.offset_m
+        s = self.structure
+        return s.amplitude_m * np.sin(2 * np.pi * s.frequency_hz * np.asarray(t) + s.phase_rad) + s.offset_m
 
     def ball_m(self, t):
         t = np.asarray(t, float)
@@ -57,7 +48,7 @@ class Truth:
 def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: float = 0.3,
              free_play_m: float = 5.915e-3, cor_top=0.6, cor_bottom=0.75, duration_s: float = 1.6,
              force_up_n: float = 0.0, force_down_n: float = 0.0, mass_kg: float = 1.82e-4,
-             cor_jitter: float = 0.0, seed: int = 0, y0_rel_m: float = 0.0, v0_ms: float = 0.0) -> Truth:
+             cor_jitter: float = 0.0, seed: int = 0, y0_rel_m: float = 0.0, v0_mps: float = 0.0) -> Truth:
     """Event-driven exact simulation. ``force_up_n`` acts on flights that start moving up relative to the
     structure (usually negative: friction opposes motion), ``force_down_n`` on the others.
     ``cor_jitter`` adds N(0, jitter) scatter to each impact's COR (seeded)."""
@@ -71,12 +62,12 @@ def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: f
     def vs(t):
         return A * w * np.cos(w * t + ph)
 
-    t0, y0, v0 = 0.0, ys(0.0) + y0_rel_m, vs(0.0) + v0_ms
+    t0, y0, v0 = 0.0, ys(0.0) + y0_rel_m, vs(0.0) + v0_mps
     pieces, impacts, accs = [], [], []
     step = 2e-5
     while t0 < duration_s:
         up = (v0 - vs(t0)) > 0
-        a = -G_MS2 + (force_up_n if up else force_down_n) / mass_kg
+        a = -G_MPS2 + (force_up_n if up else force_down_n) / mass_kg
         pieces.append((t0, y0, v0, a))
         accs.append(a)
 
@@ -98,11 +89,13 @@ def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: f
         vst = vs(ti)
         e = (cor_top if plate == "top" else cor_bottom) + cor_jitter * rng.standard_normal()
         vb_after = vst - e * (vb - vst)
-        impacts.append(TruthImpact(ti, plate, float(e), float(vb), float(vb_after), float(vst)))
+        impacts.append(Impact(index=len(impacts), t_s=ti, plate=plate, cor=float(e), cor_std=None,
+                              v_ball_before_mps=float(vb), v_ball_after_mps=float(vb_after),
+                              v_structure_mps=float(vst)))
         t0, y0, v0 = ti, ys(ti) + target, vb_after
         if abs(vb_after - vst) < 1e-3:
             break
-    return Truth(A, frequency_hz, ph, 0.0, b, pieces, impacts, accs)
+    return Truth(StructureMotion(A, frequency_hz, ph, 0.0), b, pieces, impacts, accs)
 
 
 def sample_track(truth: Truth, fps: float = 1000.0, n_frames: int = 1500, t0_s: float = 0.0,
@@ -110,8 +103,8 @@ def sample_track(truth: Truth, fps: float = 1000.0, n_frames: int = 1500, t0_s: 
     """A DicTrack (mm since frame 0, positive up) sampled from ``truth`` plus white noise (mm)."""
     rng = np.random.default_rng(seed)
     t = t0_s + np.arange(n_frames) / fps
-    ball = 1e3 * truth.ball_m(t)
-    st = 1e3 * truth.structure_m(t)
+    ball = m_to_mm(truth.ball_m(t))
+    st = m_to_mm(truth.structure_m(t))
     ball = ball - ball[0] + noise_mm * rng.standard_normal(n_frames) + ball_offset_mm
     st = st - st[0] + noise_mm * rng.standard_normal(n_frames)
     n = n_frames
@@ -149,8 +142,9 @@ def accel_signals(truth: Truth, fs_hz: float = 50_000.0, duration_s: float = 1.5
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration_s * fs_hz)) / fs_hz + offset_s
     tc = t - offset_s
-    w = 2 * np.pi * truth.frequency_hz
-    base = -truth.amplitude_m * w * w * np.sin(w * tc + truth.phase_rad)
+    s = truth.structure
+    w = 2 * np.pi * s.frequency_hz
+    base = -s.amplitude_m * w * w * np.sin(w * tc + s.phase_rad)
     up = base + noise_ms2 * rng.standard_normal(t.size)
     lo = base + noise_ms2 * rng.standard_normal(t.size)
     for imp in truth.impacts:

@@ -40,21 +40,20 @@ from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, Str
 
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
-from .impacts import ImpactEstimate as Estimate
-from .results import flight_model, impact_model, structure_model, structure_moves
+from .impacts import ImpactFit
 from .streaming import StreamingFitter
 
 
 def flight_message(fl: FlightFit, mass_kg: float, final: bool = False, origin_ns: int = 0) -> FreeFlight:
     """A fitted flight as published (``final``: the end-of-stream fit), stamped at its last frame on the lab
     clock of ``origin_ns``."""
-    return flight_to_message(flight_model(fl, mass_kg), final, origin_ns)
+    return flight_to_message(fl.model(mass_kg), final, origin_ns)
 
 
-def impact_message(est: Estimate, final: bool = False, origin_ns: int = 0) -> ImpactEstimate:
+def impact_message(est: ImpactFit, final: bool = False, origin_ns: int = 0) -> ImpactEstimate:
     """An impact estimate as published (``final``: the end-of-stream estimate), stamped at the impact on the
     lab clock of ``origin_ns``."""
-    return impact_to_message(impact_model(est), final, origin_ns)
+    return impact_to_message(est.model(), final, origin_ns)
 
 
 class TrajectoryFitter(Node):
@@ -219,9 +218,8 @@ class TrajectoryFitter(Node):
             self.status.publish(0, 0, True)
             self.gate.finish()
             return
-        smsg = structure_to_message(structure_model(ident.structure, ident.plate_levels.get("offset_mm", 0.0),
-                                                             structure_moves(ident)),
-                                    float(track.t_s[-1]) if len(track.t_s) else None, self.time_origin_ns)
+        smsg = structure_to_message(ident.structure_motion(), float(track.t_s[-1]) if len(track.t_s) else None,
+                                    self.time_origin_ns)
         self.pub_structure.publish(smsg)
         for fl in ident.flights:
             self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True, origin_ns=self.time_origin_ns))

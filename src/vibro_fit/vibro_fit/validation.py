@@ -12,11 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from vibro_model.constants import G_MPS2
+from vibro_model.units import s_to_ms
 
 FORCE_EFFECTS = ("coulomb_friction", "viscous_drag", "quadratic_drag")
 
 
-def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_ms2: float = G_MPS2, tol_s: float = 0.002
+def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_mps2: float = G_MPS2, tol_s: float = 0.002
                      ) -> dict:
     """Accuracy figures of ``results`` against ``truth``: COR and impact-time errors, plate agreement,
     structure amplitude (%) and frequency (Hz) errors, friction errors in % of the ball's weight."""
@@ -35,7 +36,7 @@ def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_ms2: float = 
     out: dict = {"n_matched": len(cor_err), "n_results": len(results.get("impacts", [])), "n_truth": int(t_true.size)}
     if cor_err:
         out.update(cor_mae=float(np.mean(cor_err)), cor_max=float(np.max(cor_err)),
-                   t_mae_ms=1e3 * float(np.mean(t_err)), t_max_ms=1e3 * float(np.max(t_err)),
+                   t_mae_ms=s_to_ms(float(np.mean(t_err))), t_max_ms=s_to_ms(float(np.max(t_err))),
                    plate_agreement=float(np.mean(plate_ok)))
     s, st = results.get("structure", {}), truth.get("structure", {})
     if st.get("amplitude_mm"):
@@ -52,7 +53,7 @@ def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_ms2: float = 
             mid = 0.5 * (f.get("t_first_frame", f["t_start"]) + f.get("t_last_frame", f["t_end"]))
             match = [g for g in tfl if g["t_start"] < mid < g["t_end"]]
             if match:
-                errs.append(abs(f["friction_n"] - match[0]["friction_n"]) / (mass_kg * g_ms2))
+                errs.append(abs(f["friction_n"] - match[0]["friction_n"]) / (mass_kg * g_mps2))
         if errs:
             out["friction_mean_pct_weight"] = 100 * float(np.mean(errs))
             out["friction_max_pct_weight"] = 100 * float(np.max(errs))
@@ -63,7 +64,7 @@ def compare_to_truth(results: dict, truth: dict, mass_kg: float, g_ms2: float = 
             if f.get("friction_n") is None:
                 continue
             expect = -f0 if f["direction"] == "up" else f0
-            errs.append(abs(f["friction_n"] - expect) / (mass_kg * g_ms2))
+            errs.append(abs(f["friction_n"] - expect) / (mass_kg * g_mps2))
         if errs:
             out["friction_mean_pct_weight"] = 100 * float(np.mean(errs))
             out["friction_max_pct_weight"] = 100 * float(np.max(errs))

@@ -133,7 +133,11 @@ class Impact:
     identification, Eq. 15-16) or the '+'-joined names of the discrepancy findings whose model re-measured
     them (:mod:`vibro_sim.discrepancy.reidentify`); ``cor_paper``, ``cor_std_paper``, ``t_paper_s`` keep
     the identification's values beside them. All four are None in a document written before they existed
-    (or rebuilt from a graph run's messages) and are then not written."""
+    (or rebuilt from a graph run's messages) and are then not written.
+
+    The one impact type: the identification's estimates (:class:`vibro_fit.impacts.ImpactFit` adds the fit
+    context), the simulators' impact events (:mod:`vibro_sim.cor_model`, ``cor_std`` None) and the synthetic
+    truth (:mod:`vibro_fit.synthetic`) are all Impacts."""
 
     index: int
     t_s: float | None
@@ -151,6 +155,16 @@ class Impact:
     cor_paper: float | None = None
     cor_std_paper: float | None = None
     t_paper_s: float | None = None
+
+    @property
+    def v_rel_before_mps(self) -> float:
+        """Ball minus structure velocity just before the impact (m/s; > 0: moving up towards the top plate)."""
+        return self.v_ball_before_mps - self.v_structure_mps
+
+    @property
+    def v_rel_after_mps(self) -> float:
+        """Ball minus structure velocity just after the impact (m/s)."""
+        return self.v_ball_after_mps - self.v_structure_mps
 
     def to_dict(self) -> dict:
         out = {"index": self.index, "t": self.t_s, "t_std": self.t_std_s, "plate": self.plate, "cor": self.cor,

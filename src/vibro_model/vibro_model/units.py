@@ -16,6 +16,7 @@ T = TypeVar("T", float, np.ndarray, None)
 MM_PER_M = 1000.0
 MS_PER_S = 1000.0
 MN_PER_N = 1000.0
+UM_PER_MM = 1000.0
 
 
 def mm_to_m(value_mm: T) -> T:
@@ -41,3 +42,8 @@ def ms_to_s(value_ms: T) -> T:
 def n_to_mn(value_n: T) -> T:
     """Newtons to millinewtons."""
     return None if value_n is None else value_n * MN_PER_N
+
+
+def um_to_mm(value_um: T) -> T:
+    """Micrometres to millimetres."""
+    return None if value_um is None else value_um / UM_PER_MM

@@ -8,7 +8,7 @@ Free flights use exact solutions (:mod:`vibro_sim.flight`); the contact times ar
 zeros of the gap functions g_top = b - (y - Y_s) and g_bottom = (y - Y_s) + b, found
 by :func:`vibro_sim.events.first_root` (never by stepping past a contact) and refined
 by Brent's method to 1e-12 s. At an impact v_b+ = v_s - e (v_b- - v_s) with e from the
-restitution law. When the rebound relative speed is below ``stick_speed_ms`` the ball
+restitution law. When the rebound relative speed is below ``stick_speed_mps`` the ball
 is put at rest on the plate; if the plate then pushes it (plate acceleration beyond
 the ball's free acceleration) it rides on the plate until the plate's acceleration
 releases it (no Zeno loop of ever smaller bounces).
@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vibro_model.results import Impact
+
 from .events import first_root
 from .flight import Segment, Stuck, make_flight_segment
 from .forces import ForceLaw, NoForce
@@ -32,27 +34,6 @@ from .structure import StructureMotion
 log = logging.getLogger(__name__)
 
 GAP_TOL_M = 1e-12
-
-
-@dataclass(frozen=True)
-class ImpactEvent:
-    """One impact: time (s), plate, COR used, ball velocity before/after and structure velocity (m/s)."""
-
-    t_s: float
-    plate: str
-    cor: float
-    v_ball_before_ms: float
-    v_ball_after_ms: float
-    v_structure_ms: float
-    index: int
-
-    @property
-    def v_rel_before_ms(self) -> float:
-        return self.v_ball_before_ms - self.v_structure_ms
-
-    @property
-    def v_rel_after_ms(self) -> float:
-        return self.v_ball_after_ms - self.v_structure_ms
 
 
 @dataclass(frozen=True)
@@ -91,7 +72,7 @@ class SimResult:
     cavity: BallCavity
     t0_s: float
     t_end_s: float
-    impacts: list[ImpactEvent] = field(default_factory=list)
+    impacts: list[Impact] = field(default_factory=list)
     flights: list[FlightRecord] = field(default_factory=list)
     stuck: list[StuckPhase] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
@@ -137,6 +118,13 @@ class SimResult:
         return self.sample(t_s) - self.structure.position(t_s)
 
 
+def sim_impact(index: int, t_s: float, plate: str, cor: float, v_before_mps: float, v_after_mps: float,
+               v_structure_mps: float) -> Impact:
+    """A simulated impact as the model type: exact, so no std; the flights on each side are not linked."""
+    return Impact(index=index, t_s=t_s, plate=plate, cor=cor, cor_std=None, v_ball_before_mps=v_before_mps,
+                  v_ball_after_mps=v_after_mps, v_structure_mps=v_structure_mps)
+
+
 def force_array(force: ForceLaw, v, flight_index: int):
     """Vectorised F(v) (N) for the built-in laws; falls back to a loop."""
     v = np.asarray(v, dtype=float)
@@ -157,7 +145,7 @@ def _law_name(force: ForceLaw) -> str:
 
 
 class _Simulator:
-    def __init__(self, structure, cavity, restitution, force, stick_speed_ms, scan_step_s):
+    def __init__(self, structure, cavity, restitution, force, stick_speed_mps, scan_step_s):
         self.S = structure
         self.cav = cavity
         self.law = restitution
@@ -165,7 +153,7 @@ class _Simulator:
         self.b = cavity.free_play_m
         self.m = cavity.mass_kg
         self.g = cavity.g_eff_ms2
-        self.stick_speed = stick_speed_ms
+        self.stick_speed = stick_speed_mps
         self.step = scan_step_s or min(1e-4, 1.0 / (400.0 * structure.frequency_hz))
 
     # gap functions ---------------------------------------------------------
@@ -328,7 +316,7 @@ class _Simulator:
         if abs(vrel_after) < self.stick_speed:
             vrel_after = 0.0
         v_after = vs + vrel_after
-        res.impacts.append(ImpactEvent(tr, plate, e, vb, v_after, vs, ii))
+        res.impacts.append(sim_impact(ii, tr, plate, e, vb, v_after, vs))
         return tr, float(S.position(tr)) + (b if plate == "top" else -b), v_after
 
     def _close_flight(self, res, fi, t_start, t_end, v_start, v_end, start_plate, end_plate):
@@ -347,22 +335,22 @@ class _Simulator:
 
 
 def simulate_cor(structure: StructureMotion, cavity: BallCavity, restitution: RestitutionLaw,
-                 force: ForceLaw | None = None, y0_m: float = 0.0, v0_ms: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5, *, stick_speed_ms: float = 1e-4,
+                 force: ForceLaw | None = None, y0_m: float = 0.0, v0_mps: float = 0.0,
+                 t0_s: float = 0.0, t_end_s: float = 1.5, *, stick_speed_mps: float = 1e-4,
                  scan_step_s: float | None = None, max_events: int = 1_000_000) -> SimResult:
-    """Simulate the COR model from (t0_s, y0_m, v0_ms) to t_end_s.
+    """Simulate the COR model from (t0_s, y0_m, v0_mps) to t_end_s.
 
     ``y0_m``: ball centre (m) in the structure's frame of reference (the lab frame);
-    ``v0_ms``: its velocity (m/s). ``force``: a :mod:`vibro_sim.forces` law (None =
-    gravity only). ``stick_speed_ms``: rebounds slower than this (relative, m/s) are
+    ``v0_mps``: its velocity (m/s). ``force``: a :mod:`vibro_sim.forces` law (None =
+    gravity only). ``stick_speed_mps``: rebounds slower than this (relative, m/s) are
     set to zero (sticking). ``scan_step_s``: grid of the contact scan (default
     min(1e-4 s, T/400)); contacts are found exactly whatever its value.
     Raises ValueError if the ball starts outside the cavity or t_end_s < t0_s.
     """
-    for name, value in (("y0_m", y0_m), ("v0_ms", v0_ms), ("t0_s", t0_s), ("t_end_s", t_end_s)):
+    for name, value in (("y0_m", y0_m), ("v0_mps", v0_mps), ("t0_s", t0_s), ("t_end_s", t_end_s)):
         if not math.isfinite(value):
             raise ValueError(f"simulate_cor: {name} must be finite, got {value!r}")
     if t_end_s < t0_s:
         raise ValueError(f"simulate_cor: t_end_s ({t_end_s}) < t0_s ({t0_s})")
-    sim = _Simulator(structure, cavity, restitution, force, stick_speed_ms, scan_step_s)
-    return sim.run(float(y0_m), float(v0_ms), float(t0_s), float(t_end_s), max_events)
+    sim = _Simulator(structure, cavity, restitution, force, stick_speed_mps, scan_step_s)
+    return sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), max_events)

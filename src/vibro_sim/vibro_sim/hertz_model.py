@@ -25,7 +25,7 @@ restitute the target e exactly (the paper's stated intent: "c can be chosen to r
 the same energy loss"); numerically it feeds Eq. 11 (at delta_max) the e' found by
 :func:`calibrated_eq11_cor`, which is the same c as delta_a = delta_max (c(e')/c(e))^4.
 
-A rebound slower than ``stick_speed_ms`` leaves the ball resting on the plate (handled
+A rebound slower than ``stick_speed_mps`` leaves the ball resting on the plate (handled
 as in the COR model: it rides the plate until released; the static Hertz penetration
 there, (m g / K)^(2/3) ~ 1e-8 m, is neglected).
 """
@@ -37,7 +37,7 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .cor_model import ImpactEvent, SimResult, _Simulator
+from .cor_model import SimResult, _Simulator, sim_impact
 from .flight import Segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
@@ -163,23 +163,23 @@ class _HertzSimulator(_Simulator):
         v_out = vs_out + v_rel_out
         self.contact_durations.append(t_out - tr)
         self.effective_cors.append(-v_rel_out / vrel if vrel else float("nan"))
-        res.impacts.append(ImpactEvent(tr, plate, e, vb, v_out, vs, ii))
+        res.impacts.append(sim_impact(ii, tr, plate, e, vb, v_out, vs))
         return t_out, float(S.position(t_out)) + side * b, v_out
 
 
 def simulate_hertz(structure: StructureMotion, cavity: BallCavity, restitution: RestitutionLaw,
-                   force: ForceLaw | None = None, y0_m: float = 0.0, v0_ms: float = 0.0,
+                   force: ForceLaw | None = None, y0_m: float = 0.0, v0_mps: float = 0.0,
                    t0_s: float = 0.0, t_end_s: float = 1.5, *, delta_a: str | float = "impact",
-                   stick_speed_ms: float = 1e-4, rtol: float = 1e-9,
+                   stick_speed_mps: float = 1e-4, rtol: float = 1e-9,
                    max_events: int = 1_000_000) -> SimResult:
     """Simulate the Hertz damped model; same conventions and arguments as ``simulate_cor``.
 
-    In the result, ``impacts[i].t_s`` is the contact entry, ``v_ball_after_ms`` the
+    In the result, ``impacts[i].t_s`` is the contact entry, ``v_ball_after_mps`` the
     velocity at contact exit and ``cor`` the *target* e given to Eq. 11;
     ``result.contact_durations_s`` and ``result.effective_cors`` hold, per impact, the
     contact time and the achieved -v_rel,out / v_rel,in.
     """
-    for name, value in (("y0_m", y0_m), ("v0_ms", v0_ms), ("t0_s", t0_s), ("t_end_s", t_end_s)):
+    for name, value in (("y0_m", y0_m), ("v0_mps", v0_mps), ("t0_s", t0_s), ("t_end_s", t_end_s)):
         if not math.isfinite(value):
             raise ValueError(f"simulate_hertz: {name} must be finite, got {value!r}")
     if t_end_s < t0_s:
@@ -187,9 +187,9 @@ def simulate_hertz(structure: StructureMotion, cavity: BallCavity, restitution: 
     if delta_a not in ("impact", "calibrated") and not (isinstance(delta_a, (int, float)) and delta_a > 0):
         raise ValueError(f"simulate_hertz: delta_a must be 'impact', 'calibrated' or a positive length (m), "
                          f"got {delta_a!r}")
-    sim = _HertzSimulator(structure, cavity, restitution, force, stick_speed_ms, None,
+    sim = _HertzSimulator(structure, cavity, restitution, force, stick_speed_mps, None,
                           delta_a=delta_a, rtol=rtol)
-    res = sim.run(float(y0_m), float(v0_ms), float(t0_s), float(t_end_s), max_events)
+    res = sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), max_events)
     res.model = "hertz"
     res.contact_durations_s = sim.contact_durations  # type: ignore[attr-defined]
     res.effective_cors = sim.effective_cors  # type: ignore[attr-defined]

@@ -44,7 +44,7 @@ def make_accel(structure, impacts, mass_kg: float, t_first_s: float, t_last_s: f
     lower = base.copy()
     span = max(BURST_DECAY_TAUS / (z * 2 * math.pi * f) for f, z, _ in MODES)
     for imp in impacts:
-        J = mass_kg * (imp.v_ball_after_ms - imp.v_ball_before_ms)
+        J = mass_kg * (imp.v_ball_after_mps - imp.v_ball_before_mps)
         i0 = int(np.searchsorted(t_cam, imp.t_s, side="right"))
         i1 = int(np.searchsorted(t_cam, imp.t_s + span, side="right"))
         if i1 <= i0:

@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Mapping
 
 from vibro_io.errors import RecordingError
+from vibro_model.units import m_to_mm, mm_to_m
 
 from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
@@ -117,8 +118,8 @@ class SynthConfig:
     accel_noise_ms2: float = 0.5
     cor_scatter: float = 0.0
     ball_mass_kg: float = BALL_MASS_KG
-    ball_diameter_mm: float = BALL_DIAMETER_M * 1e3
-    gap_mm: float = GAP_M * 1e3
+    ball_diameter_mm: float = m_to_mm(BALL_DIAMETER_M)
+    gap_mm: float = m_to_mm(GAP_M)
 
     def __post_init__(self) -> None:
         self.effects = normalise_effects(self.effects)
@@ -246,8 +247,8 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
     structure = StructureMotion(amp, cfg.frequency_hz, phase_rad, 0.0,
                                 h.get("h2_ratio", 0.0), h.get("h3_ratio", 0.0),
                                 h.get("h2_phase_rad", 0.0), h.get("h3_phase_rad", 0.0))
-    cavity = BallCavity(mass_kg=cfg.ball_mass_kg, radius_m=0.5e-3 * cfg.ball_diameter_mm,
-                        free_play_m=0.5e-3 * (cfg.gap_mm - cfg.ball_diameter_mm),
+    cavity = BallCavity(mass_kg=cfg.ball_mass_kg, radius_m=0.5 * mm_to_m(cfg.ball_diameter_mm),
+                        free_play_m=0.5 * mm_to_m(cfg.gap_mm - cfg.ball_diameter_mm),
                         tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
     if "structure_tone" in eff:

@@ -9,7 +9,9 @@ import numpy as np
 
 from dataclasses import replace
 
-from ..cor_model import FlightRecord, ImpactEvent, SimResult, simulate_cor
+from vibro_model.results import Impact
+
+from ..cor_model import FlightRecord, SimResult, simulate_cor
 from .invented import IndexShifted, stepped_cavity
 from .scenario import Models, SynthConfig
 
@@ -22,7 +24,7 @@ class Trajectory:
     frame_t_s: np.ndarray
     ball_m: np.ndarray
     structure_m: np.ndarray
-    impacts: list[ImpactEvent]
+    impacts: list[Impact]
     flights: list[FlightRecord]
 
     @property

@@ -17,6 +17,7 @@ from vibro_io.outputs import (OutputError, atomic_path, atomic_write_text, prepa
                               prepare_output_file)
 from vibro_io.rig import (AccelConfig, BallConfig, CameraConfig, DicConfig, ExcitationConfig, RigConfig,
                           Roi, StructureConfig, check_rois_in_image, write_rig)
+from vibro_model.units import m_to_mm, um_to_mm
 
 from .accel import make_accel
 from .render import Renderer, choose_layout, quantise
@@ -84,7 +85,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     S = models.structure
     try:
         layout = choose_layout(cfg.width_px, cfg.height_px, cfg.ball_diameter_mm, cfg.gap_mm,
-                               S.bound(0) * 1e3, cfg.mm_per_px, SUBSET_PX,
+                               m_to_mm(S.bound(0)), cfg.mm_per_px, SUBSET_PX,
                                cfg.drift_px if cfg.still and cfg.drift else 0.0)
     except ValueError as exc:
         raise SynthError(f"image layout: {exc}") from None
@@ -94,8 +95,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift)
 
     t = traj.frame_t_s
-    ball_mm = traj.ball_m * 1e3
-    struct_mm = traj.structure_m * 1e3
+    ball_mm = m_to_mm(traj.ball_m)
+    struct_mm = m_to_mm(traj.structure_m)
     drift = _drift_mm(t, cfg, layout.mm_per_px)
 
     rig = RigConfig(
@@ -146,11 +147,11 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
     for k in tqdm(range(t.size), desc="synth frames", unit="frame", disable=not show, file=sys.stderr):
         if cfg.blur and not cfg.still:
             ts = t[k] + offsets
-            ball = np.asarray(traj.result.sample(ts)) * 1e3
-            struct = np.asarray(S.position(ts)) * 1e3
+            ball = m_to_mm(np.asarray(traj.result.sample(ts)))
+            struct = m_to_mm(np.asarray(S.position(ts)))
             img = renderer.render_blurred(struct, ball, drift[k])
         else:
-            img = renderer.render(traj.structure_m[k] * 1e3, traj.ball_m[k] * 1e3, drift[k])
+            img = renderer.render(m_to_mm(traj.structure_m[k]), m_to_mm(traj.ball_m[k]), drift[k])
         gain = 1.0 + cfg.flicker * (0.7 * math.sin(2 * math.pi * 100.0 * t[k] + flick_phase)
                                     + 0.3 * float(rng.standard_normal()))
         img = img * gain
@@ -166,10 +167,10 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
     first = traj.impacts[0].index if traj.impacts else 0
     plain = models.window_laws(first)[1]
     impacts = [{"index": j, "t": i.t_s, "plate": i.plate, "cor": i.cor,
-                "v_ball_before": i.v_ball_before_ms, "v_ball_after": i.v_ball_after_ms,
-                "v_structure": i.v_structure_ms, "sim_index": i.index,
+                "v_ball_before": i.v_ball_before_mps, "v_ball_after": i.v_ball_after_mps,
+                "v_structure": i.v_structure_mps, "sim_index": i.index,
                 # the COR law's value before the per-impact scatter
-                "cor_law": float(plain.cor(i.plate, i.v_rel_before_ms, i.index)) if plain is not None else i.cor}
+                "cor_law": float(plain.cor(i.plate, i.v_rel_before_mps, i.index)) if plain is not None else i.cor}
                for j, i in enumerate(traj.impacts)]
     first_flight = traj.flights[0].index if traj.flights else 0
     flights = [{"index": f.index - first_flight, "t_start": f.t_start_s, "t_end": f.t_end_s,
@@ -181,18 +182,18 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
     truth: dict[str, Any] = {
         "schema": "vibro.truth/1",
         "effects": effects_truth(cfg),
-        "structure": {"amplitude_mm": S.amplitude_m * 1e3, "frequency_hz": S.frequency_hz,
-                      "phase_rad": phase, "offset_mm": S.offset_m * 1e3,
+        "structure": {"amplitude_mm": m_to_mm(S.amplitude_m), "frequency_hz": S.frequency_hz,
+                      "phase_rad": phase, "offset_mm": m_to_mm(S.offset_m),
                       "h2_ratio": S.h2_ratio, "h3_ratio": S.h3_ratio,
                       "h2_phase_rad": S.h2_phase_rad, "h3_phase_rad": S.h3_phase_rad,
                       "accel_ms2": S.amplitude_m * S.omega_rad_s ** 2,
                       "convention": "Y_s = B + A[sin(th) + h2 sin(2 th + p2) + h3 sin(3 th + p3)], th = w t + phase"},
-        "frames": {"t_s": traj.frame_t_s.tolist(), "ball_mm": (traj.ball_m * 1e3).tolist(),
-                   "structure_mm": (traj.structure_m * 1e3).tolist()},
+        "frames": {"t_s": traj.frame_t_s.tolist(), "ball_mm": m_to_mm(traj.ball_m).tolist(),
+                   "structure_mm": m_to_mm(traj.structure_m).tolist()},
         "impacts": impacts,
         "flights": flights,
-        "free_play_mm": models.cavity.free_play_m * 1e3,
-        "ball_offset_mm": float((traj.ball_m[0] - traj.structure_m[0]) * 1e3),
+        "free_play_mm": m_to_mm(models.cavity.free_play_m),
+        "ball_offset_mm": float(m_to_mm(traj.ball_m[0] - traj.structure_m[0])),
         "gravity_ms2": models.cavity.gravity_ms2,
         "g_eff_ms2": models.cavity.g_eff_ms2,
         "ball_mass_kg": models.cavity.mass_kg,
@@ -208,13 +209,13 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
         "config": cfg_dict,
     }
     if hasattr(S, "tone_frequency_hz"):
-        truth["structure"].update(tone_amplitude_mm=S.tone_amplitude_m * 1e3, tone_frequency_hz=S.tone_frequency_hz,
+        truth["structure"].update(tone_amplitude_mm=m_to_mm(S.tone_amplitude_m), tone_frequency_hz=S.tone_frequency_hz,
                                   tone_phase_rad=S.tone_phase_rad,
                                   convention=truth["structure"]["convention"] + " + tone_amplitude sin(2 pi "
                                   "tone_frequency t + tone_phase)")
     if models.plate_step is not None:
         truth["plate_step"] = {"plate": "top", "t_s": models.plate_step["step_time_s"],
-                               "step_mm": models.plate_step["step_um"] * 1e-3,
+                               "step_mm": um_to_mm(models.plate_step["step_um"]),
                                "note": "the upper plate is step_mm higher (the cavity larger) from t_s on"}
     if cfg.still and cfg.drift:
         truth["camera_drift_mm"] = drift.tolist()
