@@ -106,7 +106,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
         kind, coefs = "none", [BASELINE_COR]
     c = np.asarray(coefs, dtype=float)
     cor = CorModelFit(kind, c, np.zeros((c.size, c.size)), 0.0, 0, 1, np.zeros(0))
-    structure = fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz, (1,))  # unused: motion fixed
+    structure = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))  # unused: motion fixed
     return FittedModel(structure, flights, recompute_impacts(meas, flights, S), cor, g, fixed_motion=S)
 
 

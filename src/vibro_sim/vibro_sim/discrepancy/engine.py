@@ -199,7 +199,7 @@ def run_discrepancy(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig
     base_run = full_run(meas, base)
     base_steps = one_step(meas, base, sig_f)
     where_base = locate(base_steps, cor_noise)
-    s1 = fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz, (1,))
+    s1 = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))
 
     # explain: stage by stage --------------------------------------------------------------------
     if harmonics:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .data import Measured
+from .data import Measured, speed_mps
 from .model import FittedModel, plate_levels
 
 STEP_S = 2e-5
@@ -96,7 +96,7 @@ def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
     dv = np.full(n_i, np.nan)
     de = np.full(n_i, np.nan)
     dv_sig = np.full(n_i, np.nan)
-    speeds = np.array([i.speed_ms for i in imps])
+    speeds = np.array([speed_mps(i) for i in imps])
     closing = [(k, fl.close_impact) for k, fl in enumerate(flights) if fl.close_impact is not None]
     if closing:
         ks = np.array([k for k, _ in closing])

@@ -77,7 +77,7 @@ class StageResult:
 def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit, StageResult]:
     """Harmonics 2 and 3 of the structure motion: each kept when significant and >= MIN_HARMONIC_SIGMA
     noise floors in amplitude. The noise floor ``sigma_m`` comes from 5th differences of the track."""
-    t, y, f0 = meas.t_s, meas.structure_m, meas.sine.frequency_hz
+    t, y, f0 = meas.t_s, meas.structure_m, meas.frequency_hz
     fits = {o: fit_structure(t, y, f0, o) for o in ((1,), (1, 2), (1, 3), (1, 2, 3))}
     sig2 = max(sigma_m, 1e-12) ** 2
     stage = StageResult("structure", ())
