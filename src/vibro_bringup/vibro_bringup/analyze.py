@@ -141,7 +141,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     from vibro_fit.report import REPORT_HTML, write_figures, write_html
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_model.codec import write_results
-    from vibro_model.results import Discrepancy, Simulation
+    from vibro_model.results import Simulation
     from vibro_sim.discrepancy.engine import discrepancy_for_results
     from vibro_sim.discrepancy.reidentify import reidentify_document
 
@@ -164,8 +164,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         document = results_model(ident, str(recording_dir), Simulation.of_deviations(
             {"cor_model": dev.get("cor_model"), "hertz_model": dev.get("hertz_model")}))
         bar.set_description("discrepancy")
-        disc, disc_run, disc_error = discrepancy_for_results(document.to_dict(), track, rig)
-        document.discrepancy = Discrepancy.from_dict(disc)
+        document.discrepancy, disc_run, disc_error = discrepancy_for_results(document, track, rig)
         if disc_error:
             document.warnings.append(disc_error)
         # the physics found corrects the measurement: impacts re-measured under the final model

@@ -24,7 +24,8 @@ import warnings
 import numpy as np
 
 from vibro_sim.discrepancy.data import Measured
-from vibro_sim.discrepancy.engine import full_run, jsonable
+from vibro_model.codec import json_value as jsonable
+from vibro_sim.discrepancy.runs import full_run
 from vibro_sim.discrepancy.fitting import fit_flights, fit_structure
 from vibro_sim.discrepancy.library import FLIGHT_TERMS
 from vibro_sim.discrepancy.model import FittedModel, fit_model

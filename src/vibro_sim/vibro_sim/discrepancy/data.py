@@ -244,3 +244,11 @@ def difference_sigma(segments, order: int = 3) -> float:
         return float("nan")
     mad = 1.4826 * float(np.median(np.abs(d - np.median(d))))
     return mad / math.sqrt(math.comb(2 * order, order))
+
+
+def measurement_of(identified: ResultsDocument | Mapping[str, Any], track: DicTrack, rig: RigConfig) -> Measured:
+    """:class:`Measured` of the identification: a :class:`ResultsDocument` as it is, a results.json-shaped
+    mapping through :func:`measured_from_sections`."""
+    if isinstance(identified, ResultsDocument):
+        return measured_from_document(identified, track, rig)
+    return measured_from_sections(identified, track, rig)
