@@ -12,7 +12,6 @@ import json
 import math
 from dataclasses import replace
 
-import numpy as np
 import pytest
 
 from discrepancy_cases import make_case

@@ -93,7 +93,8 @@ def sindy_flights(meas: Measured, threshold: float = THRESHOLDS["flight_ms2"]) -
 
 def sindy_impacts(meas: Measured, threshold: float = THRESHOLDS["cor"]) -> dict:
     """v_rel_after = -(e0 + d_top is_top - s |v_b|) v_b: STLSQ on [v_b, v_b is_top, v_b |v_b|]."""
-    rows = [(i.v_ball_before_mps - i.v_structure_mps, i.v_ball_after_mps - i.v_structure_mps, i.plate) for i in meas.impacts]
+    rows = [(i.v_ball_before_mps - i.v_structure_mps, i.v_ball_after_mps - i.v_structure_mps, i.plate)
+            for i in meas.impacts]
     if len(rows) < 4:
         return {"coefficients": None, "kind": "none", "coefs": None}
     vb = np.array([r[0] for r in rows])
