@@ -12,7 +12,7 @@ from pathlib import Path
 
 from discrepancy_cases import make_case
 from vibro_io.rig import write_rig
-from vibro_sim.discrepancy.from_messages import sections_from_messages
+from vibro_sim.discrepancy.from_messages import document_from_messages
 
 HERE = Path(__file__).resolve().parent
 
@@ -21,8 +21,8 @@ def _start(*argv: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def test_sections_from_messages_roundtrip():
-    # the node rebuilds the results sections from messages; the analysis must see the same flights/impacts
+def test_document_from_messages_roundtrip():
+    # the node rebuilds the results document from messages; the analysis must see the same flights/impacts
     from vibro_msgs.msg import FreeFlight, ImpactEstimate, StructureMotion
 
     sections, _, _, _ = make_case({}, seed=61, frames=200)
@@ -36,10 +36,10 @@ def test_sections_from_messages_roundtrip():
                               v_ball_before_m_per_s=i["v_ball_before"], v_ball_after_m_per_s=i["v_ball_after"],
                               v_structure_m_per_s=i["v_structure"], flight_before=i["flight_before"],
                               flight_after=i["flight_after"]) for i in sections["impacts"]]
-    back = sections_from_messages(s, flights, impacts)
-    for a, b in zip(back["flights"], sections["flights"]):
-        assert a["t_start"] == b["t_start"] and a["t_end"] == b["t_end"] and a["free"] == b["free"]
-    assert [i["t"] for i in back["impacts"]] == [i["t"] for i in sections["impacts"]]
+    back = document_from_messages(s, flights, impacts)
+    for a, b in zip(back.flights, sections["flights"]):
+        assert a.t_start_s == b["t_start"] and a.t_end_s == b["t_end"] and a.free == b["free"]
+    assert [i.t_s for i in back.impacts] == [i["t"] for i in sections["impacts"]]
 
 
 def test_node_publishes_findings_over_dds(tmp_path: Path, ros_domain: str):

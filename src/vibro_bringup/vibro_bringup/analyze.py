@@ -3,12 +3,13 @@
 The same cores as the nodes: vibro_dic.tracker.track_recording, vibro_fit.identify (which runs the
 streaming fitter), vibro_sim.replay.simulate_measured (COR and Hertz models), vibro_sim.deviation (Eq. 18).
 
-Replay of the identified motion (``replay_models``): the structure is the fitted sine (track
-coordinates, m); the ball starts at the start of the first free flight with that flight's position and
+Replay of the identified motion (``replay_models``, on the results document's domain-model types, SI):
+the structure is the fitted sine (track coordinates, m; a structure that does not move beyond DIC noise
+has no sine to replay); the ball starts at the start of the first free flight with that flight's position and
 velocity, moved into the cavity frame by the measured offset c0 between ball and cavity centre at frame 0
 (from the impacts' relative positions); each impact uses its identified COR (PerImpact, the mean after
 the last) and each flight its identified friction force (0 for a flight that is not free). D is computed
-on the measured ball displacement as DIC gives it (mm since frame 0).
+on the measured ball displacement as DIC gives it (since frame 0).
 """
 
 from __future__ import annotations
@@ -36,43 +37,35 @@ def _bar(total: int, progress: bool, desc: str):
                 leave=False, file=sys.stderr)
 
 
-def cavity_offset_mm(ident, rig: RigConfig) -> float:
-    """c0 = ball centre minus cavity centre at frame 0 (mm), from the plate levels of the impacts."""
-    return float(ident.plate_levels.get("offset_mm", 0.0))
-
-
-def replay_models(ident, track: DicTrack, rig: RigConfig) -> dict:
-    """Simulate the COR and Hertz models with the identified parameters; D (Eq. 18) of each against the
-    measured ball displacement (track coordinates, mm since frame 0). Same core as the simulator node:
-    :mod:`vibro_sim.measured`.
+def replay_models(document, track: DicTrack, rig: RigConfig) -> dict:
+    """Simulate the COR and Hertz models with the identified parameters (a results document: structure,
+    flights, impacts); D (Eq. 18) of each against the measured ball displacement (track coordinates since
+    frame 0). Same core as the simulator node: :mod:`vibro_sim.measured` (SI); mm here only for the figures.
 
     Returns {"t_s", "measured_mm", "curves": {name: mm}, "deviations": {name: D}, "errors": {name: msg}}.
     """
-    from vibro_sim.measured import FlightSummary, ImpactSummary, StructureSine, replay_and_score, replay_inputs
+    from vibro_model.units import m_to_mm, mm_to_m
+    from vibro_sim.measured import replay_and_score, replay_inputs
     from vibro_sim.params import BallCavity
 
     out = {"t_s": None, "measured_mm": None, "curves": {}, "deviations": {}, "errors": {}}
-    s = ident.structure
-    flights = [FlightSummary(f.t_start_s, f.t_end_s, *f.abs_coefficients(), f.friction_n(ident.mass_kg)[0], f.is_free)
-               for f in ident.flights]
-    impacts = [ImpactSummary(i.t_s, i.plate, i.cor) for i in ident.impacts]
-    c0 = cavity_offset_mm(ident, rig)
     good = track.good
+    offset_m = document.structure.ball_offset_m or 0.0
     try:
-        inputs = replay_inputs(StructureSine(s.amplitude_mm, s.frequency_hz, s.phase_rad, s.offset_mm), flights,
-                               impacts, c0, rig.free_play_mm, float(track.t_s[good][-1]))
+        inputs = replay_inputs(document.structure, document.flights, document.impacts, mm_to_m(rig.free_play_mm),
+                               float(track.t_s[good][-1]), offset_m)
     except ValueError as exc:
         out["errors"]["all"] = str(exc)
         return out
-    scores = replay_and_score(inputs, BallCavity.from_rig(rig), track.t_s[good], track.ball_mm[good], c0)
-    for name, score in scores.items():
-        if "error" in score:
-            log.warning("%s replay failed: %s", name, score["error"])
-            out["errors"][name] = score["error"]
-            continue
-        out["t_s"], out["measured_mm"] = score["t_s"], score["measured_mm"]
-        out["curves"][name] = score["ball_mm"]
-        out["deviations"][name] = score["deviation"]
+    runs, errors = replay_and_score(inputs, BallCavity.from_rig(rig), track.t_s[good], mm_to_m(track.ball_mm[good]),
+                                    offset_m)
+    for name, error in errors.items():
+        log.warning("%s replay failed: %s", name, error)
+    out["errors"].update(errors)
+    for name, run in runs.items():
+        out["t_s"], out["measured_mm"] = run.t_s, m_to_mm(run.measured_ball_m)
+        out["curves"][name] = m_to_mm(run.ball_m)
+        out["deviations"][name] = run.deviation
     return out
 
 
@@ -141,7 +134,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     from vibro_fit.report import REPORT_HTML, write_figures, write_html
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_model.codec import write_results
-    from vibro_model.results import Discrepancy, Simulation
+    from vibro_model.results import Simulation
     from vibro_sim.discrepancy.engine import discrepancy_for_results
     from vibro_sim.discrepancy.reidentify import reidentify_document
 
@@ -156,16 +149,15 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         ident = identify(track, rig, accel=accel, method=method, weights=weights)
         bar.update(1)
         bar.set_description("simulate")
-        sim = replay_models(ident, track, rig)
+        document = results_model(ident, str(recording_dir))
+        sim = replay_models(document, track, rig)
         bar.update(1)
         dev = sim["deviations"]
-        for name, msg in sim["errors"].items():
-            ident.warnings.append(f"simulation {name}: {msg}")
-        document = results_model(ident, str(recording_dir), Simulation.of_deviations(
-            {"cor_model": dev.get("cor_model"), "hertz_model": dev.get("hertz_model")}))
+        document.warnings += [f"simulation {name}: {msg}" for name, msg in sim["errors"].items()]
+        document.simulation = Simulation.of_deviations({"cor_model": dev.get("cor_model"),
+                                                        "hertz_model": dev.get("hertz_model")})
         bar.set_description("discrepancy")
-        disc, disc_run, disc_error = discrepancy_for_results(document.to_dict(), track, rig)
-        document.discrepancy = Discrepancy.from_dict(disc)
+        document.discrepancy, disc_run, disc_error = discrepancy_for_results(document, track, rig)
         if disc_error:
             document.warnings.append(disc_error)
         # the physics found corrects the measurement: impacts re-measured under the final model

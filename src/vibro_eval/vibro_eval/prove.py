@@ -143,7 +143,8 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     from vibro_io.rig import load_rig
 
     from vibro_sim.synth import SynthConfig, synthesize, truth_path
-    from vibro_sim.discrepancy.data import measured_from_sections
+    from vibro_model.codec import read_results
+    from vibro_sim.discrepancy.data import measured_from_document
     from .truth import relative, score_case, true_model_measured_run, true_model_restarted_run, true_model_run
 
     rec = work / f"case{spec.index:03d}"
@@ -169,7 +170,8 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     row["found"] = [f["effect"] for f in disc.get("findings", [])]
     row["score"] = score_case(disc, truth)
     row["regime"] = doc.get("regime", {}).get("name")
-    meas = measured_from_sections(doc, read_dic_csv(out / "dic.csv"), load_rig(rec / "rig.yaml"))
+    meas = measured_from_document(read_results(out / "results.json"), read_dic_csv(out / "dic.csv"),
+                                  load_rig(rec / "rig.yaml"))
     d_true = d_oracle = dr_true = None
     try:
         d_true = true_model_measured_run(meas, truth).deviation

@@ -24,7 +24,8 @@ import warnings
 import numpy as np
 
 from vibro_sim.discrepancy.data import Measured
-from vibro_sim.discrepancy.engine import full_run, jsonable
+from vibro_model.codec import json_value as jsonable
+from vibro_sim.discrepancy.runs import full_run
 from vibro_sim.discrepancy.fitting import fit_flights, fit_structure
 from vibro_sim.discrepancy.library import FLIGHT_TERMS
 from vibro_sim.discrepancy.model import FittedModel, fit_model
@@ -92,7 +93,8 @@ def sindy_flights(meas: Measured, threshold: float = THRESHOLDS["flight_ms2"]) -
 
 def sindy_impacts(meas: Measured, threshold: float = THRESHOLDS["cor"]) -> dict:
     """v_rel_after = -(e0 + d_top is_top - s |v_b|) v_b: STLSQ on [v_b, v_b is_top, v_b |v_b|]."""
-    rows = [(i.v_ball_before - i.v_structure, i.v_ball_after - i.v_structure, i.plate) for i in meas.impacts]
+    rows = [(i.v_ball_before_mps - i.v_structure_mps, i.v_ball_after_mps - i.v_structure_mps, i.plate)
+            for i in meas.impacts]
     if len(rows) < 4:
         return {"coefficients": None, "kind": "none", "coefs": None}
     vb = np.array([r[0] for r in rows])
@@ -114,7 +116,7 @@ def sindy_impacts(meas: Measured, threshold: float = THRESHOLDS["cor"]) -> dict:
 
 def sindy_structure(meas: Measured, threshold: float = THRESHOLDS["harmonic_m"]) -> dict:
     """Harmonics 2 and 3 that survive STLSQ on the structure track (frequency from the identification)."""
-    w = 2 * math.pi * meas.sine.frequency_hz
+    w = 2 * math.pi * meas.frequency_hz
     t, y = meas.t_s, meas.structure_m
     cols = [np.ones_like(t)]
     for k in (1, 2, 3):
@@ -133,7 +135,7 @@ def sindy_discrepancy(meas: Measured) -> dict:
     base_run = full_run(meas, base)
     findings = []
     if st["orders"]:
-        s_fit = fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz, (1,) + st["orders"])
+        s_fit = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,) + st["orders"])
         mot = s_fit.motion()
         findings.append({"effect": "structure_harmonics",
                          "parameters": {"h2_ratio": mot.h2_ratio, "h3_ratio": mot.h3_ratio}})

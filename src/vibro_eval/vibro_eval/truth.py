@@ -106,14 +106,14 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
         kind, coefs = "none", [BASELINE_COR]
     c = np.asarray(coefs, dtype=float)
     cor = CorModelFit(kind, c, np.zeros((c.size, c.size)), 0.0, 0, 1, np.zeros(0))
-    structure = fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz, (1,))  # unused: motion fixed
+    structure = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))  # unused: motion fixed
     return FittedModel(structure, flights, recompute_impacts(meas, flights, S), cor, g, fixed_motion=S)
 
 
 def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
     """Full run of :func:`true_fitted_model` exactly as the analysis replays its own model: D of the true
     model on the same noisy data (the goal's reference)."""
-    from vibro_sim.discrepancy.engine import full_run
+    from vibro_sim.discrepancy.runs import full_run
 
     return full_run(meas, true_fitted_model(meas, truth))
 
@@ -149,6 +149,6 @@ def relative(a: float | None, b: float | None) -> float | None:
 def true_model_restarted_run(meas: Measured, truth: Mapping[str, Any]):
     """Restarted run (D_r) of :func:`true_fitted_model`, exactly as the analysis scores its own model
     (:func:`vibro_sim.discrepancy.engine.restarted_run`): the D_r the true model reaches on the data."""
-    from vibro_sim.discrepancy.engine import restarted_run
+    from vibro_sim.discrepancy.runs import restarted_run
 
     return restarted_run(meas, true_fitted_model(meas, truth))

@@ -3,8 +3,9 @@
 Collects what the fitter published (structure motion, final free flights and impacts) and the DIC
 frames; when the simulator reports its stream "simulation" finished, every final flight and impact
 the fitter announced has arrived and the tracker's DIC frames are complete (its "dic" status, or no
-new frame for ``dic_wait_s``), it runs :func:`vibro_sim.discrepancy.run_discrepancy` (the same
-core as ``vibro analyze``); when a finding changes how an impact is measured (harmonics, a flight force)
+new frame for ``dic_wait_s``), it runs :func:`vibro_sim.discrepancy.run_discrepancy` on the
+results document of those messages (domain-model types, :mod:`vibro_ros.convert`; the same core as
+``vibro analyze``); when a finding changes how an impact is measured (harmonics, a flight force)
 it publishes the impacts measured again under the final model (:mod:`vibro_sim.discrepancy.reidentify`,
 as ``vibro analyze`` does) on vibro/impacts_final_model (ImpactEstimate, final) with the status of stream
 "impacts_final_model"; then one DiscrepancyFinding per finding and its own status (stream "discrepancy",
@@ -24,7 +25,6 @@ from vibro_ros.convert import finding_to_message, impact_to_message
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
-from vibro_model.results import Discrepancy as DiscrepancyBlock
 from vibro_msgs.msg import DiscrepancyFinding, ImpactEstimate
 
 from .discrepancy import run_discrepancy
@@ -77,8 +77,7 @@ class Discrepancy(Node):
             return
         try:
             identified = document_from_messages(r.structure, r.flights.values(), r.impacts.values())
-            sections = {k: v for k, v in identified.to_dict().items() if k in ("structure", "flights", "impacts")}
-            run = run_discrepancy(sections, track_from_messages(r.frames.values()), self.rig)
+            run = run_discrepancy(identified, track_from_messages(r.frames.values()), self.rig)
         except RecordingError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"discrepancy analysis not possible: {exc}")
@@ -86,7 +85,7 @@ class Discrepancy(Node):
             self.status.publish(0, 0, True)
             return
         t_last = max(float(m.t_s) for m in r.frames.values())
-        block = DiscrepancyBlock.from_dict(run.document)
+        block = run.result
         identified.discrepancy = block
         remeasured = [i for i in reidentify_document(identified, run).impacts if i.cor_method != PAPER]
         for imp in remeasured:

@@ -2,7 +2,8 @@
 
 Collects the fitter's structure motion, final free flights and impact estimates and the
 measured ball displacement (vibro/dic) with :class:`vibro_ros.fit_results.FinalFitResults`;
-once everything the fitter and the tracker announced has arrived, it runs :func:`vibro_sim.measured.replay_and_score` (the same core as
+once everything the fitter and the tracker announced has arrived, it converts them to the domain model
+(:mod:`vibro_ros.convert`) and runs :func:`vibro_sim.measured.replay_and_score` (the same core as
 ``vibro analyze``) and publishes one SimulationResult per model, then its own
 end-of-stream status.
 """
@@ -17,15 +18,16 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
-from vibro_model.results import SimulationRun
+from vibro_model.codec import nan_if_none
 from vibro_model.units import mm_to_m
-from vibro_ros.convert import simulation_run_to_message
+from vibro_ros.convert import (flight_from_message, impact_from_message, simulation_run_to_message,
+                               structure_from_message)
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
 from vibro_io.rig import load_rig
 from vibro_msgs.msg import SimulationResult
 
-from .measured import FlightSummary, ImpactSummary, StructureSine, replay_and_score, replay_inputs
+from .measured import decimated, replay_and_score, replay_inputs
 from .params import BallCavity
 
 MODELS = ("cor_model", "hertz_model")
@@ -65,41 +67,35 @@ class Simulator(Node):
             self.gate.finish()
 
     def simulate(self) -> None:
-        s = self.results.structure
-        tracked = self.results.tracked_frames()
-        if s is None or not self.results.impacts or not tracked:
+        r = self.results
+        tracked = r.tracked_frames()
+        if r.structure is None or not r.impacts or not tracked:
             self.health.warn("nothing to simulate (no structure fit, impacts or DIC data received)")
             self.get_logger().warning("nothing to simulate: no structure fit, impact or DIC frame received")
             self.status.publish(0, 0, True)
             return
-        sine = StructureSine(s.amplitude_mm, s.frequency_hz, s.phase_rad, s.offset_mm)
-        flights = [FlightSummary(f.t_start_s, f.t_end_s, f.a_mm_per_s2, f.b_mm_per_s, f.c_mm, f.friction_n, f.fitted)
-                   for f in self.results.sorted_flights()]
-        impacts = [ImpactSummary(i.t_s, i.plate, i.cor) for i in self.results.sorted_impacts()]
-        rows = np.array([(m.t_s, m.ball_mm) for m in tracked])
+        structure = structure_from_message(r.structure)
+        t_s = np.array([m.t_s for m in tracked], dtype=float)
+        ball_m = mm_to_m(np.array([m.ball_mm for m in tracked], dtype=float))
+        offset_m = nan_if_none(structure.ball_offset_m)
         try:
-            inputs = replay_inputs(sine, flights, impacts, s.ball_offset_mm, self.rig.free_play_mm,
-                                   float(rows[-1, 0]))
+            inputs = replay_inputs(structure, [flight_from_message(f) for f in r.sorted_flights()],
+                                   [impact_from_message(i) for i in r.sorted_impacts()], mm_to_m(self.rig.free_play_mm),
+                                   float(t_s[-1]), offset_m)
         except ValueError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"cannot simulate: {exc}")
             self.status.publish(0, 0, True)
             return
-        scores = replay_and_score(inputs, self.cavity, rows[:, 0], rows[:, 1], s.ball_offset_mm, self.models)
-        sent = 0
-        for model, score in scores.items():
-            if "error" in score:
-                self.health.warn(f"{model}: {score['error']}")
-                self.get_logger().error(f"{model} failed: {score['error']}")
-                continue
-            step = max(1, int(np.ceil(score["t_s"].size / self.max_points)))
-            run = SimulationRun(model, float(score["deviation"]), int(score["impacts"]), score["t_s"][::step],
-                                mm_to_m(score["ball_mm"][::step]), mm_to_m(score["measured_mm"][::step]))
-            msg = simulation_run_to_message(run, float(score["t_s"][-1]), self.time_origin_ns)
+        runs, errors = replay_and_score(inputs, self.cavity, t_s, ball_m, offset_m, self.models)
+        for model, error in errors.items():
+            self.health.warn(f"{model}: {error}")
+            self.get_logger().error(f"{model} failed: {error}")
+        for run in runs.values():
+            msg = simulation_run_to_message(decimated(run, self.max_points), float(run.t_s[-1]), self.time_origin_ns)
             self.pub.publish(msg)
-            sent += 1
-            self.get_logger().info(f"{model}: D = {100 * score['deviation']:.2f} %")
-        self.status.publish(sent, len(self.models) - sent, True)
+            self.get_logger().info(f"{run.model}: D = {100 * run.deviation:.2f} %")
+        self.status.publish(len(runs), len(self.models) - len(runs), True)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -30,7 +30,7 @@ from scipy.optimize import minimize_scalar, nnls
 from vibro_model.constants import G_MPS2
 
 from ..structure import StructureMotion
-from .data import FlightData, Measured
+from .data import FlightSamples, Measured
 from .library import FlightTerm, ImpactTerm
 
 GRID_STEP_S = 2e-5
@@ -111,7 +111,7 @@ def _cumtrapz(y: np.ndarray, dx: float) -> np.ndarray:
     return out
 
 
-def _grid(fl: FlightData, extend_s: float = 0.0) -> np.ndarray:
+def _grid(fl: FlightSamples, extend_s: float = 0.0) -> np.ndarray:
     tau_max = max(float(fl.tau_s[-1]), fl.t_end_s - fl.t_ref_s) + extend_s
     n = max(int(math.ceil(tau_max / GRID_STEP_S)), 4)
     return np.linspace(0.0, tau_max, n + 1)
@@ -301,7 +301,7 @@ def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: Struct
     velocity there."""
     rows = []
     for imp in meas.impacts:
-        vb, va = imp.v_ball_before, imp.v_ball_after
+        vb, va = imp.v_ball_before_mps, imp.v_ball_after_mps
         t = impact_time(meas, flights, imp.index)
         if imp.flight_before is not None:
             fl = meas.flights[imp.flight_before]

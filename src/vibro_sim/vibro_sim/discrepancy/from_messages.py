@@ -1,4 +1,4 @@
-"""Results sections and a DIC track from the fitter's and tracker's messages (for the ``discrepancy``
+"""The results document and a DIC track from the fitter's and tracker's messages (for the ``discrepancy``
 node), without rclpy: any objects with the fields of vibro_msgs StructureMotion, FreeFlight,
 ImpactEstimate and DicFrame will do (an rclpy message or one read from a bag)."""
 
@@ -20,13 +20,6 @@ def document_from_messages(structure, flights: Iterable, impacts: Iterable, reco
     (converted by :mod:`vibro_ros.convert`; flights linked to the impacts that open/close them)."""
     return ResultsDocument.build(recording, structure_from_message(structure), map(flight_from_message, flights),
                                  map(impact_from_message, impacts))
-
-
-def sections_from_messages(structure, flights: Iterable, impacts: Iterable) -> dict:
-    """{"structure", "flights", "impacts"} as in results.json, for :func:`vibro_sim.discrepancy.analyse_discrepancy`
-    (the same keys ``vibro analyze`` hands it: written by the one codec)."""
-    doc = document_from_messages(structure, flights, impacts).to_dict()
-    return {k: doc[k] for k in ("structure", "flights", "impacts")}
 
 
 def track_from_messages(frames: Iterable) -> DicTrack:

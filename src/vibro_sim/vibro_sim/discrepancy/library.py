@@ -13,6 +13,7 @@ acceleration g (1 - cos tilt) in m/s^2). Impact terms are linear COR laws e = X(
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -186,6 +187,21 @@ class PlateAndSpeed(ImpactTerm):
 
 IMPACT_TERMS: tuple[ImpactTerm, ...] = (AsymmetricRestitution(), VelocityDependentRestitution())
 
+
+
+@dataclass(frozen=True)
+class CandidateLibrary:
+    """What the estimator may add to the baseline model, stage by stage (PySINDy's feature library):
+    ``harmonics`` (structure_harmonics), the flight terms, the COR laws by contract name (a law outside
+    ``cor_terms`` is never chosen). A narrower library makes an effect outside it come out unexplained."""
+
+    flight_terms: tuple[FlightTerm, ...] = FLIGHT_TERMS
+    cor_terms: tuple[str, ...] = tuple(t.effect for t in IMPACT_TERMS)
+    harmonics: bool = True
+
+    def impact_term(self, effect: str) -> "ImpactTerm":
+        """The COR law named ``effect``."""
+        return next(t for t in IMPACT_TERMS if t.effect == effect)
 
 # --- structure term ------------------------------------------------------------------------------
 

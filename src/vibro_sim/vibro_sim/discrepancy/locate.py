@@ -18,6 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .data import Measured
+from .library import FlightTerm
+from .model import FittedModel
 from .onestep import OneStep
 from .systematic import cor_patterns
 
@@ -143,3 +146,32 @@ def structure_words(residual_m: np.ndarray, t_s: np.ndarray, sigma_m: float, fre
     return (f"structure: the pure sine misses the structure track by up to {peak * 1e6:.1f} um "
             f"({peak / max(sigma_m, 1e-15):.0f}x the noise floor {sigma_m * 1e6:.2f} um), periodically every cycle "
             f"(largest at cycle phase {ph[k]:.2f}), throughout")
+
+
+def flight_term_where(meas: Measured, steps: OneStep, model_after: FittedModel, term: FlightTerm,
+                      cor_noise: float) -> str:
+    """Where a flight term shows: the extra acceleration it adds on each kind of flight, and the
+    before-model's mismatch location."""
+    words = locate(steps, cor_noise, stages=("flights",))["text"]
+    extra = {}
+    for k, fl in enumerate(meas.flights):
+        u, v = model_after.flights.grids[k]
+        c = model_after.flights.coef_of(term.effect)
+        a = c * term.basis(v, meas.mass_kg)
+        extra.setdefault(fl.direction, []).append(float(np.mean(a)))
+    parts = [f"{'towards the top plate' if d == 'up' else 'towards the bottom plate'} {np.mean(v):+.3f} m/s^2"
+             for d, v in sorted(extra.items(), reverse=True)]
+    return f"{words}; {term.effect} adds a mean acceleration of " + ", ".join(parts)
+
+
+def cor_law_where(meas: Measured, steps: OneStep, model_after: FittedModel, cor_noise: float) -> str:
+    """Where a COR law shows: the before-model's impact mismatch and the measured COR per plate."""
+    words = locate(steps, cor_noise, stages=("impacts",))["text"]
+    imp = model_after.impacts
+    parts = []
+    for p in ("top", "bottom"):
+        sel = imp.plate == p
+        if sel.any():
+            parts.append(f"{p}: COR {np.mean(imp.cor[sel]):.3f} +- {np.std(imp.cor[sel]):.3f} at "
+                         f"{np.mean(imp.speed[sel]):.3f} m/s")
+    return f"{words}; measured " + ", ".join(parts)

@@ -78,7 +78,7 @@ class FittedModel:
 def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] = (), cor_kind: str = "none",
               structure: StructureModelFit | None = None, flights: FlightModelFit | None = None) -> FittedModel:
     """Fit a whole model; ``structure``/``flights`` reuse fits already made."""
-    s = structure if structure is not None else fit_structure(meas.t_s, meas.structure_m, meas.sine.frequency_hz,
+    s = structure if structure is not None else fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz,
                                                               orders)
     f = flights if flights is not None else fit_flights(meas, flight_terms)
     imp = recompute_impacts(meas, f, s.motion())

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .data import Measured
+from vibro_model.units import m_to_mm, s_to_ms
+
+from .data import Measured, speed_mps
 from .model import FittedModel, plate_levels
 
 STEP_S = 2e-5
@@ -47,10 +49,8 @@ class OneStep:
                "impact_velocity_rms_ms": rms(self.impact_dv_ms), "impact_cor_rms": rms(self.impact_de),
                "n_flights": int(np.isfinite(self.flight_rms_m).sum()),
                "n_impacts": int(np.isfinite(self.impact_dv_ms).sum())}
-        if out["flight_rms_mm"] is not None:
-            out["flight_rms_mm"] *= 1e3
-        if out["impact_time_rms_ms"] is not None:
-            out["impact_time_rms_ms"] *= 1e3
+        out["flight_rms_mm"] = m_to_mm(out["flight_rms_mm"])
+        out["impact_time_rms_ms"] = s_to_ms(out["impact_time_rms_ms"])
         return out
 
 
@@ -96,7 +96,7 @@ def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
     dv = np.full(n_i, np.nan)
     de = np.full(n_i, np.nan)
     dv_sig = np.full(n_i, np.nan)
-    speeds = np.array([i.speed_ms for i in imps])
+    speeds = np.array([speed_mps(i) for i in imps])
     closing = [(k, fl.close_impact) for k, fl in enumerate(flights) if fl.close_impact is not None]
     if closing:
         ks = np.array([k for k, _ in closing])

@@ -30,7 +30,7 @@ from vibro_model.codec import json_number as _f
 
 from .data import Measured
 from .fitting import (FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, fit_structure)
-from .library import FLIGHT_TERMS, FlightTerm
+from .library import FLIGHT_TERMS, CandidateLibrary, FlightTerm
 from .model import COR_TERMS
 
 ALPHA = 1e-6                 # flights / structure: chi^2 tail probability for a term to count
@@ -77,7 +77,7 @@ class StageResult:
 def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit, StageResult]:
     """Harmonics 2 and 3 of the structure motion: each kept when significant and >= MIN_HARMONIC_SIGMA
     noise floors in amplitude. The noise floor ``sigma_m`` comes from 5th differences of the track."""
-    t, y, f0 = meas.t_s, meas.structure_m, meas.sine.frequency_hz
+    t, y, f0 = meas.t_s, meas.structure_m, meas.frequency_hz
     fits = {o: fit_structure(t, y, f0, o) for o in ((1,), (1, 2), (1, 3), (1, 2, 3))}
     sig2 = max(sigma_m, 1e-12) ** 2
     stage = StageResult("structure", ())
@@ -255,3 +255,32 @@ def _separate(impacts: ImpactSet, fits: dict) -> tuple[str, str, str]:
     return ("asymmetric_restitution",
             txt + ": impact speeds cluster by plate; the faster plate restitutes more, which a speed-dependent "
             "contact does not do", "velocity_dependent_restitution")
+
+
+# --- the selector as one object ---------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class StagewiseSelector:
+    """Selection stage by stage over a :class:`~.library.CandidateLibrary` (PySINDy's optimizer): the
+    structure (:func:`select_structure`), the flights (:func:`select_flights`), the COR law
+    (:func:`select_cor`). A stage whose library part is empty keeps the baseline and reports no stage."""
+
+    def structure(self, meas: Measured, sigma_m: float, library: CandidateLibrary
+                  ) -> tuple[StructureModelFit, StageResult | None]:
+        if library.harmonics:
+            return select_structure(meas, sigma_m)
+        return fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,)), None
+
+    def flights(self, meas: Measured, sigma_m: float, library: CandidateLibrary
+                ) -> tuple[FlightModelFit, StageResult | None]:
+        if library.flight_terms:
+            return select_flights(meas, sigma_m, tuple(library.flight_terms))
+        return fit_flights(meas), None
+
+    def cor(self, impacts: ImpactSet, cor_noise: float, library: CandidateLibrary) -> tuple[str, StageResult]:
+        """The chosen COR law's name ("none": the constant baseline) and the stage."""
+        kind, _, stage = select_cor(impacts, cor_noise)
+        if kind not in library.cor_terms:
+            kind = "none"
+            stage.chosen = ()
+        return kind, stage

@@ -416,10 +416,10 @@ def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual:
 def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, sigma_f_m: float,
                         fps: float) -> list[Mismatch]:
     """Every systematic pattern the final ``model`` leaves (see the module docstring)."""
-    out = structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.sine.frequency_hz, fps)
+    out = structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.frequency_hz, fps)
     out += level_mismatch(meas, model, sigma_f_m)
     imp = model.impacts
-    out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.sine.frequency_hz)
+    out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.frequency_hz)
     return out
 
 
