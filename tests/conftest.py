@@ -13,6 +13,17 @@ FIXTURES = REPO / "tests" / "fixtures"
 SHARED = REPO.parent / "shared"
 
 
+#: test files that take longest (tens of seconds to minutes), run first so that the two pytest-xdist workers
+#: (``--dist loadfile``) do not end with one of them alone on a long file
+LONGEST_FIRST = ("test_discrepancy_prove.py", "test_isolation.py", "test_graph_faults.py", "test_graph.py",
+                 "test_restart_recovery.py", "test_reidentify.py", "test_launch_order.py", "test_bags_rosbag2.py")
+
+
+def pytest_collection_modifyitems(session, config, items) -> None:
+    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept otherwise
+
+
 @pytest.fixture
 def tiny_recording() -> Path:
     """The committed 5-frame recording (see fixtures/make_tiny_recording.py)."""

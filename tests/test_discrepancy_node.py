@@ -60,11 +60,13 @@ def test_node_publishes_findings_over_dds(tmp_path: Path, ros_domain: str):
     finally:
         node.send_signal(signal.SIGINT)
         _, node_err = node.communicate(timeout=20)
+        feeder_err = ""
         if feeder is not None:
             feeder.kill()
+            feeder_err = feeder.communicate()[1]
         echo.kill()
     rows = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
-    assert len(rows) == 1, node_err
+    assert len(rows) == 1, f"node:\n{node_err}\nfeeder:\n{feeder_err}"
     f = rows[0]
     assert f["effect"] == "coulomb_friction" and f["parameter_names"] == ["force_n"]
     # same bound as the engine tests: 5 sigma of the reported std plus 1 %

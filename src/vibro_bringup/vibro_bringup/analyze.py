@@ -18,7 +18,6 @@ import logging
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from vibro_dic.cli import DIC_CSV
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
