@@ -41,11 +41,11 @@ def scenario_per_flight(seed: int, noise: float):
     from vibro_sim.forces import PerFlight
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import PerPlate, Scattered
-    from vibro_sim.structure import StructureMotion
+    from vibro_sim.structure import StructureKinematics
 
     rng = np.random.default_rng(100 + seed)
     forces = tuple(M_KG * G * rng.uniform(-0.08, 0.08, 400))
-    S = StructureMotion(3e-3, 22.0, 0.3, 0.0)
+    S = StructureKinematics(3e-3, 22.0, 0.3, 0.0)
     res = simulate_cor(S, BallCavity(), Scattered(PerPlate(top=0.6, bottom=0.75), 0.03, seed=seed),
                        PerFlight(forces), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=N / FPS + 0.01)
     t = np.arange(N) / FPS

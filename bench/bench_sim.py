@@ -28,7 +28,7 @@ from vibro_sim.cor_model import simulate_cor
 from vibro_sim.hertz_model import hertz_effective_cor, simulate_hertz, undamped_max_penetration
 from vibro_sim.params import BallCavity
 from vibro_sim.restitution import PerPlate, Scattered
-from vibro_sim.structure import StructureMotion
+from vibro_sim.structure import StructureKinematics
 from vibro_sim.synth import SynthConfig, synthesize
 from vibro_sim.synth.render import Renderer, choose_layout
 from vibro_sim.synth.scenario import EFFECTS, build_models
@@ -36,7 +36,7 @@ from vibro_sim.synth.trajectory import regime, simulate_window
 
 OUT = Path(__file__).resolve().parent / "results" / "sim.json"
 F_HZ = 22.0
-S = StructureMotion(27.0 / (2 * math.pi * F_HZ) ** 2, F_HZ, phase_rad=0.4)
+S = StructureKinematics(27.0 / (2 * math.pi * F_HZ) ** 2, F_HZ, phase_rad=0.4)
 CAV = BallCavity()
 LAW = Scattered(PerPlate(0.6, 0.75), 0.04, seed=1)
 

@@ -126,9 +126,9 @@ def test_restarted_deviation_shares_eq18_scale():
     from vibro_sim.deviation import Restart, restarted_deviation
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import Constant
-    from vibro_sim.structure import StructureMotion
+    from vibro_sim.structure import StructureKinematics
 
-    S = StructureMotion(0.0, 22.0, 0.0, 0.0)   # still structure
+    S = StructureKinematics(0.0, 22.0, 0.0, 0.0)   # still structure
     cav = BallCavity()
     t = np.linspace(0.0, 0.02, 21)
     y_true = 0.3 * t - 0.5 * cav.g_eff_ms2 * t ** 2 - 0.5 * cav.free_play_m

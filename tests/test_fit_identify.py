@@ -24,11 +24,11 @@ def sim_track(noise_mm: float, n_frames: int = 400, seed: int = 1, sim_seed: int
     from vibro_sim.forces import PerFlight
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import PerPlate, Scattered
-    from vibro_sim.structure import StructureMotion
+    from vibro_sim.structure import StructureKinematics
 
     rng = np.random.default_rng(sim_seed)
     forces = tuple(M_KG * G * rng.uniform(-0.08, 0.08, 400))
-    S = StructureMotion(3e-3, 22.0, 0.3, 0.0)
+    S = StructureKinematics(3e-3, 22.0, 0.3, 0.0)
     cav = BallCavity()
     res = simulate_cor(S, cav, Scattered(PerPlate(top=0.6, bottom=0.75), 0.03, seed=sim_seed),
                        PerFlight(forces), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=n_frames / FPS + 0.01)

@@ -15,10 +15,10 @@ from vibro_sim.hertz_model import (hertz_contact_time, hertz_single_impact, simu
 from vibro_sim.params import BallCavity
 from vibro_sim.replay import ReplayInputs, compare_models, simulate_measured
 from vibro_sim.restitution import PerPlate, Scattered
-from vibro_sim.structure import StructureMotion
+from vibro_sim.structure import StructureKinematics
 
 CAV = BallCavity()
-S = StructureMotion(27.0 / (2 * math.pi * 22.0) ** 2, 22.0, phase_rad=0.3)
+S = StructureKinematics(27.0 / (2 * math.pi * 22.0) ** 2, 22.0, phase_rad=0.3)
 
 
 def test_stiffness_is_eq8():

@@ -13,7 +13,7 @@ from vibro_sim.deviation import deviation
 from vibro_sim.forces import Coulomb, NoForce, PerFlight, Quadratic, Viscous
 from vibro_sim.params import BallCavity
 from vibro_sim.restitution import Constant, PerImpact, PerPlate, Scattered, VelocityDependent
-from vibro_sim.structure import StructureMotion
+from vibro_sim.structure import StructureKinematics
 
 F_HZ = 22.0
 W = 2 * math.pi * F_HZ
@@ -22,14 +22,14 @@ B = CAV.free_play_m
 G = CAV.g_eff_ms2
 
 
-def shaker(accel_ms2: float = 40.0, **kw) -> StructureMotion:
-    return StructureMotion(accel_ms2 / W ** 2, F_HZ, **kw)
+def shaker(accel_ms2: float = 40.0, **kw) -> StructureKinematics:
+    return StructureKinematics(accel_ms2 / W ** 2, F_HZ, **kw)
 
 
 def test_free_flight_is_exact_parabola():
     # Fixed structure, ball thrown from the centre: no contact before t_hit, so the
     # trajectory must be y0 + v0 t - g t^2 / 2 to rounding (1e-15 m scale).
-    S = StructureMotion(0.0, F_HZ)
+    S = StructureKinematics(0.0, F_HZ)
     v0 = 0.2
     r = simulate_cor(S, CAV, Constant(0.7), NoForce(), 0.0, v0, 0.0, 0.1)
     # first contact: bottom, where v0 t - g t^2/2 = -b
@@ -140,7 +140,7 @@ def test_event_driven_matches_fine_step_ode(force):
 
 def test_coulomb_changes_sign_at_apex():
     # Fixed plates, ball launched up: rising deceleration g + F/m, falling g - F/m.
-    S = StructureMotion(0.0, F_HZ)
+    S = StructureKinematics(0.0, F_HZ)
     F = 2e-4
     r = simulate_cor(S, CAV, Constant(0.7), Coulomb(F), -B + 1e-4, 0.25, 0.0, 0.03)
     m = CAV.mass_kg
@@ -151,7 +151,7 @@ def test_coulomb_changes_sign_at_apex():
 
 
 def test_viscous_closed_form_matches_analytic():
-    S = StructureMotion(0.0, F_HZ)
+    S = StructureKinematics(0.0, F_HZ)
     c = 5e-3
     k = c / CAV.mass_kg
     v0 = 0.3
@@ -165,7 +165,7 @@ def test_viscous_closed_form_matches_analytic():
 def test_tilt_lowers_flight_acceleration():
     tilt = 40.0
     cav = BallCavity(tilt_deg=tilt)
-    r = simulate_cor(StructureMotion(0.0, F_HZ), cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 0.01)
+    r = simulate_cor(StructureKinematics(0.0, F_HZ), cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 0.01)
     assert r.acceleration(0.005) == pytest.approx(-9.81 * math.cos(math.radians(tilt)), rel=1e-12)
 
 
@@ -203,7 +203,7 @@ def test_per_impact_and_per_flight_lists_are_followed():
 
 
 def test_structure_derivatives_match_finite_differences():
-    S = StructureMotion(1e-3, F_HZ, phase_rad=0.3, offset_m=2e-3, h2_ratio=0.1, h3_ratio=0.05,
+    S = StructureKinematics(1e-3, F_HZ, phase_rad=0.3, offset_m=2e-3, h2_ratio=0.1, h3_ratio=0.05,
                         h2_phase_rad=0.7, h3_phase_rad=-1.1)
     t = np.linspace(0, 0.1, 50)
     h = 1e-6
@@ -236,7 +236,7 @@ def test_bad_inputs_raise_clear_errors():
     with pytest.raises(ValueError, match="zero everywhere"):
         deviation([0, 1], [0, 1], [0, 0])
     with pytest.raises(ValueError, match="frequency_hz"):
-        StructureMotion(1e-3, 0.0)
+        StructureKinematics(1e-3, 0.0)
     r = simulate_cor(shaker(), CAV, Constant(0.7), None, 0.0, 0.0, 0.0, 0.1)
     with pytest.raises(ValueError, match="outside the simulated span"):
         r.sample(0.2)
@@ -247,7 +247,7 @@ def test_grazing_contact_between_scan_points_is_not_missed(overshoot):
     # Fixed plates; the ball's apex is 1 nm above (or below) the top contact height.
     # Above, the gap is negative only for 2 sqrt(2e-9/g) = 29 us, shorter than the
     # 100 us scan grid: the contact must still be found, at t_apex - sqrt(2e-9/g).
-    S = StructureMotion(0.0, F_HZ)
+    S = StructureKinematics(0.0, F_HZ)
     h = B + overshoot
     v0 = math.sqrt(2 * G * h)
     r = simulate_cor(S, CAV, Constant(0.7), NoForce(), 0.0, v0, 0.0, v0 / G + 1e-3)

@@ -26,7 +26,7 @@ import numpy as np
 from vibro_sim.discrepancy.data import Measured
 from vibro_model.codec import json_value as jsonable
 from vibro_sim.discrepancy.runs import full_run
-from vibro_sim.discrepancy.fitting import fit_flights, fit_structure
+from vibro_sim.discrepancy.fitting import fit_flights, fit_structure_harmonics
 from vibro_sim.discrepancy.library import FLIGHT_TERMS
 from vibro_sim.discrepancy.model import FittedModel, fit_model
 
@@ -135,7 +135,7 @@ def sindy_discrepancy(meas: Measured) -> dict:
     base_run = full_run(meas, base)
     findings = []
     if st["orders"]:
-        s_fit = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,) + st["orders"])
+        s_fit = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,) + st["orders"])
         mot = s_fit.motion()
         findings.append({"effect": "structure_harmonics",
                          "parameters": {"h2_ratio": mot.h2_ratio, "h3_ratio": mot.h3_ratio}})

@@ -14,7 +14,7 @@ import numpy as np
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.params import BallCavity
-from vibro_sim.structure import StructureMotion
+from vibro_sim.structure import StructureKinematics
 from vibro_sim.synth.scenario import BASELINE_COR, effect_laws
 from vibro_sim.discrepancy.data import Measured
 
@@ -38,11 +38,11 @@ def main_parameter(effect: str, params: Mapping[str, float]) -> str:
     return MAIN_PARAMETER[effect]
 
 
-def true_structure(truth: Mapping[str, Any]) -> StructureMotion:
+def true_structure(truth: Mapping[str, Any]) -> StructureKinematics:
     """The truth's structure motion (m, s) in the DIC frame: displacement since frame 0."""
     st = truth["structure"]
     y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
-    return StructureMotion(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
+    return StructureKinematics(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
                            st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
                            st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
 
@@ -77,7 +77,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     """The true model (laws and parameters of the truth, COR scatter left out, true structure motion in
     the DIC frame) with the flight states and plate levels measured from the recording the same way the
     analysis measures them: each flight fitted with the true force law (coefficients fixed)."""
-    from vibro_sim.discrepancy.fitting import CorModelFit, fit_flights, fit_structure, recompute_impacts
+    from vibro_sim.discrepancy.fitting import CorModelFit, fit_flights, fit_structure_harmonics, recompute_impacts
     from vibro_sim.discrepancy.library import FLIGHT_TERMS
     from vibro_sim.discrepancy.model import FittedModel
 
@@ -106,7 +106,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
         kind, coefs = "none", [BASELINE_COR]
     c = np.asarray(coefs, dtype=float)
     cor = CorModelFit(kind, c, np.zeros((c.size, c.size)), 0.0, 0, 1, np.zeros(0))
-    structure = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))  # unused: motion fixed
+    structure = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))  # unused: motion fixed
     return FittedModel(structure, flights, recompute_impacts(meas, flights, S), cor, g, fixed_motion=S)
 
 

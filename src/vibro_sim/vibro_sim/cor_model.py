@@ -29,7 +29,7 @@ from .flight import Segment, Stuck, make_flight_segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
 from .restitution import RestitutionLaw
-from .structure import StructureMotion
+from .structure import StructureKinematics
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ class StuckPhase:
 class SimResult:
     """Output of :func:`simulate_cor` (and the Hertz model): events and an exact trajectory."""
 
-    structure: StructureMotion
+    structure: StructureKinematics
     cavity: BallCavity
     t0_s: float
     t_end_s: float
@@ -334,7 +334,7 @@ class _Simulator:
                                         end_plate, direction, mean_force))
 
 
-def simulate_cor(structure: StructureMotion, cavity: BallCavity, restitution: RestitutionLaw,
+def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
                  force: ForceLaw | None = None, y0_m: float = 0.0, v0_mps: float = 0.0,
                  t0_s: float = 0.0, t_end_s: float = 1.5, *, stick_speed_mps: float = 1e-4,
                  scan_step_s: float | None = None, max_events: int = 1_000_000) -> SimResult:

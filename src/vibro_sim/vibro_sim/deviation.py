@@ -13,7 +13,7 @@ import numpy as np
 from .forces import ForceLaw
 from .params import BallCavity
 from .restitution import RestitutionLaw
-from .structure import StructureMotion
+from .structure import StructureKinematics
 
 
 def deviation(t_s, y_sim, y_exp) -> float:
@@ -64,7 +64,7 @@ class RestartedRun:
     n_flights: int
 
 
-def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: StructureMotion,
+def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: StructureKinematics,
                         cavity: BallCavity, restitution: RestitutionLaw, force: ForceLaw | None = None,
                         frame_offset_m: float = 0.0) -> RestartedRun:
     """D_r: the deviation of Eq. 18 with the model re-started from the measured state after each impact.

@@ -42,7 +42,7 @@ from .flight import Segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
 from .restitution import Constant, RestitutionLaw
-from .structure import StructureMotion
+from .structure import StructureKinematics
 
 E_MIN = 1e-3  # e -> 0 would need infinite damping
 NO_TENSION = True  # clip the contact force so that the plate never pulls the ball
@@ -167,7 +167,7 @@ class _HertzSimulator(_Simulator):
         return t_out, float(S.position(t_out)) + side * b, v_out
 
 
-def simulate_hertz(structure: StructureMotion, cavity: BallCavity, restitution: RestitutionLaw,
+def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
                    force: ForceLaw | None = None, y0_m: float = 0.0, v0_mps: float = 0.0,
                    t0_s: float = 0.0, t_end_s: float = 1.5, *, delta_a: str | float = "impact",
                    stick_speed_mps: float = 1e-4, rtol: float = 1e-9,
@@ -205,7 +205,7 @@ def hertz_single_impact(cavity: BallCavity, e: float, v_ms: float, delta_a: str 
     cav = BallCavity(mass_kg=cavity.mass_kg, radius_m=cavity.radius_m, free_play_m=cavity.free_play_m,
                      gravity_ms2=0.0, ball_E_pa=cavity.ball_E_pa, ball_nu=cavity.ball_nu,
                      plate_E_pa=cavity.plate_E_pa, plate_nu=cavity.plate_nu)
-    S = StructureMotion(0.0, 1.0)
+    S = StructureKinematics(0.0, 1.0)
     t_hit = 1e-4
     y0 = -cav.free_play_m + v_ms * t_hit
     tc = hertz_contact_time(cav, v_ms)

@@ -17,20 +17,20 @@ import numpy as np
 
 from vibro_model.codec import nan_if_none
 from vibro_model.results import Flight, Impact, SimulationRun
-from vibro_model.results import StructureMotion as IdentifiedStructure
+from vibro_model.results import StructureMotion
 
 from .deviation import deviation
 from .params import BallCavity
 from .replay import ReplayInputs, simulate_measured
-from .structure import StructureMotion
+from .structure import StructureKinematics
 
 
-def structure_motion(structure: IdentifiedStructure) -> StructureMotion:
+def structure_kinematics(structure: StructureMotion) -> StructureKinematics:
     """The identified sine Y_s(t) = A sin(2 pi f t + phi) + B as the simulator's structure motion."""
     values = (structure.amplitude_m, structure.frequency_hz, structure.phase_rad, structure.offset_m)
     if any(v is None for v in values):
         raise ValueError("the structure sine is not known (amplitude, frequency, phase or offset missing)")
-    return StructureMotion(*values)
+    return StructureKinematics(*values)
 
 
 def _flight_state(flight: Flight, t_s: float) -> tuple[float, float]:
@@ -39,7 +39,7 @@ def _flight_state(flight: Flight, t_s: float) -> tuple[float, float]:
     return (a * t_s + b) * t_s + c, 2.0 * a * t_s + b
 
 
-def replay_inputs(structure: IdentifiedStructure, flights: Sequence[Flight], impacts: Sequence[Impact],
+def replay_inputs(structure: StructureMotion, flights: Sequence[Flight], impacts: Sequence[Impact],
                   free_play_m: float, t_end_s: float, ball_offset_m: float | None = None) -> ReplayInputs:
     """Start at the first free flight's first fitted frame with its fitted state; CORs and forces as
     identified (a flight that is not free: no force). ``ball_offset_m`` defaults to the structure's."""
@@ -50,7 +50,7 @@ def replay_inputs(structure: IdentifiedStructure, flights: Sequence[Flight], imp
         raise ValueError("no impact: nothing to replay")
     offset_m = structure.ball_offset_m if ball_offset_m is None else ball_offset_m
     t0 = nan_if_none(free[0].t_first_frame_s)
-    motion = structure_motion(structure)
+    motion = structure_kinematics(structure)
     y_m, v_mps = _flight_state(free[0], t0)
     y_rel_m = float(np.clip(y_m + nan_if_none(offset_m) - float(motion.position(t0)),
                             -0.999 * free_play_m, 0.999 * free_play_m))

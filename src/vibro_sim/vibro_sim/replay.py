@@ -19,7 +19,7 @@ from .forces import PerFlight
 from .hertz_model import simulate_hertz
 from .params import BallCavity
 from .restitution import PLATES, RestitutionLaw
-from .structure import StructureMotion
+from .structure import StructureKinematics
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class ReplayInputs:
     t_start_s on) are used.
     """
 
-    structure: StructureMotion
+    structure: StructureKinematics
     impact_times_s: Sequence[float]
     impact_plates: Sequence[str]
     impact_cors: Sequence[float]

@@ -20,7 +20,7 @@ ArrayLike = "float | np.ndarray"
 
 
 @dataclass(frozen=True)
-class StructureMotion:
+class StructureKinematics:
     """Structure displacement Y_s(t) (m), velocity (m/s), acceleration (m/s^2); t in s."""
 
     amplitude_m: float
@@ -37,11 +37,11 @@ class StructureMotion:
                      "h3_ratio", "h2_phase_rad", "h3_phase_rad"):
             value = getattr(self, name)
             if not math.isfinite(value):
-                raise ValueError(f"StructureMotion.{name} must be finite, got {value!r}")
+                raise ValueError(f"StructureKinematics.{name} must be finite, got {value!r}")
         if self.frequency_hz <= 0:
-            raise ValueError(f"StructureMotion.frequency_hz must be > 0, got {self.frequency_hz}")
+            raise ValueError(f"StructureKinematics.frequency_hz must be > 0, got {self.frequency_hz}")
         if self.amplitude_m < 0:
-            raise ValueError(f"StructureMotion.amplitude_m must be >= 0, got {self.amplitude_m}")
+            raise ValueError(f"StructureKinematics.amplitude_m must be >= 0, got {self.amplitude_m}")
 
     @property
     def omega_rad_s(self) -> float:

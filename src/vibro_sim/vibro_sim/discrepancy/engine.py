@@ -49,7 +49,7 @@ from vibro_model.results import Discrepancy, DiscrepancyFinding, ResultsDocument
 from vibro_model.units import m_to_mm
 
 from .data import Measured, difference_sigma, measurement_of
-from .fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure
+from .fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure_harmonics
 from .library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm
 from .locate import cor_law_where, flight_term_where, locate, structure_words
 from .model import FittedModel, fit_model
@@ -276,7 +276,7 @@ class DiscrepancyEstimator:
         floors = noise_floors(meas)
         base = evaluate(meas, "baseline", fit_model(meas), floors)
         location = locate(base.steps, floors.cor)
-        sine = fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))
+        sine = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))
         s_fit, s_stage = self.selector.structure(meas, floors.structure_m, self.library)
         f_fit, f_stage = self.selector.flights(meas, floors.ball_m, self.library)
         pre_cor = fit_model(meas, structure=s_fit, flights=f_fit)

@@ -29,7 +29,7 @@ from scipy.optimize import minimize_scalar, nnls
 
 from vibro_model.constants import G_MPS2
 
-from ..structure import StructureMotion
+from ..structure import StructureKinematics
 from .data import FlightSamples, Measured
 from .library import FlightTerm, ImpactTerm
 
@@ -204,15 +204,15 @@ class StructureModelFit:
         a, b = self.coefs[1 + 2 * j], self.coefs[2 + 2 * j]
         return math.hypot(a, b), math.atan2(b, a)  # a sin x + b cos x = c sin(x + psi)
 
-    def motion(self) -> StructureMotion:
-        """As a vibro_sim StructureMotion (harmonic ratios/phases relative to the fundamental)."""
+    def motion(self) -> StructureKinematics:
+        """As a vibro_sim StructureKinematics (harmonic ratios/phases relative to the fundamental)."""
         A, phi = self._amp_phase(0)
         kw = {}
         for j, k in enumerate(self.orders[1:], start=1):
             c, psi = self._amp_phase(j)
             kw[f"h{k}_ratio"] = c / A if A > 0 else 0.0
             kw[f"h{k}_phase_rad"] = math.remainder(psi - k * phi, 2 * math.pi)
-        return StructureMotion(A, self.frequency_hz, phi, float(self.coefs[0]), **kw)
+        return StructureKinematics(A, self.frequency_hz, phi, float(self.coefs[0]), **kw)
 
     def harmonic_amplitudes(self) -> dict[int, float]:
         """Amplitude (m) of each harmonic order beyond the fundamental."""
@@ -231,7 +231,7 @@ def _design(t: np.ndarray, f: float, orders: Sequence[int]) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def fit_structure(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float, orders: Sequence[int] = (1,)) -> StructureModelFit:
+def fit_structure_harmonics(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float, orders: Sequence[int] = (1,)) -> StructureModelFit:
     """Least squares of the structure track with the given harmonic orders (1 = the fundamental);
     the frequency is refined within +-0.2 % of ``f0_hz``."""
     t = np.asarray(t_s, dtype=float)
@@ -295,7 +295,7 @@ def impact_time(meas: Measured, flights: FlightModelFit, i: int) -> float:
     return t if abs(t - imp.t_s) < 1e-3 else imp.t_s
 
 
-def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: StructureMotion) -> ImpactSet:
+def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: StructureKinematics) -> ImpactSet:
     """Impact times (:func:`impact_time`) and velocities from the fitted flight models on both sides
     and the structure model; impacts without a fitted flight on one side keep the identified time and
     velocity there."""

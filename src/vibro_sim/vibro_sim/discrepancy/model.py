@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..params import BallCavity
-from ..structure import StructureMotion
+from ..structure import StructureKinematics
 from .data import Measured
 from .fitting import CorModelFit, FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, \
-    fit_structure, recompute_impacts
+    fit_structure_harmonics, recompute_impacts
 from .library import (AsymmetricRestitution, ConstantRestitution, FlightTerm, PlateAndSpeed,
                       VelocityDependentRestitution, cor_values, force_law, restitution_law)
 
@@ -32,10 +32,10 @@ class FittedModel:
     impacts: ImpactSet
     cor: CorModelFit
     g_ms2: float
-    fixed_motion: StructureMotion | None = None   # a known structure motion (the true model in proofs)
+    fixed_motion: StructureKinematics | None = None   # a known structure motion (the true model in proofs)
 
     @property
-    def motion(self) -> StructureMotion:
+    def motion(self) -> StructureKinematics:
         return self.fixed_motion if self.fixed_motion is not None else self.structure.motion()
 
     @property
@@ -78,7 +78,7 @@ class FittedModel:
 def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] = (), cor_kind: str = "none",
               structure: StructureModelFit | None = None, flights: FlightModelFit | None = None) -> FittedModel:
     """Fit a whole model; ``structure``/``flights`` reuse fits already made."""
-    s = structure if structure is not None else fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz,
+    s = structure if structure is not None else fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz,
                                                               orders)
     f = flights if flights is not None else fit_flights(meas, flight_terms)
     imp = recompute_impacts(meas, f, s.motion())
@@ -86,7 +86,7 @@ def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] 
     return FittedModel(s, f, imp, c, meas.g_ms2)
 
 
-def plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:
+def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:
     """Relative position ball - structure (m, DIC frame) of each plate at the impacts under ``model``
     (median), the cavity offset c0 = ball centre - cavity centre at frame 0 in the DIC frame, and the
     measured free play b (half the relative travel). One plate only: b from the rig."""

@@ -17,7 +17,7 @@ import numpy as np
 from vibro_model.units import m_to_mm, s_to_ms
 
 from .data import Measured, speed_mps
-from .model import FittedModel, plate_levels
+from .model import FittedModel, model_plate_levels
 
 STEP_S = 2e-5
 EXTRA_S = 0.012     # look for the closing impact up to this long after the measured one
@@ -79,7 +79,7 @@ def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
     flights = meas.flights
     nf = len(flights)
     fm = model.flights
-    levels = plate_levels(meas, model)
+    levels = model_plate_levels(meas, model)
     S = model.motion
     flight_t = np.array([0.5 * (fl.t_s[0] + fl.t_s[-1]) for fl in flights])
     flight_dir = np.array([fl.direction for fl in flights], dtype=object)

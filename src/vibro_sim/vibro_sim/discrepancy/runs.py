@@ -11,7 +11,7 @@ import numpy as np
 from ..cor_model import simulate_cor
 from ..deviation import Restart, deviation, restarted_deviation
 from .data import Measured
-from .model import FittedModel, plate_levels
+from .model import FittedModel, model_plate_levels
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ def full_run(meas: Measured, model: FittedModel) -> FullRun:
     if t.size < 2:
         return FullRun(t, None, y, None, "too few frames after the first impact")
     try:
-        lv = plate_levels(meas, model)
+        lv = model_plate_levels(meas, model)
         c0, b = lv["offset"], lv["free_play"]
         S = model.motion
         rel = y_start + c0 - float(S.position(t0))
@@ -86,7 +86,7 @@ def restarted_run(meas: Measured, model: FittedModel) -> FullRun:
     from the measured state after the impact that opens it (:func:`restart_points`), compared with the
     measured ball; the model's plate levels and free play as in :func:`full_run`."""
     try:
-        lv = plate_levels(meas, model)
+        lv = model_plate_levels(meas, model)
         r = restarted_deviation(meas.t_s, meas.ball_m, restart_points(meas, model), model.motion,
                                 model.cavity(meas, lv["free_play"]), model.restitution_law(), model.force_law(),
                                 frame_offset_m=lv["offset"])

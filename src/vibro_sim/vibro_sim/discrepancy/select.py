@@ -29,7 +29,7 @@ from scipy import stats
 from vibro_model.codec import json_number as _f
 
 from .data import Measured
-from .fitting import (FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, fit_structure)
+from .fitting import (FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, fit_structure_harmonics)
 from .library import FLIGHT_TERMS, CandidateLibrary, FlightTerm
 from .model import COR_TERMS
 
@@ -78,7 +78,7 @@ def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit,
     """Harmonics 2 and 3 of the structure motion: each kept when significant and >= MIN_HARMONIC_SIGMA
     noise floors in amplitude. The noise floor ``sigma_m`` comes from 5th differences of the track."""
     t, y, f0 = meas.t_s, meas.structure_m, meas.frequency_hz
-    fits = {o: fit_structure(t, y, f0, o) for o in ((1,), (1, 2), (1, 3), (1, 2, 3))}
+    fits = {o: fit_structure_harmonics(t, y, f0, o) for o in ((1,), (1, 2), (1, 3), (1, 2, 3))}
     sig2 = max(sigma_m, 1e-12) ** 2
     stage = StageResult("structure", ())
     full = fits[(1, 2, 3)]
@@ -269,7 +269,7 @@ class StagewiseSelector:
                   ) -> tuple[StructureModelFit, StageResult | None]:
         if library.harmonics:
             return select_structure(meas, sigma_m)
-        return fit_structure(meas.t_s, meas.structure_m, meas.frequency_hz, (1,)), None
+        return fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,)), None
 
     def flights(self, meas: Measured, sigma_m: float, library: CandidateLibrary
                 ) -> tuple[FlightModelFit, StageResult | None]:

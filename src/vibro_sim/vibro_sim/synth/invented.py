@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..restitution import RestitutionLaw
-from ..structure import StructureMotion
+from ..structure import StructureKinematics
 
 INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "cor_drift": {"drift_per_s": (-0.2, -2.0, 2.0)},
@@ -58,8 +58,8 @@ def check_invented(effects: dict[str, dict[str, float]], frequency_hz: float) ->
 
 
 @dataclass(frozen=True)
-class StructureWithTone(StructureMotion):
-    """StructureMotion plus a tone of ``tone_amplitude_m`` at ``tone_frequency_hz`` (any frequency)."""
+class StructureWithTone(StructureKinematics):
+    """StructureKinematics plus a tone of ``tone_amplitude_m`` at ``tone_frequency_hz`` (any frequency)."""
 
     tone_amplitude_m: float = 0.0
     tone_frequency_hz: float = 0.0
@@ -115,13 +115,13 @@ def drift_per_impact(drift_per_s: float, frequency_hz: float) -> float:
     return drift_per_s / (2.0 * frequency_hz)
 
 
-def tone_structure(S: StructureMotion, tone: dict[str, float]) -> StructureWithTone:
+def tone_structure(S: StructureKinematics, tone: dict[str, float]) -> StructureWithTone:
     """``S`` plus the ``structure_tone`` effect's tone."""
     return StructureWithTone(**S.to_dict(), tone_amplitude_m=tone["tone_amplitude_um"] * 1e-6,
                              tone_frequency_hz=tone["tone_frequency_hz"], tone_phase_rad=tone["tone_phase_rad"])
 
 
-def stepped_cavity(S: StructureMotion, cavity, step: dict[str, float]):
+def stepped_cavity(S: StructureKinematics, cavity, step: dict[str, float]):
     """(structure, cavity) after a ``plate_step``: the cavity's free play grows by step/2 and its centre
     moves up by step/2, so the upper plate is ``step_um`` higher and the lower plate stays."""
     half = 0.5e-6 * step["step_um"]

@@ -20,7 +20,7 @@ from vibro_model.units import m_to_mm, mm_to_m
 from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
-from ..structure import StructureMotion
+from ..structure import StructureKinematics
 from .invented import INVENTED_EFFECTS, DriftingCOR, check_invented, drift_per_impact, tone_structure
 
 
@@ -216,7 +216,7 @@ def parse_effect_args(effect_names: list[str] | None, params: list[str] | None) 
 class Models:
     """The physics of one scenario."""
 
-    structure: StructureMotion
+    structure: StructureKinematics
     cavity: BallCavity
     restitution: RestitutionLaw
     force: ForceLaw
@@ -244,7 +244,7 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
     w = 2 * math.pi * cfg.frequency_hz
     h = eff.get("structure_harmonics", {})
     amp = 0.0 if cfg.still else cfg.accel_ms2 / w ** 2
-    structure = StructureMotion(amp, cfg.frequency_hz, phase_rad, 0.0,
+    structure = StructureKinematics(amp, cfg.frequency_hz, phase_rad, 0.0,
                                 h.get("h2_ratio", 0.0), h.get("h3_ratio", 0.0),
                                 h.get("h2_phase_rad", 0.0), h.get("h3_phase_rad", 0.0))
     cavity = BallCavity(mass_kg=cfg.ball_mass_kg, radius_m=0.5 * mm_to_m(cfg.ball_diameter_mm),
