@@ -84,6 +84,9 @@ def test_two_default_runs_on_one_domain_keep_their_own_results(recordings: dict[
         for x, y in zip(a, b):
             assert abs(x["cor"] - y["cor"]) < 1e-6 and abs(x["t"] - y["t"]) < 1e-9, (name, x, y)
         assert all(abs(i["cor"] - TRUE_COR[name]) < COR_TOL for i in b), (name, [i["cor"] for i in b])
+        print(f"run {name} ({idents[name][1]}, domain {idents[name][2]}): {len(b)} impacts, mean COR "
+              f"{sum(i['cor'] for i in b) / len(b):.4f} (truth {TRUE_COR[name]}), max |COR - analyze| "
+              f"{max(abs(x['cor'] - y['cor']) for x, y in zip(a, b)):.1e}")
 
 
 def _params(tmp: Path, rate_hz: float) -> Path:
