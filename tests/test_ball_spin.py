@@ -152,3 +152,28 @@ def _rows(track: DicTrack):
                          float(track.structure_mm[k]), int(track.ball_valid[k]), int(track.structure_valid[k]),
                          float(track.ball_zncc[k]), float(track.structure_zncc[k]), bool(track.lost[k]),
                          float(track.ball_rot_rad[k]), float(track.ball_rot_std_rad[k]))
+
+
+def test_spinning_renderer_at_rest_draws_the_still_ball():
+    """The analytic (spinning) ball patch at angle 0 is the Fourier-shifted still patch: same impulses, same
+    blur, same edge, to well under a gray level inside the disc; and turning it moves the texture."""
+    from vibro_sim.synth.render import Renderer, choose_layout
+
+    layout = choose_layout(160, 480, 4.77, 16.6, 1.41, None, 31)
+    still = Renderer(layout, np.random.default_rng([3, 1]))
+    spin = Renderer(layout, np.random.default_rng([3, 1]), spin=True)
+    pv, pa = spin.spinning_ball.patch(0.37, 0.0)
+    fv, fa = still.ball_layer.shifted(0.37)
+    inside = fa > 0.999
+    assert np.max(np.abs(pv - fv)[inside]) < 0.1 and np.max(np.abs(pa - fa)) < 1e-4
+    turned, _ = spin.spinning_ball.patch(0.37, 0.03)
+    assert np.std((turned - pv)[inside]) > 1.0
+
+
+@pytest.mark.parametrize("key, value", [("spin_sigma_rad_s", -0.1), ("spin_rad_s", float("nan")),
+                                        ("spin_cor_coupling_s_per_rad", 5.0)])
+def test_bad_spin_options_are_refused(key, value):
+    from vibro_sim.synth import SynthError
+
+    with pytest.raises(SynthError, match=key):
+        SynthConfig(**{key: value})
