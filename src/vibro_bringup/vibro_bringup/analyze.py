@@ -132,6 +132,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     from vibro_fit.identify import identify
     from vibro_fit.report import REPORT_HTML, write_figures, write_html
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
+    from vibro_fit.spin import ball_spin_section
     from vibro_model.codec import write_results
     from vibro_model.results import Simulation
     from vibro_sim.discrepancy.engine import discrepancy_for_results
@@ -162,6 +163,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         # the physics found corrects the measurement: impacts re-measured under the final model
         document = reidentify_document(document, disc_run)
         document.sections["cor_statistics"] = cor_statistics_section(document.impacts)
+        document.sections["ball_spin"] = ball_spin_section(track, document.flights, document.impacts)
         write_results(out / RESULTS_JSON, document)
         write_csv_tables(document, out)
         doc = document.to_dict()

@@ -23,8 +23,14 @@ Pipeline for each mesh (ball, structure) and each frame:
    tol within max_iter, or a parabolic peak not on its window's border), (b) its ZNCC is
    >= ``zncc_min``, and (c) both displacement components lie within
    max(``outlier_k`` x 1.4826 x MAD, ``outlier_floor_px``) of the median over the points
-   passing (a) and (b). The mesh displacement is the mean of the kept points.
-5. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
+   passing (a) and (b). The mesh displacement is the mean of the kept points; for the ball, the
+   rigid fit's translation of the mesh centroid (the mean minus the rotation's share at the points'
+   mean lever arm, step 5), so that a spinning ball's rotation does not leak into its translation.
+5. **In-plane rotation** (:mod:`vibro_dic.rotation`): least-squares rigid rotation of the kept points'
+   displacements about the mesh centroid, each point's lever arm corrected for what a translation-only
+   subset measures of a rotation (its gradient-weighted centre); small angle. Positive counter-clockwise
+   as the camera sees the image; with its 1-sigma noise from the residuals about the rigid fit.
+6. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
    fewer than ``min_valid_fraction`` of the points kept. A lost mesh reports NaN
    displacement and 0 valid points; it is never extrapolated. The frame is flagged lost
    if either mesh is lost or the image is missing (the other mesh keeps its value).
@@ -51,6 +57,7 @@ from vibro_io.rig import DicConfig, Roi
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
+from .rotation import fit_rotation, rotation_lever_arms
 from .search import SearchResult, zncc_search
 
 log = logging.getLogger(__name__)
@@ -75,6 +82,8 @@ class MeshResult:
     point_u_px: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
     point_valid: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
     point_zncc: np.ndarray = field(default_factory=lambda: np.empty(0))
+    rot_rad: float = math.nan      # in-plane rotation since frame 0 (rad, + counter-clockwise on screen)
+    rot_std_rad: float = math.nan  # its 1-sigma noise (rad); NaN when fewer than 2 points or lost
 
 
 class MeshTracker:
@@ -83,8 +92,9 @@ class MeshTracker:
     def __init__(self, name: str, reference: np.ndarray, roi: Roi, subset_px: int, step_px: int, *,
                  method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
                  search_px: int = 4, taps: int = 6, tol_px: float = 0.02, outlier_k: float = 3.0,
-                 outlier_floor_px: float = 0.1):
+                 outlier_floor_px: float = 0.1, rotation_corrected: bool = False):
         self.name = name
+        self.rotation_corrected = rotation_corrected
         self.method = method
         self.subset_px = subset_px
         self.zncc_min = zncc_min
@@ -106,6 +116,7 @@ class MeshTracker:
         self.subsets = IcgnBlocks(reference, self.corners, (subset_px, subset_px), taps=taps, tol_px=tol_px,
                                   max_move_px=2.0)
         self.offsets = (self.corners - self.box_corner).astype(np.intp)  # subset corners inside the box
+        self.lever_arms = rotation_lever_arms(self.subsets, self.points, subset_px)  # (N, 2) px per rad
         if method == "parabolic":
             self.subset_templates = extract_blocks(reference, self.corners[:, 0], self.corners[:, 1],
                                                    (subset_px, subset_px))
@@ -265,8 +276,14 @@ class MeshTracker:
             r = self.lost(f"{self.name}: too few valid points ({nv} of {n}, need {self.min_valid})")
             r.point_u_px, r.point_valid, r.point_zncc = u, valid, zncc
             return r
-        return MeshResult(self.name, u[valid].mean(axis=0), nv, float(zncc[valid].mean()), False, "",
-                          u, valid, zncc)
+        rot = fit_rotation(u[valid], self.lever_arms[valid])
+        mean_u = u[valid].mean(axis=0)
+        if self.rotation_corrected and np.isfinite(rot.angle_rad):
+            # the mean of the points' estimates is the displacement of their mean lever arm's point (their
+            # gradient-weighted centre, ~1-2 px off the centroid): remove the rotation's share there
+            mean_u = mean_u - rot.angle_rad * self.lever_arms[valid].mean(axis=0)
+        return MeshResult(self.name, mean_u, nv, float(zncc[valid].mean()), False, "",
+                          u, valid, zncc, rot.angle_rad, rot.std_rad)
 
 
 class DicTracker:
@@ -313,7 +330,7 @@ class DicTracker:
         kw = dict(method=method, zncc_min=zncc_min, min_valid_fraction=min_valid_fraction, search_px=search_px,
                   taps=taps, outlier_k=outlier_k, outlier_floor_px=outlier_floor_px)
         self.ball = MeshTracker("ball", ref32, dic_config.ball_roi, dic_config.subset_px,
-                                dic_config.mesh_step_px, **kw)
+                                dic_config.mesh_step_px, rotation_corrected=True, **kw)
         self.structure = MeshTracker("structure", ref32, dic_config.structure_roi, dic_config.subset_px,
                                      dic_config.mesh_step_px, **kw)
         self.last_results: dict[str, MeshResult] = {}
@@ -341,7 +358,7 @@ class DicTracker:
             frame=index, t_s=t_s,
             ball_mm=float(-b.u_px[1] * self.mm_per_px), structure_mm=float(-s.u_px[1] * self.mm_per_px),
             ball_valid=b.valid, structure_valid=s.valid, ball_zncc=b.zncc, structure_zncc=s.zncc,
-            lost=bool(b.lost or s.lost),
+            lost=bool(b.lost or s.lost), ball_rot_rad=float(b.rot_rad), ball_rot_std_rad=float(b.rot_std_rad),
         )
 
 

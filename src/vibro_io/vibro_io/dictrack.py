@@ -1,11 +1,16 @@
 """The DIC track of a recording: per-frame displacements, as in ``dic.csv``.
 
 Displacements are in mm since frame 0, positive up (towards the upper plate).
+``ball_rot_rad`` is the ball mesh's in-plane rigid rotation since frame 0 (rad, positive
+counter-clockwise as the camera sees the image), ``ball_rot_std_rad`` its 1-sigma noise from the
+subsets' residuals about the rigid fit; both NaN when lost or unknown. A ``dic.csv`` written before
+these two columns existed is read with them NaN.
 """
 
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Iterable
@@ -16,8 +21,10 @@ from .errors import RecordingError
 
 DIC_COLUMNS = (
     "frame", "t_s", "ball_mm", "structure_mm", "ball_valid", "structure_valid",
-    "ball_zncc", "structure_zncc", "lost",
+    "ball_zncc", "structure_zncc", "lost", "ball_rot_rad", "ball_rot_std_rad",
 )
+#: the columns of a dic.csv written before the ball rotation existed (still read)
+LEGACY_DIC_COLUMNS = DIC_COLUMNS[:9]
 
 
 @dataclass
@@ -33,6 +40,8 @@ class FrameTrack:
     ball_zncc: float
     structure_zncc: float
     lost: bool
+    ball_rot_rad: float = math.nan       # in-plane rotation since frame 0 (rad, + counter-clockwise on screen)
+    ball_rot_std_rad: float = math.nan   # its 1-sigma noise (rad)
 
 
 @dataclass
@@ -48,6 +57,14 @@ class DicTrack:
     ball_zncc: np.ndarray
     structure_zncc: np.ndarray
     lost: np.ndarray
+    ball_rot_rad: np.ndarray | None = None       # None: not measured (NaN filled)
+    ball_rot_std_rad: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = np.shape(self.frame)[0] if np.ndim(self.frame) else 0
+        for name in ("ball_rot_rad", "ball_rot_std_rad"):
+            value = getattr(self, name)
+            setattr(self, name, np.full(n, np.nan) if value is None else np.asarray(value, dtype=float))
 
     @classmethod
     def from_frames(cls, rows: Iterable[FrameTrack]) -> "DicTrack":
@@ -55,7 +72,8 @@ class DicTrack:
         cols = {f.name: np.array([getattr(r, f.name) for r in rows]) for f in fields(FrameTrack)}
         cols["frame"] = cols["frame"].astype(int)
         cols["lost"] = cols["lost"].astype(bool)
-        for name in ("t_s", "ball_mm", "structure_mm", "ball_zncc", "structure_zncc"):
+        for name in ("t_s", "ball_mm", "structure_mm", "ball_zncc", "structure_zncc", "ball_rot_rad",
+                     "ball_rot_std_rad"):
             cols[name] = cols[name].astype(float)
         return cls(**cols)
 
@@ -78,26 +96,34 @@ def write_dic_csv(path: str | Path, rows: Iterable[FrameTrack]) -> int:
             writer.writerow([
                 r.frame, f"{r.t_s:.9f}", f"{r.ball_mm:.9g}", f"{r.structure_mm:.9g}",
                 r.ball_valid, r.structure_valid, f"{r.ball_zncc:.6f}", f"{r.structure_zncc:.6f}", int(r.lost),
+                f"{r.ball_rot_rad:.6e}", f"{r.ball_rot_std_rad:.3e}",
             ])
             n += 1
     return n
 
 
 def read_dic_csv(path: str | Path) -> DicTrack:
-    """Read a ``dic.csv``; raises :class:`RecordingError` naming the line of a bad row."""
+    """Read a ``dic.csv`` (with or without the ball rotation columns); raises :class:`RecordingError`
+    naming the line of a bad row."""
     path = Path(path)
     rows = []
     try:
         with path.open(newline="", encoding="utf-8") as handle:
             reader = csv.reader(handle)
             header = next(reader, None)
-            if header is None or tuple(h.strip() for h in header) != DIC_COLUMNS:
-                raise RecordingError(f"{path}: line 1: expected columns {','.join(DIC_COLUMNS)}")
+            names = None if header is None else tuple(h.strip() for h in header)
+            if names not in (DIC_COLUMNS, LEGACY_DIC_COLUMNS):
+                raise RecordingError(f"{path}: line 1: expected columns {','.join(DIC_COLUMNS)} (or the first "
+                                     f"{len(LEGACY_DIC_COLUMNS)} of them, as written before the ball rotation)")
+            width = len(names)
             for line_no, row in enumerate(reader, start=2):
                 try:
+                    if len(row) != width:
+                        raise ValueError
+                    rot = (float(row[9]), float(row[10])) if width == len(DIC_COLUMNS) else (math.nan, math.nan)
                     rows.append(FrameTrack(
                         int(row[0]), float(row[1]), float(row[2]), float(row[3]), int(row[4]),
-                        int(row[5]), float(row[6]), float(row[7]), bool(int(row[8])),
+                        int(row[5]), float(row[6]), float(row[7]), bool(int(row[8])), *rot,
                     ))
                 except (ValueError, IndexError):
                     raise RecordingError(f"{path}: line {line_no}: bad row {row!r}") from None

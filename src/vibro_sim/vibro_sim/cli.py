@@ -45,6 +45,12 @@ def register(sub) -> None:
     p.add_argument("--cor-scatter", type=float, default=0.0, metavar="SIGMA",
                    help="per-impact COR scatter of every scenario: each impact's COR drawn N(law, SIGMA), e.g. "
                         "0.015 as the paper's Fig. 14-16 show (default 0: no scatter)")
+    p.add_argument("--spin-rad-s", type=float, default=0.0, metavar="W",
+                   help="the ball's in-plane spin per flight (rad/s, + counter-clockwise on screen; default 0)")
+    p.add_argument("--spin-sigma-rad-s", type=float, default=0.0, metavar="SIGMA",
+                   help="each impact sets a new spin N(--spin-rad-s, SIGMA) (default 0)")
+    p.add_argument("--spin-cor-coupling", type=float, default=0.0, metavar="K",
+                   help="COR change per rad/s of spin change at an impact (s/rad; default 0)")
     p.add_argument("--frames", type=int, default=1500, help="number of frames (1000 fps)")
     p.add_argument("--still", action="store_true", help="nothing moves (noise study)")
     p.add_argument("--drift", action="store_true", help="with --still: slow camera drift")
@@ -68,7 +74,9 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,
-                       accel=not args.no_accel, cor_scatter=args.cor_scatter, **kw)
+                       accel=not args.no_accel, cor_scatter=args.cor_scatter, spin_rad_s=args.spin_rad_s,
+                       spin_sigma_rad_s=args.spin_sigma_rad_s,
+                       spin_cor_coupling_s_per_rad=args.spin_cor_coupling, **kw)
 
 
 def run(args: argparse.Namespace) -> int:

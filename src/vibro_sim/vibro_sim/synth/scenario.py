@@ -22,6 +22,7 @@ from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, P
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
 from ..structure import StructureKinematics
 from .invented import INVENTED_EFFECTS, DriftingCOR, check_invented, drift_per_impact, tone_structure
+from .spin import SpinCoupled, spin_sequence
 
 
 class SynthError(RecordingError):
@@ -91,6 +92,14 @@ class SynthConfig:
                    is the law's value + cor_scatter z_i, z_i ~ N(0, 1) from the seed, clipped
                    to [0, 1] (0 = none; the paper's Fig. 14-16 show 0.01-0.02). With
                    ``asymmetric_restitution``'s own ``cor_sigma`` the two add in quadrature.
+    spin_rad_s, spin_sigma_rad_s
+                   the ball's in-plane spin (rad/s, + counter-clockwise on screen): each flight spins at
+                   spin_rad_s + spin_sigma_rad_s z, z ~ N(0, 1) drawn anew at every impact (default 0: the
+                   ball's texture does not rotate and the frames are those of a build without spin).
+    spin_cor_coupling_s_per_rad
+                   COR change per rad/s of spin change at the impact (0: the COR ignores the spin); see
+                   :mod:`.spin`. DIC follows a rotation of up to a few 0.01 rad from frame 0 (its
+                   subsets are translation-only): keep the angle there.
     """
 
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -117,6 +126,9 @@ class SynthConfig:
     accel_rate_hz: float = 50_000.0
     accel_noise_ms2: float = 0.5
     cor_scatter: float = 0.0
+    spin_rad_s: float = 0.0
+    spin_sigma_rad_s: float = 0.0
+    spin_cor_coupling_s_per_rad: float = 0.0
     ball_mass_kg: float = BALL_MASS_KG
     ball_diameter_mm: float = m_to_mm(BALL_DIAMETER_M)
     gap_mm: float = m_to_mm(GAP_M)
@@ -135,6 +147,9 @@ class SynthConfig:
             ("accel_rate_hz", self.accel_rate_hz > 0, "> 0"), ("accel_noise_ms2", self.accel_noise_ms2 >= 0, ">= 0"),
             ("gap_mm", self.gap_mm > self.ball_diameter_mm, "larger than ball_diameter_mm"),
             ("cor_scatter", 0.0 <= self.cor_scatter <= 0.3, "in [0, 0.3]"),
+            ("spin_rad_s", abs(self.spin_rad_s) <= 100.0, "within +-100 rad/s"),
+            ("spin_sigma_rad_s", 0.0 <= self.spin_sigma_rad_s <= 100.0, "in [0, 100] rad/s"),
+            ("spin_cor_coupling_s_per_rad", abs(self.spin_cor_coupling_s_per_rad) <= 1.0, "within +-1 s/rad"),
         ]
         for name, ok, expect in checks:
             value = getattr(self, name)
@@ -226,6 +241,11 @@ class Models:
     law_before_scatter: RestitutionLaw | None = None    # the law before cor_scatter (with asymmetric's own)
     cor_scatter: float = 0.0
     scatter_seed: int = 0
+    spins_rad_s: "np.ndarray | None" = None             # the ball's spin per flight (synth.spin); None: no spin
+
+    @property
+    def spinning(self) -> bool:
+        return self.spins_rad_s is not None
 
     def window_laws(self, first_index: int) -> tuple[RestitutionLaw, RestitutionLaw | None]:
         """(COR law, the same without scatter) from the camera window's first impact ``first_index`` on:
@@ -255,12 +275,17 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
         structure = tone_structure(structure, eff["structure_tone"])
     law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
     plain_law = effect_laws(eff)[0]   # the same law without any per-impact scatter (truth: cor_law)
+    spins = None
+    if cfg.spin_rad_s != 0.0 or cfg.spin_sigma_rad_s > 0.0:
+        spins = spin_sequence(cfg.spin_rad_s, cfg.spin_sigma_rad_s, cfg.seed)
+        if cfg.spin_cor_coupling_s_per_rad != 0.0:
+            law = SpinCoupled(law, spins, cfg.spin_cor_coupling_s_per_rad)
     before_scatter = law
     if cfg.cor_scatter > 0:
         law = Scattered(law, cfg.cor_scatter, seed=cfg.seed + 104729)
     drift = drift_per_impact(eff["cor_drift"]["drift_per_s"], cfg.frequency_hz) if "cor_drift" in eff else 0.0
     return Models(structure, cavity, law, force, plain_law, eff.get("plate_step"), drift, before_scatter,
-                  cfg.cor_scatter, cfg.seed + 104729)
+                  cfg.cor_scatter, cfg.seed + 104729, spins)
 
 
 def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None

@@ -22,6 +22,7 @@ from vibro_model.units import m_to_mm, um_to_mm
 from .accel import make_accel
 from .render import Renderer, choose_layout, quantise
 from .scenario import BASELINE_COR, STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
+from .spin import spin_angle, spin_rate
 from .trajectory import regime, simulate_window
 
 log = logging.getLogger(__name__)
@@ -92,7 +93,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     _prepare_dir(out_dir, overwrite)
     render_rng = np.random.default_rng([cfg.seed, 1])
     noise_rng = np.random.default_rng([cfg.seed, 2])
-    renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift)
+    renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift, spin=models.spinning)
 
     t = traj.frame_t_s
     ball_mm = m_to_mm(traj.ball_m)
@@ -115,7 +116,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     )
     check_rois_in_image(rig, cfg.height_px, cfg.width_px)
 
-    _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress)
+    angle = _ball_angle(models, traj)
+    _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress, angle)
 
     if cfg.accel:
         sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, float(t[0]), float(t[-1]),
@@ -124,6 +126,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
             write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
 
     truth = _truth(cfg, models, traj, layout, phase, drift, rig)
+    if models.spinning:
+        truth["spin"] = _spin_truth(cfg, models, traj, truth)
     # rig.yaml last: a synth interrupted while writing frames leaves no rig.yaml, so the half-written folder
     # is refused as a recording instead of being read as a shorter one
     with atomic_path(out_dir / "rig.yaml") as tmp:
@@ -132,8 +136,41 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     return truth
 
 
+def _ball_angle(models, traj):
+    """The ball texture's angle (rad, + counter-clockwise on screen, 0 at frame 0) as a function of camera
+    time (s), or None when the ball does not spin."""
+    if not models.spinning:
+        return None
+    imps = traj.result.impacts
+    times = np.array([i.t_s for i in imps], dtype=float)
+    index = np.array([i.index for i in imps], dtype=int)
+    return lambda t: spin_angle(t, times, index, models.spins_rad_s)
+
+
+def _spin_truth(cfg: SynthConfig, models, traj, truth: dict[str, Any]) -> dict[str, Any]:
+    """The truth's ``spin`` section: the angle at each frame, each flight's spin and each impact's change."""
+    imps = traj.result.impacts
+    times = np.array([i.t_s for i in imps], dtype=float)
+    index = np.array([i.index for i in imps], dtype=int)
+    spins = models.spins_rad_s
+    angle = spin_angle(traj.frame_t_s, times, index, spins)
+    flights = [{**{k: f[k] for k in ("index", "t_start", "t_end", "direction")},
+                "omega_rad_s": float(spin_rate(0.5 * (f["t_start"] + f["t_end"]), times, index, spins))}
+               for f in truth["flights"]]
+    impacts = [{"index": j["index"], "t": j["t"], "plate": j["plate"],
+                "omega_before_rad_s": float(spins[j["sim_index"]]), "omega_after_rad_s": float(spins[j["sim_index"] + 1]),
+                "spin_change_rad_s": float(spins[j["sim_index"] + 1] - spins[j["sim_index"]])}
+               for j in truth["impacts"]]
+    return {"convention": "in-plane rotation of the ball's texture about its centre, rad, + counter-clockwise as "
+                          "the camera sees the image, 0 at frame 0; each flight spins at a constant rate",
+            "spin_rad_s": cfg.spin_rad_s, "spin_sigma_rad_s": cfg.spin_sigma_rad_s,
+            "spin_cor_coupling_s_per_rad": cfg.spin_cor_coupling_s_per_rad,
+            "cor_note": "impacts[].cor includes spin_cor_coupling_s_per_rad x spin_change_rad_s; cor_law does not",
+            "frames_rot_rad": angle.tolist(), "flights": flights, "impacts": impacts}
+
+
 def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray,
-                  rng: np.random.Generator, progress: bool | None) -> None:
+                  rng: np.random.Generator, progress: bool | None, angle=None) -> None:
     from tqdm import tqdm
 
     t = traj.frame_t_s
@@ -149,9 +186,10 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
             ts = t[k] + offsets
             ball = m_to_mm(np.asarray(traj.result.sample(ts)))
             struct = m_to_mm(np.asarray(S.position(ts)))
-            img = renderer.render_blurred(struct, ball, drift[k])
+            img = renderer.render_blurred(struct, ball, drift[k], None if angle is None else angle(ts))
         else:
-            img = renderer.render(m_to_mm(traj.structure_m[k]), m_to_mm(traj.ball_m[k]), drift[k])
+            img = renderer.render(m_to_mm(traj.structure_m[k]), m_to_mm(traj.ball_m[k]), drift[k],
+                                  0.0 if angle is None else float(angle(t[k])))
         gain = 1.0 + cfg.flicker * (0.7 * math.sin(2 * math.pi * 100.0 * t[k] + flick_phase)
                                     + 0.3 * float(rng.standard_normal()))
         img = img * gain

@@ -1,0 +1,97 @@
+"""In-plane rigid rotation of a DIC mesh from its subsets' translations.
+
+Convention: image axes x = column (right), y = row (DOWN); an angle is positive
+COUNTER-CLOCKWISE as the camera sees the image. A rotation by a small angle theta about
+the mesh centroid moves a point at (x, y) (relative to the centroid) by
+theta * (y, -x) px (to first order; the 2-D Procrustes angle differs by theta^3 / 6,
+2e-5 rad at 0.05 rad, far below the noise).
+
+Why not the subsets' own rotation: the tracker's IC-GN has a translation-only shape function
+(:mod:`vibro_dic.icgn`), so each subset reports one displacement. Its translation Gauss-Newton
+solution in a linearly varying displacement field v(x) is, to first order,
+
+    u_i = H_i^-1 sum_j J_j J_j^T v(x_j),    J_j = grad f at pixel j,  H_i = sum_j J_j J_j^T,
+
+the field at the subset's gradient-weighted centre, not at its geometric centre: with 31 px
+subsets of random speckle that centre is off by ~1 px, a 10-20 % error on a lever arm of
+~7 px (a 2 x 2 mesh of 31 px subsets 10 px apart). :func:`rotation_lever_arms` computes the
+exact first-order lever arm a_i = H_i^-1 sum_j J_j J_j^T (y_j, -x_j) from the reference
+image, so u_i = t + theta a_i, and :func:`fit_rotation` solves that for (t, theta) by least
+squares over the kept points.
+
+Noise: with per-point displacement noise sigma_u (px, per component) the angle's 1-sigma is
+sigma_u / sqrt(sum |a_i - mean a|^2) (about sigma_u / (mesh radius x sqrt(N))); sigma_u is
+estimated from the residuals about the rigid fit with 2N - 3 degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .icgn import IcgnBlocks
+
+MIN_ARM_SPREAD_PX2 = 1.0  # sum |a_i - mean|^2 below this: the points cannot show a rotation
+
+
+def rotation_lever_arms(subsets: IcgnBlocks, centres_px: np.ndarray, subset_px: int, *,
+                        corrected: bool = True) -> np.ndarray:
+    """(N, 2) px per rad: what each subset's translation estimate moves per radian of rotation
+    about the centroid of ``centres_px`` (see module doc). ``corrected=False`` gives the geometric
+    arms (y_i, -x_i) of the subset centres (what a naive fit uses)."""
+    centres = np.asarray(centres_px, dtype=float)
+    centroid = centres.mean(axis=0)
+    rel = centres - centroid
+    if not corrected:
+        return np.column_stack([rel[:, 1], -rel[:, 0]])
+    h = subset_px // 2
+    rows, cols = np.mgrid[-h:h + 1, -h:h + 1]
+    px = rel[:, 0:1] + cols.ravel()[None, :]  # (N, P) pixel x relative to the centroid
+    py = rel[:, 1:2] + rows.ravel()[None, :]
+    fx = subsets.fx.astype(np.float64)
+    fy = subsets.fy.astype(np.float64)
+    proj = fx * py - fy * px  # J . v per radian, v = (y, -x)
+    bx = np.einsum("ij,ij->i", fx, proj)
+    by = np.einsum("ij,ij->i", fy, proj)
+    arms = np.column_stack([subsets.ixx * bx + subsets.ixy * by, subsets.ixy * bx + subsets.iyy * by])
+    # an untextured subset has no meaningful inverse Hessian: fall back to its geometric arm
+    geo = np.column_stack([rel[:, 1], -rel[:, 0]])
+    return np.where(subsets.textured[:, None], arms, geo)
+
+
+@dataclass(frozen=True)
+class RotationFit:
+    """Rigid in-plane rotation of one mesh in one frame (rad, + counter-clockwise on screen)."""
+
+    angle_rad: float
+    std_rad: float            # 1-sigma from the residuals (NaN with 2 points: no degree of freedom for it)
+    point_sigma_px: float     # residual displacement noise per point and component (px)
+    n_points: int
+
+
+NO_ROTATION = RotationFit(math.nan, math.nan, math.nan, 0)
+
+
+def fit_rotation(u_px: np.ndarray, arms_px: np.ndarray) -> RotationFit:
+    """Least-squares (t, theta) of u_i = t + theta a_i over the points given (u (N, 2) px, a (N, 2)).
+
+    NaN angle when fewer than 2 points or the arms do not spread (no rotation can be seen)."""
+    u = np.asarray(u_px, dtype=float).reshape(-1, 2)
+    a = np.asarray(arms_px, dtype=float).reshape(-1, 2)
+    n = len(u)
+    if n < 2:
+        return NO_ROTATION
+    da = a - a.mean(axis=0)
+    du = u - u.mean(axis=0)
+    spread = float(np.einsum("ij,ij->", da, da))
+    if not spread >= MIN_ARM_SPREAD_PX2:
+        return NO_ROTATION
+    theta = float(np.einsum("ij,ij->", du, da)) / spread
+    dof = 2 * n - 3
+    if dof < 1:
+        return RotationFit(theta, math.nan, math.nan, n)
+    res = du - theta * da
+    sigma = math.sqrt(float(np.einsum("ij,ij->", res, res)) / dof)
+    return RotationFit(theta, sigma / math.sqrt(spread), sigma, n)
