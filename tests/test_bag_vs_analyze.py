@@ -25,6 +25,7 @@ NOT_CARRIED = {
     "accelerometers": "identify()'s accelerometer analysis: no message",
     "motion": "identify()'s motion state (still / structure only / impacting): no message",
     "rig_consistency": "identify()'s rig.yaml consistency checks: no message",
+    "ball_spin": "the ball's spin per flight: DicFrame carries no ball rotation yet",
     "impacts[].method": "ImpactEstimate has no method field",
     "discrepancy.*": "the engine's extras (model, noise floors, location, stages, notes): no message",
     "discrepancy.findings[].*": "the engine's per-finding extras (one-step errors, alternatives): no message",
