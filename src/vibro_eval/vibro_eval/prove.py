@@ -51,7 +51,8 @@ separate from the legacy draws, so that ``--cases`` runs without them draw what 
 
 Scored per case (:mod:`.truth`): effects identified (an out-of-catalogue effect only as ``unexplained``
 with a location; ``located``: its mismatches where the truth has it), spurious findings (anything on a
-control), each correct finding's restarted deviation D_r before/after (lowered?) beside the paper's D,
+control), each correct finding's restarted deviation D_r before/after (improved: D_r lowered; a COR
+law, which D_r cannot see, explains a share of the COR variance above chance) beside the paper's D,
 the per-impact COR error against the truth's realised CORs (``cor``: the final model's; ``cor_paper``: the
 paper's Eq. 16) over the impacts matched by time, the contact scatter reported against the drawn one.
 
@@ -105,9 +106,11 @@ class Draws:
         def rng_ok(r, lo, hi):
             return len(r) == 2 and lo <= r[0] <= r[1] <= hi
         if not rng_ok(self.cor_scatter, 0.0, 0.3):
-            raise RecordingError(f"--cor-scatter must be LOW[,HIGH] with 0 <= LOW <= HIGH <= 0.3, got {self.cor_scatter}")
+            raise RecordingError(f"--cor-scatter must be LOW[,HIGH] with 0 <= LOW <= HIGH <= 0.3, "
+                                 f"got {self.cor_scatter}")
         if not rng_ok(self.noise_gray, 0.0, 50.0):
-            raise RecordingError(f"--noise must be LOW,HIGH gray levels with 0 <= LOW <= HIGH <= 50, got {self.noise_gray}")
+            raise RecordingError(f"--noise must be LOW,HIGH gray levels with 0 <= LOW <= HIGH <= 50, "
+                                 f"got {self.noise_gray}")
         if not 0.0 <= self.blur_share <= 1.0:
             raise RecordingError(f"--blur-share must be in [0, 1], got {self.blur_share}")
         if not 0 <= self.magnitudes <= 10:
@@ -326,7 +329,7 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     disc = doc["discrepancy"]
     row["found"] = [f["effect"] for f in disc.get("findings", [])]
     row["score"] = score_case(disc, truth)
-    row["findings"] = finding_deviations(disc, truth)
+    row["findings"] = finding_deviations(disc, truth, sum(i.get("cor") is not None for i in doc.get("impacts", [])))
     row["cor_error"] = cor_errors(doc.get("impacts", []), truth)
     row["cor_method"] = (doc.get("impacts_model") or {}).get("cor_method")
     row["contact_scatter"] = _contact_scatter(disc, spec)
@@ -385,7 +388,7 @@ def summarize(rows: list[dict], who: str = "vibro") -> dict:
     """Confusion matrix (true family -> found effects, 'none' when nothing found), identification rate
     (catalogue and out-of-catalogue), control findings, parameter errors, D ratios, for ``who`` = "vibro"
     or "sindy"; for vibro also the per-impact COR error against the truth (effects / controls, final model
-    and paper) and how many correct findings lowered D_r."""
+    and paper) and how many correct findings improved the model (:func:`.truth.finding_deviations`)."""
     truths = list(FAMILIES) + list(INVENTED)
     labels = list(FAMILIES) + [UNEXPLAINED]
     conf = {t: {f: 0 for f in labels} for t in truths}
@@ -458,7 +461,7 @@ def summarize(rows: list[dict], who: str = "vibro") -> dict:
         out.update({"cor_error_max_effects": _max(cor_eff), "cor_error_max_effects_paper": _max(cor_eff_p),
                     "cor_error_max_controls": _max(cor_ctl), "cor_error_max_controls_paper": _max(cor_ctl_p),
                     "unmatched_impacts": unmatched, "correct_findings": n_correct_findings,
-                    "correct_findings_lowering_d_r": n_lowered, "families": family_table(rows)})
+                    "correct_findings_improving": n_lowered, "families": family_table(rows)})
     return out
 
 
@@ -473,6 +476,7 @@ def family_table(rows: list[dict]) -> dict:
     for fam in sorted(fams, key=lambda f: (f == CONTROL, _is_invented(f), f)):
         rs = [r for r in fams[fam] if "score" in r]
         dev = [r.get("deviation", {}) for r in rs]
+        judged = [f for r in rs for f in r.get("findings", []) if f["correct"] and f["effect"] != UNEXPLAINED]
         out[fam] = {
             "cases": len(fams[fam]), "failed": len(fams[fam]) - len(rs),
             "identified": sum(len(r["score"]["correct"]) for r in rs),
@@ -486,8 +490,7 @@ def family_table(rows: list[dict]) -> dict:
             "d_r_true": _median(d.get("true_model_restarted") for d in dev),
             "paper_d_before": _median(d.get("paper_baseline") for d in dev),
             "paper_d_after": _median(d.get("paper_final") for d in dev),
-            "lowered": f"{sum(bool(f['lowered']) for r in rs for f in r.get('findings', []) if f['correct'] and f['effect'] != UNEXPLAINED)}"
-                       f"/{sum(1 for r in rs for f in r.get('findings', []) if f['correct'] and f['effect'] != UNEXPLAINED)}",
+            "improved": f"{sum(bool(f['lowered']) for f in judged)}/{len(judged)}",
         }
     return out
 
@@ -499,7 +502,7 @@ def _g(x) -> str:
 def format_family_table(fams: dict) -> str:
     """The per-family table (D in %, COR error in 1e-3)."""
     head = (f"   {'family':32} {'ident':>6} {'spur':>4} {'COR err e-3':>11} {'paper e-3':>9} "
-            f"{'D_r bef %':>9} {'D_r aft %':>9} {'D_r true%':>9} {'lowered':>7} {'D bef %':>8} {'D aft %':>8}")
+            f"{'D_r bef %':>9} {'D_r aft %':>9} {'D_r true%':>9} {'improved':>8} {'D bef %':>8} {'D aft %':>8}")
     lines = [head]
 
     def pct(x):
@@ -513,7 +516,7 @@ def format_family_table(fams: dict) -> str:
             ident += f" L{v['located']}"
         lines.append(f"   {fam[:32]:32} {ident:>6} {v['spurious']:>4} {milli(v['cor_error_max']):>11} "
                      f"{milli(v['cor_error_max_paper']):>9} {pct(v['d_r_before']):>9} {pct(v['d_r_after']):>9} "
-                     f"{pct(v['d_r_true']):>9} {v['lowered']:>7} {pct(v['paper_d_before']):>8} "
+                     f"{pct(v['d_r_true']):>9} {v['improved']:>8} {pct(v['paper_d_before']):>8} "
                      f"{pct(v['paper_d_after']):>8}")
     return "\n".join(lines)
 
@@ -523,8 +526,9 @@ def format_summary(s: dict, title: str) -> str:
              f"   effects identified   {s['identified']}/{s['effects']}"
              + (f" = {s['identified_pct']:.1f} %" if s["identified_pct"] is not None else "")]
     if s.get("out_of_catalogue"):
-        lines.append(f"   out of catalogue     {s['out_of_catalogue_unexplained']}/{s['out_of_catalogue']} unexplained, "
-                     f"{s['out_of_catalogue_located']}/{s['out_of_catalogue']} located where the truth has them")
+        n_inv = s["out_of_catalogue"]
+        lines.append(f"   out of catalogue     {s['out_of_catalogue_unexplained']}/{n_inv} unexplained, "
+                     f"{s['out_of_catalogue_located']}/{n_inv} located where the truth has them")
     lines += [f"   spurious findings    {s['spurious_findings_on_effect_cases']} (on effect cases)",
               f"   controls clean       {s['controls_without_finding']}/{s['controls']}",
               f"   main parameter error median {_g(s['parameter_error_median_pct'])} %, max "
@@ -535,8 +539,8 @@ def format_summary(s: dict, title: str) -> str:
         lines += [f"   COR error vs truth   effects max {_g(s['cor_error_max_effects'])} (paper Eq. 16: "
                   f"{_g(s['cor_error_max_effects_paper'])}), controls max {_g(s['cor_error_max_controls'])} "
                   f"(paper {_g(s['cor_error_max_controls_paper'])}); unmatched impacts {s['unmatched_impacts']}",
-                  f"   findings lowering D_r {s['correct_findings_lowering_d_r']}/{s['correct_findings']} (correct "
-                  "catalogue findings)"]
+                  f"   findings improving   {s['correct_findings_improving']}/{s['correct_findings']} (correct "
+                  "catalogue findings: D_r lower; COR laws: COR variance share above chance)"]
     lines.append("   confusion (rows: truth, columns: found)")
     truths = list(FAMILIES) + list(INVENTED)
     cols = [c for c in list(FAMILIES) + [UNEXPLAINED] if any(s["confusion"][t][c] for t in truths)]
@@ -566,7 +570,8 @@ def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: 
         raise RecordingError(f"--frames must be >= 200 (enough flights to fit), got {frames}")
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="vibro_prove_"))
     work.mkdir(parents=True, exist_ok=True)
-    specs = draw_evidence(seed, frames, draws, pairs) if draws.magnitudes else draw_cases(cases, seed, frames, pairs, draws)
+    specs = (draw_evidence(seed, frames, draws, pairs) if draws.magnitudes
+             else draw_cases(cases, seed, frames, pairs, draws))
     if not specs:
         raise RecordingError("nothing to prove: no effect family and no control drawn")
     rows = []

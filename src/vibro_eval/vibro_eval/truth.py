@@ -166,7 +166,8 @@ def score_case(doc: Mapping[str, Any], truth: Mapping[str, Any]) -> dict:
     true = true_effects(truth)
     inv = out_of_catalogue(truth)
     found = {f["effect"]: f.get("parameters", {}) for f in doc.get("findings", [])}
-    unexplained = [f for f in doc.get("findings", []) if f["effect"] == UNEXPLAINED and str(f.get("where") or "").strip()]
+    unexplained = [f for f in doc.get("findings", [])
+                   if f["effect"] == UNEXPLAINED and str(f.get("where") or "").strip()]
     out = {"true": sorted(true), "found": sorted(found), "correct": [], "missed": [], "spurious": [],
            "parameter_errors": {}, "located": {}}
     for name, params in true.items():
@@ -226,16 +227,38 @@ def cor_errors(impacts: list[Mapping[str, Any]], truth: Mapping[str, Any], match
             "worst": {"error": worst[0], "t_s": worst[1], "plate": worst[2]} if worst else None}
 
 
-def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any]) -> list[dict]:
+#: COR laws: the restarted run restarts from the measured state after every impact, so a COR law cannot
+#: move D_r; its evidence is the share of the per-impact COR variance it explains (issue 13.1)
+COR_LAWS = {"asymmetric_restitution": 2, "velocity_dependent_restitution": 2}   # parameters of the law
+
+
+def chance_variance_share(n_parameters: int, n_impacts: int) -> float:
+    """The share of the COR variance a law with ``n_parameters`` (against the constant COR's one) explains
+    on pure noise, in expectation: (p - 1) / (n - 1) (the expected R^2 of p - 1 regressors on n samples)."""
+    return (n_parameters - 1) / max(n_impacts - 1, 1)
+
+
+def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impacts: int | None = None) -> list[dict]:
     """Each finding's restarted deviation D_r before/after (``deviation_*``) and the paper's D
-    (``paper_deviation_*``), whether it is a correct finding and whether it lowered D_r."""
+    (``paper_deviation_*``), whether it is a correct finding and whether it improved the model:
+    ``lowered`` is D_r after < before for structure and flight findings; for a COR law (D_r does not see
+    it) its ``cor_variance_share`` above what chance gives on ``n_impacts`` CORs
+    (:func:`chance_variance_share`). ``unexplained`` has no model: ``lowered`` None."""
     expected = expected_findings(truth)
     out = []
     for f in doc.get("findings", []):
         b, a = f.get("deviation_before"), f.get("deviation_after")
-        out.append({"effect": f["effect"], "correct": f["effect"] in expected, "before": b, "after": a,
-                    "paper_before": f.get("paper_deviation_before"), "paper_after": f.get("paper_deviation_after"),
-                    "lowered": None if b is None or a is None else bool(a < b)})
+        row = {"effect": f["effect"], "correct": f["effect"] in expected, "before": b, "after": a,
+               "paper_before": f.get("paper_deviation_before"), "paper_after": f.get("paper_deviation_after"),
+               "lowered": None if b is None or a is None else bool(a < b), "measure": "D_r"}
+        if f["effect"] in COR_LAWS:
+            share = f.get("cor_variance_share")
+            chance = chance_variance_share(COR_LAWS[f["effect"]], n_impacts) if n_impacts else None
+            row.update(measure="cor_variance_share", cor_variance_share=share, chance_share=chance,
+                       lowered=None if share is None or chance is None else bool(share > chance))
+        elif f["effect"] == UNEXPLAINED:
+            row.update(lowered=None, measure=None)
+        out.append(row)
     return out
 
 
