@@ -12,17 +12,69 @@ def register(sub) -> None:
         "prove", help="prove the discrepancy analysis blind on synthetic recordings with concealed effects",
         description="Synthesize recordings with randomly drawn effects (and controls), run 'vibro analyze' on "
                     "each recording directory only, score the discrepancy findings against the truth files: "
-                    "confusion matrix, parameter errors, D before/after vs the true model's D; PySINDy side by "
-                    "side when installed. Ranges: see vibro_eval/prove.py.")
-    p.add_argument("--cases", type=int, default=8, help="number of recordings (default 8: each effect + a control)")
+                    "confusion matrix, parameter errors, D_r before/after vs the true model's and the paper's D, "
+                    "per-impact COR error vs the truth; PySINDy side by side when installed. Ranges: see "
+                    "vibro_eval/prove.py.")
+    p.add_argument("--cases", type=int, default=None,
+                   help="number of recordings (default 8: each effect + a control); not with --magnitudes")
     p.add_argument("--seed", type=int, default=0, help="random seed of the draws")
     p.add_argument("--out", default=None, help="work directory (recordings, results, proof.json); default: temp")
     p.add_argument("--frames", type=int, default=500, help="frames per recording (1000 fps; default 500)")
     p.add_argument("--pairs", type=float, default=0.0, metavar="P",
                    help="probability that an effect case gets a second, compatible effect (default 0)")
+    p.add_argument("--evidence", action="store_true",
+                   help="issue 13's evidence set: --magnitudes 2 --controls 3 --invented --cor-scatter 0.01,0.02 "
+                        "--noise 1,3 --blur-share 0.5 (each can still be given)")
+    p.add_argument("--magnitudes", type=int, default=None, metavar="M",
+                   help="each catalogue effect at M magnitudes (its range cut in M parts) plus --controls "
+                        "controls, instead of --cases (default 0: off)")
+    p.add_argument("--controls", type=int, default=None, metavar="N", help="controls with --magnitudes (default 3)")
+    p.add_argument("--invented", action="store_true",
+                   help="with --magnitudes: also the synth's out-of-catalogue effects (cor_drift, structure_tone, "
+                        "plate_step), each at M magnitudes; the analysis must report them as 'unexplained'")
+    p.add_argument("--cor-scatter", default=None, metavar="LOW[,HIGH]",
+                   help="per-impact COR scatter sigma drawn per case in [LOW, HIGH] (default 0)")
+    p.add_argument("--noise", default=None, metavar="LOW,HIGH", help="read noise in gray levels (default 1,4)")
+    p.add_argument("--blur-share", type=float, default=None, metavar="P",
+                   help="probability of motion blur (0.5 ms exposure) per case (default 0)")
     p.add_argument("--no-sindy", action="store_true", help="skip the PySINDy comparison")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def _range(text: str | None, option: str, default: tuple[float, float]) -> tuple[float, float]:
+    from vibro_io.errors import RecordingError
+
+    if text is None:
+        return default
+    try:
+        vals = [float(x) for x in str(text).split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) == 1:
+        vals = vals * 2
+    if len(vals) != 2:
+        raise RecordingError(f"{option} must be LOW[,HIGH] (numbers), got {text!r}")
+    return vals[0], vals[1]
+
+
+def draws_of(args: argparse.Namespace):
+    """The :class:`~vibro_eval.prove.Draws` of the command line (``--evidence`` fills what is not given)."""
+    from vibro_io.errors import RecordingError
+
+    from .prove import EVIDENCE, INVENTED, Draws
+
+    base = EVIDENCE if args.evidence else Draws()
+    magnitudes = base.magnitudes if args.magnitudes is None else args.magnitudes
+    if magnitudes and args.cases is not None:
+        raise RecordingError("give either --cases or --magnitudes/--evidence, not both")
+    if not magnitudes and (args.invented or args.controls is not None):
+        raise RecordingError("--invented and --controls need --magnitudes (or --evidence)")
+    return Draws(cor_scatter=_range(args.cor_scatter, "--cor-scatter", base.cor_scatter),
+                 noise_gray=_range(args.noise, "--noise", base.noise_gray),
+                 blur_share=base.blur_share if args.blur_share is None else args.blur_share,
+                 magnitudes=magnitudes, controls=base.controls if args.controls is None else args.controls,
+                 invented=INVENTED if args.invented else base.invented)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,8 +84,9 @@ def run(args: argparse.Namespace) -> int:
         from vibro_io.errors import RecordingError
 
         raise RecordingError(f"--pairs must be in [0, 1], got {args.pairs}")
-    res = prove(args.cases, args.seed, args.out, args.frames, sindy=not args.no_sindy,
-                progress=not args.no_progress and sys.stderr.isatty(), pairs=args.pairs)
+    draws = draws_of(args)
+    res = prove(8 if args.cases is None else args.cases, args.seed, args.out, args.frames, sindy=not args.no_sindy,
+                progress=not args.no_progress and sys.stderr.isatty(), pairs=args.pairs, draws=draws)
     print(format_summary(res["vibro"], "vibro discrepancy analysis"))
     if "sindy" in res:
         print(format_summary(res["sindy"], f"PySINDy {res['settings']['pysindy']} on the same data"))

@@ -118,15 +118,66 @@ def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
     return full_run(meas, true_fitted_model(meas, truth))
 
 
+UNEXPLAINED = "unexplained"
+
+
+def out_of_catalogue(truth: Mapping[str, Any]) -> set[str]:
+    """The truth's effects that no catalogue term models (``out_of_catalogue: true``): the analysis must
+    report them as ``unexplained``."""
+    return {e["effect"] for e in truth.get("effects", []) if e.get("out_of_catalogue")}
+
+
+def expected_findings(truth: Mapping[str, Any]) -> set[str]:
+    """What a correct analysis reports: each catalogue effect by name, ``unexplained`` for anything else."""
+    true = set(true_effects(truth))
+    inv = out_of_catalogue(truth)
+    return (true - inv) | ({UNEXPLAINED} if inv else set())
+
+
+def located_right(finding: Mapping[str, Any], effect: str, truth: Mapping[str, Any]) -> bool:
+    """Whether an ``unexplained`` finding's mismatches place the invented ``effect`` where the truth has
+    it: ``cor_drift`` a COR trend of the drift's sign; ``structure_tone`` a periodic structure mismatch
+    within half a periodogram bin (1 / 2T, T the span tested) of the tone's frequency; ``plate_step`` a
+    step of the top plate's contact level whose bracketing impacts hold the true step time."""
+    params = true_effects(truth).get(effect, {})
+    for m in finding.get("mismatches") or []:
+        span = float(m.get("t_to_s") or 0.0) - float(m.get("t_from_s") or 0.0)
+        if effect == "cor_drift" and m.get("series") == "cor" and m.get("shape") == "trend":
+            if np.sign(m.get("size") or 0.0) == np.sign(params.get("drift_per_s", 0.0)):
+                return True
+        elif effect == "structure_tone" and m.get("series") == "structure" and m.get("shape") == "periodic":
+            f = m.get("frequency_hz")
+            if f is not None and span > 0 and abs(f - params["tone_frequency_hz"]) < 0.5 / span:
+                return True
+        elif (effect == "plate_step" and m.get("series") == "contact_level" and m.get("plate") == "top"
+              and m.get("shape") == "step"):
+            lo, hi = (m.get("step_between_s") or [None, None])[:2]
+            if lo is not None and hi is not None and lo <= params["step_time_s"] <= hi:
+                return True
+    return False
+
+
 def score_case(doc: Mapping[str, Any], truth: Mapping[str, Any]) -> dict:
     """Compare one ``discrepancy`` block with the truth: which effects were found, missed, spurious;
-    relative error of each found effect's main parameter."""
+    relative error of each found effect's main parameter. An out-of-catalogue effect is found when an
+    ``unexplained`` finding says where (non-empty ``where``); ``located`` says whether its mismatches sit
+    where the truth has the effect (:func:`located_right`). Anything reported beyond
+    :func:`expected_findings` is spurious (``unexplained`` included)."""
     true = true_effects(truth)
+    inv = out_of_catalogue(truth)
     found = {f["effect"]: f.get("parameters", {}) for f in doc.get("findings", [])}
+    unexplained = [f for f in doc.get("findings", [])
+                   if f["effect"] == UNEXPLAINED and str(f.get("where") or "").strip()]
     out = {"true": sorted(true), "found": sorted(found), "correct": [], "missed": [], "spurious": [],
-           "parameter_errors": {}}
+           "parameter_errors": {}, "located": {}}
     for name, params in true.items():
-        if name in found:
+        if name in inv:
+            if unexplained:
+                out["correct"].append(name)
+                out["located"][name] = any(located_right(f, name, truth) for f in unexplained)
+            else:
+                out["missed"].append(name)
+        elif name in found:
             out["correct"].append(name)
             key = main_parameter(name, params)
             tv, fv = params.get(key), found[name].get(key)
@@ -135,8 +186,79 @@ def score_case(doc: Mapping[str, Any], truth: Mapping[str, Any]) -> dict:
                                                  "relative_error": abs(fv - tv) / abs(tv)}
         else:
             out["missed"].append(name)
-    out["spurious"] = sorted(set(found) - set(true))
+    out["spurious"] = sorted(set(found) - expected_findings(truth))
     out["exact"] = not out["missed"] and not out["spurious"]
+    return out
+
+
+#: a measured impact is the truth's impact of the same plate nearest in time, if within one frame (s)
+MATCH_IMPACT_S = 1e-3
+
+
+def cor_errors(impacts: list[Mapping[str, Any]], truth: Mapping[str, Any], match_s: float = MATCH_IMPACT_S) -> dict:
+    """Per-impact COR error against the truth's realised COR (scatter included): each measured impact
+    (results.json ``impacts[]`` with a COR) matched to the truth impact of the same plate nearest in time
+    within ``match_s``. ``max_abs``/``median_abs`` for ``cor`` (the final model's), ``*_paper`` for
+    ``cor_paper`` (the paper's Eq. 16; equal to ``cor`` when the impact was not re-identified);
+    ``unmatched``: measured impacts without a truth impact (a false or misplaced impact)."""
+    tt = np.array([float(i["t"]) for i in truth.get("impacts", [])])
+    plates = [i["plate"] for i in truth.get("impacts", [])]
+    err, err_p, worst = [], [], None
+    unmatched = 0
+    for imp in impacts:
+        if imp.get("cor") is None or imp.get("t") is None:
+            continue
+        same = [k for k in np.argsort(np.abs(tt - float(imp["t"])))[:3] if plates[k] == imp["plate"]]
+        if not same or abs(tt[same[0]] - float(imp["t"])) > match_s:
+            unmatched += 1
+            continue
+        cor_true = float(truth["impacts"][same[0]]["cor"])
+        paper = imp.get("cor_paper")
+        e = abs(float(imp["cor"]) - cor_true)
+        err.append(e)
+        err_p.append(abs(float(paper if paper is not None else imp["cor"]) - cor_true))
+        if worst is None or e > worst[0]:
+            worst = (e, float(imp["t"]), imp["plate"])
+    a, p = np.array(err), np.array(err_p)
+    return {"n": int(a.size), "unmatched": unmatched,
+            "max_abs": float(a.max()) if a.size else None, "median_abs": float(np.median(a)) if a.size else None,
+            "max_abs_paper": float(p.max()) if p.size else None,
+            "median_abs_paper": float(np.median(p)) if p.size else None,
+            "worst": {"error": worst[0], "t_s": worst[1], "plate": worst[2]} if worst else None}
+
+
+#: COR laws: the restarted run restarts from the measured state after every impact, so a COR law cannot
+#: move D_r; its evidence is the share of the per-impact COR variance it explains (issue 13.1)
+COR_LAWS = {"asymmetric_restitution": 2, "velocity_dependent_restitution": 2}   # parameters of the law
+
+
+def chance_variance_share(n_parameters: int, n_impacts: int) -> float:
+    """The share of the COR variance a law with ``n_parameters`` (against the constant COR's one) explains
+    on pure noise, in expectation: (p - 1) / (n - 1) (the expected R^2 of p - 1 regressors on n samples)."""
+    return (n_parameters - 1) / max(n_impacts - 1, 1)
+
+
+def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impacts: int | None = None) -> list[dict]:
+    """Each finding's restarted deviation D_r before/after (``deviation_*``) and the paper's D
+    (``paper_deviation_*``), whether it is a correct finding and whether it improved the model:
+    ``lowered`` is D_r after < before for structure and flight findings; for a COR law (D_r does not see
+    it) its ``cor_variance_share`` above what chance gives on ``n_impacts`` CORs
+    (:func:`chance_variance_share`). ``unexplained`` has no model: ``lowered`` None."""
+    expected = expected_findings(truth)
+    out = []
+    for f in doc.get("findings", []):
+        b, a = f.get("deviation_before"), f.get("deviation_after")
+        row = {"effect": f["effect"], "correct": f["effect"] in expected, "before": b, "after": a,
+               "paper_before": f.get("paper_deviation_before"), "paper_after": f.get("paper_deviation_after"),
+               "lowered": None if b is None or a is None else bool(a < b), "measure": "D_r"}
+        if f["effect"] in COR_LAWS:
+            share = f.get("cor_variance_share")
+            chance = chance_variance_share(COR_LAWS[f["effect"]], n_impacts) if n_impacts else None
+            row.update(measure="cor_variance_share", cor_variance_share=share, chance_share=chance,
+                       lowered=None if share is None or chance is None else bool(share > chance))
+        elif f["effect"] == UNEXPLAINED:
+            row.update(lowered=None, measure=None)
+        out.append(row)
     return out
 
 
