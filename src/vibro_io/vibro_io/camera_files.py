@@ -127,14 +127,14 @@ class MrawFile:
         """frameInfo/startFrame of a .cihx (pyMRAW's dict leaves it out); None if absent or a .cih."""
         if self.header_path.suffix.lower() != ".cihx":
             return None
-        import xmltodict
+        import xml.etree.ElementTree as ET
 
         text = self.header_path.read_text(encoding="utf-8", errors="ignore")
         start, end = text.find("<cih>"), text.rfind("</cih>")
         try:
-            value = xmltodict.parse(text[start:end + 6])["cih"]["frameInfo"].get("startFrame")
+            value = ET.fromstring(text[start:end + 6]).findtext("frameInfo/startFrame")
             return None if value is None else int(value)
-        except (ValueError, KeyError, TypeError, AttributeError):
+        except (ET.ParseError, ValueError):
             return None
 
     def _check_size(self) -> None:
