@@ -70,6 +70,10 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
     time column (seconds) is checked: see :func:`check_sample_rate`.
     """
     path = Path(path)
+    if columns.is_tdms:  # rig.yaml maps TDMS channels (vibro_io.tdms); without the camera's wall-clock start
+        from .tdms import load_tdms_accel
+
+        return load_tdms_accel(path, columns, camera_fps=camera_fps)
     try:
         handle = path.open(newline="", encoding="utf-8-sig")
         complete_last_line = _ends_with_newline(path)
@@ -113,6 +117,8 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
     data = np.asarray(rows, dtype=float)
     accel = AccelData(t_s=data[:, 0], upper_ms2=data[:, 1], lower_ms2=data[:, 2])
     check_sample_rate(accel.sample_rate_hz, f"{path}: column '{columns.time_column}'", camera_fps)
+    for column, values in ((columns.upper_column, accel.upper_ms2), (columns.lower_column, accel.lower_ms2)):
+        warn_if_clipped(values, f"{path}: column '{column}'")
     return accel
 
 
@@ -138,6 +144,31 @@ def check_sample_rate(rate_hz: float, where: str, camera_fps: float | None = Non
                         f"is the time in {unit} instead of seconds?")
                 break
     raise AccelError(f"{where}: the time column (seconds) implies {rate_hz:g} samples/s, but {need}{hint}")
+
+
+#: This many consecutive samples or more at a channel's extreme value look like a saturated ADC/amplifier.
+CLIP_RUN_SAMPLES = 3
+
+
+def warn_if_clipped(values: np.ndarray, where: str) -> int:
+    """Warn (naming ``where`` and the first sample) when the signal sits at its maximum or minimum for
+    CLIP_RUN_SAMPLES samples or more in a row: a saturated sensor, amplifier or DAQ range flattens
+    the impact peaks. Returns the number of such flat runs."""
+    runs = 0
+    first = None
+    for extreme in (values.max(initial=-np.inf), values.min(initial=np.inf)):
+        at = np.concatenate(([0], (values == extreme).astype(np.int8), [0]))
+        edges = np.diff(at)
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        long = starts[(ends - starts) >= CLIP_RUN_SAMPLES]
+        runs += long.size
+        if long.size and (first is None or long[0] < first[0]):
+            first = (int(long[0]), float(extreme))
+    if first is not None:
+        log.warning("%s: clipped? %d stretch(es) of >= %d samples sit at the signal's extreme value, first at "
+                    "sample %d (value %g): a saturated sensor or DAQ range flattens impact peaks; check the range",
+                    where, runs, CLIP_RUN_SAMPLES, first[0], first[1])
+    return runs
 
 
 def write_accel(path: str | Path, data: AccelData, columns: AccelConfig) -> None:

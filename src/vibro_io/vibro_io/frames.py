@@ -1,4 +1,7 @@
-"""Stream a recording's frames from ``frames/`` (PNG/TIFF) or a video, one at a time.
+"""Stream a recording's frames from ``frames/`` (PNG/TIFF), a video, or a camera file, one at a time.
+
+Camera files (:mod:`.camera_files`): ``video.cihx``/``video.cih`` with ``video.mraw`` (Photron),
+``video.cine`` (Phantom); their frames are numbered 0.. in file order.
 
 Frames are never all held in memory. Frame k is at ``t0_s + k / fps``, k being the
 frame number in the file name (:mod:`.frame_names`). A frame file that is missing
@@ -17,6 +20,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
+from .camera_files import CAMERA_FILE_SUFFIXES, open_camera_file
 from .errors import FrameError
 from .frame_names import NAMING_RULE, frame_numbers
 from .paths import inside_recording
@@ -88,11 +92,17 @@ class FrameSequence:
         self.source = Path(source)
         self.camera = camera
         self.first_index = 0
+        self._camera_file = None  # a Photron MRAW / Phantom CINE reader (camera_files), else None
         if self.source.is_dir():
             self._files = self._list_files(self.source, root)
             self._slots = self._number_slots(self._files)
             self._count = len(self._slots)
             first = read_image(self._slots[0])
+        elif self.source.is_file() and self.source.suffix.lower() in CAMERA_FILE_SUFFIXES:
+            self._files, self._slots = [], []
+            self._camera_file = open_camera_file(self.source)
+            self._count = len(self._camera_file)
+            first = self._camera_file.read(0)
         elif self.source.is_file():
             self._files, self._slots = [], []
             cap = self._open_video()
@@ -162,7 +172,10 @@ class FrameSequence:
         return None
 
     def __iter__(self) -> Iterator[Frame]:
-        frames = self._iter_files() if self._slots else self._iter_video()
+        if self._camera_file is not None:
+            frames = self._iter_camera_file()
+        else:
+            frames = self._iter_files() if self._slots else self._iter_video()
         unreadable: list[str] = []
         for frame in frames:
             if not frame.ok and not frame.dropped:
@@ -187,6 +200,18 @@ class FrameSequence:
                 continue
             problem = self._mismatch(image, f"frame {k}: {path}")
             yield Frame(k, t, None if problem else image, str(path), problem)
+
+    def _iter_camera_file(self) -> Iterator[Frame]:
+        for k in range(self._count):
+            where = f"{self.source} frame {k}"
+            t = self.camera.frame_time_s(k)
+            try:
+                image = self._camera_file.read(k)
+            except FrameError as exc:
+                yield Frame(k, t, None, where, f"frame {k}: {exc}")
+                continue
+            problem = self._mismatch(image, where)
+            yield Frame(k, t, None if problem else image, where, problem)
 
     def _iter_video(self) -> Iterator[Frame]:
         cap = self._open_video()
@@ -220,7 +245,13 @@ def find_frames_source(recording: str | Path) -> Path:
     recording = Path(recording)
     if (recording / "frames").is_dir():
         return inside_recording(recording, "frames", "frames folder")
-    videos = sorted(p for p in recording.glob("video.*") if p.suffix.lower() in VIDEO_SUFFIXES)
+    videos = sorted(p for p in recording.glob("video.*") if p.suffix.lower() in VIDEO_SUFFIXES + CAMERA_FILE_SUFFIXES)
+    if any(p.suffix.lower() in CAMERA_FILE_SUFFIXES for p in videos) and len(videos) > 1:
+        raise FrameError(f"{recording}: {len(videos)} video files ({', '.join(p.name for p in videos)}): "
+                         "keep one (a Photron MRAW with one header, .cihx or .cih)")
     if videos:
         return inside_recording(recording, videos[0].name, "video file")
-    raise FrameError(f"{recording}: no frames/ folder and no video.avi")
+    if (recording / "video.mraw").exists():
+        raise FrameError(f"{recording}: video.mraw has no header beside it (video.cihx or video.cih)")
+    raise FrameError(f"{recording}: no frames/ folder and no video.avi "
+                     "(nor video.cine, nor video.mraw with video.cihx or video.cih)")

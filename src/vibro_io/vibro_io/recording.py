@@ -46,10 +46,15 @@ def load_recording_accel(recording: str | Path, rig: RigConfig) -> AccelData | N
     """The samples of the recording's accelerometer file (None for a video-only recording).
 
     The file must lie inside ``recording``; its sample rate is checked against the camera's fps.
+    A ``.tdms`` file is read by :func:`vibro_io.tdms.load_tdms_accel` (DAQ's own time base), else CSV.
     """
     path = accel_file(recording, rig)
     if path is None:
         return None
+    if rig.accelerometers.is_tdms:
+        from .tdms import load_tdms_accel
+
+        return load_tdms_accel(path, rig.accelerometers, rig.camera)
     return load_accel(path, rig.accelerometers, camera_fps=rig.camera.fps)
 
 

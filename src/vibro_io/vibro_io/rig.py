@@ -79,10 +79,19 @@ class DicConfig:
 
 @dataclass(frozen=True)
 class AccelConfig:
+    """Where the accelerometer samples are: CSV columns, or (``file`` ending .tdms) TDMS group and channels."""
+
     file: str
-    time_column: str
-    upper_column: str
-    lower_column: str
+    time_column: str | None = None
+    upper_column: str | None = None
+    lower_column: str | None = None
+    group: str | None = None  # TDMS only: the group holding the two channels
+    upper_channel: str | None = None  # TDMS only
+    lower_channel: str | None = None  # TDMS only
+
+    @property
+    def is_tdms(self) -> bool:
+        return self.file.lower().endswith(".tdms")
 
 
 @dataclass(frozen=True)
@@ -110,6 +119,8 @@ class RigConfig:
         out["dic"]["structure_roi"] = self.dic.structure_roi.as_list()
         if self.accelerometers is None:
             out.pop("accelerometers")
+        else:
+            out["accelerometers"] = {k: v for k, v in out["accelerometers"].items() if v is not None}
         if self.camera.start_time_unix_s is None:
             out["camera"].pop("start_time_unix_s")
         return out
@@ -185,6 +196,8 @@ _SCHEMA: dict[str, dict[str, str]] = {
     "dic": {"subset_px": "odd", "mesh_step_px": "posint", "ball_roi": "roi", "structure_roi": "roi"},
 }
 _ACCEL_SCHEMA = {"file": "relpath", "time_column": "str", "upper_column": "str", "lower_column": "str"}
+#: accelerometers.file ending .tdms (NI DAQ): the time comes from the channels' waveform properties
+_TDMS_SCHEMA = {"file": "relpath", "group": "str", "upper_channel": "str", "lower_channel": "str"}
 
 
 def load_yaml(path: str | Path) -> Any:
@@ -205,8 +218,24 @@ def load_yaml(path: str | Path) -> Any:
 
 
 def load_rig(path: str | Path) -> RigConfig:
-    """Read and validate a rig.yaml file; raises :class:`RigError` naming file and key."""
-    return parse_rig(load_yaml(path), str(path))
+    """Read and validate a rig.yaml file; raises :class:`RigError` naming file and key.
+
+    When the recording's video is a camera file (Photron MRAW, Phantom CINE), the camera keys
+    rig.yaml leaves out are taken from its header, and a clash is reported
+    (:func:`vibro_io.camera_files.merge_camera_header`).
+    """
+    data = load_yaml(path)
+    from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
+    from .errors import FrameError
+    from .frames import find_frames_source
+
+    try:
+        source = find_frames_source(Path(path).parent)
+    except FrameError:
+        source = None  # open_recording reports a missing or ambiguous video
+    if source is not None and source.suffix.lower() in CAMERA_FILE_SUFFIXES:
+        data = merge_camera_header(data, open_camera_file(source).header, str(path))
+    return parse_rig(data, str(path))
 
 
 def _check(value: Any, kind: str, where: str) -> Any:
@@ -291,7 +320,10 @@ def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
     sections = {name: _section(data, name, schema, source) for name, schema in _SCHEMA.items()}
     accel = None
     if "accelerometers" in data and data["accelerometers"] is not None:
-        accel = AccelConfig(**_section(data, "accelerometers", _ACCEL_SCHEMA, source))
+        block = data["accelerometers"]
+        tdms = isinstance(block, Mapping) and isinstance(block.get("file"), str) and \
+            block["file"].lower().endswith(".tdms")
+        accel = AccelConfig(**_section(data, "accelerometers", _TDMS_SCHEMA if tdms else _ACCEL_SCHEMA, source))
     for key in data:
         if key not in _SCHEMA and key != "accelerometers":
             log.warning("%s: unknown key '%s' ignored", source, key)
