@@ -7,7 +7,7 @@ SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
-DEPS_STAMP := $(VENV)/.deps-$(shell cat requirements.txt | sha256sum | cut -c1-16)
+DEPS_STAMP := $(VENV)/.deps-$(shell cat requirements.txt requirements-nodeps.txt | sha256sum | cut -c1-16)
 PTH := $(VENV)/lib/python3.11/site-packages/vibro_src.pth
 PACKAGES := vibro_model vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_eval vibro_bringup
 DEMO_DIR ?= demo
@@ -23,8 +23,9 @@ $(PY):
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "vibro needs Python 3.11 (ROS 2 Jazzy wheels are cp311); found " + sys.version' 
 	$(PYTHON) -m venv $(VENV)
 
-$(DEPS_STAMP): requirements.txt | $(PY)
+$(DEPS_STAMP): requirements.txt requirements-nodeps.txt | $(PY)
 	$(PY) -m pip install --disable-pip-version-check -q -r requirements.txt
+	$(PY) -m pip install --disable-pip-version-check -q --no-deps -r requirements-nodeps.txt
 	rm -f $(VENV)/.deps-* && touch $@
 
 # Development install of the ament_python packages: their source folders on sys.path

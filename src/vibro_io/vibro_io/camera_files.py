@@ -118,7 +118,7 @@ class MrawFile:
         except Exception as exc:
             raise FrameError(f"{self.header_path}: unsupported Photron file (Color Bit {cih['Color Bit']}, "
                              f"File Format {cih['File Format']}, EffectiveBit Side {cih['EffectiveBit Side']}; "
-                             "pyMRAW reads 8-, 12- and 16-bit MRAW)") from None
+                             f"pyMRAW reads 8-, 12- and 16-bit MRAW: {exc})") from None
         if str(cih["File Format"]).lower() != "mraw":
             raise FrameError(f"{self.header_path}: header 'File Format' is {cih['File Format']}, not MRAW")
         return cih
