@@ -181,8 +181,7 @@ def test_results_without_the_new_keys_still_read_and_new_ones_round_trip(analyse
         read_results(path)
 
 
-def test_the_discrepancy_node_publishes_the_impacts_analyze_remeasures(analysed, tmp_path, ros_domain,
-                                                                     udp_only) -> None:
+def test_the_discrepancy_node_publishes_the_impacts_analyze_remeasures(analysed, tmp_path, ros_domain) -> None:
     """The graph path: the ``discrepancy`` node (its own process, over DDS) fed the identification that
     ``vibro analyze`` made (the fitter's messages) publishes on vibro/impacts_final_model the impacts
     analyze wrote, re-measured by the same module (equal to 1e-9)."""
