@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vibro_fit.identify import METHODS
+from vibro_fit.methods import METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -88,7 +88,7 @@ def _cor_residuals(impacts: Sequence) -> np.ndarray:
 def ball_spin_section(track, flights: Iterable, impacts: Iterable) -> dict[str, Any]:
     """results.json's ``ball_spin`` section (rad, rad/s, s) from a DicTrack, the flights and impacts
     (:class:`vibro_model.results.Flight`/``Impact``, final CORs)."""
-    from scipy.stats import chi2
+    from vibro_model.tail_probability import chi2_sf
 
     t = np.asarray(track.t_s, dtype=float)
     good = np.asarray(track.good, dtype=bool)
@@ -107,7 +107,7 @@ def ball_spin_section(track, flights: Iterable, impacts: Iterable) -> dict[str, 
     rows = fs["rows"]
     by_index = {r["index"]: r for r in rows}
     z2 = sum((r["omega_rad_s"] / r["omega_std_rad_s"]) ** 2 for r in rows)
-    p_spin = float(chi2.sf(z2, len(rows))) if rows else math.nan
+    p_spin = chi2_sf(z2, len(rows)) if rows else math.nan
     detected = bool(rows) and p_spin < SPIN_ALPHA
     floor = float(np.median([r["omega_std_rad_s"] for r in rows])) if rows else math.nan
     for r in rows:

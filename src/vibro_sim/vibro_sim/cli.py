@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 
-from .synth import EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args, synthesize, truth_path
+from .synth import EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args
 from .synth.invented import INVENTED_EFFECTS, INVENTED_HELP
 
 log = logging.getLogger(__name__)
@@ -80,6 +80,8 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .synth.write import synthesize, truth_path  # renderer and simulator: loaded only for `vibro synth`
+
     cfg = config_from_args(args)
     truth = synthesize(args.out, cfg, overwrite=args.overwrite,
                        progress=False if args.no_progress else None)

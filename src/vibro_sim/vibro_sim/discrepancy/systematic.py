@@ -28,9 +28,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from vibro_model.codec import json_number as _num
+from vibro_model.tail_probability import chi2_sf, f_sf
 
 from .data import Measured
 from .model import FittedModel
@@ -181,7 +181,7 @@ def _periodogram(t: np.ndarray, r: np.ndarray, f_lo: float, f_hi: float, exclude
 
 def _p_known(drop: float, sigma: float, dof: int, trials: int, n_tests: int) -> tuple[float, float]:
     chi = drop / max(sigma, 1e-300) ** 2
-    return chi, min(1.0, float(stats.chi2.sf(chi, dof)) * trials * n_tests)
+    return chi, min(1.0, chi2_sf(chi, dof) * trials * n_tests)
 
 
 def _p_estimated(drop: float, sse_after: float, dof: int, n: int, n_par: int, trials: int, n_tests: int
@@ -190,7 +190,7 @@ def _p_estimated(drop: float, sse_after: float, dof: int, n: int, n_par: int, tr
     if den <= 0 or sse_after <= 0:
         return float("nan"), 1.0
     F = (drop / dof) / (sse_after / den)
-    return F, min(1.0, float(stats.f.sf(F, dof, den)) * trials * n_tests)
+    return F, min(1.0, f_sf(F, dof, den) * trials * n_tests)
 
 
 # --- the three series -----------------------------------------------------------------------------
@@ -450,7 +450,7 @@ def contact_scatter(model: FittedModel, patterns: list[Mismatch], alpha: float =
         sigma = math.sqrt(sse / dof)
         if noise > 0:
             chi = sse / noise ** 2
-            p = float(stats.chi2.sf(chi, dof))
+            p = chi2_sf(chi, dof)
         else:
             chi, p = float("inf"), 0.0
         out[name] = {"n": k, "sigma": _num(sigma), "noise_sigma": _num(noise), "chi2": _num(chi), "dof": _num(dof),
