@@ -165,37 +165,17 @@ def test_a_bag_cut_short_keeps_the_streamed_estimates_and_fails_loudly(runs: dic
     assert math.isfinite(doc["impacts"][0]["cor"])
 
 
-#: vibro_msgs/DicFrame as it was before the ball rotation (bags recorded then embed this definition)
-OLD_DICFRAME = """std_msgs/Header header
-uint64 frame_index
-float64 t_s
-float64 ball_mm
-float64 structure_mm
-uint32 ball_valid_points
-uint32 ball_mesh_points
-uint32 structure_valid_points
-uint32 structure_mesh_points
-float32 ball_mean_zncc
-float32 structure_mean_zncc
-bool lost
-string status
-uint64 reference_frame_index
-string run_id
-"""
-
-
 def _rewrite_with_old_dicframe(bag: Path, out: Path) -> int:
     """Copy ``bag`` with rosbags' own writer, its vibro/dic messages re-encoded by the DicFrame definition of
     before the ball rotation (and that definition embedded); other topics as recorded, but the camera images
     (``vibro results`` does not read them). Returns the DicFrames written."""
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+    from old_msgdefs import old_dicframe_typestore
     from vibro_ros.bags import deserialize, make_typestore, read_messages
 
     store = make_typestore()
-    old = get_typestore(Stores.ROS2_JAZZY)
-    old.register(get_types_from_msg(OLD_DICFRAME, "vibro_msgs/msg/DicFrame"))
+    old = old_dicframe_typestore()
     old_type = old.types["vibro_msgs/msg/DicFrame"]
     fields = [f for f in old_type.__dataclass_fields__ if f != "__msgtype__"]
     connections, frames = {}, 0

@@ -64,6 +64,9 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
     assert frames[0].encoding == "mono8" and (frames[0].height, frames[0].width) == (128, 96)
     # the fixture moves its lower half 2 px = 0.1 mm down per frame
     assert [round(m.ball_mm, 3) for m in dic] == pytest.approx([-0.1 * k for k in range(5)], abs=1e-3)
+    # and the ball's rotation with its sigma: a pure 2 px shift per frame, so no turn (misread as one on the
+    # mesh's ~10 px lever arms it would be ~0.1 rad per frame)
+    assert all(abs(m.ball_rot_rad) < 1e-3 and 0 < m.ball_rot_std_rad < 1e-3 for m in dic)
 
     # reader 2: the plain mcap reader, schemas as ros2msg with the vibro_msgs definition inside
     with open(next(bag.glob("*.mcap")), "rb") as handle:
@@ -72,6 +75,7 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
         schemas = {s.name: s for s in summary.schemas.values()}
         assert schemas["vibro_msgs/msg/DicFrame"].encoding == "ros2msg"
         assert b"float64 ball_mm" in schemas["vibro_msgs/msg/DicFrame"].data
+        assert b"float64 ball_rot_rad\nfloat64 ball_rot_std_rad" in schemas["vibro_msgs/msg/DicFrame"].data
         assert all(c.message_encoding == "cdr" for c in summary.channels.values())
         counted = sum(1 for _ in mreader.iter_messages(topics=["/vibro/dic"]))
     assert counted == 5
