@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -140,6 +141,35 @@ def test_foreign_bag_with_unknown_types_is_refused(tmp_path: Path) -> None:
         writer.finish()
     with pytest.raises(BagError, match="acme_msgs/msg/Widget.*not a vibro bag"):
         list(read_messages(bag))
+
+
+def _bag_with_dicframe_definition(bag: Path, definition: bytes, data: bytes) -> Path:
+    bag.mkdir()
+    with open(bag / f"{bag.name}_0.mcap", "wb") as handle:
+        writer = Writer(handle)
+        writer.start(profile="ros2", library="other")
+        sid = writer.register_schema("vibro_msgs/msg/DicFrame", "ros2msg", definition)
+        cid = writer.register_channel("/vibro/dic", "cdr", sid)
+        writer.add_message(cid, log_time=1, data=data, publish_time=1)
+        writer.finish()
+    return bag
+
+
+def test_messages_decode_by_the_definition_the_bag_embeds(tmp_path: Path) -> None:
+    from vibro_ros.bags import deserialize
+
+    # a DicFrame of some other (here: older, shorter) definition decodes by it, without the fields it lacks
+    bag = _bag_with_dicframe_definition(tmp_path / "short", b"uint64 frame_index\nfloat64 ball_mm\n",
+                                        b"\x00\x01\x00\x00" + (7).to_bytes(8, "little") + struct.pack("<d", -0.25))
+    (m,) = read_messages(bag, {"vibro/dic"})
+    msg = deserialize(m)
+    assert (msg.frame_index, msg.ball_mm) == (7, -0.25) and not hasattr(msg, "ball_rot_rad")
+    # a definition naming a type nobody defines: one line naming the topic, not a rosbags traceback
+    bag = _bag_with_dicframe_definition(tmp_path / "odd", b"acme_msgs/Widget w\n", b"\x00\x01\x00\x00\x07")
+    (m,) = read_messages(bag, {"vibro/dic"})
+    with pytest.raises(BagError, match="/vibro/dic: a vibro_msgs/msg/DicFrame message does not decode by the "
+                                       "definition the bag embeds"):
+        deserialize(m)
 
 
 def test_missing_bag_is_named(tmp_path: Path) -> None:

@@ -351,9 +351,16 @@ def deserialize(message: BagMessage, store=None):
     """Decode a message's CDR bytes into a rosbags dataclass of its type, by the definition the bag embeds when
     it differs from vibro's (a bag recorded before a message gained fields: the object then lacks them)."""
     store = store or make_typestore()
-    if message.schema and message.schema != _definition(store, message.msg_type):
-        store = _recorded_typestore(message.msg_type, message.schema)
-    return store.deserialize_cdr(message.data, message.msg_type)
+    if not message.schema or message.schema == _definition(store, message.msg_type):
+        return store.deserialize_cdr(message.data, message.msg_type)
+    from rosbags.typesys.base import TypesysError
+
+    where = message.recorded_topic or message.topic
+    try:
+        return _recorded_typestore(message.msg_type, message.schema).deserialize_cdr(message.data, message.msg_type)
+    except (TypesysError, UnicodeDecodeError, KeyError, IndexError, ValueError, struct.error) as exc:
+        raise BagError(f"{where}: a {message.msg_type} message does not decode by the definition the bag embeds "
+                       f"({exc.__class__.__name__}: {exc})") from None
 
 
 _DEFINITIONS: dict[tuple[int, str], bytes] = {}
@@ -374,16 +381,10 @@ def _recorded_typestore(msg_type: str, schema: bytes):
     key = (msg_type, schema)
     if key not in _RECORDED_STORES:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-        from rosbags.typesys.base import TypesysError
 
         store = get_typestore(Stores.ROS2_JAZZY)
-        try:
-            types = get_types_from_msg(schema.decode("utf-8"), msg_type)
-            store.register({k: v for k, v in types.items() if k not in store.types})
-        except (TypesysError, UnicodeDecodeError) as exc:
-            raise BagError(f"the bag's definition of {msg_type} cannot be parsed ({exc})") from None
-        if msg_type not in store.types:
-            raise BagError(f"the bag's definition of {msg_type} does not define it")
+        types = get_types_from_msg(schema.decode("utf-8"), msg_type)  # TypesysError: not a definition
+        store.register({k: v for k, v in types.items() if k not in store.types})
         _RECORDED_STORES[key] = store
     return _RECORDED_STORES[key]
 
