@@ -27,10 +27,11 @@ from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
+from vibro_ros.convert import frame_track_to_message
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare,
                                    history_depth_parameter, history_qos, run_node, seconds_from_stamp,
-                                   stamp_from_seconds, time_origin_parameter)
+                                   time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
@@ -60,15 +61,9 @@ def image_array(msg: Image) -> np.ndarray:
 
 def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "", reference_frame_index: int = 0,
                 run_id: str = "", origin_ns: int = 0) -> DicFrame:
-    """The DicFrame of ``row``: ``t_s`` camera time, the header stamped with it on the lab clock of ``origin_ns``."""
-    msg = DicFrame(frame_index=row.frame, t_s=row.t_s, ball_mm=row.ball_mm, structure_mm=row.structure_mm,
-                   ball_valid_points=row.ball_valid, structure_valid_points=row.structure_valid,
-                   ball_mesh_points=mesh_points[0], structure_mesh_points=mesh_points[1],
-                   ball_mean_zncc=row.ball_zncc, structure_mean_zncc=row.structure_zncc,
-                   lost=row.lost, status=status, reference_frame_index=reference_frame_index, run_id=run_id)
-    msg.header.frame_id = "camera"
-    stamp_from_seconds(msg.header, row.t_s, origin_ns)
-    return msg
+    """The DicFrame of ``row`` (displacements mm, ball rotation rad and its sigma): ``t_s`` camera time, the header
+    stamped with it on the lab clock of ``origin_ns`` (:func:`vibro_ros.convert.frame_track_to_message`)."""
+    return frame_track_to_message(row, mesh_points, status, reference_frame_index, run_id, origin_ns)
 
 
 class DicTrackerNode(Node):
