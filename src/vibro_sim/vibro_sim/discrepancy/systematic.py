@@ -182,6 +182,14 @@ def _periodogram(t: np.ndarray, r: np.ndarray, f_lo: float, f_hi: float, exclude
     return float(d2[m]), fit, {"size": float(math.hypot(a[m], b[m])), "frequency_hz": float(fine[m])}, trials
 
 
+def tone_search(t: np.ndarray, r: np.ndarray, f0_hz: float, fps: float):
+    """The strongest tone of the residual ``r`` (m) in the structure analysis' band (1.5/T to fps/2, drive
+    harmonics 1..DRIVE_HARMONICS +- 1/T left out): (drop of the sum of squares, fit, {"size",
+    "frequency_hz"}, independent frequencies searched) or None."""
+    T = float(t.max() - t.min())
+    return _periodogram(t, r, 1.5 / T, 0.5 * fps, [k * f0_hz for k in range(1, DRIVE_HARMONICS + 1)], 1.0 / T)
+
+
 def _p_known(drop: float, sigma: float, dof: int, trials: int, n_tests: int) -> tuple[float, float]:
     chi = drop / max(sigma, 1e-300) ** 2
     return chi, min(1.0, float(stats.chi2.sf(chi, dof)) * trials * n_tests)
@@ -280,15 +288,13 @@ def structure_mismatch(t: np.ndarray, structure_m: np.ndarray, sigma_m: float, f
     the drive frequency refined on the track: every structure model of the library is one), sizes in um.
     Each accepted pattern is refitted jointly with the harmonics and the patterns before it."""
     r0 = np.asarray(structure_m, float)
-    T = float(t[-1] - t[0])
     f0_hz = _refine_frequencies(t, r0, f0_hz, [])
     r, _ = _joint_fit(t, r0, f0_hz, [])
     accepted: list[tuple[str, dict, float, float, int]] = []
     for _ in range(MAX_COMPONENTS):
         cands = []
         for shape, c in (("trend", _trend(t, r)), ("step", _step(t, r - r.mean(), MIN_SPLIT_FRAMES)),
-                         ("periodic", _periodogram(t, r, 1.5 / T, 0.5 * fps,
-                                                   [k * f0_hz for k in range(1, DRIVE_HARMONICS + 1)], 1.0 / T))):
+                         ("periodic", tone_search(t, r, f0_hz, fps))):
             if c is None:
                 continue
             drop, fit, info, trials = c
