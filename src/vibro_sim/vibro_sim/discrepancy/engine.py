@@ -29,7 +29,10 @@ A COR law is judged by the per-impact CORs instead (D_r replays the measured pos
 ``cor_variance_share``, the share of the COR variance beyond the measurement noise the law explains.
 The baseline: constant COR = the mean measured one, gravity only, pure sine structure, vertical. The
 findings are added in order (structure, flight terms, COR law); before/after are the models
-without/with each.
+without/with each. What the final model still leaves systematically (:mod:`.systematic`) is reported as
+``unexplained``; when that holds a structure tone that passes its test (:mod:`.tone`), the tone is
+modelled (the final model's structure fit includes it, so the re-identification uses it) and the
+``unexplained`` entry's before/after are the models without/with it.
 """
 
 from __future__ import annotations
