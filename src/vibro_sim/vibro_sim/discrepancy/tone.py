@@ -104,7 +104,8 @@ def fit_structure_tone(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float, orders: S
                        tone_halfwidth_hz: float) -> StructureToneFit:
     """Least squares of the structure track (m) with the drive harmonics ``orders`` and one tone near
     ``tone_hz`` (within +-``tone_halfwidth_hz``); the drive frequency refined within +-0.2 % of ``f0_hz``
-    (alternating 1-D searches: the two frequencies are nearly orthogonal once T >> 1 / |f0 - f_T|)."""
+    (alternating 1-D searches: the two frequencies are nearly orthogonal once T >> 1 / |f0 - f_T|), then
+    Gauss-Newton on every parameter to the optimum (:func:`_polish`)."""
     t = np.asarray(t_s, dtype=float)
     y = np.asarray(y_m, dtype=float)
     orders = tuple(sorted(set((1,) + tuple(orders))))
