@@ -181,3 +181,4 @@ def dic_quality_section(texture: TextureReport | None, quality: TrackQuality | N
     """The results.json ``dic_quality`` section: the texture check and the correlation quality."""
     return {"texture": None if texture is None else texture.to_dict(),
             "correlation": None if quality is None else quality.summary()}
+
