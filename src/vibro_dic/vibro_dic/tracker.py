@@ -52,13 +52,15 @@ import numpy as np
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import FrameError, RecordingError
 from vibro_io.frames import Frame
-from vibro_io.rig import DicConfig, Roi
+from vibro_io.rig import DicConfig, Roi, check_rois_in_image
 
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
 from .rotation import fit_rotation, rotation_lever_arms
+from .quality import TrackQuality
 from .search import SearchResult, zncc_search
+from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
 
 log = logging.getLogger(__name__)
 
@@ -335,6 +337,13 @@ class DicTracker:
                                      dic_config.mesh_step_px, **kw)
         self.last_results: dict[str, MeshResult] = {}
 
+    def use_texture(self, texture: TextureReport) -> None:
+        """Leave out the subsets the texture check found unusable (:mod:`vibro_dic.texture`)."""
+        for mesh in (self.ball, self.structure):
+            body = texture.bodies.get(mesh.name)
+            if body is not None and len(body.usable) == len(mesh.points):
+                mesh.subsets.textured &= body.usable
+
     def track(self, frame: Frame) -> FrameTrack:
         """Track one frame. ``frame.image is None`` gives lost=True and NaN displacements."""
         return self.track_image(frame.index, frame.t_s, frame.image)
@@ -362,29 +371,54 @@ class DicTracker:
         )
 
 
-def track_recording(recording, *, method: str = "icgn", progress: bool = False, **tracker_kwargs
+def track_recording(recording, *, method: str = "icgn", progress: bool = False, quality: TrackQuality | None = None,
+                    max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX, **tracker_kwargs
                     ) -> Iterator[FrameTrack]:
     """Stream :class:`FrameTrack` rows for every frame slot of ``recording`` (a vibro_io Recording).
 
-    Frame 0 is the reference (it must decode). Frames are read one at a time; a frame
-    that failed to decode is logged with its index and yields a lost row.
-    ``tracker_kwargs`` go to :class:`DicTracker`.
+    Frame 0 is the reference (it must decode). Before tracking, the texture check
+    (:func:`vibro_dic.texture.check_texture`, noise from frames 0 and 1) logs its warnings and raises
+    :class:`vibro_dic.texture.TextureError` when a body has too few usable subsets; unusable subsets are
+    left out. Frames are read one at a time; a frame that failed to decode is logged with its index and
+    yields a lost row. ``quality`` (optional) receives the texture report and every frame's results
+    (:class:`vibro_dic.quality.TrackQuality`). ``tracker_kwargs`` go to :class:`DicTracker`.
     """
     from tqdm import tqdm
 
     rig = recording.rig
-    frames = recording.frames
-    tracker: DicTracker | None = None
-    bar = tqdm(total=len(frames), unit="frame", disable=not progress, desc="track", leave=False)
+    frames = iter(recording.frames)
+    first = next(frames, None)
+    if first is None:
+        raise FrameError("the recording has no frame")
+    if first.image is None:
+        raise FrameError(f"frame {first.index} (reference): {first.error or 'cannot be read'}")
+    second = next(frames, None)
+    check_rois_in_image(rig, *np.asarray(first.image).shape[:2])  # before the texture check reads the ROIs
+    texture, warnings = check_texture(first.image, None if second is None else second.image, rig.dic,
+                                      max_subset_sigma_px=max_subset_sigma_px,
+                                      min_valid_fraction=tracker_kwargs.get("min_valid_fraction", 0.5))
+    for w in warnings:
+        log.warning("texture: %s", w)
+    tracker = DicTracker(first.image, rig.dic, rig.camera.mm_per_px, method=method, **tracker_kwargs)
+    tracker.use_texture(texture)
+    if quality is not None:
+        quality.texture = texture
+    bar = tqdm(total=len(recording.frames), unit="frame", disable=not progress, desc="track", leave=False)
     try:
+        for frame in ([first] if second is None else [first, second]):
+            yield _track_one(tracker, frame, quality)
+            bar.update(1)
         for frame in frames:
-            if tracker is None:
-                if frame.image is None:
-                    raise FrameError(f"frame {frame.index} (reference): {frame.error or 'cannot be read'}")
-                tracker = DicTracker(frame.image, rig.dic, rig.camera.mm_per_px, method=method, **tracker_kwargs)
-            if frame.image is None:
-                log.warning("frame %d skipped: %s", frame.index, frame.error)
-            yield tracker.track(frame)
+            yield _track_one(tracker, frame, quality)
             bar.update(1)
     finally:
         bar.close()
+
+
+def _track_one(tracker: DicTracker, frame: Frame, quality: TrackQuality | None) -> FrameTrack:
+    if frame.image is None:
+        log.warning("frame %d skipped: %s", frame.index, frame.error)
+    row = tracker.track(frame)
+    if quality is not None:
+        quality.add(frame.index, tracker.last_results)
+    return row
