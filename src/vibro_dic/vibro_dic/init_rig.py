@@ -1,0 +1,602 @@
+"""``vibro init``'s measurements: find the ball, the two plates and a textured structure patch in a video.
+
+Pixel convention as everywhere (:mod:`vibro_dic.mesh`): x = column, y = row, rows grow downwards.
+Gray levels are those of an 8-bit image (16-bit frames are divided by 257).
+
+What is measured on frame 0 (and how sure it is):
+
+- the ball: a circle (cv2.HoughCircles on the image blurred by ``BLUR_SIGMA_PX``), refined by
+  locating its edge along ``N_RAYS`` rays (largest radial intensity gradient, sub-pixel by a
+  parabola) and a robust least-squares circle fit; ``radius_std_px`` is the fit residual's std over
+  the square root of the number of independent edge samples (rays closer than the blur are not
+  independent);
+- the plates: the strongest horizontal intensity edge above and below the ball in the row profile
+  (sub-pixel parabola), measured separately on ``N_COLUMN_BLOCKS`` column blocks: their spread is the
+  edge's uncertainty and their tilt must stay small (a plate edge is a straight horizontal line);
+- the motion over the first frames (template matching, sub-pixel): the plates must move (the drive
+  is on) and the ball must move relative to them (a free ball, not a mark on the structure).
+
+The scale is the ball's known diameter over its fitted diameter in pixels; the gap between the
+plates gives a second, independent scale. They must agree within what the localisation allows
+(:func:`scale_tolerance`), else the setup is refused.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from vibro_io.errors import RecordingError
+from vibro_io.rig import Roi
+
+from .mesh import mesh_points
+
+BLUR_SIGMA_PX = 2.0           # blur before circle and edge finding: speckle averages out, edges stay sharp
+N_RAYS = 256
+N_COLUMN_BLOCKS = 4
+EDGE_SYSTEMATIC_PX = 0.5      # trusted accuracy of one edge position beyond its statistical error (blur model)
+EDGE_MARGIN_PX = 6            # ROIs keep this far inside the ball's / plate's edge (edge blur + fit error)
+MAX_PLATE_TILT_PX = 2.0       # the plate edge's rise across the image beyond which it is not a plate
+MIN_STRUCTURE_MOTION_PX = 0.5
+MIN_BALL_RELATIVE_MOTION_PX = 2.0
+#: a subset whose Cramer-Rao displacement std (px) exceeds this has too little texture for DIC
+MAX_SUBSET_CRAMER_RAO_PX = 0.02
+IMAGE_EDGE_MARGIN_PX = 2
+
+
+class InitError(RecordingError):
+    """``vibro init`` cannot set the rig up from this video: what is missing, with the numbers."""
+
+
+def to_gray255(image: np.ndarray) -> np.ndarray:
+    """float32 image in 8-bit gray levels (uint16 frames are divided by 257)."""
+    img = image.astype(np.float32)
+    return img / 257.0 if image.dtype == np.uint16 else img
+
+
+@dataclass
+class Ball:
+    """The ball in frame 0: centre (x, y) px, radius px, and the 1-sigma uncertainty of the radius (px)."""
+
+    x_px: float
+    y_px: float
+    radius_px: float
+    radius_std_px: float
+    n_edge_points: int
+    edge_residual_px: float
+
+
+@dataclass
+class Plates:
+    """Rows (px, sub-pixel) of the cavity's top and bottom edges in frame 0, with 1-sigma uncertainties."""
+
+    top_row_px: float
+    bottom_row_px: float
+    top_std_px: float
+    bottom_std_px: float
+
+    @property
+    def gap_px(self) -> float:
+        return self.bottom_row_px - self.top_row_px
+
+    @property
+    def gap_std_px(self) -> float:
+        return math.hypot(self.top_std_px, self.bottom_std_px)
+
+
+@dataclass
+class Motion:
+    """Displacements (px, rows, positive DOWN) from frame 0 over the frames examined."""
+
+    frames: np.ndarray            # frame indices
+    structure_down_px: np.ndarray
+    ball_down_px: np.ndarray      # NaN beyond the frames the ball was followed on
+
+    @property
+    def structure_range_px(self) -> tuple[float, float]:
+        return float(np.min(self.structure_down_px)), float(np.max(self.structure_down_px))
+
+    @property
+    def ball_relative_range_px(self) -> float:
+        rel = self.ball_down_px - self.structure_down_px
+        rel = rel[np.isfinite(rel)]
+        return float(np.ptp(rel)) if rel.size else 0.0
+
+
+@dataclass
+class Scale:
+    """mm/px from the ball's diameter and from the gap, their uncertainties and the allowed disagreement."""
+
+    from_ball: float
+    from_gap: float
+    ball_rel_std: float
+    gap_rel_std: float
+    tolerance_rel: float
+
+    @property
+    def disagreement_rel(self) -> float:
+        return self.from_gap / self.from_ball - 1.0
+
+
+@dataclass
+class Proposal:
+    """Everything ``vibro init`` found and proposes."""
+
+    width_px: int
+    height_px: int
+    ball: Ball
+    plates: Plates
+    motion: Motion
+    scale: Scale
+    ball_roi: Roi
+    structure_roi: Roi
+    structure_plate: str            # "top" or "bottom"
+    subset_px: int
+    mesh_step_px: int
+    noise_gray: float
+    ball_cramer_rao_px: float       # worst subset of the ball ROI
+    structure_cramer_rao_px: float  # worst subset of the structure ROI
+    frequency_hz: float | None = None
+    frequency_note: str = ""
+    notes: list[str] = field(default_factory=list)
+
+
+# ----------------------------------------------------------------------------------------------- ball
+
+def _hough_candidates(blurred: np.ndarray) -> list[tuple[float, float, float]]:
+    """(x, y, r) circle candidates, best first, from cv2.HoughCircles on the blurred image."""
+    h, w = blurred.shape
+    lo, hi = float(np.percentile(blurred, 1)), float(np.percentile(blurred, 99))
+    img8 = np.clip((blurred - lo) * 255.0 / max(hi - lo, 1e-6), 0, 255).astype(np.uint8)
+    max_r = int(min(h, w) // 2)
+    for accumulator in (40, 30, 22, 16):
+        circles = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=max(8, max_r // 2), param1=60,
+                                   param2=accumulator, minRadius=6, maxRadius=max_r)
+        if circles is not None:
+            return [tuple(map(float, c)) for c in circles[0]]
+    return []
+
+
+def _fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Algebraic (Kasa) least-squares circle through points: (cx, cy, r)."""
+    a = np.column_stack([x, y, np.ones_like(x)])
+    b = x * x + y * y
+    (p, q, c), *_ = np.linalg.lstsq(a, b, rcond=None)
+    cx, cy = p / 2.0, q / 2.0
+    return float(cx), float(cy), float(math.sqrt(max(c + cx * cx + cy * cy, 0.0)))
+
+
+N_SECTORS = 32
+
+
+def refine_circle(feature: np.ndarray, x0: float, y0: float, r0: float) -> Ball | None:
+    """Sub-pixel circle: in each of N_SECTORS angular sectors the feature's mean radial profile (N_RAYS
+    rays in all) crosses half-way between its levels just inside and just outside the edge; a robust
+    least-squares circle through these crossings. None when too few sectors show a clean step."""
+    h, w = feature.shape
+    ang = np.linspace(0.0, 2 * math.pi, N_RAYS, endpoint=False)
+    sector = np.arange(N_RAYS) * N_SECTORS // N_RAYS
+    step = 0.25
+    cx, cy, r = x0, y0, _coarse_radius(feature, x0, y0, r0)
+    if r is None:
+        return None
+    for _ in range(4):
+        radii = np.arange(max(r - 12.0, 1.0), r + 12.0, step)
+        xs = cx + np.cos(ang)[:, None] * radii[None, :]
+        ys = cy + np.sin(ang)[:, None] * radii[None, :]
+        inside = (xs.min(axis=1) >= 0) & (xs.max(axis=1) <= w - 1) & (ys.min(axis=1) >= 0) & (ys.max(axis=1) <= h - 1)
+        prof = map_coordinates(feature, [ys.ravel(), xs.ravel()], order=1, mode="nearest").reshape(xs.shape)
+        ex, ey, ok = [], [], []
+        for s in range(N_SECTORS):
+            rays = (sector == s) & inside
+            if rays.sum() < 2:
+                continue
+            p = prof[rays].mean(axis=0)
+            r_in = (radii >= r - 9) & (radii <= r - 5)
+            r_out = (radii >= r + 5) & (radii <= r + 9)
+            if not r_in.any() or not r_out.any():
+                continue
+            lv_in, lv_out = float(p[r_in].mean()), float(p[r_out].mean())
+            half = 0.5 * (lv_in + lv_out)
+            near = np.nonzero(np.abs(radii - r) <= 5)[0]
+            d = np.sign(p[near] - half) * np.sign(lv_in - lv_out)  # +1 on the inside side
+            cross = np.nonzero((d[:-1] > 0) & (d[1:] <= 0))[0]
+            if cross.size != 1:
+                continue  # no single clean step in this sector (a plate, a highlight)
+            i = near[cross[0]]
+            f = (p[i] - half) / (p[i] - p[i + 1])
+            re = radii[i] + f * step
+            a = 2 * math.pi * (s + 0.5) / N_SECTORS
+            ex.append(cx + math.cos(a) * re)
+            ey.append(cy + math.sin(a) * re)
+        if len(ex) < N_SECTORS // 2:
+            return None
+        ex, ey = np.array(ex), np.array(ey)
+        use = np.ones(ex.size, bool)
+        for _ in range(3):  # robust: drop sectors whose edge is far from the circle
+            fx, fy, fr = _fit_circle(ex[use], ey[use])
+            res = np.hypot(ex - fx, ey - fy) - fr
+            mad = 1.4826 * np.median(np.abs(res[use] - np.median(res[use])))
+            use = np.abs(res) <= max(3.0 * mad, 0.3)
+        if use.sum() < N_SECTORS // 2:
+            return None
+        cx, cy, r = _fit_circle(ex[use], ey[use])
+    res = np.hypot(ex[use] - cx, ey[use] - cy) - r
+    std = float(np.std(res, ddof=3)) / math.sqrt(max(use.sum() - 3, 1))
+    return Ball(cx, cy, r, std, int(use.sum()), float(np.std(res)))
+
+
+def _coarse_radius(feature: np.ndarray, x0: float, y0: float, r0: float) -> float | None:
+    """Radius (px) where the median-over-angles radial profile first crosses half-way from its inner
+    (0.2..0.5 r0) to its outer (1.5..1.8 r0) level; None without such a crossing."""
+    ang = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
+    radii = np.arange(0.2 * r0, 1.8 * r0, 0.25)
+    xs = x0 + np.cos(ang)[:, None] * radii[None, :]
+    ys = y0 + np.sin(ang)[:, None] * radii[None, :]
+    prof = np.median(map_coordinates(feature, [ys.ravel(), xs.ravel()], order=1, mode="nearest").reshape(xs.shape),
+                     axis=0)
+    lv_in, lv_out = prof[radii <= 0.5 * r0].mean(), prof[radii >= 1.5 * r0].mean()
+    if not lv_in > 2.0 * lv_out:  # a textured disc: much more texture inside than around it
+        return None
+    below = np.nonzero(prof < 0.5 * (lv_in + lv_out))[0]
+    below = below[radii[below] > 0.5 * r0]
+    return float(radii[below[0]]) if below.size else None
+
+
+def texture_energy(frame: np.ndarray, sigma_px: float = 2.0) -> np.ndarray:
+    """Local texture energy: squared intensity gradient (Sobel) averaged by a Gaussian of ``sigma_px``."""
+    gx = cv2.Sobel(frame, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(frame, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), sigma_px)
+
+
+def texture_amplitude(frame: np.ndarray, sigma_px: float = 2.0) -> np.ndarray:
+    """Local texture amplitude: intensity gradient magnitude (Sobel) averaged by a Gaussian of ``sigma_px``.
+    Linear in the texture's contrast, so where a textured region's alpha is 1/2 (its edge) it is half-way
+    between the levels on either side (the Gaussian average is symmetric)."""
+    gx = cv2.Sobel(frame, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(frame, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.GaussianBlur(cv2.magnitude(gx, gy), (0, 0), sigma_px)
+
+
+def find_ball(frame0: np.ndarray) -> Ball:
+    """The ball in frame 0 (gray levels, float): a textured disc. Candidates from cv2.HoughCircles on the
+    log texture energy, refined on the linear texture energy (its half-level crossing is the edge: the
+    Gaussian average is symmetric). InitError if no circle with a clean edge all round is found."""
+    energy = texture_amplitude(frame0)
+    best: Ball | None = None
+    for x, y, r in _hough_candidates(np.log(texture_energy(frame0, 3.0) + 1.0))[:6]:
+        ball = refine_circle(energy, x, y, r)
+        if ball is None or ball.radius_px < 6:
+            continue
+        if best is None or ball.n_edge_points > best.n_edge_points or (
+                ball.n_edge_points == best.n_edge_points and ball.edge_residual_px < best.edge_residual_px):
+            best = ball
+    if best is None or best.n_edge_points < 0.75 * N_SECTORS:
+        raise InitError("no ball found in frame 0: no textured disc with a clear edge all round (cv2.HoughCircles on "
+                        f"the texture energy, refined in {N_SECTORS} sectors"
+                        + (f"; best: {best.n_edge_points} of {N_SECTORS} sectors" if best else "")
+                        + "); is the ball in view, in focus and speckled?")
+    return best
+
+
+# --------------------------------------------------------------------------------------------- plates
+
+def _edge_in(profile_grad: np.ndarray, lo: int, hi: int) -> tuple[float, float]:
+    """(sub-pixel row of the largest |gradient| in rows [lo, hi), its |gradient|)."""
+    seg = np.abs(profile_grad[lo:hi])
+    if seg.size < 3:
+        return math.nan, 0.0
+    k = int(np.argmax(seg))
+    peak = float(seg[k])
+    if 0 < k < seg.size - 1:
+        gm, g0, gp = seg[k - 1], seg[k], seg[k + 1]
+        den = gm - 2 * g0 + gp
+        if den < 0:
+            return lo + k + float(np.clip(0.5 * (gm - gp) / den, -0.5, 0.5)), peak
+    return float(lo + k), peak
+
+
+def _row_features(frame0: np.ndarray) -> dict[str, np.ndarray]:
+    """Images whose row profile steps at a plate edge: intensity, and log texture energy (speckle)."""
+    return {"intensity": cv2.GaussianBlur(frame0, (0, 0), 1.0), "texture": texture_amplitude(frame0, 1.5)}
+
+
+def _plate_edges(feature: np.ndarray, ball: Ball) -> tuple[np.ndarray, np.ndarray, float]:
+    """(top rows, bottom rows) per column block and the weakest edge's strength (peak / profile noise)."""
+    h, w = feature.shape
+    top_lo, top_hi = 2, int(math.floor(ball.y_px - ball.radius_px)) - 1
+    bot_lo, bot_hi = int(math.ceil(ball.y_px + ball.radius_px)) + 2, h - 2
+    full = _smooth1d(feature.mean(axis=1), 1.5)
+    g = np.gradient(full)
+    t0, st = _edge_in(g, top_lo, top_hi)
+    b0, sb = _edge_in(g, bot_lo, bot_hi)
+    noise = 1.4826 * np.median(np.abs(g - np.median(g)))
+    strength = [min(st, sb) / max(noise, 1e-9)]
+    tops, bots = [], []
+    for c in np.array_split(np.arange(w), N_COLUMN_BLOCKS):
+        prof = _smooth1d(feature[:, c].mean(axis=1), 1.5)
+        tops.append(_half_level_row(prof, t0))
+        bots.append(_half_level_row(prof, b0))
+    return np.array(tops), np.array(bots), float(min(strength))
+
+
+def _half_level_row(prof: np.ndarray, row: float) -> float:
+    """Where ``prof`` crosses half-way between its levels 5..9 rows either side of ``row`` (sub-pixel,
+    linear interpolation, the crossing nearest ``row``); ``row`` itself when there is no crossing."""
+    if not math.isfinite(row):
+        return row
+    n = prof.size
+    k = int(round(row))
+    a, b = prof[max(k - 9, 0):max(k - 4, 0)], prof[min(k + 5, n):min(k + 10, n)]
+    if a.size == 0 or b.size == 0:
+        return row
+    half = 0.5 * (a.mean() + b.mean())
+    lo, hi = max(k - 5, 0), min(k + 5, n - 1)
+    d = prof[lo:hi + 1] - half
+    idx = np.nonzero(np.sign(d[:-1]) != np.sign(d[1:]))[0]
+    if idx.size == 0:
+        return row
+    i = idx[np.argmin(np.abs(lo + idx + 0.5 - row))]
+    return float(lo + i + d[i] / (d[i] - d[i + 1]))
+
+
+def _smooth1d(x: np.ndarray, sigma: float) -> np.ndarray:
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(np.asarray(x, dtype=np.float64), sigma, mode="nearest")
+
+
+def find_plates(frame0: np.ndarray, ball: Ball) -> Plates:
+    """The cavity's top and bottom edges: strongest horizontal edges above and below the ball, in the
+    intensity or in the texture energy (whichever stands out more from its row profile's noise)."""
+    h = frame0.shape[0]
+    if ball.y_px - ball.radius_px < 6 or ball.y_px + ball.radius_px > h - 7:
+        raise InitError(f"plates not found in frame 0: no room above or below the ball (rows "
+                        f"{ball.y_px - ball.radius_px:.0f}..{ball.y_px + ball.radius_px:.0f} of {h})")
+    found = {name: _plate_edges(feat, ball) for name, feat in _row_features(frame0).items()}
+    name = max(found, key=lambda k: found[k][2])
+    tops, bots, strength = found[name]
+    if strength < 5.0:
+        raise InitError(f"plates not found in frame 0: the strongest horizontal edges above/below the ball stand only "
+                        f"{strength:.1f} x the row profile's noise above it (need >= 5): no clear cavity edges")
+    for side, rows in (("top", tops), ("bottom", bots)):
+        if np.ptp(rows) > MAX_PLATE_TILT_PX:
+            raise InitError(f"plates not found in frame 0: the {side} edge's row differs by {np.ptp(rows):.1f} px across "
+                            f"{N_COLUMN_BLOCKS} column blocks (rows {', '.join(f'{r:.1f}' for r in rows)}; a plate edge "
+                            f"is a horizontal line, <= {MAX_PLATE_TILT_PX} px): camera tilted, or not a plate")
+    n = math.sqrt(N_COLUMN_BLOCKS)
+    floor = 0.05  # px: the parabola's own resolution on a clean edge
+    return Plates(float(tops.mean()), float(bots.mean()),
+                  max(float(tops.std(ddof=1)) / n, floor), max(float(bots.std(ddof=1)) / n, floor))
+
+
+# --------------------------------------------------------------------------------------------- motion
+
+def _match_rows(image: np.ndarray, template: np.ndarray, x0: int, y0: int, search_px: int,
+                search_x_px: int = 0) -> tuple[float, float, float]:
+    """(down px, right px, peak ZNCC) of ``template`` (top-left (x0, y0) in frame 0) in ``image``."""
+    th, tw = template.shape
+    h, w = image.shape
+    ya, yb = max(0, y0 - search_px), min(h, y0 + th + search_px)
+    xa, xb = max(0, x0 - search_x_px), min(w, x0 + tw + search_x_px)
+    band = image[ya:yb, xa:xb]
+    if band.shape[0] < th or band.shape[1] < tw:
+        return math.nan, math.nan, 0.0
+    score = cv2.matchTemplate(band, template, cv2.TM_CCOEFF_NORMED)
+    iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
+    peak = float(score[iy, ix])
+
+    def sub(c_m, c_0, c_p):
+        den = c_m - 2 * c_0 + c_p
+        return float(np.clip(0.5 * (c_m - c_p) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+    dy = sub(score[iy - 1, ix], peak, score[iy + 1, ix]) if 0 < iy < score.shape[0] - 1 else 0.0
+    dx = sub(score[iy, ix - 1], peak, score[iy, ix + 1]) if 0 < ix < score.shape[1] - 1 else 0.0
+    return ya + iy + dy - y0, xa + ix + dx - x0, peak
+
+
+def structure_template(frame0: np.ndarray, plates: Plates, plate: str, rows_px: int) -> tuple[int, int, np.ndarray]:
+    """(x0, y0, patch) of a strip of ``plate`` just outside the cavity, used to follow the structure."""
+    h, w = frame0.shape
+    if plate == "bottom":
+        y0 = int(math.ceil(plates.bottom_row_px + EDGE_MARGIN_PX))
+    else:
+        y0 = int(math.floor(plates.top_row_px - EDGE_MARGIN_PX)) - rows_px
+    y0 = int(np.clip(y0, 0, h - rows_px))
+    x0 = IMAGE_EDGE_MARGIN_PX
+    return x0, y0, frame0[y0:y0 + rows_px, x0:w - x0].copy()
+
+
+def follow_motion(frames: list[tuple[int, np.ndarray]], ball: Ball, plates: Plates, plate: str,
+                  n_ball_frames: int = 60) -> Motion:
+    """Rows moved (down, px) by the plate strip and by the ball's inner square over ``frames``
+    ((index, gray image) pairs, frame 0 first); the ball only on its first ``n_ball_frames``."""
+    frame0 = frames[0][1]
+    strip_rows = 24
+    sx, sy, strip = structure_template(frame0, plates, plate, strip_rows)
+    half = int(max(4, math.floor((ball.radius_px - EDGE_MARGIN_PX) / math.sqrt(2))))
+    bx, by = int(round(ball.x_px)) - half, int(round(ball.y_px)) - half
+    ball_tpl = frame0[by:by + 2 * half + 1, bx:bx + 2 * half + 1].copy()
+    search_s = int(plates.gap_px // 2)
+    search_b = int(plates.gap_px)
+    idx, s_down, b_down = [], [], []
+    prev_s, prev_b = 0.0, 0.0
+    for k, img in frames:
+        idx.append(k)
+        ds, _, peak_s = _match_rows(img, strip, sx, sy + int(round(prev_s)), search_s)
+        ds = ds + int(round(prev_s)) if np.isfinite(ds) else math.nan
+        s_down.append(ds if peak_s > 0.5 else math.nan)
+        if np.isfinite(ds) and peak_s > 0.5:
+            prev_s = ds
+        if len(b_down) < n_ball_frames:
+            db, _, peak_b = _match_rows(img, ball_tpl, bx, by + int(round(prev_b)), min(search_b, 3 * half),
+                                        search_x_px=half)
+            db = db + int(round(prev_b)) if np.isfinite(db) else math.nan
+            b_down.append(db if peak_b > 0.5 else math.nan)
+            if np.isfinite(db) and peak_b > 0.5:
+                prev_b = db
+        else:
+            b_down.append(math.nan)
+    return Motion(np.array(idx), np.array(s_down, float), np.array(b_down, float))
+
+
+def estimate_frequency_hz(motion: Motion, fps: float) -> tuple[float | None, str]:
+    """Drive frequency (Hz) from a least-squares sine fit to the structure's motion, with a note; None
+    (and the reason) when fewer than 1.5 cycles were seen."""
+    ok = np.isfinite(motion.structure_down_px)
+    t = motion.frames[ok] / fps
+    y = motion.structure_down_px[ok]
+    if t.size < 16:
+        return None, f"only {t.size} frames followed"
+    n = 8 * t.size
+    spec = np.abs(np.fft.rfft((y - y.mean()) * np.hanning(y.size), n))
+    freqs = np.fft.rfftfreq(n, d=(t[-1] - t[0]) / (t.size - 1))
+    f0 = float(freqs[1 + int(np.argmax(spec[1:]))])
+    cycles = f0 * (t[-1] - t[0])
+    if cycles < 1.5:
+        return None, f"the frames examined ({t.size}) hold {cycles:.1f} drive cycles (< 1.5)"
+    best = (math.inf, f0)
+    for f in np.linspace(0.9 * f0, 1.1 * f0, 401):
+        a = np.column_stack([np.sin(2 * math.pi * f * t), np.cos(2 * math.pi * f * t), np.ones_like(t)])
+        res = np.linalg.lstsq(a, y, rcond=None)[1]
+        rss = float(res[0]) if res.size else math.inf
+        if rss < best[0]:
+            best = (rss, float(f))
+    return best[1], f"sine fit to the structure's motion over {t.size} frames ({cycles:.1f} cycles)"
+
+
+# ------------------------------------------------------------------------------------- noise, texture
+
+def noise_sigma_gray(image: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Read-noise sigma (gray levels) by Immerkaer's Laplacian-difference estimator over ``mask``
+    (texture inflates it: an upper bound, hence a conservative texture check)."""
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
+    conv = np.abs(cv2.filter2D(image.astype(np.float32), cv2.CV_32F, kernel))[1:-1, 1:-1]
+    sel = conv if mask is None else conv[mask[1:-1, 1:-1]]
+    return float(math.sqrt(math.pi / 2.0) * sel.mean() / 6.0) if sel.size else math.nan
+
+
+def worst_cramer_rao_px(image: np.ndarray, roi: Roi, subset_px: int, step_px: int, noise_gray: float) -> float:
+    """The largest Cramer-Rao displacement std (px, along rows: the motion axis) over the subsets of ``roi``."""
+    from .icgn import gradients
+    from .noise import cramer_rao_px
+
+    _, gy = gradients(image)
+    half = subset_px // 2
+    worst = 0.0
+    for x, y in mesh_points(roi, subset_px, step_px).astype(int):
+        ssg = float(np.sum(gy[y - half:y + half + 1, x - half:x + half + 1].astype(np.float64) ** 2))
+        worst = max(worst, float(cramer_rao_px(max(ssg, 1e-12), noise_gray)))
+    return worst
+
+
+# ------------------------------------------------------------------------------------------- scale, ROIs
+
+def scale_tolerance(ball: Ball, plates: Plates) -> tuple[float, float, float]:
+    """(ball diameter's relative std, gap's relative std, allowed relative disagreement of the two scales).
+
+    Allowed: 3 combined sigmas plus EDGE_SYSTEMATIC_PX on each of the four edge positions (the blur and
+    edge models' own accuracy), i.e. 2 x 0.5 px over the diameter and over the gap.
+    """
+    d_px = 2 * ball.radius_px
+    ball_rel = 2 * ball.radius_std_px / d_px
+    gap_rel = plates.gap_std_px / plates.gap_px
+    tol = 3.0 * math.hypot(ball_rel, gap_rel) + 2 * EDGE_SYSTEMATIC_PX / d_px + 2 * EDGE_SYSTEMATIC_PX / plates.gap_px
+    return ball_rel, gap_rel, tol
+
+
+def propose_ball_roi(ball: Ball, subset_px: int, width_px: int, height_px: int) -> Roi:
+    """The largest square centred on the ball whose corners stay EDGE_MARGIN_PX inside the fitted edge."""
+    side = int(math.floor((ball.radius_px - EDGE_MARGIN_PX - 3 * ball.radius_std_px) * math.sqrt(2.0)))
+    if side < subset_px:
+        raise InitError(f"the ball ({2 * ball.radius_px:.1f} px across) cannot hold a {subset_px} px subset "
+                        f"{EDGE_MARGIN_PX} px inside its edge (largest square {max(side, 0)} px): give a smaller "
+                        "--subset-px (odd) or film the ball larger")
+    x = int(round(ball.x_px - side / 2 + 0.5))
+    y = int(round(ball.y_px - side / 2 + 0.5))
+    if x < 0 or y < 0 or x + side > width_px or y + side > height_px:
+        raise InitError(f"the ball's ROI [{x}, {y}, {side}, {side}] leaves the {width_px}x{height_px} px image")
+    return Roi(x, y, side, side)
+
+
+def propose_structure_roi(plates: Plates, motion: Motion, subset_px: int, step_px: int, width_px: int,
+                          height_px: int) -> tuple[Roi, str]:
+    """A ROI on the plate with the most room: EDGE_MARGIN_PX outside the cavity edge, subset + step rows
+    high at most, inside the image for the whole travel seen (with 10 % and 2 px to spare)."""
+    lo, hi = motion.structure_range_px  # rows moved down (min <= 0 <= max)
+    travel_up = max(0.0, -lo) * 1.1 + IMAGE_EDGE_MARGIN_PX
+    travel_down = max(0.0, hi) * 1.1 + IMAGE_EDGE_MARGIN_PX
+    want_h = subset_px + step_px
+    # room between the ROI's start (edge + margin) and the image border, less the travel
+    start_bottom = int(math.ceil(plates.bottom_row_px + EDGE_MARGIN_PX))
+    room_bottom = int(math.floor(height_px - travel_down)) - start_bottom
+    end_top = int(math.floor(plates.top_row_px - EDGE_MARGIN_PX)) + 1   # exclusive
+    room_top = end_top - int(math.ceil(travel_up))
+    if max(room_bottom, room_top) < subset_px:
+        raise InitError(f"no textured patch of the structure fits a {subset_px} px subset: above the top plate's edge "
+                        f"{max(room_top, 0)} px and below the bottom one's {max(room_bottom, 0)} px stay in the image "
+                        f"over the travel seen ({-lo:.1f} px up, {hi:.1f} px down); frame more of a plate")
+    x, w = 8, width_px - 16
+    if w < subset_px:
+        x, w = 0, width_px
+    if room_bottom >= room_top:
+        return Roi(x, start_bottom, w, min(want_h, room_bottom)), "bottom"
+    h = min(want_h, room_top)
+    return Roi(x, end_top - h, w, h), "top"
+
+
+def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, gap_mm: float, fps: float,
+            subset_px: int = 31, mesh_step_px: int = 10) -> Proposal:
+    """Measure frame 0 and the motion over ``frames`` ((index, gray image) pairs, frame 0 first) and
+    propose ROIs and the scale. Raises :class:`InitError` naming what cannot be found, with numbers."""
+    frame0 = frames[0][1]
+    h, w = frame0.shape
+    ball = find_ball(frame0)
+    plates = find_plates(frame0, ball)
+    if not plates.top_row_px < ball.y_px - ball.radius_px + 1 or not ball.y_px + ball.radius_px - 1 < plates.bottom_row_px:
+        raise InitError(f"the ball (rows {ball.y_px - ball.radius_px:.1f}..{ball.y_px + ball.radius_px:.1f}) is not "
+                        f"between the plates found (rows {plates.top_row_px:.1f}, {plates.bottom_row_px:.1f})")
+    # follow the plate with more room in the image (the ROI goes there too)
+    plate = "bottom" if h - plates.bottom_row_px >= plates.top_row_px else "top"
+    motion = follow_motion(frames, ball, plates, plate)
+    n_seen = int(np.isfinite(motion.structure_down_px).sum())
+    lo, hi = motion.structure_range_px if n_seen else (0.0, 0.0)
+    if n_seen < 2 or hi - lo < MIN_STRUCTURE_MOTION_PX:
+        raise InitError(f"the plates do not move over frames {motion.frames[0]}..{motion.frames[-1]} (range "
+                        f"{hi - lo:.2f} px < {MIN_STRUCTURE_MOTION_PX} px): shaker off, or too few frames")
+    rel = motion.ball_relative_range_px
+    if rel < MIN_BALL_RELATIVE_MOTION_PX:
+        raise InitError(f"the circle at ({ball.x_px:.1f}, {ball.y_px:.1f}) px, r {ball.radius_px:.1f} px, moves only "
+                        f"{rel:.2f} px relative to the plates over the frames followed (< {MIN_BALL_RELATIVE_MOTION_PX} "
+                        "px): not a free ball (a mark on the structure?)")
+    ball_rel, gap_rel, tol = scale_tolerance(ball, plates)
+    scale = Scale(ball_diameter_mm / (2 * ball.radius_px), gap_mm / plates.gap_px, ball_rel, gap_rel, tol)
+    if abs(scale.disagreement_rel) > tol:
+        raise InitError(
+            f"scale from the ball ({ball_diameter_mm:g} mm over {2 * ball.radius_px:.2f} +- {2 * ball.radius_std_px:.2f} "
+            f"px = {scale.from_ball:.5f} mm/px) and from the gap ({gap_mm:g} mm over {plates.gap_px:.2f} +- "
+            f"{plates.gap_std_px:.2f} px = {scale.from_gap:.5f} mm/px) disagree by {100 * scale.disagreement_rel:+.2f} % "
+            f"(localisation allows {100 * tol:.2f} %): check --ball-diameter-mm and --gap-mm")
+    ball_roi = propose_ball_roi(ball, subset_px, w, h)
+    structure_roi, which = propose_structure_roi(plates, motion, subset_px, mesh_step_px, w, h)
+    cavity = np.zeros(frame0.shape, bool)
+    cavity[int(plates.top_row_px) + 4:int(plates.bottom_row_px) - 3] = True
+    yy, xx = np.mgrid[:h, :w]
+    cavity &= np.hypot(xx - ball.x_px, yy - ball.y_px) > ball.radius_px + 4
+    noise = noise_sigma_gray(frame0, cavity if cavity.sum() > 500 else None)
+    cr_ball = worst_cramer_rao_px(frame0, ball_roi, subset_px, mesh_step_px, noise)
+    cr_struct = worst_cramer_rao_px(frame0, structure_roi, subset_px, mesh_step_px, noise)
+    for name, cr in (("ball", cr_ball), ("structure", cr_struct)):
+        if cr > MAX_SUBSET_CRAMER_RAO_PX:
+            raise InitError(f"the {name} ROI has too little texture for DIC: its worst {subset_px} px subset's "
+                            f"displacement std would be {cr:.3f} px (sum of squared gradients against the noise, "
+                            f"{noise:.2f} gray levels; need <= {MAX_SUBSET_CRAMER_RAO_PX} px): speckle the {name}, "
+                            "light it better or give a larger --subset-px")
+    freq, note = estimate_frequency_hz(motion, fps)
+    return Proposal(w, h, ball, plates, motion, scale, ball_roi, structure_roi, which, subset_px, mesh_step_px,
+                    noise, cr_ball, cr_struct, freq, note)
