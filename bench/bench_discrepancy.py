@@ -23,11 +23,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
+from side_by_side import print_side_by_side  # noqa: E402
 from vibro_eval.prove import GOALS, format_summary, prove  # noqa: E402
-
-
-def ratio(a, b):
-    return None if a is None or b is None or b == 0 else a / b
 
 
 def main(argv=None) -> int:
@@ -64,12 +61,7 @@ def main(argv=None) -> int:
         "D after / D true, max": (v["d_final_over_true_max"], s and s["d_final_over_true_max"]),
         "D after within 1.5x D true": (v["d_within_1p5x_true"], s and s["d_within_1p5x_true"]),
     }
-    print(f"\n{'metric':38} {'vibro':>14} {'PySINDy':>14} {'PySINDy/vibro':>14}")
-    for k, (a, b) in table.items():
-        q = ratio(b, a) if isinstance(a, (int, float)) and isinstance(b, (int, float)) else None
-        fa = f"{a:.4g}" if isinstance(a, float) else str(a)
-        fb = f"{b:.4g}" if isinstance(b, float) else str(b)
-        print(f"{k:38} {fa:>14} {fb:>14} {('' if q is None else f'{q:.3g}'):>14}")
+    print_side_by_side(table)
     med = lambda x: float(np.median(x)) if x else None  # noqa: E731
     print(f"\nD (effect cases, median): baseline {med(d_base)}, vibro after {med(d_fin)}, true model {med(d_true)}, "
           f"PySINDy after {med(d_sin)}; wall {wall:.0f} s")

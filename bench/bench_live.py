@@ -73,20 +73,25 @@ def tracker_cost_ms(rec: Path, n: int = 300) -> dict[str, float]:
     return {k: costs[k] for k in ("image_deserialize_ms", "dic_icgn_ms")}
 
 
-def start_nodes(rec: Path, folder: Path, env: dict[str, str]) -> dict[str, subprocess.Popen]:
-    """The live processing nodes, started as ros2 launch starts them (tests/launch_like.py)."""
+def start_nodes(rec: Path, folder: Path, env: dict[str, str]) -> tuple[dict[str, subprocess.Popen], int]:
+    """The live processing nodes, started as ros2 launch starts them (tests/launch_like.py), and the lab-clock
+    origin (ns) they were given: the camera must stamp its frames on it, as a driver on the lab's clock does."""
     from launch_like import launch_command
 
     from vibro_bringup.graph_spec import launch_nodes
 
     procs = {}
-    for n in launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC):
+    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC)
+    origins = {int(n.parameters["time_origin_unix_ns"]) for n in nodes if "time_origin_unix_ns" in n.parameters}
+    if len(origins) != 1:
+        raise SystemExit(f"the live nodes were given {len(origins)} lab-clock origins: {sorted(origins)}")
+    for n in nodes:
         params = folder / f"{n.spec.name}.params.yaml"
         params.write_text(yaml.safe_dump({"/**": {"ros__parameters": n.parameters}}))
         with (folder / f"{n.spec.name}.log").open("w") as log:
             procs[n.spec.name] = subprocess.Popen(launch_command(n, params), stdout=log,
                                                   stderr=subprocess.STDOUT, env=env)
-    return procs
+    return procs, origins.pop()
 
 
 def stop(procs: dict[str, subprocess.Popen]) -> dict[str, int]:
@@ -109,7 +114,7 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str]) -> tu
     folder.mkdir(parents=True)
     probe_out, ready, cam_out = folder / "probe.json", folder / "probe.ready", folder / "camera.json"
     with CpuSampler(DOMAIN) as sampler:
-        nodes = start_nodes(rec, folder, env)
+        nodes, origin_ns = start_nodes(rec, folder, env)
         with (folder / "probe.log").open("w") as log:
             probe = subprocess.Popen([sys.executable, str(BENCH / "live_probe.py"), str(probe_out), str(ready),
                                       "--ros-args", "-r", "__node:=bench_probe"], stdout=log,
@@ -123,7 +128,8 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str]) -> tu
                 time.sleep(0.1)
             with (folder / "camera.log").open("w") as log:
                 camera = subprocess.run([sys.executable, str(BENCH / "camera_peer.py"), str(rec), str(cam_out),
-                                         "--rate-hz", str(rate_hz), "--ros-args", "-r", "__node:=camera_driver"],
+                                         "--rate-hz", str(rate_hz), "--time-origin-ns", str(origin_ns),
+                                         "--ros-args", "-r", "__node:=camera_driver"],
                                         stdout=log, stderr=subprocess.STDOUT, env=env, timeout=300)
             if camera.returncode != 0:
                 raise SystemExit(f"camera_peer failed at {rate_hz:g} Hz: {(folder / 'camera.log').read_text()}")

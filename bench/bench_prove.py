@@ -29,15 +29,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+from side_by_side import fmt, print_side_by_side, ratio  # noqa: E402
 from vibro_eval.prove import EVIDENCE, GOALS, format_family_table, format_summary, prove  # noqa: E402
-
-
-def ratio(a, b):
-    return None if a is None or b is None or b == 0 else a / b
-
-
-def _fmt(x) -> str:
-    return f"{x:.4g}" if isinstance(x, float) else str(x)
 
 
 def main(argv=None) -> int:
@@ -71,10 +64,7 @@ def main(argv=None) -> int:
         "main parameter error, max (%)": (v["parameter_error_max_pct"], s and s["parameter_error_max_pct"]),
         "paper D after / true model's, max": (v["d_final_over_true_max"], s and s["d_final_over_true_max"]),
     }
-    print(f"\n{'metric':38} {'vibro':>14} {'PySINDy':>14} {'PySINDy/vibro':>14}")
-    for k, (a, b) in table.items():
-        q = ratio(b, a) if isinstance(a, (int, float)) and isinstance(b, (int, float)) else None
-        print(f"{k:38} {_fmt(a):>14} {_fmt(b):>14} {('' if q is None else f'{q:.3g}'):>14}")
+    print_side_by_side(table)
     cor = {
         "COR error max, effects": (v["cor_error_max_effects"], v["cor_error_max_effects_paper"],
                                    GOALS["cor_error_effects"]),
@@ -84,7 +74,7 @@ def main(argv=None) -> int:
     print(f"\n{'per-impact COR vs truth':38} {'final model':>14} {'paper Eq. 16':>14} {'paper/final':>14} {'goal':>8}")
     for k, (a, b, g) in cor.items():
         q = ratio(b, a)
-        print(f"{k:38} {_fmt(a):>14} {_fmt(b):>14} {('' if q is None else f'{q:.3g}'):>14} {g:>8}")
+        print(f"{k:38} {fmt(a):>14} {fmt(b):>14} {('' if q is None else f'{q:.3g}'):>14} {g:>8}")
     print(f"correct findings improving the model (D_r lower; COR laws: variance share above chance): "
           f"{v['correct_findings_improving']}/{v['correct_findings']}; "
           f"unmatched impacts {v['unmatched_impacts']}; wall {wall:.0f} s")

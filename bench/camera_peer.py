@@ -34,6 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="JSON file of publish wall times")
     parser.add_argument("--rate-hz", type=float, required=True)
     parser.add_argument("--topic", default="camera/image_raw")
+    parser.add_argument("--time-origin-ns", type=int, default=0,
+                        help="lab-clock origin of the stamps (ns since the epoch): stamp = origin + t0_s + k/fps")
     parser.add_argument("--settle-s", type=float, default=1.0, help="wait after the first subscriber matched")
     parser.add_argument("--wait-s", type=float, default=60.0, help="give up when no subscriber after this")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
@@ -41,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"camera_peer: --rate-hz must be > 0, got {args.rate_hz}", file=sys.stderr)
         return 2
     frames = [f for f in open_recording(args.recording).frames if f.ok]
-    messages = [image_message(f, "camera") for f in frames]
+    messages = [image_message(f, "camera", args.time_origin_ns) for f in frames]
     indices = [f.index for f in frames]
     del frames
     if any(m.encoding != "mono8" for m in messages):

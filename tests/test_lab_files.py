@@ -22,7 +22,6 @@ sys.path.insert(0, str(Path(__file__).parent))
 from lab_writers import write_cine, write_mraw, write_mraw12, write_tdms  # noqa: E402
 
 from vibro_bringup.cli import main  # noqa: E402
-from vibro_io.errors import FrameError  # noqa: E402
 from vibro_io.frames import FrameSequence, read_image  # noqa: E402
 from vibro_io.recording import open_recording  # noqa: E402
 from vibro_io.rig import CameraConfig, load_rig  # noqa: E402

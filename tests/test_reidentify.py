@@ -185,44 +185,23 @@ def test_the_discrepancy_node_publishes_the_impacts_analyze_remeasures(analysed,
     """The graph path: the ``discrepancy`` node (its own process, over DDS) fed the identification that
     ``vibro analyze`` made (the fitter's messages) publishes on vibro/impacts_final_model the impacts
     analyze wrote, re-measured by the same module (equal to 1e-9)."""
-    import signal
+    from discrepancy_dds import feed_case, run_discrepancy_node
 
     from vibro_io.dictrack import read_dic_csv
 
     case = analysed["quadratic"]
     r = case["results"]
     identified = [{**i, "t": i["t_paper"], "cor": i["cor_paper"], "cor_std": i["cor_std_paper"]} for i in r["impacts"]]
-    track = read_dic_csv(case["out"] / "dic.csv")
-    cols = ("frame", "t_s", "ball_mm", "structure_mm")
-    feed = {"sections": {"structure": r["structure"], "flights": r["flights"], "impacts": identified},
-            "track": {c: getattr(track, c).tolist() for c in cols}}
-    (tmp_path / "case.json").write_text(json.dumps(feed))
-    here = Path(__file__).resolve().parent
-    rig = case["out"].parent / "quadratic" / "rig.yaml"
-
-    def start(*argv: str) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-    echo = start(str(here / "ros_echo.py"), "vibro_msgs/msg/ImpactEstimate", "vibro/impacts_final_model",
-                 "--count", str(len(identified)), "--seconds", "90", "--qos", "results")
-    node = start("-m", "vibro_sim.discrepancy_node", "--ros-args", "-p", f"rig_file:={rig}")
-    feeder = None
-    try:
-        assert echo.stdout.readline().strip() == "READY"
-        feeder = start(str(here / "discrepancy_feeder.py"), str(tmp_path / "case.json"), "--seconds", "60")
-        out, _ = echo.communicate(timeout=120)
-    finally:
-        node.send_signal(signal.SIGINT)
-        _, node_err = node.communicate(timeout=20)
-        if feeder is not None:
-            feeder.kill()
-        echo.kill()
-    rows = {row["index"]: row for row in (json.loads(line) for line in out.splitlines() if line.startswith("{"))}
-    assert sorted(rows) == [i["index"] for i in r["impacts"]], node_err
+    sections = {"structure": r["structure"], "flights": r["flights"], "impacts": identified}
+    case_file = feed_case(tmp_path / "case.json", sections, read_dic_csv(case["out"] / "dic.csv"))
+    run = run_discrepancy_node(case_file, case["out"].parent / "quadratic" / "rig.yaml",
+                               "vibro_msgs/msg/ImpactEstimate", "vibro/impacts_final_model", count=len(identified))
+    rows = {row["index"]: row for row in run.rows}
+    assert sorted(rows) == [i["index"] for i in r["impacts"]], run.logs
     for imp in r["impacts"]:
         msg = rows[imp["index"]]
         assert msg["final"] is True
         for key, field in (("t", "t_s"), ("cor", "cor"), ("cor_std", "cor_std"), ("v_structure", "v_structure_m_per_s"),
                            ("v_ball_before", "v_ball_before_m_per_s"), ("v_ball_after", "v_ball_after_m_per_s")):
             assert msg[field] == pytest.approx(imp[key], abs=1e-9), (imp["index"], key)
-    assert "Traceback" not in node_err
+    assert "Traceback" not in run.node_err

@@ -26,14 +26,19 @@ while time.monotonic() < end:
 """
 
 
-def test_recorder_ends_when_an_unlisted_writers_streams_have_ended(tmp_path: Path, ros_domain: str) -> None:
-    bag = tmp_path / "bag"
-    ns = ["-r", "__ns:=/lab7"]
+def _recorder_and_announcer(bag: Path, namespace: str, script: str, seconds: int):
+    """A recorder declaring impact_detector as its writer, and the status announcer, in ``namespace``."""
+    ns = ["-r", f"__ns:={namespace}"]
     recorder = subprocess.Popen([sys.executable, "-m", "vibro_bringup.recorder_node", "--ros-args", *ns,
                                  "-p", f"bag:={bag}", "-p", "writers:=[impact_detector]"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    announcer = subprocess.Popen([sys.executable, "-c", ANNOUNCER, "20", "--ros-args", *ns],
+    announcer = subprocess.Popen([sys.executable, "-c", script, str(seconds), "--ros-args", *ns],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return recorder, announcer
+
+
+def test_recorder_ends_when_an_unlisted_writers_streams_have_ended(tmp_path: Path, ros_domain: str) -> None:
+    recorder, announcer = _recorder_and_announcer(tmp_path / "bag", "/lab7", ANNOUNCER, 20)
     try:
         t0 = time.monotonic()
         out, err = recorder.communicate(timeout=60)
@@ -51,14 +56,8 @@ def test_recorder_ends_when_an_unlisted_writers_streams_have_ended(tmp_path: Pat
 
 def test_recorder_keeps_waiting_while_a_writers_streams_have_not_ended(tmp_path: Path, ros_domain: str) -> None:
     # the same, but the status is not final: the recorder must not end on it
-    bag = tmp_path / "bag"
-    ns = ["-r", "__ns:=/lab8"]
     script = ANNOUNCER.replace("finished=True", "finished=False")
-    recorder = subprocess.Popen([sys.executable, "-m", "vibro_bringup.recorder_node", "--ros-args", *ns,
-                                 "-p", f"bag:={bag}", "-p", "writers:=[impact_detector]"],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    announcer = subprocess.Popen([sys.executable, "-c", script, "8", "--ros-args", *ns],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    recorder, announcer = _recorder_and_announcer(tmp_path / "bag", "/lab8", script, 8)
     try:
         announcer.communicate(timeout=60)
         time.sleep(2.0)

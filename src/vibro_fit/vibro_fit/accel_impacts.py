@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import butter, find_peaks, sosfiltfilt
 
 from vibro_io.accel import AccelData
 from vibro_io.errors import AccelError
@@ -61,6 +60,8 @@ def _spectrum_peaks(seg: np.ndarray, fs: float, n_peaks: int = 3) -> list[float]
     freqs = np.fft.rfftfreq(seg.size, 1.0 / fs)
     if not mag.any():
         return []
+    from scipy.signal import find_peaks  # here, not at import: scipy.signal costs ~1.3 s to import
+
     idx, props = find_peaks(mag, prominence=0.05 * mag.max())
     order = np.argsort(props["prominences"])[::-1][:n_peaks]
     return sorted(float(freqs[idx[k]]) for k in order)
@@ -151,6 +152,8 @@ def highpass(x: np.ndarray, fs_hz: float, cutoff_hz: float = 100.0, order: int =
     """Zero-phase Butterworth high-pass (sosfiltfilt)."""
     if not 0 < cutoff_hz < 0.5 * fs_hz:
         raise AccelError(f"high-pass cut-off {cutoff_hz} Hz must be in (0, {0.5 * fs_hz:g}) Hz (Nyquist)")
+    from scipy.signal import butter, sosfiltfilt  # here, not at import (node start-up time)
+
     sos = butter(order, cutoff_hz, btype="highpass", fs=fs_hz, output="sos")
     x = np.asarray(x, float)
     pad = 3 * (2 * len(sos) + 1)
@@ -224,6 +227,8 @@ def analyse_accel(data: AccelData, frequency_hz: float, highpass_hz: float = 100
     peaks: list[float] = []
     tot = mu + ml
     if tot.any():
+        from scipy.signal import find_peaks
+
         idx, props = find_peaks(tot, prominence=0.05 * tot.max())
         order = np.argsort(props["prominences"])[::-1][:n_peaks]
         peaks = sorted(float(freqs[idx[k]]) for k in order)

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from vibro_model.results import CorSummary
 
@@ -41,6 +40,8 @@ def normal_check(values, bins: int | str = "auto") -> NormalCheck:
     if v.size < 3:
         raise ValueError(f"normal check needs at least 3 values, got {v.size}")
     counts, edges = np.histogram(v, bins=bins)
+    from scipy import stats  # here, not at import (node start-up time)
+
     (osm, osr), (slope, intercept, r) = stats.probplot(v, dist="norm")
     return NormalCheck(counts, edges, float(v.mean()), float(v.std(ddof=1)), np.asarray(osm), np.asarray(osr),
                        float(slope), float(intercept), float(r))

@@ -68,7 +68,22 @@ def _shifted(image: np.ndarray, effective_bits: int, where: str) -> np.ndarray:
     return image << np.uint16(16 - effective_bits)
 
 
-class MrawFile:
+class _CameraFile:
+    """What every camera file reader shares: ``header`` (:class:`CameraHeader`) and ``bits`` per pixel."""
+
+    header: CameraHeader
+    bits: int
+
+    @property
+    def dtype(self) -> np.dtype:
+        """The pixel type frames are returned in: uint8 for 8-bit files, uint16 (MSB-aligned) otherwise."""
+        return np.dtype(np.uint8 if self.bits == 8 else np.uint16)
+
+    def __len__(self) -> int:
+        return self.header.n_frames
+
+
+class MrawFile(_CameraFile):
     """A Photron MRAW file read through its .cih/.cihx header (``path``: the header file)."""
 
     _REQUIRED = ("Record Rate(fps)", "Total Frame", "Image Width", "Image Height", "Color Bit", "File Format",
@@ -150,13 +165,6 @@ class MrawFile:
             log.warning("%s: %d bytes after the %d frames %s announces are ignored", self.path,
                         size - n * self.frame_bytes, n, self.header_path.name)
 
-    @property
-    def dtype(self) -> np.dtype:
-        return np.dtype(np.uint8 if self.bits == 8 else np.uint16)
-
-    def __len__(self) -> int:
-        return self.header.n_frames
-
     def read(self, k: int) -> np.ndarray:
         """Frame ``k`` (0-based) as a new array (file mapped for this frame only); FrameError naming file and frame."""
         h, w = self.header.height_px, self.header.width_px
@@ -175,7 +183,7 @@ class MrawFile:
         return image if self.higher else _shifted(image, self.effective_bits, where)
 
 
-class CineFile:
+class CineFile(_CameraFile):
     """A Phantom CINE file: pycine reads the header, the frame offsets and 16-bit/packed frames.
 
     pycine cannot decode 8-bit frames (it reads every uncompressed frame as 16-bit); for those a
@@ -224,13 +232,6 @@ class CineFile:
                 raise FrameError(
                     f"{self.path}: truncated or corrupt: frame {k} of {self.header.n_frames} would end at byte "
                     f"{offset + 8 + self.frame_bytes} but the file holds {size} bytes")
-
-    @property
-    def dtype(self) -> np.dtype:
-        return np.dtype(np.uint8 if self.bits == 8 else np.uint16)
-
-    def __len__(self) -> int:
-        return self.header.n_frames
 
     def read(self, k: int) -> np.ndarray:
         """Frame ``k`` (0-based, file order) as a top-down image; FrameError naming file and frame."""
