@@ -3,22 +3,23 @@
 Pixel convention as everywhere (:mod:`vibro_dic.mesh`): x = column, y = row, rows grow downwards.
 Gray levels are those of an 8-bit image (16-bit frames are divided by 257).
 
-What is measured on frame 0 (and how sure it is):
+What is measured on frame 0 (and how sure it is), see :mod:`vibro_dic.init_edges`:
 
-- the ball: a circle (cv2.HoughCircles on the image blurred by ``BLUR_SIGMA_PX``), refined by
-  locating its edge along ``N_RAYS`` rays (largest radial intensity gradient, sub-pixel by a
-  parabola) and a robust least-squares circle fit; ``radius_std_px`` is the fit residual's std over
-  the square root of the number of independent edge samples (rays closer than the blur are not
-  independent);
-- the plates: the strongest horizontal intensity edge above and below the ball in the row profile
-  (sub-pixel parabola), measured separately on ``N_COLUMN_BLOCKS`` column blocks: their spread is the
-  edge's uncertainty and their tilt must stay small (a plate edge is a straight horizontal line);
+- the ball: a textured disc (cv2.HoughCircles on the texture energy), its edge located on the texture
+  ALONG the edge (tangential gradient amplitude; the edge's own step has none): the centre from a
+  robust circle fit through the edges of angular sectors, the radius from the whole ring's profile,
+  its 1-sigma from the sectors' scatter;
+- the plates: the same on the rows (horizontal gradient amplitude), the row from the whole width,
+  its 1-sigma from column blocks, whose line must be horizontal (a plate edge, not a tilted camera);
+- the edge blur: one value for the three edges (same lens, same focus);
 - the motion over the first frames (template matching, sub-pixel): the plates must move (the drive
   is on) and the ball must move relative to them (a free ball, not a mark on the structure).
 
-The scale is the ball's known diameter over its fitted diameter in pixels; the gap between the
-plates gives a second, independent scale. They must agree within what the localisation allows
-(:func:`scale_tolerance`), else the setup is refused.
+Two scales follow from the two known lengths: the ball's diameter over its fitted diameter in pixels,
+and the gap over the plates' distance. They must agree within what the localisation allows
+(:func:`scale_tolerance`), else the setup is refused; the scale written is their inverse-variance
+mean (a speckled edge's position scatters with the speckle's realisation, and the gap, 3 to 4 ball
+diameters long, is the relatively more accurate length).
 """
 
 from __future__ import annotations
@@ -33,13 +34,13 @@ from scipy.ndimage import map_coordinates
 from vibro_io.errors import RecordingError
 from vibro_io.rig import Roi
 
+from . import init_edges as edges
 from .mesh import mesh_points
 
-BLUR_SIGMA_PX = 2.0           # blur before circle and edge finding: speckle averages out, edges stay sharp
-N_RAYS = 256
-N_COLUMN_BLOCKS = 4
-EDGE_SYSTEMATIC_PX = 0.5      # trusted accuracy of one edge position beyond its statistical error (blur model)
+EDGE_SYSTEMATIC_PX = 0.25     # allowed model error of one edge position beyond its statistical error (px)
+EDGE_STD_FLOOR_PX = 0.05      # an edge's stated 1-sigma is never below this (px)
 EDGE_MARGIN_PX = 6            # ROIs keep this far inside the ball's / plate's edge (edge blur + fit error)
+MIN_PLATE_STRENGTH = 5.0     # a plate's texture step over the row profile's robust noise
 MAX_PLATE_TILT_PX = 2.0       # the plate edge's rise across the image beyond which it is not a plate
 MIN_STRUCTURE_MOTION_PX = 0.5
 MIN_BALL_RELATIVE_MOTION_PX = 2.0
@@ -121,6 +122,22 @@ class Scale:
     def disagreement_rel(self) -> float:
         return self.from_gap / self.from_ball - 1.0
 
+    @property
+    def ball_weight(self) -> float:
+        """The ball's share of the inverse-variance mean (the gap has 1 - this)."""
+        wb, wg = self.ball_rel_std ** -2, self.gap_rel_std ** -2
+        return wb / (wb + wg)
+
+    @property
+    def mm_per_px(self) -> float:
+        """The scale written: the inverse-variance mean of the two (mm/px)."""
+        return self.ball_weight * self.from_ball + (1.0 - self.ball_weight) * self.from_gap
+
+    @property
+    def rel_std(self) -> float:
+        """1-sigma of :attr:`mm_per_px`, relative."""
+        return (self.ball_rel_std ** -2 + self.gap_rel_std ** -2) ** -0.5
+
 
 @dataclass
 class Proposal:
@@ -138,6 +155,7 @@ class Proposal:
     subset_px: int
     mesh_step_px: int
     noise_gray: float
+    edge_sigma_px: float            # the edges' blur (ball and plates)
     ball_cramer_rao_px: float       # worst subset of the ball ROI
     structure_cramer_rao_px: float  # worst subset of the structure ROI
     frequency_hz: float | None = None
@@ -161,78 +179,10 @@ def _hough_candidates(blurred: np.ndarray) -> list[tuple[float, float, float]]:
     return []
 
 
-def _fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Algebraic (Kasa) least-squares circle through points: (cx, cy, r)."""
-    a = np.column_stack([x, y, np.ones_like(x)])
-    b = x * x + y * y
-    (p, q, c), *_ = np.linalg.lstsq(a, b, rcond=None)
-    cx, cy = p / 2.0, q / 2.0
-    return float(cx), float(cy), float(math.sqrt(max(c + cx * cx + cy * cy, 0.0)))
-
-
-N_SECTORS = 32
-
-
-def refine_circle(feature: np.ndarray, x0: float, y0: float, r0: float) -> Ball | None:
-    """Sub-pixel circle: in each of N_SECTORS angular sectors the feature's mean radial profile (N_RAYS
-    rays in all) crosses half-way between its levels just inside and just outside the edge; a robust
-    least-squares circle through these crossings. None when too few sectors show a clean step."""
-    h, w = feature.shape
-    ang = np.linspace(0.0, 2 * math.pi, N_RAYS, endpoint=False)
-    sector = np.arange(N_RAYS) * N_SECTORS // N_RAYS
-    step = 0.25
-    cx, cy, r = x0, y0, _coarse_radius(feature, x0, y0, r0)
-    if r is None:
-        return None
-    for _ in range(4):
-        radii = np.arange(max(r - 12.0, 1.0), r + 12.0, step)
-        xs = cx + np.cos(ang)[:, None] * radii[None, :]
-        ys = cy + np.sin(ang)[:, None] * radii[None, :]
-        inside = (xs.min(axis=1) >= 0) & (xs.max(axis=1) <= w - 1) & (ys.min(axis=1) >= 0) & (ys.max(axis=1) <= h - 1)
-        prof = map_coordinates(feature, [ys.ravel(), xs.ravel()], order=1, mode="nearest").reshape(xs.shape)
-        ex, ey, ok = [], [], []
-        for s in range(N_SECTORS):
-            rays = (sector == s) & inside
-            if rays.sum() < 2:
-                continue
-            p = prof[rays].mean(axis=0)
-            r_in = (radii >= r - 9) & (radii <= r - 5)
-            r_out = (radii >= r + 5) & (radii <= r + 9)
-            if not r_in.any() or not r_out.any():
-                continue
-            lv_in, lv_out = float(p[r_in].mean()), float(p[r_out].mean())
-            half = 0.5 * (lv_in + lv_out)
-            near = np.nonzero(np.abs(radii - r) <= 5)[0]
-            d = np.sign(p[near] - half) * np.sign(lv_in - lv_out)  # +1 on the inside side
-            cross = np.nonzero((d[:-1] > 0) & (d[1:] <= 0))[0]
-            if cross.size != 1:
-                continue  # no single clean step in this sector (a plate, a highlight)
-            i = near[cross[0]]
-            f = (p[i] - half) / (p[i] - p[i + 1])
-            re = radii[i] + f * step
-            a = 2 * math.pi * (s + 0.5) / N_SECTORS
-            ex.append(cx + math.cos(a) * re)
-            ey.append(cy + math.sin(a) * re)
-        if len(ex) < N_SECTORS // 2:
-            return None
-        ex, ey = np.array(ex), np.array(ey)
-        use = np.ones(ex.size, bool)
-        for _ in range(3):  # robust: drop sectors whose edge is far from the circle
-            fx, fy, fr = _fit_circle(ex[use], ey[use])
-            res = np.hypot(ex - fx, ey - fy) - fr
-            mad = 1.4826 * np.median(np.abs(res[use] - np.median(res[use])))
-            use = np.abs(res) <= max(3.0 * mad, 0.3)
-        if use.sum() < N_SECTORS // 2:
-            return None
-        cx, cy, r = _fit_circle(ex[use], ey[use])
-    res = np.hypot(ex[use] - cx, ey[use] - cy) - r
-    std = float(np.std(res, ddof=3)) / math.sqrt(max(use.sum() - 3, 1))
-    return Ball(cx, cy, r, std, int(use.sum()), float(np.std(res)))
-
-
 def _coarse_radius(feature: np.ndarray, x0: float, y0: float, r0: float) -> float | None:
-    """Radius (px) where the median-over-angles radial profile first crosses half-way from its inner
-    (0.2..0.5 r0) to its outer (1.5..1.8 r0) level; None without such a crossing."""
+    """Radius (px) where the median-over-angles radial profile of ``feature`` (the log texture energy)
+    first crosses half-way from its inner (0.2..0.5 r0) to its outer (1.5..1.8 r0) level; None without
+    such a crossing."""
     ang = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
     radii = np.arange(0.2 * r0, 1.8 * r0, 0.25)
     xs = x0 + np.cos(ang)[:, None] * radii[None, :]
@@ -240,11 +190,40 @@ def _coarse_radius(feature: np.ndarray, x0: float, y0: float, r0: float) -> floa
     prof = np.median(map_coordinates(feature, [ys.ravel(), xs.ravel()], order=1, mode="nearest").reshape(xs.shape),
                      axis=0)
     lv_in, lv_out = prof[radii <= 0.5 * r0].mean(), prof[radii >= 1.5 * r0].mean()
-    if not lv_in > 2.0 * lv_out:  # a textured disc: much more texture inside than around it
+    if not lv_in > lv_out + math.log(4.0):  # a textured disc: much more texture inside than around it
         return None
     below = np.nonzero(prof < 0.5 * (lv_in + lv_out))[0]
     below = below[radii[below] > 0.5 * r0]
     return float(radii[below[0]]) if below.size else None
+
+
+def _coarse_circle(energy: np.ndarray, x0: float, y0: float, r0: float) -> tuple[float, float, float] | None:
+    """(cx, cy, r) px of the textured blob around a Hough candidate: the connected region of ``energy``
+    above half-way between the candidate's inner and outer levels (:func:`_coarse_radius`), its centroid
+    and the radius of its area. None without a textured disc there; the Hough circle itself when the
+    blob runs into something else (a plate)."""
+    r1 = _coarse_radius(energy, x0, y0, r0)
+    if r1 is None:
+        return None
+    ang = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
+    inner = map_coordinates(energy, [y0 + 0.35 * r1 * np.sin(ang), x0 + 0.35 * r1 * np.cos(ang)], order=1,
+                            mode="nearest")
+    outer = map_coordinates(energy, [y0 + 1.6 * r1 * np.sin(ang), x0 + 1.6 * r1 * np.cos(ang)], order=1,
+                            mode="nearest")
+    level = 0.5 * (np.median(inner) + np.median(outer))
+    from scipy.ndimage import binary_fill_holes
+
+    blob = binary_fill_holes(cv2.morphologyEx((energy > level).astype(np.uint8), cv2.MORPH_CLOSE,
+                                              cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))))
+    n, labels = cv2.connectedComponents(blob.astype(np.uint8), connectivity=8)
+    lab = labels[int(np.clip(round(y0), 0, energy.shape[0] - 1)), int(np.clip(round(x0), 0, energy.shape[1] - 1))]
+    if lab == 0:
+        return x0, y0, r1
+    ys, xs = np.nonzero(labels == lab)
+    area = float(xs.size)
+    if area > 2.0 * math.pi * r1 * r1:
+        return x0, y0, r1
+    return float(xs.mean()), float(ys.mean()), math.sqrt(area / math.pi)
 
 
 def texture_energy(frame: np.ndarray, sigma_px: float = 2.0) -> np.ndarray:
@@ -254,95 +233,86 @@ def texture_energy(frame: np.ndarray, sigma_px: float = 2.0) -> np.ndarray:
     return cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), sigma_px)
 
 
-def texture_amplitude(frame: np.ndarray, sigma_px: float = 2.0) -> np.ndarray:
-    """Local texture amplitude: intensity gradient magnitude (Sobel) averaged by a Gaussian of ``sigma_px``.
-    Linear in the texture's contrast, so where a textured region's alpha is 1/2 (its edge) it is half-way
-    between the levels on either side (the Gaussian average is symmetric)."""
-    gx = cv2.Sobel(frame, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(frame, cv2.CV_32F, 0, 1, ksize=3)
-    return cv2.GaussianBlur(cv2.magnitude(gx, gy), (0, 0), sigma_px)
+MIN_CLEAN_SECTORS = edges.N_BALL_SECTORS // 2
 
 
-def find_ball(frame0: np.ndarray) -> Ball:
-    """The ball in frame 0 (gray levels, float): a textured disc. Candidates from cv2.HoughCircles on the
-    log texture energy, refined on the linear texture energy (its half-level crossing is the edge: the
-    Gaussian average is symmetric). InitError if no circle with a clean edge all round is found."""
-    energy = texture_amplitude(frame0)
-    best: Ball | None = None
-    for x, y, r in _hough_candidates(np.log(texture_energy(frame0, 3.0) + 1.0))[:6]:
-        ball = refine_circle(energy, x, y, r)
-        if ball is None or ball.radius_px < 6:
+def refine_ball(gx: np.ndarray, gy: np.ndarray, x0: float, y0: float, r0: float, sigma_px: float | None,
+                allowed: np.ndarray | None = None) -> tuple[Ball, float] | None:
+    """(the textured disc's circle, the edge blur sigma px) near (x0, y0, r0): the centre from a robust
+    circle fit through the edges of N_BALL_SECTORS sectors, the radius from the whole ring's profile
+    (:mod:`vibro_dic.init_edges`), both on the ``allowed`` pixels only (not on a plate). ``sigma_px``
+    None: fitted on the ring. None when fewer than MIN_CLEAN_SECTORS sectors show a clean edge."""
+    cx, cy, r = x0, y0, r0
+    sig = sigma_px
+    for _ in range(3):
+        ring = edges.fit_ring(gx, gy, cx, cy, r, sigma_px, allowed)
+        if not ring.ok:
+            return None
+        r, sig = ring.edge_px, ring.sigma_px
+        mids, radii = edges.sector_edges(gx, gy, cx, cy, r, sig, allowed)
+        ok = np.isfinite(radii)
+        if ok.sum() < MIN_CLEAN_SECTORS:
+            return None
+        ex, ey = cx + np.cos(mids[ok]) * radii[ok], cy + np.sin(mids[ok]) * radii[ok]
+        use = np.ones(ex.size, bool)
+        for _ in range(3):  # robust: drop sectors whose edge is far from the circle
+            fx, fy, fr = edges.fit_circle(ex[use], ey[use])
+            res = np.hypot(ex - fx, ey - fy) - fr
+            mad = 1.4826 * np.median(np.abs(res[use] - np.median(res[use])))
+            use = np.abs(res) <= max(3.0 * mad, 0.5)
+        if use.sum() < MIN_CLEAN_SECTORS:
+            return None
+        cx, cy = fx, fy
+    ring = edges.fit_ring(gx, gy, cx, cy, r, sig, allowed)
+    if not ring.ok:
+        return None
+    res = np.hypot(ex[use] - cx, ey[use] - cy) - fr
+    scatter = float(np.std(res, ddof=3))
+    std = max(scatter / math.sqrt(use.sum() - 3), EDGE_STD_FLOOR_PX)
+    return Ball(cx, cy, ring.edge_px, std, int(use.sum()), scatter), sig
+
+
+def cavity_pixels(shape: tuple[int, int], top_row_px: float, bottom_row_px: float) -> np.ndarray:
+    """True on the rows between two plate edges, EDGE_MARGIN_PX clear of each (no plate texture)."""
+    rows = np.arange(shape[0])
+    inside = (rows > top_row_px + EDGE_MARGIN_PX) & (rows < bottom_row_px - EDGE_MARGIN_PX)
+    return np.broadcast_to(inside[:, None], shape)
+
+
+def find_ball(frame0: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> tuple[Ball, float]:
+    """(the ball in frame 0, its edge blur sigma px): a textured disc between two textured plates.
+    Candidates from cv2.HoughCircles on the log texture energy; each is refined by :func:`refine_ball`
+    on the pixels between the plates found around it; the candidate with the most clean sectors and
+    the least scatter wins. InitError if no circle with a clean edge is found."""
+    energy = np.log(texture_energy(frame0, 3.0) + 1.0)
+    found: list[tuple[Ball, float]] = []
+    for x, y, r in _hough_candidates(energy)[:6]:
+        coarse = _coarse_circle(energy, x, y, r)
+        if coarse is None or coarse[2] < 8:
             continue
-        if best is None or ball.n_edge_points > best.n_edge_points or (
-                ball.n_edge_points == best.n_edge_points and ball.edge_residual_px < best.edge_residual_px):
-            best = ball
-    if best is None or best.n_edge_points < 0.75 * N_SECTORS:
-        raise InitError("no ball found in frame 0: no textured disc with a clear edge all round (cv2.HoughCircles on "
-                        f"the texture energy, refined in {N_SECTORS} sectors"
-                        + (f"; best: {best.n_edge_points} of {N_SECTORS} sectors" if best else "")
-                        + "); is the ball in view, in focus and speckled?")
-    return best
+        allowed = None
+        top, bottom, strength = plate_guesses(gx, Ball(*coarse, math.nan, 0, math.nan))
+        if strength >= MIN_PLATE_STRENGTH:
+            allowed = cavity_pixels(gx.shape, top, bottom)
+        got = refine_ball(gx, gy, *coarse, None, allowed)
+        if got is not None and got[0].radius_px >= 8:
+            found.append(got)
+    if not found:
+        raise InitError("no ball found in frame 0: no textured disc with a clean edge on "
+                        f">= {MIN_CLEAN_SECTORS} of {edges.N_BALL_SECTORS} sectors (cv2.HoughCircles on the texture "
+                        "energy, refined on the texture along the edge); is the ball in view, in focus and speckled?")
+    return min(found, key=lambda b: (-b[0].n_edge_points, b[0].edge_residual_px))
 
 
 # --------------------------------------------------------------------------------------------- plates
 
 def _edge_in(profile_grad: np.ndarray, lo: int, hi: int) -> tuple[float, float]:
-    """(sub-pixel row of the largest |gradient| in rows [lo, hi), its |gradient|)."""
+    """(row of the largest |gradient| in rows [lo, hi), its |gradient|)."""
     seg = np.abs(profile_grad[lo:hi])
     if seg.size < 3:
         return math.nan, 0.0
     k = int(np.argmax(seg))
-    peak = float(seg[k])
-    if 0 < k < seg.size - 1:
-        gm, g0, gp = seg[k - 1], seg[k], seg[k + 1]
-        den = gm - 2 * g0 + gp
-        if den < 0:
-            return lo + k + float(np.clip(0.5 * (gm - gp) / den, -0.5, 0.5)), peak
-    return float(lo + k), peak
-
-
-def _row_features(frame0: np.ndarray) -> dict[str, np.ndarray]:
-    """Images whose row profile steps at a plate edge: intensity, and log texture energy (speckle)."""
-    return {"intensity": cv2.GaussianBlur(frame0, (0, 0), 1.0), "texture": texture_amplitude(frame0, 1.5)}
-
-
-def _plate_edges(feature: np.ndarray, ball: Ball) -> tuple[np.ndarray, np.ndarray, float]:
-    """(top rows, bottom rows) per column block and the weakest edge's strength (peak / profile noise)."""
-    h, w = feature.shape
-    top_lo, top_hi = 2, int(math.floor(ball.y_px - ball.radius_px)) - 1
-    bot_lo, bot_hi = int(math.ceil(ball.y_px + ball.radius_px)) + 2, h - 2
-    full = _smooth1d(feature.mean(axis=1), 1.5)
-    g = np.gradient(full)
-    t0, st = _edge_in(g, top_lo, top_hi)
-    b0, sb = _edge_in(g, bot_lo, bot_hi)
-    noise = 1.4826 * np.median(np.abs(g - np.median(g)))
-    strength = [min(st, sb) / max(noise, 1e-9)]
-    tops, bots = [], []
-    for c in np.array_split(np.arange(w), N_COLUMN_BLOCKS):
-        prof = _smooth1d(feature[:, c].mean(axis=1), 1.5)
-        tops.append(_half_level_row(prof, t0))
-        bots.append(_half_level_row(prof, b0))
-    return np.array(tops), np.array(bots), float(min(strength))
-
-
-def _half_level_row(prof: np.ndarray, row: float) -> float:
-    """Where ``prof`` crosses half-way between its levels 5..9 rows either side of ``row`` (sub-pixel,
-    linear interpolation, the crossing nearest ``row``); ``row`` itself when there is no crossing."""
-    if not math.isfinite(row):
-        return row
-    n = prof.size
-    k = int(round(row))
-    a, b = prof[max(k - 9, 0):max(k - 4, 0)], prof[min(k + 5, n):min(k + 10, n)]
-    if a.size == 0 or b.size == 0:
-        return row
-    half = 0.5 * (a.mean() + b.mean())
-    lo, hi = max(k - 5, 0), min(k + 5, n - 1)
-    d = prof[lo:hi + 1] - half
-    idx = np.nonzero(np.sign(d[:-1]) != np.sign(d[1:]))[0]
-    if idx.size == 0:
-        return row
-    i = idx[np.argmin(np.abs(lo + idx + 0.5 - row))]
-    return float(lo + i + d[i] / (d[i] - d[i + 1]))
+    return float(lo + k), float(seg[k])
 
 
 def _smooth1d(x: np.ndarray, sigma: float) -> np.ndarray:
@@ -351,28 +321,99 @@ def _smooth1d(x: np.ndarray, sigma: float) -> np.ndarray:
     return gaussian_filter1d(np.asarray(x, dtype=np.float64), sigma, mode="nearest")
 
 
-def find_plates(frame0: np.ndarray, ball: Ball) -> Plates:
-    """The cavity's top and bottom edges: strongest horizontal edges above and below the ball, in the
-    intensity or in the texture energy (whichever stands out more from its row profile's noise)."""
-    h = frame0.shape[0]
+def _outside_ball(shape: tuple[int, int], ball: Ball) -> np.ndarray:
+    """True where a pixel is more than EDGE_MARGIN_PX outside the ball's circle."""
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    return np.hypot(xx - ball.x_px, yy - ball.y_px) > ball.radius_px + EDGE_MARGIN_PX
+
+
+def plate_guesses(gx: np.ndarray, ball: Ball) -> tuple[float, float, float]:
+    """(top row, bottom row, weakest edge's strength) of the strongest steps of the row profile of the
+    texture along the rows (mean |d/dx|, the ball left out) above and below the ball; the strength is
+    the step over the profile's robust noise."""
+    h = gx.shape[0]
+    mask = _outside_ball(gx.shape, ball)
+    rows, prof = edges.row_amplitude(gx, mask, slice(0, h))
+    full = np.interp(np.arange(h), rows, prof)
+    g = np.gradient(_smooth1d(full, 1.5))
+    top_hi = int(math.floor(ball.y_px - ball.radius_px))
+    bot_lo = int(math.ceil(ball.y_px + ball.radius_px)) + 1
+    t0, st = _edge_in(g, 2, top_hi)
+    b0, sb = _edge_in(g, bot_lo, h - 2)
+    noise = 1.4826 * float(np.median(np.abs(g - np.median(g))))
+    return t0, b0, min(st, sb) / max(noise, 1e-9)
+
+
+def _plate_side(gx: np.ndarray, mask: np.ndarray, guess: float, side: float, sigma_px: float, name: str
+                ) -> tuple[float, float]:
+    """(edge row, 1-sigma px) of one plate: the whole width's profile, and the scatter over N_PLATE_BLOCKS
+    column blocks (a line fit: a tilt beyond MAX_PLATE_TILT_PX plus 3 sigma is refused)."""
+    w = gx.shape[1]
+    whole = edges.fit_plate_edge(gx, mask, guess, side, sigma_px)
+    if not whole.ok:
+        raise InitError(f"plates not found in frame 0: the {name} plate's texture edge near row {guess:.0f} does "
+                        "not fit a blurred step (no textured plate there?)")
+    centres, rows = [], []
+    for cols in np.array_split(np.arange(w), edges.N_PLATE_BLOCKS):
+        f = edges.fit_plate_edge(gx, mask, whole.edge_px, side, sigma_px, cols)
+        if f.ok:
+            centres.append(cols.mean())
+            rows.append(f.edge_px)
+    n = len(rows)
+    if n < edges.N_PLATE_BLOCKS // 2 + 1:
+        raise InitError(f"plates not found in frame 0: the {name} plate's edge (row {whole.edge_px:.1f}) is clean "
+                        f"on only {n} of {edges.N_PLATE_BLOCKS} column blocks")
+    centres, rows = np.array(centres), np.array(rows)
+    a = np.column_stack([centres - centres.mean(), np.ones(n)])
+    coef, *_ = np.linalg.lstsq(a, rows, rcond=None)
+    res = rows - a @ coef
+    scatter = float(np.sqrt(np.sum(res ** 2) / max(n - 2, 1)))
+    tilt_px = float(coef[0]) * (w - 1)
+    tilt_std_px = scatter / math.sqrt(np.sum((centres - centres.mean()) ** 2)) * (w - 1)
+    if abs(tilt_px) > MAX_PLATE_TILT_PX + 3.0 * tilt_std_px:
+        raise InitError(f"plates not found in frame 0: the {name} edge rises {tilt_px:+.1f} +- {tilt_std_px:.1f} px across "
+                        f"the image (a line through {n} column blocks; a plate edge is horizontal, <= "
+                        f"{MAX_PLATE_TILT_PX} px): camera tilted, or not a plate")
+    std = float(np.std(rows, ddof=1)) / math.sqrt(n)
+    return whole.edge_px, max(std, EDGE_STD_FLOOR_PX)
+
+
+def find_plates(gx: np.ndarray, ball: Ball, sigma_px: float | None) -> tuple[Plates, list[float]]:
+    """(the cavity's top and bottom edges, their fitted blurs when ``sigma_px`` is None): the textured
+    plates' edges above and below the ball (:mod:`vibro_dic.init_edges`), with the blur ``sigma_px``."""
+    h = gx.shape[0]
     if ball.y_px - ball.radius_px < 6 or ball.y_px + ball.radius_px > h - 7:
         raise InitError(f"plates not found in frame 0: no room above or below the ball (rows "
                         f"{ball.y_px - ball.radius_px:.0f}..{ball.y_px + ball.radius_px:.0f} of {h})")
-    found = {name: _plate_edges(feat, ball) for name, feat in _row_features(frame0).items()}
-    name = max(found, key=lambda k: found[k][2])
-    tops, bots, strength = found[name]
-    if strength < 5.0:
-        raise InitError(f"plates not found in frame 0: the strongest horizontal edges above/below the ball stand only "
-                        f"{strength:.1f} x the row profile's noise above it (need >= 5): no clear cavity edges")
-    for side, rows in (("top", tops), ("bottom", bots)):
-        if np.ptp(rows) > MAX_PLATE_TILT_PX:
-            raise InitError(f"plates not found in frame 0: the {side} edge's row differs by {np.ptp(rows):.1f} px across "
-                            f"{N_COLUMN_BLOCKS} column blocks (rows {', '.join(f'{r:.1f}' for r in rows)}; a plate edge "
-                            f"is a horizontal line, <= {MAX_PLATE_TILT_PX} px): camera tilted, or not a plate")
-    n = math.sqrt(N_COLUMN_BLOCKS)
-    floor = 0.05  # px: the parabola's own resolution on a clean edge
-    return Plates(float(tops.mean()), float(bots.mean()),
-                  max(float(tops.std(ddof=1)) / n, floor), max(float(bots.std(ddof=1)) / n, floor))
+    t0, b0, strength = plate_guesses(gx, ball)
+    if not strength >= MIN_PLATE_STRENGTH:
+        raise InitError(f"plates not found in frame 0: the strongest texture steps above/below the ball stand only "
+                        f"{strength:.1f} x the row profile's noise (need >= {MIN_PLATE_STRENGTH:g}): no textured plates framing the cavity")
+    mask = _outside_ball(gx.shape, ball)
+    if sigma_px is None:
+        sig = [edges.fit_plate_edge(gx, mask, t0, +1.0, None).sigma_px,
+               edges.fit_plate_edge(gx, mask, b0, -1.0, None).sigma_px]
+        return Plates(t0, b0, math.nan, math.nan), [s for s in sig if math.isfinite(s)]
+    top, top_std = _plate_side(gx, mask, t0, +1.0, sigma_px, "top")
+    bot, bot_std = _plate_side(gx, mask, b0, -1.0, sigma_px, "bottom")
+    return Plates(top, bot, top_std, bot_std), []
+
+
+def measure_frame0(frame0: np.ndarray) -> tuple[Ball, Plates, float]:
+    """(ball, plates, edge blur sigma px) in frame 0. The blur is one value for the ball and both plates
+    (same lens and focus): the median of the three edges' own fits; all edges are then fitted with it."""
+    gx, gy = edges.gradients_xy(frame0)
+    ball, sig_ball = find_ball(frame0, gx, gy)
+    guess, sig_plates = find_plates(gx, ball, None)
+    sigma = float(np.median([sig_ball, *sig_plates]))
+    allowed = cavity_pixels(gx.shape, guess.top_row_px, guess.bottom_row_px)
+    refined = refine_ball(gx, gy, ball.x_px, ball.y_px, ball.radius_px, sigma, allowed)
+    if refined is None:
+        raise InitError(f"no ball found in frame 0: the circle at ({ball.x_px:.1f}, {ball.y_px:.1f}) px, r "
+                        f"{ball.radius_px:.1f} px loses its clean edge with the common edge blur {sigma:.2f} px")
+    ball = refined[0]
+    plates, _ = find_plates(gx, ball, sigma)
+    return ball, plates, sigma
 
 
 # --------------------------------------------------------------------------------------------- motion
@@ -500,8 +541,8 @@ def worst_cramer_rao_px(image: np.ndarray, roi: Roi, subset_px: int, step_px: in
 def scale_tolerance(ball: Ball, plates: Plates) -> tuple[float, float, float]:
     """(ball diameter's relative std, gap's relative std, allowed relative disagreement of the two scales).
 
-    Allowed: 3 combined sigmas plus EDGE_SYSTEMATIC_PX on each of the four edge positions (the blur and
-    edge models' own accuracy), i.e. 2 x 0.5 px over the diameter and over the gap.
+    Allowed: 3 combined sigmas plus EDGE_SYSTEMATIC_PX on each of the four edge positions (the edge
+    model's own accuracy on real optics), i.e. 2 x EDGE_SYSTEMATIC_PX over the diameter and over the gap.
     """
     d_px = 2 * ball.radius_px
     ball_rel = 2 * ball.radius_std_px / d_px
@@ -556,8 +597,7 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
     propose ROIs and the scale. Raises :class:`InitError` naming what cannot be found, with numbers."""
     frame0 = frames[0][1]
     h, w = frame0.shape
-    ball = find_ball(frame0)
-    plates = find_plates(frame0, ball)
+    ball, plates, edge_sigma = measure_frame0(frame0)
     if not plates.top_row_px < ball.y_px - ball.radius_px + 1 or not ball.y_px + ball.radius_px - 1 < plates.bottom_row_px:
         raise InitError(f"the ball (rows {ball.y_px - ball.radius_px:.1f}..{ball.y_px + ball.radius_px:.1f}) is not "
                         f"between the plates found (rows {plates.top_row_px:.1f}, {plates.bottom_row_px:.1f})")
@@ -599,4 +639,4 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
                             "light it better or give a larger --subset-px")
     freq, note = estimate_frequency_hz(motion, fps)
     return Proposal(w, h, ball, plates, motion, scale, ball_roi, structure_roi, which, subset_px, mesh_step_px,
-                    noise, cr_ball, cr_struct, freq, note)
+                    noise, edge_sigma, cr_ball, cr_struct, freq, note)
