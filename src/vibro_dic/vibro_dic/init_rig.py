@@ -165,18 +165,25 @@ class Proposal:
 
 # ----------------------------------------------------------------------------------------------- ball
 
-def _hough_candidates(blurred: np.ndarray) -> list[tuple[float, float, float]]:
-    """(x, y, r) circle candidates, best first, from cv2.HoughCircles on the blurred image."""
+def _hough_candidates(blurred: np.ndarray, max_n: int = 8) -> list[tuple[float, float, float]]:
+    """Up to ``max_n`` (x, y, r) circle candidates from cv2.HoughCircles on the blurred image: the strongest
+    first, from a strict accumulator threshold down to a lax one (a strong circle elsewhere, e.g. at a
+    plate's corner, must not hide the ball)."""
     h, w = blurred.shape
     lo, hi = float(np.percentile(blurred, 1)), float(np.percentile(blurred, 99))
     img8 = np.clip((blurred - lo) * 255.0 / max(hi - lo, 1e-6), 0, 255).astype(np.uint8)
     max_r = int(min(h, w) // 2)
+    out: list[tuple[float, float, float]] = []
     for accumulator in (40, 30, 22, 16):
         circles = cv2.HoughCircles(img8, cv2.HOUGH_GRADIENT, dp=1, minDist=max(8, max_r // 2), param1=60,
                                    param2=accumulator, minRadius=6, maxRadius=max_r)
-        if circles is not None:
-            return [tuple(map(float, c)) for c in circles[0]]
-    return []
+        for c in ([] if circles is None else circles[0]):
+            x, y, r = map(float, c)
+            if all(math.hypot(x - a, y - b) > 0.5 * min(r, q) for a, b, q in out):
+                out.append((x, y, r))
+        if len(out) >= max_n:
+            break
+    return out[:max_n]
 
 
 def _coarse_radius(feature: np.ndarray, x0: float, y0: float, r0: float) -> float | None:
@@ -286,7 +293,7 @@ def find_ball(frame0: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> tuple[Ball,
     the least scatter wins. InitError if no circle with a clean edge is found."""
     energy = np.log(texture_energy(frame0, 3.0) + 1.0)
     found: list[tuple[Ball, float]] = []
-    for x, y, r in _hough_candidates(energy)[:6]:
+    for x, y, r in _hough_candidates(energy):
         coarse = _coarse_circle(energy, x, y, r)
         if coarse is None or coarse[2] < 8:
             continue
