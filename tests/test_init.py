@@ -46,8 +46,8 @@ def _cors(out: Path) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def cases(tmp_path_factory):
-    """Per case: the recording (proposed rig.yaml in it), the true rig's copy, the truth, the synth options,
-    init's stdout, and the impacts analysed with the true and with the proposed rig."""
+    """Per case: the recording (proposed rig.yaml in it), the truth, the synth options, and the impacts
+    analysed with the true rig (a copy of the recording) and with the proposed one."""
     from vibro_sim.synth import SynthConfig, synthesize
 
     base = tmp_path_factory.mktemp("init")
