@@ -172,10 +172,10 @@ def frame_payload(pixels: np.ndarray, stamp: int, frame_id: str = "camera") -> P
     """A foxglove.RawImage of a mono8 (uint8) or mono16 (uint16) image, rows packed, 16-bit little-endian."""
     from foxglove.messages import RawImage
 
-    if pixels.ndim != 2 or pixels.dtype not in (np.uint8, np.uint16):
+    if pixels.ndim != 2 or pixels.dtype.kind != "u" or pixels.dtype.itemsize not in (1, 2):
         raise ValueError(f"frame: expected a 2-D uint8 or uint16 image, got {pixels.dtype} {pixels.shape}")
-    data = np.ascontiguousarray(pixels, dtype=pixels.dtype.newbyteorder("<"))
-    encoding = "mono8" if pixels.dtype == np.uint8 else "mono16"
+    data = np.ascontiguousarray(pixels, dtype="<u2" if pixels.dtype.itemsize == 2 else np.uint8)
+    encoding = "mono8" if data.itemsize == 1 else "mono16"
     height, width = pixels.shape
     msg = RawImage(timestamp=_timestamp(stamp), frame_id=frame_id, width=width, height=height, encoding=encoding,
                    step=width * data.itemsize, data=data.tobytes())
@@ -450,3 +450,73 @@ def websocket_url(host: str, port: int) -> str:
 
     shown = socket.gethostname() if host in ("0.0.0.0", "::", "") else host
     return f"ws://{shown}:{int(port)}"
+
+
+# ---------------------------------------------------------------------------------------------- layout
+LAYOUT_FILE_NAME = "vibro.foxglove-layout.json"
+
+
+def _panel_config(config: Any, title: str) -> dict:
+    """A panel's config as the app stores it (the SDK's layout classes give the app's key names) and its title."""
+    return {**json.loads(config.to_json()), "foxglovePanelTitle": title}
+
+
+def foxglove_layout() -> dict:
+    """The Foxglove layout for the bridge's channels (the app's "Import from file" format: configById + a
+    mosaic of panel ids): the camera image with the ROI annotations; ball and structure displacement; COR per
+    impact and plate; the impacts as a table; node health (rate, lag) and the diagnostics; D and findings."""
+    import foxglove.layouts as fl
+
+    def series(path: str, label: str) -> Any:
+        return fl.PlotSeries(value=path, label=label, enabled=True, timestamp_method="receiveTime")
+
+    config = {
+        "Image!vibro": _panel_config(fl.ImageConfig(image_mode=fl.ImageModeConfig(
+            image_topic=FRAMES.topic, synchronize=False,
+            annotations={ANNOTATIONS.topic: fl.ImageAnnotationSettings(visible=True)})), "camera + DIC ROIs"),
+        "Plot!displacement": _panel_config(fl.PlotConfig(paths=[
+            series(f"{TRACK.topic}.ball_mm", "ball (mm, + up)"),
+            series(f"{TRACK.topic}.structure_mm", "structure (mm, + up)"),
+            series(f"{TRACK.topic}.ball_minus_structure_mm", "ball - structure (mm)")],
+            show_legend=True, x_axis_val="timestamp", y_axis_label="mm"), "DIC displacement"),
+        "Plot!cor": _panel_config(fl.PlotConfig(paths=[
+            series(f'{IMPACTS.topic}{{plate=="top"}}.cor', "COR top plate"),
+            series(f'{IMPACTS.topic}{{plate=="bottom"}}.cor', "COR bottom plate")],
+            show_legend=True, x_axis_val="timestamp", min_y_value=0.0, max_y_value=1.0, y_axis_label="COR"),
+            "COR per impact"),
+        "Table!impacts": _panel_config(fl.TableConfig(topic_path=IMPACTS.topic), "impacts"),
+        "Plot!health": _panel_config(fl.PlotConfig(paths=[
+            series(f'{DIAGNOSTICS.topic}{{node=="dic_tracker"}}.values.lag_s', "dic_tracker lag (s)"),
+            series(f'{DIAGNOSTICS.topic}{{node=="trajectory_fitter"}}.values.lag_s', "trajectory_fitter lag (s)")],
+            show_legend=True, x_axis_val="timestamp", y_axis_label="s"), "lag behind the data clock"),
+        "Table!diagnostics": _panel_config(fl.TableConfig(topic_path=DIAGNOSTICS.topic), "diagnostics (latest)"),
+        "Table!simulation": _panel_config(fl.TableConfig(topic_path=SIMULATION.topic), "deviation D per model"),
+        "RawMessages!findings": _panel_config(fl.RawMessagesConfig(topic_path=DISCREPANCY.topic), "findings"),
+    }
+
+    def split(direction: str, first: Any, second: Any, percent: float) -> dict:
+        return {"direction": direction, "first": first, "second": second, "splitPercentage": percent}
+
+    mosaic = split("row",
+                   split("column", "Image!vibro", split("row", "Table!impacts", "Table!simulation", 60), 65),
+                   split("column",
+                         split("column", "Plot!displacement", "Plot!cor", 50),
+                         split("row", split("column", "Plot!health", "Table!diagnostics", 50),
+                               "RawMessages!findings", 60), 60),
+                   50)
+    return {"configById": config, "globalVariables": {}, "userNodes": {}, "playbackConfig": {"speed": 1.0},
+            "layout": mosaic}
+
+
+def layout_text() -> str:
+    """:func:`foxglove_layout` as the shipped file's text (indented JSON, newline-terminated)."""
+    return json.dumps(foxglove_layout(), indent=2) + "\n"
+
+
+if __name__ == "__main__":  # python -m vibro_bringup.foxglove_view PATH: (re)write the shipped layout file
+    import sys
+    from pathlib import Path
+
+    target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "config" / LAYOUT_FILE_NAME
+    target.write_text(layout_text(), encoding="utf-8")
+    print(f"wrote {target}")
