@@ -256,3 +256,54 @@ def test_a_client_that_stops_reading_never_blocks_publishing() -> None:
     print(f"2000 x 256 KiB frames: {alone_s:.3f} s with no client, {with_client_s:.3f} s with a stalled one; "
           f"it received {received}")
     assert 0 < received < n  # it got some, the rest was dropped for it rather than waited for
+
+
+# ------------------------------------------------------------------------------------------- graph wiring
+def test_the_bridge_joins_the_node_table_as_nobodys_reader(tiny_recording: Path, tmp_path: Path) -> None:
+    from vibro_bringup.graph_spec import launch_nodes
+
+    plain = {n.spec.name: n for n in launch_nodes(tiny_recording, tmp_path / "bag", reference_dir=tmp_path)}
+    watched = {n.spec.name: n for n in launch_nodes(tiny_recording, tmp_path / "bag", reference_dir=tmp_path,
+                                                    foxglove={"port": 9001, "host": "127.0.0.1"})}
+    assert "foxglove_bridge" not in plain and set(watched) == set(plain) | {"foxglove_bridge"}
+    bridge = watched.pop("foxglove_bridge")
+    assert bridge.parameters["port"] == 9001 and bridge.parameters["host"] == "127.0.0.1"
+    assert bridge.parameters["exit_when_done"] is True and bridge.parameters["rig_file"].endswith("rig.yaml")
+    assert not bridge.respawn and bridge.respawn_on_failure
+    # every other node is started exactly as without the bridge: nobody waits for it or its end
+    def without_clock(nodes: dict) -> dict:  # the lab clock's origin is "now" for this rig: differs per call
+        return {k: {p: v for p, v in n.parameters.items() if p != "time_origin_unix_ns"} for k, n in nodes.items()}
+
+    assert without_clock(watched) == without_clock(plain)
+    live = {n.spec.name: n for n in launch_nodes(tiny_recording, None, live=True, camera_topic="/camera/image_raw",
+                                                 foxglove={"port": 9001, "host": "0.0.0.0"})}
+    bridge = live["foxglove_bridge"]
+    assert bridge.respawn and bridge.parameters["exit_when_done"] is False  # stays up with a live graph
+    assert bridge.remappings == (("vibro/frames", "/camera/image_raw"),)  # watches the camera the tracker reads
+
+
+def test_a_busy_port_is_refused_in_one_line_before_anything_starts(tiny_recording: Path, tmp_path: Path) -> None:
+    with socket_listening() as port:
+        res = subprocess.run([sys.executable, "-m", "vibro_bringup.cli", "graph", str(tiny_recording), "--bag",
+                              str(tmp_path / "bag"), "--foxglove-port", str(port), "--foxglove-host", "127.0.0.1"],
+                             capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.strip().splitlines() == [
+        f"vibro graph: error: --foxglove-port {port} --foxglove-host 127.0.0.1: cannot serve there "
+        "(Address already in use); choose another port"]
+    assert not (tmp_path / "bag").exists() and "run " not in res.stdout
+
+
+class socket_listening:
+    """A TCP port held open on 127.0.0.1 (as another server would)."""
+
+    def __enter__(self) -> int:
+        import socket
+
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen()
+        return self.sock.getsockname()[1]
+
+    def __exit__(self, *exc) -> None:
+        self.sock.close()

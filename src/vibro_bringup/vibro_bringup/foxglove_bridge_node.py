@@ -30,6 +30,12 @@ from vibro_ros.node_support import Health, declare, run_node, time_origin_parame
 
 from . import foxglove_view as fv
 
+#: Queue depths of the bridge's readers: frames 1 (only the newest matters), streams STREAM_DEPTH, results
+#: RESULTS_DEPTH. Best effort: a depth costs the publisher nothing, the reader only drops when it falls behind.
+STREAM_DEPTH = 100
+RESULTS_DEPTH = 1000
+
+
 def best_effort(depth: int) -> QoSProfile:
     """A best-effort, volatile, keep-last reader: it matches any publisher and never makes one wait."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -50,7 +56,7 @@ class FoxgloveBridge(Node):
                                        "Foxglove channels to serve: " + ", ".join(fv.CHANNELS_BY_TOPIC)) if c]
         rig_file = str(declare(self, "rig_file", "", "rig.yaml of the recording: ROIs and scale for the image "
                                                      "annotations (empty: frames without annotations)"))
-        backlog = int(declare(self, "client_backlog", 1024, "messages queued per Foxglove client; a client that "
+        backlog = int(declare(self, "client_backlog", 512, "messages queued per Foxglove client; a client that "
                                                             "falls further behind loses its oldest ones"))
         self.exit_when_done = bool(declare(self, "exit_when_done", False,
                                            "exit once the graph's nodes have gone (from a recording); "
@@ -94,21 +100,29 @@ class FoxgloveBridge(Node):
         if fv.FRAMES.topic in served:  # raw: deserialized only when the rate limit lets the frame through
             self.create_subscription(Image, topics.FRAMES.name, self._on_frame, best_effort(1), raw=True)
         if served & {fv.TRACK.topic, fv.ANNOTATIONS.topic}:
-            self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, best_effort(100))
-        results = ((fv.IMPACTS, ImpactEstimate, topics.IMPACTS.name, self._on_impact),
-                   (fv.IMPACTS_FINAL_MODEL, ImpactEstimate, topics.IMPACTS_FINAL_MODEL.name,
-                    lambda m: self._send(fv.impact_payload(m, fv.IMPACTS_FINAL_MODEL))),
-                   (fv.STRUCTURE, StructureMotion, topics.STRUCTURE.name, lambda m: self._send(fv.structure_payload(m))),
-                   (fv.FLIGHTS, FreeFlight, topics.FLIGHTS.name, lambda m: self._send(fv.flight_payload(m))),
-                   (fv.SIMULATION, SimulationResult, topics.SIMULATION.name,
-                    lambda m: self._send(fv.simulation_payload(m))),
-                   (fv.DISCREPANCY, DiscrepancyFinding, topics.DISCREPANCY.name,
-                    lambda m: self._send(fv.discrepancy_payload(m))))
-        for spec, msg_type, topic, callback in results:
-            if spec.topic in served:  # a burst of final results must not overwrite itself: deep queues
-                self.create_subscription(msg_type, topic, callback, best_effort(1000))
+            self.create_subscription(DicFrame, topics.DIC.name, self._on_dic, best_effort(STREAM_DEPTH))
+        # results come in bursts (every final impact at once): deep queues, so a burst does not overwrite itself
+        if fv.IMPACTS.topic in served:
+            self.create_subscription(ImpactEstimate, topics.IMPACTS.name, self._on_impact, best_effort(RESULTS_DEPTH))
+        if fv.IMPACTS_FINAL_MODEL.topic in served:
+            self.create_subscription(ImpactEstimate, topics.IMPACTS_FINAL_MODEL.name,
+                                     lambda m: self._send(fv.impact_payload(m, fv.IMPACTS_FINAL_MODEL)),
+                                     best_effort(RESULTS_DEPTH))
+        if fv.STRUCTURE.topic in served:
+            self.create_subscription(StructureMotion, topics.STRUCTURE.name,
+                                     lambda m: self._send(fv.structure_payload(m)), best_effort(RESULTS_DEPTH))
+        if fv.FLIGHTS.topic in served:
+            self.create_subscription(FreeFlight, topics.FLIGHTS.name, lambda m: self._send(fv.flight_payload(m)),
+                                     best_effort(RESULTS_DEPTH))
+        if fv.SIMULATION.topic in served:
+            self.create_subscription(SimulationResult, topics.SIMULATION.name,
+                                     lambda m: self._send(fv.simulation_payload(m)), best_effort(RESULTS_DEPTH))
+        if fv.DISCREPANCY.topic in served:
+            self.create_subscription(DiscrepancyFinding, topics.DISCREPANCY.name,
+                                     lambda m: self._send(fv.discrepancy_payload(m)), best_effort(RESULTS_DEPTH))
         if fv.DIAGNOSTICS.topic in served:
-            self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name, self._on_diagnostics, best_effort(100))
+            self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name, self._on_diagnostics,
+                                     best_effort(STREAM_DEPTH))
         self.saw_graph = False
         self.graph_gone_since: float | None = None
         self.done = Future()
