@@ -9,7 +9,6 @@ import asyncio
 import base64
 import json
 import math
-import struct
 import subprocess
 import sys
 import time

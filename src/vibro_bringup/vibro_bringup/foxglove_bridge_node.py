@@ -170,6 +170,7 @@ class FoxgloveBridge(Node):
 
     def _tick(self) -> None:
         self.server.replay_pending()
+        self.health.values["cpu_s"] = f"{time.process_time():.3f}"  # what watching costs the machine's cores
         if not self.exit_when_done or self.done.done():
             return
         # the graph's nodes publish vibro/status in this namespace; once all have gone (for linger_s), exit

@@ -33,8 +33,6 @@ from typing import Any, Hashable, Iterable
 
 import numpy as np
 
-#: Foxglove's WebSocket subprotocols this server speaks (foxglove-sdk 0.30: the app offers them)
-SUBPROTOCOLS = ("foxglove.sdk.v1",)
 DEFAULT_PORT = 8765
 
 
