@@ -253,16 +253,19 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
     for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector", "discrepancy", "recorder"):
         params.setdefault(name, {})["rig_file"] = str(rec / "rig.yaml")
     params["trajectory_fitter"]["use_accelerometers"] = with_accel
-    if reference_image is not None:  # file mode: the recording's frame count is the tracker's progress total
-        from vibro_io.recording import open_recording
-
-        params["dic_tracker"]["reference_image"] = str(Path(reference_image).resolve())
-        params["dic_tracker"]["frames_expected"] = len(open_recording(rec).frames)
-    if bag is not None:
-        params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
     present = [s.name for s in (nodes if nodes is not None else graph_nodes(bag=bag is not None,
                                                                             with_accel=with_accel, live=live,
                                                                             foxglove=foxglove is not None))]
+    if reference_image is not None:
+        params["dic_tracker"]["reference_image"] = str(Path(reference_image).resolve())
+    if reference_image is not None and "frame_source" in present:
+        # from a recording's files: their frame count is the tracker's progress total (a replay's bag_source
+        # announces its count when it ends, like a camera)
+        from vibro_io.recording import open_recording
+
+        params["dic_tracker"]["frames_expected"] = len(open_recording(rec).frames)
+    if bag is not None:
+        params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
     if time_origin_ns is None:
         time_origin_ns = run_time_origin(rec / "rig.yaml")
     for name in present:
