@@ -4,7 +4,8 @@ Every graph run starts eight node processes and every test calls the CLI in a fr
 start-up imports are paid many times over (scipy.stats ~1.5 s of CPU, scipy.signal ~1.7 s with
 scipy.stats inside, matplotlib ~1 s on this machine). These modules are loaded where they are used.
 The property checked is which modules are loaded, not a time (no timing asserts: machines are noisy).
-The p-values that replaced scipy.stats are checked against scipy.stats itself.
+What replaced scipy.stats (chi-square and F tail probabilities, the normal Q-Q of the COR statistics,
+Spearman's rho of the spin analysis) is checked against scipy.stats itself.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 HEAVY = ("scipy.stats", "scipy.signal", "matplotlib", "scipy.ndimage")
@@ -54,3 +56,38 @@ def test_tail_probabilities_equal_scipy_stats(dof: float) -> None:
         for den in (2, 17.5, 300):
             assert f_sf(x, dof, den) == pytest.approx(float(stats.f.sf(x, dof, den)), rel=1e-12, abs=1e-300)
     assert math.isnan(chi2_sf(math.nan, dof)) and math.isnan(f_sf(math.nan, dof, 4))
+
+
+def test_normal_check_equals_scipy_probplot() -> None:
+    from scipy import stats
+
+    from vibro_fit.statistics import normal_check
+
+    rng = np.random.default_rng(4)
+    for n in (3, 4, 9, 60, 401):
+        for values in (rng.normal(0.7, 0.015, n), rng.exponential(1.0, n), np.round(rng.normal(0, 1, n), 1)):
+            c = normal_check(values)
+            (osm, osr), (slope, intercept, r) = stats.probplot(values, dist="norm")
+            assert np.allclose(c.theoretical_quantiles, osm, rtol=0, atol=1e-12)
+            assert np.array_equal(c.ordered_values, osr)
+            assert (c.slope, c.intercept, c.r) == pytest.approx((slope, intercept, r), rel=1e-9, abs=1e-12)
+    assert math.isnan(normal_check([0.5, 0.5, 0.5]).r)  # r undefined for a constant sample (scipy: nan)
+
+
+def test_spin_correlation_equals_scipy_spearman() -> None:
+    from scipy import stats
+
+    from vibro_fit.spin import _spearman
+
+    rng = np.random.default_rng(5)
+    for n in (3, 5, 12, 80):
+        for trial in range(12):
+            x = rng.normal(size=n)
+            y = (0.4 if trial % 2 else -0.9) * x + rng.normal(size=n)
+            if trial % 3 == 0:
+                x = np.round(x)  # ties
+            if trial % 4 == 0:
+                y = x * 2.0  # perfect rank correlation
+            rho, p = _spearman(x, y)
+            ref = stats.spearmanr(x, y)
+            assert (rho, p) == pytest.approx((float(ref.statistic), float(ref.pvalue)), rel=1e-9, abs=1e-12)

@@ -73,7 +73,7 @@ DISCREPANCY_PNG = "discrepancy.png"
 
 def analyze_outputs() -> tuple[str, ...]:
     """Every file ``vibro analyze`` may write into its output folder (what ``--overwrite`` replaces)."""
-    from vibro_fit.report import FIGURE_FILES, REPORT_HTML
+    from vibro_fit.report_files import FIGURE_FILES, REPORT_HTML
     from vibro_fit.results import CSV_TABLES, RESULTS_JSON
 
     return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *FIGURE_FILES.values(), DISCREPANCY_PNG, REPORT_HTML)
@@ -133,7 +133,6 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     mapping."""
     from vibro_dic.quality import TrackQuality, dic_quality_section
     from vibro_fit.identify import identify
-    from vibro_fit.report import REPORT_HTML, write_figures, write_html
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_fit.spin import ball_spin_section
     from vibro_model.codec import write_results
@@ -176,6 +175,8 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         write_csv_tables(document, out)
         doc = document.to_dict()
         if report:
+            from vibro_fit.report import REPORT_HTML, write_figures, write_html  # matplotlib: only for the report
+
             bar.set_description("report")
             figs = write_figures(track, ident, out, sim, impacts=document.impacts)
             if disc_run is not None:

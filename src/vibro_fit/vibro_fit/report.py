@@ -24,14 +24,10 @@ from vibro_model.results import ResultsDocument  # noqa: E402
 from vibro_model.units import n_to_mn  # noqa: E402
 
 from .identify import Identification  # noqa: E402
+from .report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
 from .statistics import normal_check  # noqa: E402
 
 PLATE_COLORS = {"top": "tab:red", "bottom": "tab:blue"}
-#: figure name -> file name, as write_figures writes them
-FIGURE_FILES = {"displacements": "displacements.png", "cor": "cor_per_impact.png",
-                "friction": "friction_per_flight.png", "accelerometer_spectrum": "accel_spectrum.png",
-                "histogram_qq": "cor_hist_qq.png", "simulated_vs_measured": "simulated_vs_measured.png"}
-REPORT_HTML = "report.html"
 
 
 def _legend(ax, **kw) -> None:
