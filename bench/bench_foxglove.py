@@ -28,41 +28,18 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
-from foxglove_client import SUBPROTOCOLS, capture  # noqa: E402
+from foxglove_client import capture, stalled_client  # noqa: E402
 
 
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-async def _stall(url: str, seconds: float) -> None:
-    import websockets.asyncio.client as wsc
-
-    end = time.monotonic() + 60
-    while True:
-        try:
-            ws = await wsc.connect(url, subprotocols=SUBPROTOCOLS, max_size=None, proxy=None, max_queue=1)
-            break
-        except OSError:
-            if time.monotonic() > end:
-                return
-            await asyncio.sleep(0.05)
-    try:
-        await ws.recv()
-        adv = json.loads(await ws.recv())
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": k + 1, "channelId": c["id"]} for k, c in enumerate(adv["channels"])]}))
-        await asyncio.sleep(seconds)
-    except Exception:
-        pass
 
 
 def run_graph(rec: Path, out: Path, mode: str, domain: int) -> dict:
@@ -86,7 +63,7 @@ def run_graph(rec: Path, out: Path, mode: str, domain: int) -> dict:
         bridge_cpu_s = bridge[-1] if bridge else None
     elif mode == "stalled":
         async def stall_until_done():
-            task = asyncio.ensure_future(_stall(f"ws://127.0.0.1:{port}", 300))
+            task = asyncio.ensure_future(stalled_client(f"ws://127.0.0.1:{port}", 300))
             while proc.poll() is None:
                 await asyncio.sleep(0.2)
             task.cancel()

@@ -126,3 +126,28 @@ async def capture(url: str, *, connect_timeout_s: float, stop: Callable[[], bool
     finally:
         await ws.close()
     return out
+
+
+async def stalled_client(url: str, deadline_s: float) -> bool:
+    """Connect, subscribe to every channel, then read nothing (its receive queue holds one message, so TCP
+    soon stops). Returns whether it subscribed."""
+    import websockets.asyncio.client as wsc
+
+    end = time.monotonic() + deadline_s
+    while True:
+        try:
+            ws = await wsc.connect(url, subprotocols=SUBPROTOCOLS, max_size=None, proxy=None, max_queue=1)
+            break
+        except OSError:
+            if time.monotonic() > end:
+                return False
+            await asyncio.sleep(0.05)
+    try:
+        await ws.recv()  # serverInfo
+        adv = json.loads(await ws.recv())
+        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": k + 1, "channelId": c["id"]} for k, c in enumerate(adv["channels"])]}))
+        await asyncio.sleep(deadline_s)  # never reads again; the server closes it at the end
+    except Exception:
+        pass
+    return True

@@ -6,7 +6,6 @@ subscribes to everything and never reads (a Foxglove app on a dead link): the gr
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 import re
 import socket
@@ -22,7 +21,7 @@ import pytest
 from domains import private_domain
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from foxglove_client import SUBPROTOCOLS, capture  # noqa: E402
+from foxglove_client import SUBPROTOCOLS, capture, stalled_client  # noqa: E402
 
 FRAMES = 200
 
@@ -31,31 +30,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-async def _stalled_client(url: str, deadline_s: float) -> bool:
-    """Connect, subscribe to every channel, then read nothing (its receive queue holds one message, so TCP
-    soon stops). Returns whether it subscribed."""
-    import websockets.asyncio.client as wsc
-
-    end = time.monotonic() + deadline_s
-    while True:
-        try:
-            ws = await wsc.connect(url, subprotocols=SUBPROTOCOLS, max_size=None, proxy=None, max_queue=1)
-            break
-        except OSError:
-            if time.monotonic() > end:
-                return False
-            await asyncio.sleep(0.05)
-    try:
-        await ws.recv()  # serverInfo
-        adv = json.loads(await ws.recv())
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": k + 1, "channelId": c["id"]} for k, c in enumerate(adv["channels"])]}))
-        await asyncio.sleep(deadline_s)  # never reads again; the server closes it at the end
-    except Exception:
-        pass
-    return True
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +50,7 @@ def live_run(tmp_path_factory) -> dict:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         async def watch():
-            stalled = asyncio.ensure_future(_stalled_client(url, 170))
+            stalled = asyncio.ensure_future(stalled_client(url, 170))
             cap = await capture(url, connect_timeout_s=60, stop=lambda: proc.poll() is not None, timeout_s=170)
             stalled.cancel()
             return cap
