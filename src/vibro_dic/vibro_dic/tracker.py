@@ -30,7 +30,13 @@ Pipeline for each mesh (ball, structure) and each frame:
    displacements about the mesh centroid, each point's lever arm corrected for what a translation-only
    subset measures of a rotation (its gradient-weighted centre); small angle. Positive counter-clockwise
    as the camera sees the image; with its 1-sigma noise from the residuals about the rigid fit.
-6. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
+6. **Re-seed**: the prediction history (step 1) never crosses a multiple of ``reseed_every`` frames
+   (:data:`RESEED_EVERY_FRAMES`, 100): at the first frame of each segment ``[j*K, (j+1)*K)`` of frame
+   indices, both meshes start again as at frame 1 (no prediction: the search of step 2 from the frame-0
+   position, widened to the whole image when the body has moved). The segments are a fixed property of the
+   tracking, whoever runs it: one process (:func:`track_recording`) or chunks of whole segments on Dask
+   workers (:mod:`vibro_dic.chunked`) give identical rows, whatever the number of workers.
+7. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
    fewer than ``min_valid_fraction`` of the points kept. A lost mesh reports NaN
    displacement and 0 valid points; it is never extrapolated. The frame is flagged lost
    if either mesh is lost or the image is missing (the other mesh keeps its value).
@@ -45,7 +51,7 @@ import logging
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -67,6 +73,9 @@ MIN_SUBSET_STD = 2.0  # gray levels: below this a subset holds no usable pattern
 # The bounding-box IC-GN stops at a finer step than the subsets' tol_px, so that the one
 # per-subset step that follows is dominated by the subset's own (noise) deviation.
 BOX_TOL_PX = 0.005
+#: frames per tracking segment: the motion prediction restarts at every multiple of this frame index
+#: (module doc, step 6); chunked tracking splits a recording only there
+RESEED_EVERY_FRAMES = 100
 
 
 @dataclass
@@ -131,6 +140,10 @@ class MeshTracker:
             raise RecordingError(
                 f"dic.{name}_roi {roi.as_list()}: only {textured} of {n} subsets have speckle texture in "
                 f"frame 0 (gray-level std >= {MIN_SUBSET_STD:g}); need {self.min_valid}: put the ROI on the pattern")
+
+    def reseed(self) -> None:
+        """Forget the motion history: the next frame is searched as if it were the first after frame 0."""
+        self.history.clear()
 
     # --- prediction and integer search ---------------------------------------------------------
     def predict(self, k: int) -> np.ndarray:
@@ -291,12 +304,14 @@ class DicTracker:
 
     ``dic_config`` gives subset size, mesh step and the two ROIs (px, frame 0);
     ``mm_per_px`` converts to mm. ``method``: "icgn" (default) or "parabolic" (baseline).
-    Call :meth:`track` once per frame, in order; it keeps the motion prediction.
+    Call :meth:`track` once per frame, in order; it keeps the motion prediction within a segment of
+    ``reseed_every`` frame indices (module doc, step 6).
     """
 
     def __init__(self, reference_image: np.ndarray, dic_config: DicConfig, mm_per_px: float, *,
                  method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
-                 search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1):
+                 search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1,
+                 reseed_every: int = RESEED_EVERY_FRAMES):
         if method not in METHODS:
             raise RecordingError(f"DIC method must be one of {', '.join(METHODS)}, got {method!r}")
         ref = np.asarray(reference_image)
@@ -312,6 +327,10 @@ class DicTracker:
             raise RecordingError(f"interpolation taps must be one of {KERNEL_TAPS}, got {taps!r}")
         if search_px < 1:
             raise RecordingError(f"search_px must be >= 1, got {search_px!r}")
+        if isinstance(reseed_every, bool) or not isinstance(reseed_every, int) or reseed_every < 1:
+            raise RecordingError(f"reseed_every must be a positive number of frames, got {reseed_every!r}")
+        self.reseed_every = reseed_every
+        self._segment: int | None = None  # segment (index // reseed_every) of the last frame tracked
         rows, cols = ref.shape
         before, after = patch_margin(taps)
         for name in ("ball_roi", "structure_roi"):
@@ -341,6 +360,11 @@ class DicTracker:
 
     def track_image(self, index: int, t_s: float, image: np.ndarray | None) -> FrameTrack:
         """Track one image (2-D array, same size as the reference) of frame ``index`` at ``t_s`` (s)."""
+        segment = index // self.reseed_every
+        if segment != self._segment:
+            self.ball.reseed()
+            self.structure.reseed()
+            self._segment = segment
         if image is None:
             self.last_results = {}
             return FrameTrack(index, t_s, float("nan"), float("nan"), 0, 0, float("nan"), float("nan"), True)
@@ -362,29 +386,68 @@ class DicTracker:
         )
 
 
+@dataclass(frozen=True)
+class SlotNote:
+    """What the tracking of one frame slot tells beside its row: the frame was unreadable (``error``) or
+    dropped (no file). Lets a chunk tracked elsewhere be checked and logged as one pass would."""
+
+    index: int
+    ok: bool
+    dropped: bool
+    error: str | None
+
+    @classmethod
+    def of(cls, frame: Frame) -> "SlotNote":
+        return cls(frame.index, frame.ok, frame.dropped, frame.error)
+
+
+def track_slots(recording, start: int = 0, stop: int | None = None, *, method: str = "icgn",
+                **tracker_kwargs) -> Iterator[tuple[FrameTrack, SlotNote]]:
+    """Track the frame slots ``start`` .. ``stop`` - 1 (positions; ``stop`` None: to the end) of
+    ``recording`` with a new tracker on its first frame (the reference, which must decode).
+
+    ``start`` must be the first slot of a tracking segment (a frame index multiple of ``reseed_every``, or
+    slot 0): then the rows equal those of one pass over the whole recording (module doc, step 6).
+    The unreadable-fraction check and the log lines are the caller's (:func:`emit_rows`).
+    """
+    frames = recording.frames
+    reference = next(iter(frames.iter_slots(0, 1)), None)
+    if reference is None or reference.image is None:
+        where = "0" if reference is None else reference.index
+        raise FrameError(f"frame {where} (reference): {getattr(reference, 'error', None) or 'cannot be read'}")
+    tracker = DicTracker(reference.image, recording.rig.dic, recording.rig.camera.mm_per_px, method=method,
+                         **tracker_kwargs)
+    for frame in frames.iter_slots(start, stop):
+        yield tracker.track(frame), SlotNote.of(frame)
+
+
+def emit_rows(noted_rows: Iterable[tuple[FrameTrack, SlotNote]], guard, bar=None) -> Iterator[FrameTrack]:
+    """The rows of a pass over a recording, in frame order: each slot's frame is checked by ``guard``
+    (:meth:`vibro_io.frames.FrameSequence.unreadable_guard`: too many unreadable frames refuse the
+    recording) and a frame that could not be read is logged with its index, then its (lost) row yielded."""
+    for row, note in noted_rows:
+        guard.check(note)
+        if not note.ok:
+            log.warning("frame %d skipped: %s", note.index, note.error)
+        yield row
+        if bar is not None:
+            bar.update(1)
+
+
 def track_recording(recording, *, method: str = "icgn", progress: bool = False, **tracker_kwargs
                     ) -> Iterator[FrameTrack]:
     """Stream :class:`FrameTrack` rows for every frame slot of ``recording`` (a vibro_io Recording).
 
     Frame 0 is the reference (it must decode). Frames are read one at a time; a frame
     that failed to decode is logged with its index and yields a lost row.
-    ``tracker_kwargs`` go to :class:`DicTracker`.
+    ``tracker_kwargs`` go to :class:`DicTracker`. The same rows, tracked in chunks on Dask workers:
+    :func:`vibro_dic.chunked.track_recording_chunked`.
     """
     from tqdm import tqdm
 
-    rig = recording.rig
-    frames = recording.frames
-    tracker: DicTracker | None = None
-    bar = tqdm(total=len(frames), unit="frame", disable=not progress, desc="track", leave=False)
+    bar = tqdm(total=len(recording.frames), unit="frame", disable=not progress, desc="track", leave=False)
     try:
-        for frame in frames:
-            if tracker is None:
-                if frame.image is None:
-                    raise FrameError(f"frame {frame.index} (reference): {frame.error or 'cannot be read'}")
-                tracker = DicTracker(frame.image, rig.dic, rig.camera.mm_per_px, method=method, **tracker_kwargs)
-            if frame.image is None:
-                log.warning("frame %d skipped: %s", frame.index, frame.error)
-            yield tracker.track(frame)
-            bar.update(1)
+        yield from emit_rows(track_slots(recording, method=method, **tracker_kwargs),
+                             recording.frames.unreadable_guard(), bar)
     finally:
         bar.close()

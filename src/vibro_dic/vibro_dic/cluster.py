@@ -1,0 +1,86 @@
+"""The Dask cluster vibro's parallel work runs on: chunked DIC (:mod:`vibro_dic.chunked`) and campaigns
+(:mod:`vibro_bringup.campaign`).
+
+Default: a ``distributed.LocalCluster`` of worker *processes* (not threads: DIC and the fits hold the
+GIL), one thread each, as many as asked (default: the CPU cores); no dashboard. ``scheduler``: connect to
+an existing cluster instead (``tcp://host:8786``); its workers must see the recordings' and outputs' paths
+(a shared file system) and run the same vibro. Nothing starts at import time.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from contextlib import contextmanager
+from typing import Iterator
+
+from vibro_io.errors import RecordingError
+
+#: seconds to wait for an existing scheduler (``--scheduler``) before giving up with one line
+CONNECT_TIMEOUT_S = 10.0
+
+
+def default_workers() -> int:
+    """Worker processes of a local cluster when none are asked: the CPU cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def check_workers(workers: int | None, where: str = "--workers") -> int | None:
+    """``workers`` if it is None or a positive integer, else :class:`RecordingError` naming ``where``."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise RecordingError(f"{where}: expected a positive number of worker processes, got {workers!r}")
+    return workers
+
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator["distributed.Client"]:
+    """A ``distributed.Client`` on a new local cluster of ``workers`` processes x 1 thread (default
+    :func:`default_workers`), or on the existing scheduler at ``scheduler``; closed (and the local cluster
+    shut down) on exit. A scheduler that cannot be reached: :class:`RecordingError` (one line)."""
+    check_workers(workers)
+    quiet = _QuietDistributed()
+    with quiet:
+        client, cluster = _connect(workers, scheduler)
+    try:
+        yield client
+    finally:
+        with quiet:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+class _QuietDistributed:
+    """Dask's own INFO lines (scheduler, nanny, worker start and stop) off unless vibro logs at DEBUG (-v)."""
+
+    def __enter__(self):
+        self.logger = logging.getLogger("distributed")
+        self.level = self.logger.level
+        if not logging.getLogger().isEnabledFor(logging.DEBUG):
+            self.logger.setLevel(logging.WARNING)
+
+    def __exit__(self, *exc):
+        self.logger.setLevel(self.level)
+
+
+def _connect(workers: int | None, scheduler: str | None):
+    """(client, local cluster or None)."""
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise RecordingError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there "
+                                 f"({type(exc).__name__}: {' '.join(str(exc).split()) or 'no answer'})") from None
+        return client, None
+    cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        cluster.close()
+        raise
