@@ -40,6 +40,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     """A ``distributed.Client`` on a new local cluster of ``workers`` processes x 1 thread (default
     :func:`default_workers`), or on the existing scheduler at ``scheduler``; closed (and the local cluster
     shut down) on exit. A scheduler that cannot be reached: :class:`RecordingError` (one line)."""
+    import distributed  # noqa: F401  (its loggers exist from here on, to be quietened)
+
     check_workers(workers)
     quiet = _QuietDistributed()
     with quiet:
@@ -57,13 +59,19 @@ class _QuietDistributed:
     """Dask's own INFO lines (scheduler, nanny, worker start and stop) off unless vibro logs at DEBUG (-v)."""
 
     def __enter__(self):
-        self.logger = logging.getLogger("distributed")
-        self.level = self.logger.level
-        if not logging.getLogger().isEnabledFor(logging.DEBUG):
-            self.logger.setLevel(logging.WARNING)
+        self.levels = {}
+        if logging.getLogger().isEnabledFor(logging.DEBUG):
+            return
+        names = [n for n in logging.root.manager.loggerDict if n == "distributed" or n.startswith("distributed.")]
+        for name in names:  # distributed sets levels on its sub-loggers itself
+            logger = logging.getLogger(name)
+            self.levels[name] = logger.level
+            if logger.getEffectiveLevel() < logging.WARNING:
+                logger.setLevel(logging.WARNING)
 
     def __exit__(self, *exc):
-        self.logger.setLevel(self.level)
+        for name, level in self.levels.items():
+            logging.getLogger(name).setLevel(level)
 
 
 def _connect(workers: int | None, scheduler: str | None):
