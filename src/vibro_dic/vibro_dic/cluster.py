@@ -43,20 +43,24 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     import distributed  # noqa: F401  (its loggers exist from here on, to be quietened)
 
     check_workers(workers)
-    quiet = _QuietDistributed()
-    with quiet:
+    with _QuietDistributed(logging.WARNING):
         client, cluster = _connect(workers, scheduler)
     try:
         yield client
     finally:
-        with quiet:
+        # at shutdown the nanny kills a worker still exiting after 4 s (its work is done): no warning for that
+        with _QuietDistributed(logging.ERROR):
             client.close()
             if cluster is not None:
                 cluster.close()
 
 
 class _QuietDistributed:
-    """Dask's own INFO lines (scheduler, nanny, worker start and stop) off unless vibro logs at DEBUG (-v)."""
+    """Dask's own lines below ``level`` (scheduler, nanny, worker start and stop) off unless vibro logs at
+    DEBUG (-v)."""
+
+    def __init__(self, level: int):
+        self.level = level
 
     def __enter__(self):
         self.levels = {}
@@ -66,8 +70,8 @@ class _QuietDistributed:
         for name in names:  # distributed sets levels on its sub-loggers itself
             logger = logging.getLogger(name)
             self.levels[name] = logger.level
-            if logger.getEffectiveLevel() < logging.WARNING:
-                logger.setLevel(logging.WARNING)
+            if logger.getEffectiveLevel() < self.level:
+                logger.setLevel(self.level)
 
     def __exit__(self, *exc):
         for name, level in self.levels.items():
