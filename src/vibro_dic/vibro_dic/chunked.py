@@ -3,17 +3,17 @@
 Design: DIC measures every frame against the reference (frame 0); the only state carried from frame to
 frame is the motion prediction of the integer search, and the tracker restarts it at every multiple of
 :data:`~vibro_dic.tracker.RESEED_EVERY_FRAMES` frame indices, in one process too (module doc of
-:mod:`vibro_dic.tracker`, step 6). A chunk here is one such segment; each worker opens the recording by
-its path, builds its own tracker on the reference and tracks its segment (:func:`track_slots`), and the
-rows come back in frame order through the same checks as a single pass (:func:`emit_rows`: the
-unreadable-fraction guard, the log line of each unreadable frame). So the rows, and what goes wrong, do not
-depend on how many workers ran it: an exception of a chunk (e.g. an unreadable reference) is raised when
-the join reaches that chunk, as one process raises it there.
+:mod:`vibro_dic.tracker`, step 6). A chunk here is one such segment, so the segment boundaries, and with
+them the rows, do not depend on the number of workers. Each task gets the recording as the planning process
+opened it (pickled; its frame files are read by path, so a remote cluster's workers must see that path),
+builds its own tracker on the reference and tracks its segment (:func:`track_slots`). The rows come back in
+frame order through the same checks as a single pass (:func:`emit_rows`: the unreadable-fraction guard and
+the log line of each unreadable frame, in this process), and an exception of a chunk (e.g. an unreadable
+reference) is raised when the join reaches that chunk, as one process raises it there.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Iterator
 
 from vibro_io.dictrack import FrameTrack
@@ -29,21 +29,10 @@ def segment_starts(first_index: int, n_slots: int, reseed_every: int = RESEED_EV
     return sorted(set(starts))
 
 
-def track_chunk(recording_path: str, start: int, stop: int | None, method: str,
+def track_chunk(recording, start: int, stop: int | None, method: str,
                 tracker_kwargs: dict) -> list[tuple[FrameTrack, SlotNote]]:
-    """One Dask task: the noted rows of slots ``start`` .. ``stop`` - 1 of the recording at ``recording_path``.
-
-    The recording's warnings on opening (unknown keys, dropped frames) were logged by the process that
-    planned the chunks; they are not repeated by every chunk."""
-    import logging
-
-    from vibro_io.recording import open_recording
-
-    logging.disable(logging.WARNING)
-    try:
-        recording = open_recording(recording_path)
-    finally:
-        logging.disable(logging.NOTSET)
+    """One Dask task: the noted rows of slots ``start`` .. ``stop`` - 1 of ``recording`` (the Recording as
+    the planning process opened it, pickled: its frame files are read here, nothing is re-validated)."""
     return list(track_slots(recording, start, stop, method=method, **tracker_kwargs))
 
 
@@ -57,8 +46,8 @@ def track_recording_chunked(recording, client, *, method: str = "icgn", progress
     reseed = tracker_kwargs.get("reseed_every", RESEED_EVERY_FRAMES)
     starts = segment_starts(frames.first_index, len(frames), reseed)
     bounds = list(zip(starts, starts[1:] + [None]))  # the last chunk reads to the end (a video may run longer)
-    path = str(Path(recording.path).resolve())
-    futures = [client.submit(track_chunk, path, a, b, method, dict(tracker_kwargs), pure=False)
+    [shared] = client.scatter([recording], broadcast=False, hash=False)
+    futures = [client.submit(track_chunk, shared, a, b, method, dict(tracker_kwargs), pure=False)
                for a, b in bounds]
     bar = tqdm(total=len(frames), unit="frame", disable=not progress, desc="track", leave=False)
 

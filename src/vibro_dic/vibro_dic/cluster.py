@@ -90,7 +90,9 @@ def _connect(workers: int | None, scheduler: str | None):
                                  f"({type(exc).__name__}: {' '.join(str(exc).split()) or 'no answer'})") from None
         return client, None
     cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address=None, silence_logs=logging.ERROR,
+                           # no dashboard; the scheduler's own HTTP routes on a free loopback port (not 8787)
+                           scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
     try:
         return Client(cluster), cluster
     except BaseException:

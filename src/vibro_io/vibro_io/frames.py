@@ -161,6 +161,18 @@ class FrameSequence:
     def __len__(self) -> int:
         return self._count
 
+    def __getstate__(self) -> dict:
+        """Pickled for another process (a Dask worker tracking a chunk): a camera file's reader is opened
+        again there (by its path); the file list, sizes and numbering are carried over, not re-checked."""
+        state = self.__dict__.copy()
+        state["_camera_file"] = None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if self.source.is_file() and self.source.suffix.lower() in CAMERA_FILE_SUFFIXES:
+            self._camera_file = open_camera_file(self.source)
+
     def _mismatch(self, image: np.ndarray, where: str) -> str | None:
         """Why ``image`` does not match the first frame (size, pixel type), or None."""
         if image.shape != self.shape:

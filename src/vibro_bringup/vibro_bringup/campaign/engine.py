@@ -102,6 +102,11 @@ def run_campaign(source: str | Path, out: str | Path, *, workers: int | None = N
         resumed = _resumed_record(spec, run_dir, fp)
         if resumed is not None:
             records.append(resumed)
+        elif not (spec.path / "rig.yaml").is_file():  # a listed folder that is not there: no task for that
+            what = "no rig.yaml in it" if spec.path.is_dir() else "no such folder"
+            records.append({"name": spec.name, "recording": str(spec.path), "status": "failed",
+                            "reason": f"{spec.path}: not a recording directory ({what})", "resumed": False,
+                            "warnings": [], "task_s": None})
         else:
             todo.append((spec, run_dir, fp))
     timing = {"cluster_start_s": None, "tasks_wall_s": None, "n_workers": None}
