@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from vibro_dic.cluster import default_workers
+from vibro_fit.identify import METHODS
 
 EXIT_RUN_FAILED = 1
 
@@ -29,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="use the existing Dask cluster at ADDRESS (e.g. tcp://host:8786); its workers must "
                             "see the recordings' and --out's paths")
-    p.add_argument("--method", choices=("paper", "joint"), default="paper", help="COR method (as vibro analyze)")
+    p.add_argument("--method", choices=METHODS, default="paper", help="COR method (as vibro analyze)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
