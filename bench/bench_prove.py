@@ -15,7 +15,9 @@ impacts and structure track; a library of the same terms) scored the same way (r
 and the paper's Eq. 16 CORs against the final model's (ratio paper / final model).
 
 Run: .venv/bin/python bench/bench_prove.py [--frames 1000] [--seed 2026] [--magnitudes 2] [--controls 3]
-     -> table + bench/results/prove.json
+     [--only 12,13,6] -> table + bench/results/prove.json
+(``--only``: just those case numbers of the drawn set, each drawn exactly as in the whole run, e.g. to rerun
+some cases on a loaded machine; settings.only in the JSON says so)
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from side_by_side import fmt, print_side_by_side, ratio  # noqa: E402
 from vibro_eval.prove import EVIDENCE, GOALS, format_family_table, format_summary, prove  # noqa: E402
+from vibro_io.errors import RecordingError  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -40,11 +43,21 @@ def main(argv=None) -> int:
     ap.add_argument("--magnitudes", type=int, default=EVIDENCE.magnitudes)
     ap.add_argument("--controls", type=int, default=EVIDENCE.controls)
     ap.add_argument("--out", default="/tmp/vibro_bench_prove")
+    ap.add_argument("--only", default=None, help="comma-separated case numbers of the drawn set to run (default all)")
     args = ap.parse_args(argv)
+    try:
+        only = None if args.only is None else tuple(int(x) for x in args.only.split(",") if x.strip())
+    except ValueError:
+        print(f"--only must be comma-separated case numbers, got {args.only!r}", file=sys.stderr)
+        return 2
     draws = replace(EVIDENCE, magnitudes=args.magnitudes, controls=args.controls)
     t0 = time.perf_counter()
-    res = prove(seed=args.seed, out=args.out, frames=args.frames, sindy=True, progress=sys.stderr.isatty(),
-                draws=draws)
+    try:
+        res = prove(seed=args.seed, out=args.out, frames=args.frames, sindy=True, progress=sys.stderr.isatty(),
+                    draws=draws, only=only)
+    except RecordingError as exc:
+        print(str(exc), file=sys.stderr)
+        return 2
     wall = time.perf_counter() - t0
     v, s = res["vibro"], res.get("sindy")
     print(format_summary(v, f"vibro ({res['settings']['cases']} cases, {args.frames} frames)"))

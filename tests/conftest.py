@@ -16,7 +16,8 @@ SHARED = REPO.parent / "shared"
 #: test files that take longest (tens of seconds to minutes), run first so that the two pytest-xdist workers
 #: (``--dist loadfile``) do not end with one of them alone on a long file
 LONGEST_FIRST = ("test_discrepancy_prove.py", "test_isolation.py", "test_graph_faults.py", "test_graph.py",
-                 "test_restart_recovery.py", "test_reidentify.py", "test_launch_order.py", "test_bags_rosbag2.py")
+                 "test_restart_recovery.py", "test_reidentify.py", "test_structure_tone.py", "test_launch_order.py",
+                 "test_bags_rosbag2.py")
 
 
 def pytest_sessionstart(session) -> None:

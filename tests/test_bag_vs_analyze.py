@@ -25,10 +25,11 @@ NOT_CARRIED = {
     "accelerometers": "identify()'s accelerometer analysis: no message",
     "motion": "identify()'s motion state (still / structure only / impacting): no message",
     "rig_consistency": "identify()'s rig.yaml consistency checks: no message",
-    "ball_spin": "the ball's spin per flight: DicFrame carries no ball rotation yet",
     "impacts[].method": "ImpactEstimate has no method field",
     "discrepancy.*": "the engine's extras (model, noise floors, location, stages, notes): no message",
     "discrepancy.findings[].*": "the engine's per-finding extras (one-step errors, alternatives): no message",
+    "dic_quality": "the tracker's texture and correlation checks: the node logs them and reports them on "
+                   "/diagnostics (ZNCC medians, frames below the threshold); no message carries the summary",
 }
 
 
@@ -95,6 +96,13 @@ def test_bag_results_equal_analyze_field_for_field(runs: dict) -> None:
                 "structure.amplitude_mm", "structure.ball_offset_mm", "cor_summary.top.mean",
                 "simulation.cor_model.deviation", "simulation.hertz_model.deviation", "schema", "complete"):
         assert key in names, key
+    # the ball's spin: the graph rebuilds analyze's section from the DicFrames' rotation, per flight and impact
+    assert b["ball_spin"]["available"] is True and len(b["ball_spin"]["flights"]) >= 8
+    for key in ("ball_spin.flights[].omega_rad_s", "ball_spin.flights[].omega_std_rad_s",
+                "ball_spin.impacts[].spin_change_rad_s", "ball_spin.noise.angle_measured_rad", "ball_spin.chi2",
+                "ball_spin.spin_detected", "ball_spin.statement"):
+        assert key in names, key
+    assert not any(w.startswith("ball_spin") for w in b["warnings"])
     assert "fitted" not in b["flights"][0]
     # t_start is the opening impact, not the first fitted frame: it lies in the frame gap before it
     opened = [f for f in b["flights"] if f["t_start"] != f["t_first_frame"]]
@@ -157,3 +165,56 @@ def test_a_bag_cut_short_keeps_the_streamed_estimates_and_fails_loudly(runs: dic
     res = _vibro("results", str(cut), env=runs["env"])
     assert res.returncode == 1 and json.loads(res.stdout)["complete"] is False
     assert math.isfinite(doc["impacts"][0]["cor"])
+
+
+def _rewrite_with_old_dicframe(bag: Path, out: Path) -> int:
+    """Copy ``bag`` with rosbags' own writer, its vibro/dic messages re-encoded by the DicFrame definition of
+    before the ball rotation (and that definition embedded); other topics as recorded, but the camera images
+    (``vibro results`` does not read them). Returns the DicFrames written."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from old_msgdefs import old_dicframe_typestore
+    from vibro_ros.bags import deserialize, make_typestore, read_messages
+
+    store = make_typestore()
+    old = old_dicframe_typestore()
+    old_type = old.types["vibro_msgs/msg/DicFrame"]
+    fields = [f for f in old_type.__dataclass_fields__ if f != "__msgtype__"]
+    connections, frames = {}, 0
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        for m in read_messages(bag):
+            if m.msg_type == "sensor_msgs/msg/Image":
+                continue
+            is_dic = m.msg_type == "vibro_msgs/msg/DicFrame"
+            if m.topic not in connections:
+                connections[m.topic] = writer.add_connection(m.topic, m.msg_type, typestore=old if is_dic else store)
+            data = m.data
+            if is_dic:
+                new = deserialize(m, store)
+                data = old.serialize_cdr(old_type(**{f: getattr(new, f) for f in fields}), m.msg_type)
+                frames += 1
+            writer.write(connections[m.topic], m.timestamp_ns, bytes(data))
+    return frames
+
+
+def test_a_bag_recorded_before_the_ball_rotation_reads_without_ball_spin_and_says_why(runs: dict) -> None:
+    from rosbags.highlevel import AnyReader
+
+    old = runs["tmp"] / "old_dicframe_bag"
+    assert _rewrite_with_old_dicframe(runs["bag"], old) >= 300
+    with AnyReader([old]) as reader:  # the bag is what it claims: DicFrames without the rotation fields
+        (conn,) = [c for c in reader.connections if c.msgtype == "vibro_msgs/msg/DicFrame"]
+        assert "ball_rot_rad" not in conn.msgdef.data and "float64 ball_mm" in conn.msgdef.data
+        first = reader.deserialize(next(raw for c, _, raw in reader.messages([conn])), conn.msgtype)
+        assert not hasattr(first, "ball_rot_rad")
+    res = _vibro("results", str(old), "--out", str(runs["tmp"] / "oldres"), env=runs["env"])
+    assert res.returncode == 0, res.stdout + res.stderr
+    doc = json.loads((runs["tmp"] / "oldres" / "results.json").read_text())
+    assert "ball_spin" not in doc  # absent, never zeros
+    (why,) = [w for w in doc["warnings"] if w.startswith("ball_spin")]
+    assert "no ball_rot_rad field" in why and "recorded before" in why
+    # everything else is the new bag's document: the old DicFrames decoded by their own definition
+    new = dict(runs["bag_doc"])
+    new.pop("ball_spin")
+    assert {k: v for k, v in doc.items() if k not in ("recording", "warnings")} == \
+        {k: v for k, v in new.items() if k not in ("recording", "warnings")}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -64,6 +65,9 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
     assert frames[0].encoding == "mono8" and (frames[0].height, frames[0].width) == (128, 96)
     # the fixture moves its lower half 2 px = 0.1 mm down per frame
     assert [round(m.ball_mm, 3) for m in dic] == pytest.approx([-0.1 * k for k in range(5)], abs=1e-3)
+    # and the ball's rotation with its sigma: a pure 2 px shift per frame, so no turn (misread as one on the
+    # mesh's ~10 px lever arms it would be ~0.1 rad per frame)
+    assert all(abs(m.ball_rot_rad) < 1e-3 and 0 < m.ball_rot_std_rad < 1e-3 for m in dic)
 
     # reader 2: the plain mcap reader, schemas as ros2msg with the vibro_msgs definition inside
     with open(next(bag.glob("*.mcap")), "rb") as handle:
@@ -72,6 +76,7 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
         schemas = {s.name: s for s in summary.schemas.values()}
         assert schemas["vibro_msgs/msg/DicFrame"].encoding == "ros2msg"
         assert b"float64 ball_mm" in schemas["vibro_msgs/msg/DicFrame"].data
+        assert b"float64 ball_rot_rad\nfloat64 ball_rot_std_rad" in schemas["vibro_msgs/msg/DicFrame"].data
         assert all(c.message_encoding == "cdr" for c in summary.channels.values())
         counted = sum(1 for _ in mreader.iter_messages(topics=["/vibro/dic"]))
     assert counted == 5
@@ -136,6 +141,35 @@ def test_foreign_bag_with_unknown_types_is_refused(tmp_path: Path) -> None:
         writer.finish()
     with pytest.raises(BagError, match="acme_msgs/msg/Widget.*not a vibro bag"):
         list(read_messages(bag))
+
+
+def _bag_with_dicframe_definition(bag: Path, definition: bytes, data: bytes) -> Path:
+    bag.mkdir()
+    with open(bag / f"{bag.name}_0.mcap", "wb") as handle:
+        writer = Writer(handle)
+        writer.start(profile="ros2", library="other")
+        sid = writer.register_schema("vibro_msgs/msg/DicFrame", "ros2msg", definition)
+        cid = writer.register_channel("/vibro/dic", "cdr", sid)
+        writer.add_message(cid, log_time=1, data=data, publish_time=1)
+        writer.finish()
+    return bag
+
+
+def test_messages_decode_by_the_definition_the_bag_embeds(tmp_path: Path) -> None:
+    from vibro_ros.bags import deserialize
+
+    # a DicFrame of some other (here: older, shorter) definition decodes by it, without the fields it lacks
+    bag = _bag_with_dicframe_definition(tmp_path / "short", b"uint64 frame_index\nfloat64 ball_mm\n",
+                                        b"\x00\x01\x00\x00" + (7).to_bytes(8, "little") + struct.pack("<d", -0.25))
+    (m,) = read_messages(bag, {"vibro/dic"})
+    msg = deserialize(m)
+    assert (msg.frame_index, msg.ball_mm) == (7, -0.25) and not hasattr(msg, "ball_rot_rad")
+    # a definition naming a type nobody defines: one line naming the topic, not a rosbags traceback
+    bag = _bag_with_dicframe_definition(tmp_path / "odd", b"acme_msgs/Widget w\n", b"\x00\x01\x00\x00\x07")
+    (m,) = read_messages(bag, {"vibro/dic"})
+    with pytest.raises(BagError, match="/vibro/dic: a vibro_msgs/msg/DicFrame message does not decode by the "
+                                       "definition the bag embeds"):
+        deserialize(m)
 
 
 def test_missing_bag_is_named(tmp_path: Path) -> None:

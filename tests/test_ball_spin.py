@@ -34,7 +34,7 @@ def _case(tmp_path_factory, name: str, **cfg) -> dict:
     track = DicTrack.from_frames(track_recording(rec))
     ident = identify(track, rec.rig)
     doc = results_model(ident, str(out))
-    return {"truth": truth, "track": track, "section": ball_spin_section(track, doc.flights, doc.impacts)}
+    return {"truth": truth, "track": track, "doc": doc, "section": ball_spin_section(track, doc.flights, doc.impacts)}
 
 
 @pytest.fixture(scope="module")
@@ -177,3 +177,57 @@ def test_bad_spin_options_are_refused(key, value):
 
     with pytest.raises(SynthError, match=key):
         SynthConfig(**{key: value})
+
+
+def _through_cdr(track: DicTrack) -> list:
+    """The track as dic_tracker publishes it (rclpy DicFrames, CDR bytes) and as a bag reader decodes it (rosbags,
+    vibro's typestore)."""
+    from rclpy.serialization import serialize_message
+
+    from vibro_dic.dic_tracker_node import dic_message
+    from vibro_ros.bags import make_typestore
+
+    store = make_typestore()
+    return [store.deserialize_cdr(serialize_message(dic_message(row, (4, 4))), "vibro_msgs/msg/DicFrame")
+            for row in _rows(track)]
+
+
+def test_graph_path_spin_per_flight_matches_truth(independent):
+    """The graph's DicFrames carry the rotation; vibro results' section of them is analyze's, within sigma of truth."""
+    from vibro_bringup.bag_results import ball_spin_from_frames
+
+    frames = _through_cdr(independent["track"])
+    assert np.allclose([m.ball_rot_rad for m in frames], independent["track"].ball_rot_rad, rtol=0, atol=0,
+                       equal_nan=True)  # float64 in CDR: bit for bit
+    doc = independent["doc"]
+    sec, why_not = ball_spin_from_frames(frames, doc.flights, doc.impacts)
+    assert why_not == "" and sec["available"] and sec["spin_detected"]
+    assert sec == independent["section"]  # the same core on the same numbers: analyze's section, field for field
+    z = np.array([(f["omega_rad_s"] - _truth_omega(independent["truth"], 0.5 * (f["t_start"] + f["t_end"])))
+                  / f["omega_std_rad_s"] for f in sec["flights"]])
+    assert len(z) >= 10 and np.max(np.abs(z)) < 4.0
+
+
+def test_dicframes_without_a_measured_rotation_give_no_spin(independent):
+    """A DicFrame decoded from a bag recorded before the rotation fields, or one whose publisher left them at the
+    ROS default 0, carries no rotation: NaN, never a zero angle with a zero sigma."""
+    from vibro_msgs.msg import DicFrame
+
+    from old_msgdefs import old_dicframe_typestore
+    from vibro_bringup.bag_results import ball_spin_from_frames
+    from vibro_ros.convert import dic_track_from_messages
+
+    old = old_dicframe_typestore()
+    old_type = old.types["vibro_msgs/msg/DicFrame"]
+    header = old.types["std_msgs/msg/Header"](old.types["builtin_interfaces/msg/Time"](0, 0), "camera")
+    old_frame = old.deserialize_cdr(old.serialize_cdr(old_type(header, 0, 0.0, 0.0, 0.0, 4, 4, 4, 4, 1.0, 1.0, False,
+                                                               "", 0, ""), old_type.__msgtype__), old_type.__msgtype__)
+    defaults = [DicFrame(frame_index=k, t_s=k / 1000.0, ball_mm=0.1 * k, structure_mm=0.0) for k in range(50)]
+    assert defaults[1].ball_rot_rad == 0.0 and defaults[1].ball_rot_std_rad == 0.0  # the ROS default
+    for track in (dic_track_from_messages([old_frame]), dic_track_from_messages(defaults)):
+        assert np.all(np.isnan(track.ball_rot_rad)) and np.all(np.isnan(track.ball_rot_std_rad))
+    doc = independent["doc"]
+    sec, _ = ball_spin_from_frames(defaults, doc.flights, doc.impacts)
+    assert sec["available"] is False and sec["spin_detected"] is False and sec["flights"] == []
+    assert ball_spin_from_frames([old_frame], doc.flights, doc.impacts)[0] is None
+    assert ball_spin_from_frames([], doc.flights, doc.impacts)[0] is None

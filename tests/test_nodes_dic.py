@@ -127,3 +127,37 @@ def test_diagnostics_report_lag_behind_the_camera_clock(tiny_recording: Path, ro
                  key=lambda v: int(v.get("published_count", 0)))
     assert values["published_count"] == "5"
     assert abs(float(values["lag_s"]) - 4 * (1 / 10 - 1 / 1000)) < 0.08
+
+
+def test_tracker_diagnostics_report_progress_against_the_expected_frame_count(tiny_recording: Path, tmp_path: Path,
+                                                                              ros_domain: str) -> None:
+    rec = tmp_path / "rec"
+    shutil.copytree(tiny_recording, rec)
+    n = len(list((rec / "frames").glob("*.png")))
+    echo = _start(str(HERE / "ros_echo.py"), "diagnostic_msgs/msg/DiagnosticArray", "/diagnostics",
+                  "--count", "1000", "--seconds", "60")
+    tracker = _start("-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p", f"rig_file:={rec / 'rig.yaml'}",
+                     "-p", "readers:=[frame_source]", "-p", f"frames_expected:={n + 3}")
+    try:
+        assert echo.stdout.readline().strip() == "READY"
+        source = subprocess.run(
+            [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={rec}"],
+            capture_output=True, text=True, timeout=60)
+        _, tracker_err = tracker.communicate(timeout=30)  # file mode: it exits once its stream has ended
+        time.sleep(1.0)
+    finally:
+        if tracker.poll() is None:
+            tracker.send_signal(signal.SIGINT)
+            tracker.communicate(timeout=20)
+        echo.send_signal(signal.SIGINT)
+        out, _ = echo.communicate(timeout=20)
+    assert source.returncode == 0, source.stderr
+    assert tracker.returncode == 0 and "Traceback" not in tracker_err
+    reports = [{kv["key"]: kv["value"] for kv in s["values"]}
+               for line in out.splitlines() if line.startswith("{")
+               for s in json.loads(line)["status"] if s["name"].endswith("dic_tracker")]
+    assert reports, out[-2000:]
+    done = [(int(r["frames_done"]), r["frames_expected"], r["progress"]) for r in reports if "frames_done" in r]
+    # every frame slot answered, out of the count the parameter announced (n + 3: the progress is n / (n + 3))
+    assert done and done[-1] == (n, str(n + 3), f"{n / (n + 3):.3f}"), done
+    assert float(reports[-1]["ball_zncc_median"]) > 0.9  # a noise-free pattern shifted by whole pixels

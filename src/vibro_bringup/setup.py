@@ -12,7 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/vibro_bringup/launch", glob("launch/*.launch.py")),
-        ("share/vibro_bringup/config", glob("config/*.yaml")),
+        ("share/vibro_bringup/config", glob("config/*.yaml") + glob("config/*.foxglove-layout.json")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -24,6 +24,7 @@ setup(
         "console_scripts": [
             "recorder = vibro_bringup.recorder_node:main",
             "bag_source = vibro_bringup.bag_source_node:main",
+            "foxglove_bridge = vibro_bringup.foxglove_bridge_node:main",
             "vibro = vibro_bringup.cli:main",
         ],
     },

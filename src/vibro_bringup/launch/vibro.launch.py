@@ -3,6 +3,7 @@
     ros2 launch vibro_bringup vibro.launch.py recording:=/data/run1 bag:=/data/bags/run1
     ros2 launch vibro_bringup vibro.launch.py recording:=/data/run1 bag:=""      # no recorder
     ros2 launch vibro_bringup vibro.launch.py recording:=/data/run1 camera_topic:=/camera/image_raw live:=true
+    ros2 launch vibro_bringup vibro.launch.py recording:=/data/run1 bag:="" foxglove:=true   # + Foxglove server
 
 Thin over vibro_bringup.graph_spec.launch_nodes, the node table `vibro graph` uses too (nodes,
 parameters, declared readers, remappings); tests/test_launch_order.py starts what it returns
@@ -10,6 +11,8 @@ the way launch does, in shuffled order, and compares with `vibro graph`. The nod
 their declared readers by name, so the start order does not matter. From a recording every
 node exits once the stream has ended (launch then exits); a processing node that dies is
 restarted after a delay. Live, processing nodes stay up and respawn=True restarts them.
+foxglove:=true adds the Foxglove bridge (ws://<this PC>:<foxglove_port>, see README "Watching it live"):
+from a recording it exits once the other nodes have gone; live it stays up with them.
 """
 
 from launch import LaunchDescription
@@ -40,8 +43,11 @@ def _start(n, retries_left: int):
 def _nodes(context, *args, **kwargs):
     value = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
     actions = []
+    foxglove = ({"port": int(value("foxglove_port")), "host": value("foxglove_host")}
+                if value("foxglove").lower() == "true" else None)
     for n in launch_nodes(value("recording"), value("bag") or None, live=value("live").lower() == "true",
-                          camera_topic=value("camera_topic"), respawn_delay_s=float(value("respawn_delay"))):
+                          camera_topic=value("camera_topic"), respawn_delay_s=float(value("respawn_delay")),
+                          foxglove=foxglove):
         actions += _start(n, int(value("respawn_max")))
     return actions
 
@@ -56,5 +62,10 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("respawn_delay", default_value="2.0", description="s before a dead node restarts"),
         DeclareLaunchArgument("respawn_max", default_value="2",
                               description="restarts per processing node after a failure (file mode)"),
+        DeclareLaunchArgument("foxglove", default_value="false",
+                              description="true: also serve the graph to a Foxglove app (foxglove_bridge)"),
+        DeclareLaunchArgument("foxglove_port", default_value="8765", description="Foxglove WebSocket server port"),
+        DeclareLaunchArgument("foxglove_host", default_value="0.0.0.0",
+                              description="address the Foxglove server listens on (127.0.0.1: this PC only)"),
         OpaqueFunction(function=_nodes),
     ])

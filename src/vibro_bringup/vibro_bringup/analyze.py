@@ -74,19 +74,22 @@ DISCREPANCY_PNG = "discrepancy.png"
 
 def analyze_outputs() -> tuple[str, ...]:
     """Every file ``vibro analyze`` may write into its output folder (what ``--overwrite`` replaces)."""
-    from vibro_fit.report import FIGURE_FILES, REPORT_HTML
+    from vibro_fit.report_files import FIGURE_FILES, REPORT_HTML
     from vibro_fit.results import CSV_TABLES, RESULTS_JSON
 
     return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *FIGURE_FILES.values(), DISCREPANCY_PNG, REPORT_HTML)
 
 
 def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, progress: bool, dic_method: str,
-                out_dir: Path, overwrite: bool = False, workers: int | None = None, scheduler: str | None = None):
+                out_dir: Path, overwrite: bool = False, quality=None, workers: int | None = None,
+                scheduler: str | None = None):
     """(rig, track, accel) from a recording: DIC unless ``track_csv`` is given (then frames are not read).
 
     DIC runs in this process, or in chunks on Dask workers (``workers`` > 1 local processes, or the cluster
-    at ``scheduler``): the same track (:func:`vibro_dic.chunked.track_rows`). The inputs are opened (and
-    validated) before ``out_dir`` is prepared (:func:`prepare_output_dir`); with DIC the track is written to ``out_dir/dic.csv``."""
+    at ``scheduler``): the same track and quality (:func:`vibro_dic.chunked.track_rows`). The inputs are
+    opened (and validated) before ``out_dir`` is prepared (:func:`prepare_output_dir`); with DIC the track is
+    written to ``out_dir/dic.csv`` and ``quality`` (a :class:`vibro_dic.quality.TrackQuality`, optional)
+    receives the texture check and the correlation quality."""
     rec_dir = Path(recording_dir)
     inputs = [rec_dir] + ([Path(track_csv)] if track_csv is not None else [])
     if track_csv is not None:
@@ -102,7 +105,8 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
     rec = open_recording(rec_dir)
     accel = rec.load_accel()
     prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
-    rows = list(track_rows(rec, workers=workers, scheduler=scheduler, method=dic_method, progress=progress))
+    rows = list(track_rows(rec, workers=workers, scheduler=scheduler, method=dic_method, progress=progress,
+                           quality=quality))
     with atomic_path(out_dir / DIC_CSV) as tmp:
         write_dic_csv(tmp, rows)
     return rec.rig, DicTrack.from_frames(rows), accel
@@ -132,8 +136,8 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     into ``out_dir`` (created; refused when it holds anything but this run's inputs, unless ``overwrite``:
     see :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically. Returns the results
     mapping. ``workers``/``scheduler``: DIC in chunks on Dask workers (:func:`load_inputs`)."""
+    from vibro_dic.quality import TrackQuality, dic_quality_section
     from vibro_fit.identify import identify
-    from vibro_fit.report import REPORT_HTML, write_figures, write_html
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_fit.spin import ball_spin_section
     from vibro_model.codec import write_results
@@ -145,14 +149,20 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     bar = _bar(4, progress, "analyze")
     try:
         bar.set_description("DIC" if track_csv is None else "read track")
+        quality = TrackQuality() if track_csv is None else None
         rig, track, accel = load_inputs(recording_dir, track_csv, progress=progress, dic_method=dic_method,
-                                        out_dir=out, overwrite=overwrite, workers=workers, scheduler=scheduler)
+                                        out_dir=out, overwrite=overwrite, quality=quality, workers=workers,
+                                        scheduler=scheduler)
+        dic_warnings = [] if quality is None else quality.check()  # refuses a body lost in most frames
         bar.update(1)
         bar.set_description("identify")
         ident = identify(track, rig, accel=accel, method=method, weights=weights)
         bar.update(1)
         bar.set_description("simulate")
         document = results_model(ident, str(recording_dir))
+        if quality is not None:
+            document.sections["dic_quality"] = dic_quality_section(quality.texture, quality)
+            document.warnings += [f"DIC: {w}" for w in quality.texture.warnings() + dic_warnings]
         sim = replay_models(document, track, rig)
         bar.update(1)
         dev = sim["deviations"]
@@ -171,6 +181,8 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         write_csv_tables(document, out)
         doc = document.to_dict()
         if report:
+            from vibro_fit.report import REPORT_HTML, write_figures, write_html  # matplotlib: only for the report
+
             bar.set_description("report")
             figs = write_figures(track, ident, out, sim, impacts=document.impacts)
             if disc_run is not None:

@@ -6,7 +6,10 @@ codec (:mod:`vibro_model.codec`), so a graph run's document has the keys and mea
 fitted frame in ``t_first_frame``/``t_last_frame``), ``free`` says whether a flight is free,
 ``cor_statistics`` is computed from the impacts as analyze does. The impacts the discrepancy node measured
 again under its final model (vibro/impacts_final_model) replace the fitter's, which stay beside them as
-``cor_paper``/``t_paper`` (:mod:`vibro_sim.discrepancy.reidentify`, as analyze does).
+``cor_paper``/``t_paper`` (:mod:`vibro_sim.discrepancy.reidentify`, as analyze does). ``ball_spin`` is
+analyze's section (:func:`vibro_fit.spin.ball_spin_section`) of the recorded DicFrames' ball rotation and the
+final flights and impacts; a bag recorded before DicFrame carried the rotation has no ``ball_spin`` and a
+warning saying why.
 
 Flights and impacts marked ``final`` (the fitter's end-of-stream pass) replace the streamed previews with
 the same index. A bag is complete when every stream the fitter, simulator and discrepancy node announced
@@ -26,8 +29,9 @@ from vibro_model.results import Discrepancy, ResultsDocument, Simulation
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
 from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
-from vibro_ros.convert import (finding_from_message, flight_from_message, impact_from_message,
-                               simulation_run_from_message, structure_from_message)
+from vibro_ros.convert import (carries_ball_rotation, dic_track_from_messages, finding_from_message,
+                               flight_from_message, impact_from_message, simulation_run_from_message,
+                               structure_from_message)
 
 #: end-of-stream statuses a complete graph run has, and the result topic each one counts
 EXPECTED_STREAMS = {"flights": topics.FLIGHTS.name, "impacts": topics.IMPACTS.name,
@@ -48,12 +52,15 @@ class BagResults:
         self.findings: dict[int, object] = {}
         self.final_model: dict[int, object] = {}  # vibro/impacts_final_model by index
         self.finished: dict[str, int] = {}  # stream -> items the node announced at its end
+        self.frames: list = []  # vibro/dic, as recorded
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
-                  topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name}
+                  topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name}
         for m in read_messages(bag, wanted):
             msg = deserialize(m, store)
-            if m.topic == topics.STRUCTURE.name:
+            if m.topic == topics.DIC.name:
+                self.frames.append(msg)
+            elif m.topic == topics.STRUCTURE.name:
                 self.structure = msg
             elif m.topic in self.final:
                 (self.final if msg.final else self.streamed)[m.topic][int(msg.index)] = msg
@@ -94,6 +101,20 @@ class BagResults:
         return list({**self.streamed[topic], **self.final[topic]}.values())
 
 
+def ball_spin_from_frames(frames: list, flights: list, impacts: list) -> tuple[dict | None, str]:
+    """``vibro analyze``'s ``ball_spin`` section (:func:`vibro_fit.spin.ball_spin_section`) of DicFrame messages
+    (rclpy or decoded from a bag) and the final flights and impacts (model types); (None, the reason) when the
+    frames carry no ball rotation at all (none recorded, or a bag recorded before DicFrame had it)."""
+    from vibro_fit.spin import ball_spin_section
+
+    if not frames:
+        return None, f"no {topics.DIC.name} message in the bag, so no ball rotation"
+    if not all(carries_ball_rotation(m) for m in frames):
+        return None, (f"the bag's {topics.DIC.name} messages have no ball_rot_rad field (recorded before DicFrame "
+                      "carried the ball rotation); track the recording again (vibro analyze or vibro replay)")
+    return ball_spin_section(dic_track_from_messages(frames), flights, impacts), ""
+
+
 def document_from_bag(bag: str | Path) -> ResultsDocument:
     """The results document of a recorded graph run (``complete`` False when the bag is not whole)."""
     from vibro_fit.results import cor_statistics_section
@@ -123,6 +144,11 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
     effects = measurement_effects(findings)
     doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))
     doc.sections["cor_statistics"] = cor_statistics_section(doc.impacts)
+    spin, why_not = ball_spin_from_frames(r.frames, doc.flights, doc.impacts)
+    if spin is None:
+        doc.warnings.append(f"ball_spin: not reported: {why_not}")
+    else:
+        doc.sections["ball_spin"] = spin
     return doc
 
 

@@ -16,6 +16,7 @@ from vibro_io.errors import RecordingError
 
 SUBCOMMAND_MODULES = (
     "vibro_bringup.cmd_info",
+    "vibro_bringup.cmd_init",
     "vibro_sim.cli",
     "vibro_dic.cli",
     "vibro_fit.cli",

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vibro_dic.cli import add_cluster_args
-from vibro_fit.identify import METHODS
+from vibro_dic.cluster import add_cluster_args
+from vibro_fit.methods import METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vibro_dic.cluster import default_workers
-from vibro_fit.identify import METHODS
+from vibro_dic.cluster import add_cluster_args, default_workers
+from vibro_fit.methods import METHODS
 
 EXIT_RUN_FAILED = 1
 
@@ -23,13 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "listing recording folders, one per line")
     p.add_argument("--out", required=True, help="campaign folder: OUT/<run>/ holds each run's 'vibro analyze' "
                                                "outputs; campaign.json, campaign.csv, figures, report.html")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, metavar="N",
-                       help=f"worker processes of the local Dask cluster (default: the CPU cores, here "
-                            f"{default_workers()})")
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="use the existing Dask cluster at ADDRESS (e.g. tcp://host:8786); its workers must "
-                            "see the recordings' and --out's paths")
+    add_cluster_args(p, workers_help=f"worker processes of the local Dask cluster (default: the CPU cores, here "
+                                     f"{default_workers()})",
+                     scheduler_help="use the existing Dask cluster at ADDRESS (e.g. tcp://host:8786); its workers "
+                                    "must see the recordings' and --out's paths")
     p.add_argument("--method", choices=METHODS, default="paper", help="COR method (as vibro analyze)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

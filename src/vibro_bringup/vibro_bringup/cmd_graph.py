@@ -30,6 +30,7 @@ from vibro_io.recording import open_recording
 
 from .graph_spec import (ALL_SPECS, MONITOR, NodeSpec, graph_nodes, node_parameters, run_time_origin,
                          write_params_file, write_reference_frame)
+from .foxglove_view import DEFAULT_PORT
 from .supervisor import Failure, Supervisor
 from .isolation import RunIdentity, namespace_argument, new_run_identity
 
@@ -83,6 +84,45 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                         "runs on one domain stay apart; / = none)")
     p.add_argument("--respawn", type=_non_negative_int, default=2, metavar="N",
                    help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
+    p.add_argument("--foxglove", action="store_true",
+                   help="also serve the graph's topics to a Foxglove app (WebSocket; frames, tracks, COR, "
+                        "diagnostics); the summary prints the ws:// URL")
+    p.add_argument("--foxglove-port", type=_port, default=None, metavar="N",
+                   help=f"TCP port of the Foxglove server (default {DEFAULT_PORT}; implies --foxglove)")
+    p.add_argument("--foxglove-host", default=None, metavar="ADDR",
+                   help="address the Foxglove server listens on (default 0.0.0.0: every interface, so a lab PC "
+                        "without ROS can connect; 127.0.0.1: this PC only; implies --foxglove)")
+
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer 1-65535, got {text!r}") from None
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be 1-65535, got {value}")
+    return value
+
+
+def foxglove_parameters(args: argparse.Namespace) -> dict | None:
+    """The Foxglove bridge's parameters from ``--foxglove``/``--foxglove-port``/``--foxglove-host`` (None: no
+    bridge); RecordingError when the port cannot be bound on that address (in use, or not this machine's)."""
+    if not (args.foxglove or args.foxglove_port is not None or args.foxglove_host is not None):
+        return None
+    host = args.foxglove_host or "0.0.0.0"
+    port = args.foxglove_port or DEFAULT_PORT
+    import socket
+
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((host, port))
+    except OSError as exc:
+        raise RecordingError(f"--foxglove-port {port} --foxglove-host {host}: cannot serve there "
+                             f"({exc.strerror or exc}); choose another port") from None
+    return {"host": host, "port": port}
 
 
 @dataclass
@@ -106,6 +146,7 @@ class GraphSummary:
     accel_impacts_s: dict = field(default_factory=dict)  # index -> accelerometer impact time (DAQ clock, s)
     camera: object = None  # rig.yaml's CameraConfig (frame times for the coverage note)
     failures: list[Failure] = field(default_factory=list)  # nodes that ended the run
+    foxglove_url: str = ""  # the Foxglove WebSocket server of the run (empty: none)
     count_problems: list = field(default_factory=list)  # topics whose recorded count misses announced items
     recorded: dict = field(default_factory=dict)  # topic -> (announced, recorded)
     nodes: list = field(default_factory=list)  # the run's node names
@@ -245,14 +286,16 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
         print(f"MISSING: {problem}")
     for failure in s.failures:
         print(f"FAILED: {failure.describe()}")
+    if s.foxglove_url:
+        print(f"foxglove: {s.foxglove_url} (served while the graph ran)")
     print(f"bag: {bag}")
 
 
 def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, params_base: str | None,
                   timeout_s: float, env: dict[str, str], extra_params: dict | None = None, respawn: int = 2,
                   reference: Callable[[Path], Path | None] | None = None, namespace: str | None = None,
-                  history_depth: int | None = None, time_origin_ns: int | None = None
-                  ) -> tuple[bool, GraphSummary, Path]:
+                  history_depth: int | None = None, time_origin_ns: int | None = None,
+                  foxglove: dict | None = None) -> tuple[bool, GraphSummary, Path]:
     """Run the graph (processing nodes, the recorder to ``bag``, ``sources``) until every node has exited by
     itself, a node fails, or ``timeout_s``; stop what still runs; check the bag's counts.
 
@@ -263,10 +306,11 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
     items the latched histories of vibro/dic and vibro/accel keep (default: the nodes' own).
     ``time_origin_ns``: every node's ``time_origin_unix_ns``, the lab clock of the header stamps (default:
     rig.yaml's ``camera.start_time_unix_s``, else frame 0 = the wall clock now; graph_spec.run_time_origin).
+    ``foxglove``: the Foxglove bridge's parameters (host, port) to run it too; its URL is printed at the start.
     """
     identity = new_run_identity(namespace)
     replay = any(s.name == "bag_source" for s in sources)
-    nodes = [s for s in graph_nodes(bag=True, with_accel=with_accel, replay=replay)
+    nodes = [s for s in graph_nodes(bag=True, with_accel=with_accel, replay=replay, foxglove=foxglove is not None)
              if s.role != "source" or s in sources]
     missing = [s.name for s in nodes if not _importable(s.module)]
     if missing:
@@ -281,7 +325,7 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
         ref_png = reference(Path(tmp)) if reference is not None else None
         params = node_parameters(rig_dir, bag, params_base, with_accel, reference_image=ref_png, nodes=nodes,
-                                 extra_readers=[MONITOR], time_origin_ns=time_origin_ns)
+                                 extra_readers=[MONITOR], time_origin_ns=time_origin_ns, foxglove=foxglove)
         for spec in nodes:  # one run: its id, and histories a restarted node can recover from
             params.setdefault(spec.name, {})["run_id"] = identity.run_id
             if history_depth is not None:
@@ -292,6 +336,13 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         summary.identity = identity.describe(env)
         print(summary.identity, flush=True)
         print(f"stamps: {describe_origin(time_origin_ns)}", flush=True)
+        if foxglove is not None and any(s.name == "foxglove_bridge" for s in nodes):
+            from .foxglove_view import websocket_url
+            from .graph_spec import foxglove_layout_file
+
+            summary.foxglove_url = websocket_url(foxglove["host"], foxglove["port"])
+            print(f"foxglove: {summary.foxglove_url} (open it in the Foxglove app: Open connection > Foxglove "
+                  f"WebSocket; layout: {foxglove_layout_file()})", flush=True)
 
         def command(spec: NodeSpec) -> list[str]:
             return [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
@@ -417,6 +468,7 @@ def new_bag_path(bag: str | Path, overwrite: bool = False) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     recording = open_recording(args.recording)  # validate before starting anything
+    foxglove = foxglove_parameters(args)
     bag = new_bag_path(args.bag, args.overwrite)
     env = prepare_environment(args.domain_id)
     sources = [s for s in graph_nodes(bag=True, with_accel=recording.has_accel) if s.role == "source"]
@@ -427,7 +479,7 @@ def run(args: argparse.Namespace) -> int:
         recording.path, bag, sources, with_accel=recording.has_accel, params_base=args.params,
         timeout_s=args.timeout_s, env=env, respawn=args.respawn,
         reference=lambda folder: write_reference_frame(recording.path, folder / "reference_frame0.png"),
-        namespace=args.namespace, history_depth=max(HISTORY_DEPTH, len(recording.frames) + 1))
+        namespace=args.namespace, history_depth=max(HISTORY_DEPTH, len(recording.frames) + 1), foxglove=foxglove)
     print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     return 0 if ok else 1

@@ -18,7 +18,8 @@ from vibro_io.outputs import atomic_write_text, prepare_output_dir
 from vibro_model.codec import write_results
 
 from .bag_results import document_from_bag
-from .cmd_graph import add_run_options, bag_outputs, execute_graph, new_bag_path, prepare_environment, print_summary
+from .cmd_graph import (add_run_options, bag_outputs, execute_graph, foxglove_parameters, new_bag_path,
+                        prepare_environment, print_summary)
 from .graph_spec import BAG_SOURCE, bag_time_origin_ns, reference_from_bag
 
 REPLAY_BAG = "bag"
@@ -45,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if (out / REPLAY_BAG).resolve() == source_bag.resolve():
         raise RecordingError(f"{out}: the replay writes its own bag to {out / REPLAY_BAG}, which is the source bag; "
                              "choose another --out")
+    foxglove = foxglove_parameters(args)
     prepare_output_dir(out, overwrite=args.overwrite, owned=REPLAY_OUTPUTS, command="replay", inputs=[source_bag])
     atomic_write_text(out / "rig.yaml", rig_text)
     bag = new_bag_path(out / REPLAY_BAG)
@@ -55,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
                                          timeout_s=args.timeout_s, env=env,
                                          extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
                                          respawn=args.respawn, namespace=args.namespace,
-                                         time_origin_ns=time_origin_ns,
+                                         time_origin_ns=time_origin_ns, foxglove=foxglove,
                                          reference=lambda folder: reference_from_bag(
                                              source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")

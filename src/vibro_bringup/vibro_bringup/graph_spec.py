@@ -29,13 +29,16 @@ class NodeSpec:
     package: str
     executable: str
     module: str
-    role: str  # "source" (ends with its input), "processing" or "sink"
+    role: str  # "source" (ends with its input), "processing", "sink" or "viewer" (see VIEWER)
     publishes: tuple[str, ...] = ()
     subscribes: tuple[str, ...] = ()
     waits_for: tuple[str, ...] = field(default=())
 
 
 _RESULTS = (T.STRUCTURE.name, T.FLIGHTS.name, T.IMPACTS.name)
+#: Role of a node that only watches (the Foxglove bridge): nobody's declared reader or writer, so no node waits
+#: for it or for its end; vibro graph does not wait for it to finish and stops it once the graph has ended.
+VIEWER = "viewer"
 NODES: tuple[NodeSpec, ...] = (
     NodeSpec("recorder", "vibro_bringup", "recorder", "vibro_bringup.recorder_node", "sink",
              subscribes=tuple(t.name for t in T.ALL_TOPICS)),
@@ -55,6 +58,9 @@ NODES: tuple[NodeSpec, ...] = (
              publishes=(T.FRAMES.name,), subscribes=(T.DIC.name,)),
     NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source",
              publishes=(T.ACCEL.name,)),
+    NodeSpec("foxglove_bridge", "vibro_bringup", "foxglove_bridge", "vibro_bringup.foxglove_bridge_node", VIEWER,
+             subscribes=(T.FRAMES.name, T.DIC.name, *_RESULTS, T.SIMULATION.name, T.DISCREPANCY.name,
+                         T.IMPACTS_FINAL_MODEL.name, T.DIAGNOSTICS.name)),
 )
 
 #: Replaces frame_source and accel_source when a recorded bag is replayed (``vibro replay``).
@@ -64,13 +70,17 @@ BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringu
 ALL_SPECS: dict[str, NodeSpec] = {s.name: s for s in (*NODES, BAG_SOURCE)}
 
 
-def graph_nodes(*, bag: bool, with_accel: bool, live: bool = False, replay: bool = False) -> list[NodeSpec]:
+def graph_nodes(*, bag: bool, with_accel: bool, live: bool = False, replay: bool = False,
+                foxglove: bool = False) -> list[NodeSpec]:
     """The nodes of one run, in start order (sink, processing, sources): the recorder only when a bag
     is recorded, impact_detector and accel_source only with accelerometers, no file source when live
-    (a camera driver publishes the frames), bag_source instead of the file sources for a replay."""
+    (a camera driver publishes the frames), bag_source instead of the file sources for a replay, the
+    Foxglove bridge only with ``foxglove``."""
     out = []
     for spec in NODES:
         if spec.name == "recorder" and not bag:
+            continue
+        if spec.role == VIEWER and not foxglove:
             continue
         if spec.name in ("impact_detector", "accel_source") and not with_accel:
             continue
@@ -84,7 +94,10 @@ def graph_nodes(*, bag: bool, with_accel: bool, live: bool = False, replay: bool
 
 def _reads(reader: NodeSpec, writer: NodeSpec) -> bool:
     """``reader`` takes data from ``writer``: a topic it publishes, or its end-of-stream status (a sink
-    records every status; other nodes only the statuses of what they read, and of ``waits_for``)."""
+    records every status; other nodes only the statuses of what they read, and of ``waits_for``). A viewer
+    reads from nobody and nobody from it: no node waits for it."""
+    if VIEWER in (reader.role, writer.role):
+        return False
     subs = set(reader.subscribes) - ({T.STATUS.name} if reader.role != "sink" else set())
     return bool((set(writer.publishes) | {T.STATUS.name}) & subs) or writer.name in reader.waits_for
 
@@ -140,6 +153,12 @@ def default_params_file() -> Path:
     from ament_index_python.packages import get_package_share_directory
 
     return Path(get_package_share_directory("vibro_bringup")) / "config" / "vibro.yaml"
+
+
+def foxglove_layout_file() -> Path:
+    """config/vibro.foxglove-layout.json (the Foxglove layout for the bridge's channels) of the source tree, else
+    of the installed package's share/ folder."""
+    return default_params_file().parent / "vibro.foxglove-layout.json"
 
 
 def write_reference_frame(recording: str | Path, out_png: str | Path) -> Path | None:
@@ -216,13 +235,15 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
 def node_parameters(recording: str | Path, bag: str | Path | None, base: str | Path | None = None,
                     with_accel: bool = True, reference_image: str | Path | None = None, *,
                     nodes: Iterable[NodeSpec] | None = None, extra_readers: Iterable[str] = (),
-                    live: bool = False, time_origin_ns: int | None = None) -> dict[str, dict[str, Any]]:
+                    live: bool = False, time_origin_ns: int | None = None,
+                    foxglove: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
     """Parameters per node for one run: the defaults file, then the recording and bag paths,
     every node's ``time_origin_unix_ns`` (``time_origin_ns``, default :func:`run_time_origin`),
     ``reference_image`` (frame 0 as an image file) for dic_tracker when given, and from the node table
     each node's declared ``readers`` (plus ``extra_readers``, e.g. vibro graph's monitor), the recorder's
     ``writers`` and ``exit_when_done`` (not ``live``). ``nodes``: the run's nodes (default
-    :func:`graph_nodes` for ``bag`` and ``with_accel``)."""
+    :func:`graph_nodes` for ``bag`` and ``with_accel``, with the Foxglove bridge when ``foxglove`` is given:
+    its parameters, e.g. ``{"port": 8765}``)."""
     base = Path(base or default_params_file())
     data = yaml.safe_load(base.read_text(encoding="utf-8")) or {}
     params = {node_name_of_key(key, base): dict(block.get("ros__parameters", {})) for key, block in data.items()}
@@ -232,17 +253,29 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
     for name in ("dic_tracker", "trajectory_fitter", "simulator", "impact_detector", "discrepancy", "recorder"):
         params.setdefault(name, {})["rig_file"] = str(rec / "rig.yaml")
     params["trajectory_fitter"]["use_accelerometers"] = with_accel
+    present = [s.name for s in (nodes if nodes is not None else graph_nodes(bag=bag is not None,
+                                                                            with_accel=with_accel, live=live,
+                                                                            foxglove=foxglove is not None))]
     if reference_image is not None:
         params["dic_tracker"]["reference_image"] = str(Path(reference_image).resolve())
+    if reference_image is not None and "frame_source" in present:
+        # from a recording's files: their frame count is the tracker's progress total (a replay's bag_source
+        # announces its count when it ends, like a camera)
+        from vibro_io.recording import open_recording
+
+        params["dic_tracker"]["frames_expected"] = len(open_recording(rec).frames)
     if bag is not None:
         params.setdefault("recorder", {})["bag"] = str(Path(bag).resolve())
-    present = [s.name for s in (nodes if nodes is not None else graph_nodes(bag=bag is not None,
-                                                                            with_accel=with_accel, live=live))]
     if time_origin_ns is None:
         time_origin_ns = run_time_origin(rec / "rig.yaml")
     for name in present:
         p = params.setdefault(name, {})
         p[TIME_ORIGIN_PARAMETER] = int(time_origin_ns)
+        if ALL_SPECS[name].role == VIEWER:  # nobody's reader or writer: only its own settings
+            p["rig_file"] = str(rec / "rig.yaml")
+            p["exit_when_done"] = not live
+            p.update(foxglove or {})
+            continue
         p["readers"] = readers_of(name, present) + sorted(set(extra_readers) - set(present))
         p["exit_when_done"] = not live
         p["keep_history_until"] = history_kept_until(name, present) or [""]
@@ -268,28 +301,32 @@ class LaunchNode:
 
 def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = False,
                  camera_topic: str = T.FRAMES.name, base: str | Path | None = None,
-                 reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0) -> list[LaunchNode]:
+                 reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0,
+                 foxglove: dict[str, Any] | None = None) -> list[LaunchNode]:
     """What launch/vibro.launch.py starts: the same nodes, parameters and declared readers as ``vibro graph``
     (without its monitor). File mode: dic_tracker's reference is frame 0 written to ``reference_dir``
     (default: a new temporary folder), every node exits once its stream has ended, and a processing
     node that dies (non-zero exit) is restarted after ``respawn_delay_s``; launch's own ``respawn=True``
-    would also restart a node that finished, so it is used live only, where nodes never finish."""
+    would also restart a node that finished, so it is used live only, where nodes never finish.
+    ``foxglove``: the Foxglove bridge's parameters (e.g. ``{"port": 8765}``) to start it too (None: not started);
+    from a recording it exits once the other nodes have gone, live it stays up and respawns."""
     from vibro_io.recording import open_recording
 
     rec = open_recording(recording)
     bag = str(bag) if bag else None
-    nodes = graph_nodes(bag=bag is not None, with_accel=rec.has_accel, live=live)
+    nodes = graph_nodes(bag=bag is not None, with_accel=rec.has_accel, live=live, foxglove=foxglove is not None)
     reference = None
     if not live:
         import tempfile
 
         folder = Path(reference_dir) if reference_dir is not None else Path(tempfile.mkdtemp(prefix="vibro-launch-"))
         reference = write_reference_frame(rec.path, folder / "reference_frame0.png")
-    params = node_parameters(rec.path, bag, base, rec.has_accel, reference, nodes=nodes, live=live)
+    params = node_parameters(rec.path, bag, base, rec.has_accel, reference, nodes=nodes, live=live, foxglove=foxglove)
     params["dic_tracker"]["live_camera"] = live
     remap = ((T.FRAMES.name, camera_topic),) if camera_topic != T.FRAMES.name else ()
-    return [LaunchNode(spec, params.get(spec.name, {}), remap, live and spec.role == "processing",
-                       not live and spec.role == "processing", respawn_delay_s) for spec in nodes]
+    restarted = ("processing", VIEWER)
+    return [LaunchNode(spec, params.get(spec.name, {}), remap, live and spec.role in restarted,
+                       not live and spec.role in restarted, respawn_delay_s) for spec in nodes]
 
 
 class _QuotedStrings(yaml.SafeDumper):

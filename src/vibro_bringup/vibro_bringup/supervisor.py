@@ -1,13 +1,13 @@
 """The process supervisor of ``vibro graph``: start, watch, restart and stop the node processes.
 
 Driven by the node table (:class:`vibro_bringup.graph_spec.NodeSpec` roles): processes start in
-the order sink, processing, sources (not needed for correctness -- the nodes wait for their
+the order viewer (the Foxglove bridge: up before anything streams), sink, processing, sources (not needed for correctness -- the nodes wait for their
 declared readers by name -- but the sources then find their readers at once). A node that exits
 with code 0 has finished by itself (its stream ended). A processing node that exits otherwise is
 restarted, like launch's ``respawn``, at most ``respawn`` times, its log appended; any other
 non-zero exit (a source, the recorder, restarts used up) is a failure reported at once with the
 last lines of the node's log. :meth:`Supervisor.stop` stops what still runs in the order
-sources, processing, (drain) sinks, so the recorder takes the last messages before it closes.
+sources, processing, (drain) sinks, viewer, so the recorder takes the last messages before it closes.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .graph_spec import NodeSpec
+from .graph_spec import VIEWER, NodeSpec
 
-START_ORDER = ("sink", "processing", "source")
-STOP_ORDER = ("source", "processing", "sink")
+START_ORDER = (VIEWER, "sink", "processing", "source")
+STOP_ORDER = ("source", "processing", "sink", VIEWER)
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ class Supervisor:
             spec = self.specs[name]
             done = self.restarts.get(name, 0)
             # exit code 2: the node refused its input or parameters (e.g. another run's data): a restart would too
-            if spec.role == "processing" and done < self.respawn and code != 2:
+            if spec.role in ("processing", VIEWER) and done < self.respawn and code != 2:
                 self.restarts[name] = done + 1
                 with self.logs[name].open("a") as out:
                     out.write(f"\n--- vibro graph: {name} exited with {code}; "
@@ -114,8 +114,8 @@ class Supervisor:
         return [n for n, p in self.procs.items() if p.poll() is None]
 
     def all_finished(self) -> bool:
-        """Every node has exited with code 0 by itself."""
-        return not self.failures and self.finished >= set(self.specs)
+        """Every node has exited with code 0 by itself (a viewer is not waited for: :meth:`stop` ends it)."""
+        return not self.failures and self.finished >= {n for n, s in self.specs.items() if s.role != VIEWER}
 
     # ------------------------------------------------------------------ stop
     def stop(self, grace_s: float = 20.0, drain_s: float = 1.0) -> list[str]:

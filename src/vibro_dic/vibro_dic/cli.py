@@ -12,6 +12,7 @@ from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_dir,
 from vibro_io.recording import open_recording
 
 from .chunked import track_rows
+from .cluster import add_cluster_args
 from .noise import DEFAULT_SPLIT_HZ, noise_study
 from .tracker import METHODS, track_recording
 
@@ -46,16 +47,6 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="sub-pixel method: icgn (default) or parabolic (baseline)")
     p.add_argument("--zncc-min", type=float, default=0.6, help="ZNCC threshold of a valid point (default 0.6)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
-def add_cluster_args(p: argparse.ArgumentParser) -> None:
-    """``--workers N`` / ``--scheduler ADDRESS``: DIC in chunks on Dask workers (:mod:`vibro_dic.chunked`)."""
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="track in chunks of frames on N local worker processes (Dask); the same dic.csv as "
-                        "one process (default: one process)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="track in chunks on the Dask cluster at ADDRESS (e.g. tcp://host:8786; its workers "
-                        "must see the recording's path)")
 
 
 def _progress(args: argparse.Namespace) -> bool:

@@ -9,12 +9,16 @@ an existing cluster instead (``tcp://host:8786``); its workers must see the reco
 
 from __future__ import annotations
 
+import argparse
 import logging
 import os
 from contextlib import contextmanager
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 from vibro_io.errors import RecordingError
+
+if TYPE_CHECKING:  # only for the annotation: distributed is imported where a cluster is made
+    import distributed
 
 #: seconds to wait for an existing scheduler (``--scheduler``) before giving up with one line
 CONNECT_TIMEOUT_S = 10.0
@@ -26,6 +30,20 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def add_cluster_args(p: argparse.ArgumentParser, *, workers_help: str | None = None,
+                     scheduler_help: str | None = None) -> None:
+    """``--workers N`` / ``--scheduler ADDRESS`` (one or the other) on a subcommand's parser; the help
+    texts default to DIC in chunks on Dask workers (:mod:`vibro_dic.chunked`). Imports nothing of Dask
+    (the CLI parser stays light)."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help=workers_help or "track in chunks of frames on N local worker processes (Dask); the "
+                                            "same dic.csv as one process (default: one process)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help=scheduler_help or "track in chunks on the Dask cluster at ADDRESS (e.g. "
+                                              "tcp://host:8786; its workers must see the recording's path)")
 
 
 def check_workers(workers: int | None, where: str = "--workers") -> int | None:

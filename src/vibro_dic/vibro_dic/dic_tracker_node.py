@@ -27,15 +27,18 @@ from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
+from vibro_ros.convert import frame_track_to_message
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare,
                                    history_depth_parameter, history_qos, run_node, seconds_from_stamp,
-                                   stamp_from_seconds, time_origin_parameter)
+                                   time_origin_parameter)
 from vibro_ros.readiness import ReaderGate
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
 from vibro_msgs.msg import DicFrame, StreamStatus
 
+from .quality import TrackQuality
+from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
 from .tracker import METHODS, DicTracker
 
 #: Longest run (s of camera time) a frame stamp may lie after the time origin.
@@ -60,15 +63,9 @@ def image_array(msg: Image) -> np.ndarray:
 
 def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "", reference_frame_index: int = 0,
                 run_id: str = "", origin_ns: int = 0) -> DicFrame:
-    """The DicFrame of ``row``: ``t_s`` camera time, the header stamped with it on the lab clock of ``origin_ns``."""
-    msg = DicFrame(frame_index=row.frame, t_s=row.t_s, ball_mm=row.ball_mm, structure_mm=row.structure_mm,
-                   ball_valid_points=row.ball_valid, structure_valid_points=row.structure_valid,
-                   ball_mesh_points=mesh_points[0], structure_mesh_points=mesh_points[1],
-                   ball_mean_zncc=row.ball_zncc, structure_mean_zncc=row.structure_zncc,
-                   lost=row.lost, status=status, reference_frame_index=reference_frame_index, run_id=run_id)
-    msg.header.frame_id = "camera"
-    stamp_from_seconds(msg.header, row.t_s, origin_ns)
-    return msg
+    """The DicFrame of ``row`` (displacements mm, ball rotation rad and its sigma): ``t_s`` camera time, the header
+    stamped with it on the lab clock of ``origin_ns`` (:func:`vibro_ros.convert.frame_track_to_message`)."""
+    return frame_track_to_message(row, mesh_points, status, reference_frame_index, run_id, origin_ns)
 
 
 class DicTrackerNode(Node):
@@ -84,8 +81,16 @@ class DicTrackerNode(Node):
             "a tracker restarted after the last frame gets none; the slots it never answered count as lost downstream"))
         reference = declare(self, "reference_image", "",
                             "image file (PNG/TIFF) of frame 0, the DIC reference; empty = the first image received")
+        self.frames_expected = int(declare(
+            self, "frames_expected", 0, "frames the run will bring (vibro graph sets it from the recording; 0 = "
+            "unknown until the frame source ends): diagnostics report frames_done / frames_expected as progress"))
+        self.max_subset_sigma_px = float(declare(
+            self, "max_subset_sigma_px", DEFAULT_MAX_SUBSET_SIGMA_PX,
+            "texture check: a subset whose predicted displacement sigma (px) exceeds this is not used"))
         if not rig_file:
             raise RecordingError("dic_tracker: parameter 'rig_file' is required")
+        if self.frames_expected < 0:
+            raise RecordingError(f"dic_tracker: parameter 'frames_expected' must be >= 0, got {self.frames_expected}")
         if self.method not in METHODS:
             raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
         self.rig = load_rig(rig_file)
@@ -99,6 +104,7 @@ class DicTrackerNode(Node):
             except RecordingError as exc:
                 raise RecordingError(f"dic_tracker: parameter 'reference_image': {exc}") from None
         self.tracker: DicTracker | None = None
+        self.quality: TrackQuality | None = None
         self.next_index = 0
         self.reference_index: int | None = 0 if self.reference is not None else None  # the stream begins here
         self.published = self.lost = self.received = 0
@@ -190,6 +196,7 @@ class DicTrackerNode(Node):
             self._publish(FrameTrack(gap, gt, math.nan, math.nan, 0, 0, math.nan, math.nan, True),
                           "no image received (dropped or unreadable upstream)")
         row = self.tracker.track_image(k, t, image)
+        self.quality.add(k, self.tracker.last_results)
         reasons = "; ".join(r.reason for r in self.tracker.last_results.values() if r.lost and r.reason)
         self._publish(row, reasons)
         self.health.observe(t)
@@ -212,8 +219,16 @@ class DicTrackerNode(Node):
             ref = image
             if k != 0:
                 self.get_logger().warning(f"first image is frame {k}; it is the DIC reference")
-        self.tracker = DicTracker(ref, self.rig.dic, self.rig.camera.mm_per_px,
-                                  method=self.method, zncc_min=self.zncc_min)
+        tracker = DicTracker(ref, self.rig.dic, self.rig.camera.mm_per_px, method=self.method, zncc_min=self.zncc_min)
+        # the texture check (vibro_dic.texture): noise from this image against the reference when they differ,
+        # else from the reference alone (an upper bound on speckle); a refusal is raised like a bad ROI
+        texture, warnings = check_texture(ref, image, self.rig.dic, max_subset_sigma_px=self.max_subset_sigma_px)
+        for w in warnings:
+            self.get_logger().warning(f"texture: {w}")
+            self.health.warn(f"texture: {w}")
+        tracker.use_texture(texture)
+        self.quality = TrackQuality(texture)
+        self.tracker = tracker
         self.next_index = k
 
     def _on_status(self, msg: StreamStatus) -> None:
@@ -249,11 +264,29 @@ class DicTrackerNode(Node):
 
     def _maybe_finish(self) -> None:
         if self.finished and self._released:
+            self._progress()  # the diagnostics published when the node stops hold the final count
             self.status.publish(self.published, self.lost, True)
             self.gate.finish()
 
+    def _progress(self) -> None:
+        """frames_done (slots answered) / frames_expected (the parameter, else the frame source's count once it
+        has ended; 0 = unknown) and their ratio as ``progress`` (empty while unknown); each body's median ZNCC."""
+        expected = self.frames_expected
+        src = self.frames_finished
+        if not expected and src is not None:
+            expected = int(src.items_sent + src.items_lost)
+        self.health.values["frames_done"] = self.published
+        self.health.values["frames_expected"] = expected
+        self.health.values["progress"] = f"{min(self.published / expected, 1.0):.3f}" if expected else ""
+        if self.quality is not None:
+            for name, b in self.quality.summary()["bodies"].items():
+                med = b["zncc_median"]
+                self.health.values[f"{name}_zncc_median"] = "" if med is None else f"{med:.4f}"
+                self.health.values[f"{name}_frames_below_zncc_warn"] = b["frames_below_zncc_warn"]
+
     def _report(self) -> None:
         self._maybe_finish()
+        self._progress()
         self.health.values["frames_lost"] = self.lost
         self.status.publish(self.published, self.lost, self.finished and self._released)
 

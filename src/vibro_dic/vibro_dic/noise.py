@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from vibro_io.dictrack import DicTrack
 from vibro_io.errors import RecordingError
@@ -85,6 +84,8 @@ def split_noise(x_mm: np.ndarray, fps: float, split_hz: float = DEFAULT_SPLIT_HZ
     k = np.arange(x.size)
     filled = np.interp(k, k[good], x[good])
     centred = filled - filled[good].mean()
+    from scipy.signal import butter, sosfiltfilt  # here, not at import: scipy.signal costs ~1.7 s CPU
+
     sos = butter(4, split_hz, btype="lowpass", fs=fps, output="sos")
     low = sosfiltfilt(sos, centred)
     high = centred - low

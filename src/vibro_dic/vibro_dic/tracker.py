@@ -58,13 +58,15 @@ import numpy as np
 from vibro_io.dictrack import FrameTrack
 from vibro_io.errors import FrameError, RecordingError
 from vibro_io.frames import Frame
-from vibro_io.rig import DicConfig, Roi
+from vibro_io.rig import DicConfig, Roi, check_rois_in_image
 
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
 from .rotation import fit_rotation, rotation_lever_arms
+from .quality import TrackQuality
 from .search import SearchResult, zncc_search
+from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
 
 log = logging.getLogger(__name__)
 
@@ -354,6 +356,13 @@ class DicTracker:
                                      dic_config.mesh_step_px, **kw)
         self.last_results: dict[str, MeshResult] = {}
 
+    def use_texture(self, texture: TextureReport) -> None:
+        """Leave out the subsets the texture check found unusable (:mod:`vibro_dic.texture`)."""
+        for mesh in (self.ball, self.structure):
+            body = texture.bodies.get(mesh.name)
+            if body is not None and len(body.usable) == len(mesh.points):
+                mesh.subsets.textured &= body.usable
+
     def track(self, frame: Frame) -> FrameTrack:
         """Track one frame. ``frame.image is None`` gives lost=True and NaN displacements."""
         return self.track_image(frame.index, frame.t_s, frame.image)
@@ -389,26 +398,56 @@ class DicTracker:
 @dataclass(frozen=True)
 class SlotNote:
     """What the tracking of one frame slot tells beside its row: the frame was unreadable (``error``) or
-    dropped (no file). Lets a chunk tracked elsewhere be checked and logged as one pass would."""
+    dropped (no file), and the tracker's per-mesh results (``results``, {body: :class:`MeshResult`}; empty
+    when the image was missing), for the correlation quality. Lets a chunk tracked elsewhere be checked,
+    logged and accumulated as one pass would."""
 
     index: int
     ok: bool
     dropped: bool
     error: str | None
+    results: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, frame: Frame) -> "SlotNote":
-        return cls(frame.index, frame.ok, frame.dropped, frame.error)
+    def of(cls, frame: Frame, results: dict[str, MeshResult]) -> "SlotNote":
+        return cls(frame.index, frame.ok, frame.dropped, frame.error, results)
 
 
-def track_slots(recording, start: int = 0, stop: int | None = None, *, method: str = "icgn",
-                **tracker_kwargs) -> Iterator[tuple[FrameTrack, SlotNote]]:
+def reference_texture(recording, *, max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX,
+                      min_valid_fraction: float = 0.5, quality: TrackQuality | None = None) -> TextureReport:
+    """The check before a pass over ``recording``, once per pass whoever tracks it: frame 0 (the reference)
+    must decode and hold the ROIs; the texture check (:func:`vibro_dic.texture.check_texture`, noise from
+    frames 0 and 1) logs its warnings and raises :class:`vibro_dic.texture.TextureError` when a body has too
+    few usable subsets. Returns the report (given to every tracker of the pass: :func:`track_slots`) and
+    hands it to ``quality``."""
+    rig = recording.rig
+    head = list(recording.frames.iter_slots(0, 2))
+    if not head:
+        raise FrameError("the recording has no frame")
+    first = head[0]
+    if first.image is None:
+        raise FrameError(f"frame {first.index} (reference): {first.error or 'cannot be read'}")
+    second = head[1].image if len(head) > 1 else None
+    check_rois_in_image(rig, *np.asarray(first.image).shape[:2])  # before the texture check reads the ROIs
+    texture, warnings = check_texture(first.image, second, rig.dic, max_subset_sigma_px=max_subset_sigma_px,
+                                      min_valid_fraction=min_valid_fraction)
+    for w in warnings:
+        log.warning("texture: %s", w)
+    if quality is not None:
+        quality.texture = texture
+    return texture
+
+
+def track_slots(recording, start: int = 0, stop: int | None = None, *, texture: TextureReport,
+                method: str = "icgn", **tracker_kwargs) -> Iterator[tuple[FrameTrack, SlotNote]]:
     """Track the frame slots ``start`` .. ``stop`` - 1 (positions; ``stop`` None: to the end) of
-    ``recording`` with a new tracker on its first frame (the reference, which must decode).
+    ``recording`` with a new tracker on its first frame (the reference, which must decode), leaving out the
+    subsets ``texture`` (:func:`reference_texture` of the same recording) found unusable.
 
     ``start`` must be the first slot of a tracking segment (a frame index multiple of ``reseed_every``, or
     slot 0): then the rows equal those of one pass over the whole recording (module doc, step 6).
-    The unreadable-fraction check and the log lines are the caller's (:func:`emit_rows`).
+    The unreadable-fraction check, the log lines and the correlation quality are the caller's
+    (:func:`emit_rows`).
     """
     frames = recording.frames
     reference = next(iter(frames.iter_slots(0, 1)), None)
@@ -417,37 +456,50 @@ def track_slots(recording, start: int = 0, stop: int | None = None, *, method: s
         raise FrameError(f"frame {where} (reference): {getattr(reference, 'error', None) or 'cannot be read'}")
     tracker = DicTracker(reference.image, recording.rig.dic, recording.rig.camera.mm_per_px, method=method,
                          **tracker_kwargs)
+    tracker.use_texture(texture)
     for frame in frames.iter_slots(start, stop):
-        yield tracker.track(frame), SlotNote.of(frame)
+        row = tracker.track(frame)
+        yield row, SlotNote.of(frame, tracker.last_results)
 
 
-def emit_rows(noted_rows: Iterable[tuple[FrameTrack, SlotNote]], guard, bar=None) -> Iterator[FrameTrack]:
+def emit_rows(noted_rows: Iterable[tuple[FrameTrack, SlotNote]], guard, bar=None,
+              quality: TrackQuality | None = None) -> Iterator[FrameTrack]:
     """The rows of a pass over a recording, in frame order: each slot's frame is checked by ``guard``
     (:meth:`vibro_io.frames.FrameSequence.unreadable_guard`: too many unreadable frames refuse the
-    recording) and a frame that could not be read is logged with its index, then its (lost) row yielded."""
+    recording), a frame that could not be read is logged with its index, its results go to ``quality``
+    (:class:`vibro_dic.quality.TrackQuality`, optional), then its row (lost for such a frame) is yielded."""
     for row, note in noted_rows:
         guard.check(note)
         if not note.ok:
             log.warning("frame %d skipped: %s", note.index, note.error)
+        if quality is not None:
+            quality.add(note.index, note.results)
         yield row
         if bar is not None:
             bar.update(1)
 
 
-def track_recording(recording, *, method: str = "icgn", progress: bool = False, **tracker_kwargs
+def track_recording(recording, *, method: str = "icgn", progress: bool = False, quality: TrackQuality | None = None,
+                    max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX, **tracker_kwargs
                     ) -> Iterator[FrameTrack]:
     """Stream :class:`FrameTrack` rows for every frame slot of ``recording`` (a vibro_io Recording).
 
-    Frame 0 is the reference (it must decode). Frames are read one at a time; a frame
-    that failed to decode is logged with its index and yields a lost row.
-    ``tracker_kwargs`` go to :class:`DicTracker`. The same rows, tracked in chunks on Dask workers:
-    :func:`vibro_dic.chunked.track_recording_chunked`.
+    Frame 0 is the reference (it must decode). Before tracking, the texture check
+    (:func:`reference_texture`: noise from frames 0 and 1) logs its warnings and raises
+    :class:`vibro_dic.texture.TextureError` when a body has too few usable subsets; unusable subsets are
+    left out. Frames are read one at a time; a frame that failed to decode is logged with its index and
+    yields a lost row. ``quality`` (optional) receives the texture report and every frame's results
+    (:class:`vibro_dic.quality.TrackQuality`). ``tracker_kwargs`` go to :class:`DicTracker`. The same
+    rows and quality, tracked in chunks on Dask workers: :func:`vibro_dic.chunked.track_recording_chunked`.
     """
     from tqdm import tqdm
 
+    texture = reference_texture(recording, max_subset_sigma_px=max_subset_sigma_px,
+                                min_valid_fraction=tracker_kwargs.get("min_valid_fraction", 0.5), quality=quality)
     bar = tqdm(total=len(recording.frames), unit="frame", disable=not progress, desc="track", leave=False)
     try:
-        yield from emit_rows(track_slots(recording, method=method, **tracker_kwargs),
-                             recording.frames.unreadable_guard(), bar)
+        yield from emit_rows(track_slots(recording, texture=texture, method=method, **tracker_kwargs),
+                             recording.frames.unreadable_guard(), bar, quality)
     finally:
         bar.close()
+

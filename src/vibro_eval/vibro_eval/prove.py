@@ -435,7 +435,7 @@ def summarize(rows: list[dict], who: str = "vibro") -> dict:
             (cor_ctl if r["family"] == CONTROL else cor_eff).append(ce.get("max_abs"))
             (cor_ctl_p if r["family"] == CONTROL else cor_eff_p).append(ce.get("max_abs_paper"))
             for f in r.get("findings", []):
-                if f["correct"] and f["effect"] != UNEXPLAINED:
+                if f["correct"] and f["measure"] is not None:   # unexplained: only with a model
                     n_correct_findings += 1
                     n_lowered += int(bool(f["lowered"]))
     perr_a = np.array(perr)
@@ -476,7 +476,7 @@ def family_table(rows: list[dict]) -> dict:
     for fam in sorted(fams, key=lambda f: (f == CONTROL, _is_invented(f), f)):
         rs = [r for r in fams[fam] if "score" in r]
         dev = [r.get("deviation", {}) for r in rs]
-        judged = [f for r in rs for f in r.get("findings", []) if f["correct"] and f["effect"] != UNEXPLAINED]
+        judged = [f for r in rs for f in r.get("findings", []) if f["correct"] and f["measure"] is not None]
         out[fam] = {
             "cases": len(fams[fam]), "failed": len(fams[fam]) - len(rs),
             "identified": sum(len(r["score"]["correct"]) for r in rs),
@@ -540,7 +540,7 @@ def format_summary(s: dict, title: str) -> str:
                   f"{_g(s['cor_error_max_effects_paper'])}), controls max {_g(s['cor_error_max_controls'])} "
                   f"(paper {_g(s['cor_error_max_controls_paper'])}); unmatched impacts {s['unmatched_impacts']}",
                   f"   findings improving   {s['correct_findings_improving']}/{s['correct_findings']} (correct "
-                  "catalogue findings: D_r lower; COR laws: COR variance share above chance)"]
+                  "catalogue findings and modelled unexplained ones: D_r lower; COR laws: COR variance share above chance)"]
     lines.append("   confusion (rows: truth, columns: found)")
     truths = list(FAMILIES) + list(INVENTED)
     cols = [c for c in list(FAMILIES) + [UNEXPLAINED] if any(s["confusion"][t][c] for t in truths)]
@@ -557,9 +557,11 @@ def format_summary(s: dict, title: str) -> str:
 
 
 def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: int = 500, sindy: bool = True,
-          progress: bool = False, pairs: float = 0.0, draws: Draws = Draws()) -> dict:
+          progress: bool = False, pairs: float = 0.0, draws: Draws = Draws(), only: tuple[int, ...] | None = None
+          ) -> dict:
     """Run the proof; returns {"rows", "vibro", "sindy", "settings"}; writes proof.json into ``out``.
-    ``draws.magnitudes`` > 0: the cases of :func:`draw_evidence` (``cases`` is then not used)."""
+    ``draws.magnitudes`` > 0: the cases of :func:`draw_evidence` (``cases`` is then not used). ``only``: run
+    just these case numbers of the drawn set (each drawn exactly as in the whole set)."""
     import tempfile
 
     from tqdm import tqdm
@@ -572,6 +574,11 @@ def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: 
     work.mkdir(parents=True, exist_ok=True)
     specs = (draw_evidence(seed, frames, draws, pairs) if draws.magnitudes
              else draw_cases(cases, seed, frames, pairs, draws))
+    if only is not None:
+        missing = sorted(set(only) - {s.index for s in specs})
+        if missing:
+            raise RecordingError(f"case numbers {missing} are not in the drawn set (0..{len(specs) - 1})")
+        specs = [s for s in specs if s.index in set(only)]
     if not specs:
         raise RecordingError("nothing to prove: no effect family and no control drawn")
     rows = []
@@ -580,6 +587,7 @@ def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: 
     from .sindy_baseline import available
 
     result = {"settings": {"cases": len(specs), "seed": seed, "frames": frames, "pairs": pairs, "work_dir": str(work),
+                           "only": None if only is None else sorted(only),
                            "draws": asdict(draws), "pysindy": available() if sindy else None},
               "goals": GOALS, "vibro": summarize(rows, "vibro"), "rows": rows}
     if sindy and available():

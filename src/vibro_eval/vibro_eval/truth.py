@@ -243,7 +243,8 @@ def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impac
     (``paper_deviation_*``), whether it is a correct finding and whether it improved the model:
     ``lowered`` is D_r after < before for structure and flight findings; for a COR law (D_r does not see
     it) its ``cor_variance_share`` above what chance gives on ``n_impacts`` CORs
-    (:func:`chance_variance_share`). ``unexplained`` has no model: ``lowered`` None."""
+    (:func:`chance_variance_share`). ``unexplained`` has no model, ``lowered`` None, unless it modelled
+    what it located (its ``model`` key: a structure tone), which D_r judges as a structure finding."""
     expected = expected_findings(truth)
     out = []
     for f in doc.get("findings", []):
@@ -256,7 +257,7 @@ def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impac
             chance = chance_variance_share(COR_LAWS[f["effect"]], n_impacts) if n_impacts else None
             row.update(measure="cor_variance_share", cor_variance_share=share, chance_share=chance,
                        lowered=None if share is None or chance is None else bool(share > chance))
-        elif f["effect"] == UNEXPLAINED:
+        elif f["effect"] == UNEXPLAINED and not f.get("model"):
             row.update(lowered=None, measure=None)
         out.append(row)
     return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .identify import METHODS
+from .methods import METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:

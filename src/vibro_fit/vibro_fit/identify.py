@@ -27,13 +27,12 @@ from .motion_state import MotionState, classify_motion, structure_moves
 from .regimes import Regime, classify_regime, y_rel_range
 from .rig_consistency import RigStatement, check_rig, excitation_on_daq_clock_hz
 from .segmentation import SegmentationConfig, noise_sigma_mm, plate_levels
+from .methods import METHODS
 from .statistics import cor_summary
 from .streaming import Cluster, StreamingFitter
 from .structure_fit import StructureFit, fit_structure
 
 log = logging.getLogger(__name__)
-
-METHODS = ("paper", "joint")
 
 
 @dataclass

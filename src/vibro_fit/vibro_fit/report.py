@@ -24,14 +24,10 @@ from vibro_model.results import ResultsDocument  # noqa: E402
 from vibro_model.units import n_to_mn  # noqa: E402
 
 from .identify import Identification  # noqa: E402
+from .report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
 from .statistics import normal_check  # noqa: E402
 
 PLATE_COLORS = {"top": "tab:red", "bottom": "tab:blue"}
-#: figure name -> file name, as write_figures writes them
-FIGURE_FILES = {"displacements": "displacements.png", "cor": "cor_per_impact.png",
-                "friction": "friction_per_flight.png", "accelerometer_spectrum": "accel_spectrum.png",
-                "histogram_qq": "cor_hist_qq.png", "simulated_vs_measured": "simulated_vs_measured.png"}
-REPORT_HTML = "report.html"
 
 
 def _legend(ax, **kw) -> None:
@@ -260,6 +256,32 @@ def discrepancy_html(disc: dict) -> str:
             f" (model: {e(str(disc.get('model', 'baseline')))}).</p>"
             + (f"<p>Where the baseline disagrees: {e(loc)}</p>" if loc else "") + table)
 
+def dic_quality_html(section: dict | None) -> str:
+    """An HTML table of results.json's ``dic_quality`` section (:mod:`vibro_dic.quality`; empty when none)."""
+    if not section:
+        return ""
+    tex = (section.get("texture") or {}).get("bodies", {})
+    corr = (section.get("correlation") or {}).get("bodies", {})
+    noise = (section.get("texture") or {}).get("noise_gray")
+
+    def f(v, spec=".4g"):
+        return "" if v is None else format(v, spec)
+
+    rows = "".join(
+        f"<tr><td>{html.escape(name)}</td><td>{t.get('n_usable', '')} of {t.get('n_subsets', '')}</td>"
+        f"<td>{f((t.get('mesh_sigma_px') or [None, None])[1])}</td><td>{f(c.get('zncc_median'))}</td>"
+        f"<td>{f(c.get('zncc_min'))}</td><td>{c.get('frames_below_zncc_warn', '')}</td>"
+        f"<td>{c.get('frames_lost', '')}</td><td>{len(c.get('subsets_lost') or [])}</td>"
+        f"<td>{f(c.get('noise_ratio'), '.2f')}</td><td>{f(c.get('sigma_px_from_zncc'))}</td></tr>"
+        for name in sorted(set(tex) | set(corr)) for t, c in [(tex.get(name, {}), corr.get(name, {}))])
+    return (f"<h2>DIC quality</h2><p>Image noise {f(noise, '.3g')} gray levels; a subset is usable when its "
+            f"predicted displacement sigma is at most {f((section.get('texture') or {}).get('max_subset_sigma_px'), 'g')}"
+            " px (README: 'Real footage').</p><table><tr><th>body</th><th>usable subsets</th>"
+            "<th>predicted sigma y (px)</th><th>median ZNCC</th><th>min ZNCC</th><th>frames below warn</th>"
+            "<th>frames lost</th><th>subsets lost</th><th>correlation noise / image noise</th>"
+            f"<th>sigma y from ZNCC (px)</th></tr>{rows}</table>")
+
+
 
 def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: str | Path) -> Path:
     """One self-contained HTML page: summary tables, warnings, figures (inlined). ``results``: the document,
@@ -289,6 +311,7 @@ def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: 
     titles["discrepancy"] = "Discrepancy: residual before/after and where the mismatch was"
     figs = "".join(f"<h2>{e(titles.get(k, k))}</h2>{_img(p)}" for k, p in figures.items())
     disc_html = discrepancy_html(results.get("discrepancy") or {})
+    dic_html = dic_quality_html(results.get("dic_quality"))
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>vibro report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
@@ -299,6 +322,7 @@ td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
 <h2>COR per plate (Table 2)</h2>{cor_model}<table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>{cor_rows}</table>
 <h2>Simulation deviation D (Eq. 18)</h2><table>{sim_rows}</table>
 {disc_html}
+{dic_html}
 <h2>Warnings</h2><ul>{warns}</ul>
 {figs}
 </body></html>"""

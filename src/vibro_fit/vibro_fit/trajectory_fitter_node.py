@@ -30,7 +30,7 @@ from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
-from vibro_ros.convert import flight_to_message, impact_to_message, structure_to_message
+from vibro_ros.convert import flight_to_message, frame_track_from_message, impact_to_message, structure_to_message
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter,
                                    history_qos, run_node, time_origin_parameter)
@@ -118,9 +118,7 @@ class TrajectoryFitter(Node):
             for gap in range(expected, k):
                 t = self.rig.camera.frame_time_s(gap)
                 self._push(FrameTrack(gap, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True))
-        self._push(FrameTrack(k, msg.t_s, msg.ball_mm, msg.structure_mm, msg.ball_valid_points,
-                              msg.structure_valid_points, float(msg.ball_mean_zncc), float(msg.structure_mean_zncc),
-                              bool(msg.lost)))
+        self._push(frame_track_from_message(msg))  # the tracker's row as published, ball rotation included
         self.health.observe(msg.t_s)
         self._maybe_finish()
 

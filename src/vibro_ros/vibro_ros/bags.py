@@ -258,6 +258,7 @@ class BagMessage:
     timestamp_ns: int
     data: bytes
     recorded_topic: str = ""  # the name as stored in the bag (rosbag2: fully qualified)
+    schema: bytes = b""       # the ros2msg definition the bag embeds for msg_type (empty: unknown, use vibro's)
 
 
 def _mcap_files(bag: Path) -> list[Path]:
@@ -337,19 +338,55 @@ def read_messages(bag: str | Path, topics: set[str] | None = None) -> Iterator[B
                 if record.message_encoding != "cdr":
                     raise BagError(f"{path}: topic {record.topic} is encoded as "
                                    f"{record.message_encoding}, not cdr")
-                channels[record.id] = (name, schema.name)
+                channels[record.id] = (name, schema.name, schema.data if schema.encoding == "ros2msg" else b"")
             elif isinstance(record, Message):
                 found = channels.get(record.channel_id)
                 if found is not None:
                     counter[0] += 1
                     yield BagMessage(found[0], found[1], record.log_time, record.data,
-                                     chosen.get(found[0], found[0]))
+                                     chosen.get(found[0], found[0]), found[2])
 
 
 def deserialize(message: BagMessage, store=None):
-    """Decode a message's CDR bytes into a rosbags dataclass of its type."""
+    """Decode a message's CDR bytes into a rosbags dataclass of its type, by the definition the bag embeds when
+    it differs from vibro's (a bag recorded before a message gained fields: the object then lacks them)."""
     store = store or make_typestore()
-    return store.deserialize_cdr(message.data, message.msg_type)
+    if not message.schema or message.schema == _definition(store, message.msg_type):
+        return store.deserialize_cdr(message.data, message.msg_type)
+    from rosbags.typesys.base import TypesysError
+
+    where = message.recorded_topic or message.topic
+    try:
+        return _recorded_typestore(message.msg_type, message.schema).deserialize_cdr(message.data, message.msg_type)
+    except (TypesysError, UnicodeDecodeError, KeyError, IndexError, ValueError, struct.error) as exc:
+        raise BagError(f"{where}: a {message.msg_type} message does not decode by the definition the bag embeds "
+                       f"({exc.__class__.__name__}: {exc})") from None
+
+
+_DEFINITIONS: dict[tuple[int, str], bytes] = {}
+_RECORDED_STORES: dict[tuple[str, bytes], object] = {}
+
+
+def _definition(store, msg_type: str) -> bytes:
+    """The ros2msg text the bag writer embeds for ``msg_type`` (cached per typestore)."""
+    key = (id(store), msg_type)
+    if key not in _DEFINITIONS:
+        _DEFINITIONS[key] = store.generate_msgdef(msg_type, ros_version=2)[0].encode()
+    return _DEFINITIONS[key]
+
+
+def _recorded_typestore(msg_type: str, schema: bytes):
+    """A typestore with ROS 2 Jazzy's standard types and ``msg_type`` as a bag's embedded ros2msg text defines it
+    (its dependencies from the text too; cached per definition)."""
+    key = (msg_type, schema)
+    if key not in _RECORDED_STORES:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        store = get_typestore(Stores.ROS2_JAZZY)
+        types = get_types_from_msg(schema.decode("utf-8"), msg_type)  # TypesysError: not a definition
+        store.register({k: v for k, v in types.items() if k not in store.types})
+        _RECORDED_STORES[key] = store
+    return _RECORDED_STORES[key]
 
 
 @dataclass

@@ -7,6 +7,7 @@
 | Impact | vibro_msgs/ImpactEstimate |
 | SimulationRun | vibro_msgs/SimulationResult |
 | DiscrepancyFinding | vibro_msgs/DiscrepancyFinding |
+| FrameTrack / DicTrack (vibro_io.dictrack) | vibro_msgs/DicFrame |
 
 Messages carry mm (``*_mm``, ``*_mm_per_s``) and m/s (``*_m_per_s``) as their field names say; the model
 is SI. An unknown number is None in the model and NaN in a float64 field. ``*_from_message`` read any
@@ -18,10 +19,12 @@ first/last fitted frame only: the impacts that open/close a flight are linked ag
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import Any, Iterable
 
 import numpy as np
 
+from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_model.codec import nan_if_none, none_if_nan
 from vibro_model.results import DiscrepancyFinding, Flight, Impact, SimulationRun, StructureMotion
 from vibro_model.units import m_to_mm, mm_to_m
@@ -35,6 +38,55 @@ def _stamp(msg: Any, t_s: float | None, origin_ns: int) -> Any:
 
         stamp_from_seconds(msg.header, t_s, origin_ns)
     return msg
+
+
+# ---------------------------------------------------------------- DIC frames
+def frame_track_to_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "",
+                           reference_frame_index: int = 0, run_id: str = "", origin_ns: int = 0):
+    """The DicFrame of one tracked frame (mm, rad; ``mesh_points``: ball, structure mesh sizes), stamped at its
+    camera time ``row.t_s`` on the lab clock of ``origin_ns``."""
+    from vibro_msgs.msg import DicFrame
+
+    msg = DicFrame(frame_index=row.frame, t_s=row.t_s, ball_mm=row.ball_mm, structure_mm=row.structure_mm,
+                   ball_valid_points=row.ball_valid, structure_valid_points=row.structure_valid,
+                   ball_mesh_points=mesh_points[0], structure_mesh_points=mesh_points[1],
+                   ball_mean_zncc=row.ball_zncc, structure_mean_zncc=row.structure_zncc,
+                   lost=row.lost, status=status, reference_frame_index=reference_frame_index, run_id=run_id,
+                   ball_rot_rad=float(row.ball_rot_rad), ball_rot_std_rad=float(row.ball_rot_std_rad))
+    msg.header.frame_id = "camera"
+    return _stamp(msg, row.t_s, origin_ns)
+
+
+def carries_ball_rotation(msg: Any) -> bool:
+    """Whether a DicFrame has the ball rotation fields at all (a bag recorded before they existed decodes
+    without them)."""
+    return hasattr(msg, "ball_rot_rad") and hasattr(msg, "ball_rot_std_rad")
+
+
+def ball_rotation_from_message(msg: Any) -> tuple[float, float]:
+    """(rotation rad, its 1-sigma rad) of a DicFrame; NaN, NaN when the message has no such fields, or both are
+    exactly 0 (the ROS default a publisher that does not measure rotation leaves: a fit's sigma is never 0)."""
+    if not carries_ball_rotation(msg):
+        return math.nan, math.nan
+    rot, std = float(msg.ball_rot_rad), float(msg.ball_rot_std_rad)
+    if rot == 0.0 and std == 0.0:
+        return math.nan, math.nan
+    return rot, std
+
+
+def frame_track_from_message(msg: Any) -> FrameTrack:
+    """The tracked frame of a DicFrame, numbers as the tracker published them (a lost frame's too: ``lost`` says
+    not to use them); rotation as :func:`ball_rotation_from_message`."""
+    return FrameTrack(int(msg.frame_index), float(msg.t_s), float(msg.ball_mm), float(msg.structure_mm),
+                      int(msg.ball_valid_points), int(msg.structure_valid_points), float(msg.ball_mean_zncc),
+                      float(msg.structure_mean_zncc), bool(msg.lost), *ball_rotation_from_message(msg))
+
+
+def dic_track_from_messages(frames: Iterable[Any]) -> DicTrack:
+    """A DicTrack from DicFrame messages, in frame order (lost frames kept, flagged; a frame index received twice
+    counts once, the last one received)."""
+    by_index = {int(m.frame_index): m for m in frames}
+    return DicTrack.from_frames(frame_track_from_message(by_index[k]) for k in sorted(by_index))
 
 
 # ---------------------------------------------------------------- structure

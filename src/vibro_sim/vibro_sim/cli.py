@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 
-from .synth import EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args, synthesize, truth_path
+from .synth import EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args
 from .synth.invented import INVENTED_EFFECTS, INVENTED_HELP
 
 log = logging.getLogger(__name__)
@@ -51,6 +51,15 @@ def register(sub) -> None:
                    help="each impact sets a new spin N(--spin-rad-s, SIGMA) (default 0)")
     p.add_argument("--spin-cor-coupling", type=float, default=0.0, metavar="K",
                    help="COR change per rad/s of spin change at an impact (s/rad; default 0)")
+    p.add_argument("--ball-surface", choices=("speckle", "shiny"), default="speckle",
+                   help="speckle (default) or shiny: a dark glossy sphere without texture whose specular "
+                        "highlight stays fixed relative to the light (real footage)")
+    p.add_argument("--light-deg", type=float, default=30.0, metavar="DEG",
+                   help="shiny ball: the light's angle from the camera axis, towards the image top (default 30; "
+                        "the highlight sits R sin(DEG/2) above the ball's centre)")
+    p.add_argument("--jpeg-quality", type=int, default=0, metavar="Q",
+                   help="pass every frame through JPEG at quality Q (1-100) before writing it (lossy video; "
+                        "default 0: none)")
     p.add_argument("--frames", type=int, default=1500, help="number of frames (1000 fps)")
     p.add_argument("--still", action="store_true", help="nothing moves (noise study)")
     p.add_argument("--drift", action="store_true", help="with --still: slow camera drift")
@@ -76,10 +85,13 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,
                        accel=not args.no_accel, cor_scatter=args.cor_scatter, spin_rad_s=args.spin_rad_s,
                        spin_sigma_rad_s=args.spin_sigma_rad_s,
-                       spin_cor_coupling_s_per_rad=args.spin_cor_coupling, **kw)
+                       spin_cor_coupling_s_per_rad=args.spin_cor_coupling, ball_surface=args.ball_surface,
+                       light_deg=args.light_deg, jpeg_quality=args.jpeg_quality, **kw)
 
 
 def run(args: argparse.Namespace) -> int:
+    from .synth.write import synthesize, truth_path  # renderer and simulator: loaded only for `vibro synth`
+
     cfg = config_from_args(args)
     truth = synthesize(args.out, cfg, overwrite=args.overwrite,
                        progress=False if args.no_progress else None)

@@ -7,6 +7,10 @@ Paper Eq. 2: Y_s(t) = A sin(w t + phi) + B, optionally with 2nd/3rd harmonics:
 
 The harmonic phases are relative to the fundamental's phase (so ``phase_rad`` shifts
 the whole waveform in time) and ``h2_ratio``/``h3_ratio`` are amplitude ratios to A.
+
+:class:`StructureWithTone` adds a tone at any frequency (not a drive harmonic): the synthetic rig's
+``structure_tone`` effect, and the discrepancy analysis' model of a located one
+(:mod:`vibro_sim.discrepancy.tone`).
 """
 
 from __future__ import annotations
@@ -92,3 +96,23 @@ class StructureKinematics:
     def to_dict(self) -> dict:
         """Plain mapping of the parameters (SI)."""
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class StructureWithTone(StructureKinematics):
+    """StructureKinematics plus a tone of ``tone_amplitude_m`` at ``tone_frequency_hz`` (any frequency)."""
+
+    tone_amplitude_m: float = 0.0
+    tone_frequency_hz: float = 0.0
+    tone_phase_rad: float = 0.0
+
+    def _sum(self, t, order: int):
+        base = super()._sum(t, order)
+        w = 2.0 * math.pi * self.tone_frequency_hz
+        tone = self.tone_amplitude_m * w ** order * np.sin(w * np.asarray(t, dtype=float) + self.tone_phase_rad
+                                                           + order * 0.5 * math.pi)
+        out = base + tone
+        return out if np.ndim(out) else float(out)
+
+    def bound(self, order: int) -> float:
+        return super().bound(order) + self.tone_amplitude_m * (2.0 * math.pi * self.tone_frequency_hz) ** order

@@ -29,7 +29,10 @@ A COR law is judged by the per-impact CORs instead (D_r replays the measured pos
 ``cor_variance_share``, the share of the COR variance beyond the measurement noise the law explains.
 The baseline: constant COR = the mean measured one, gravity only, pure sine structure, vertical. The
 findings are added in order (structure, flight terms, COR law); before/after are the models
-without/with each.
+without/with each. What the final model still leaves systematically (:mod:`.systematic`) is reported as
+``unexplained``; when that holds a structure tone that passes its test (:mod:`.tone`), the tone is
+modelled (the final model's structure fit includes it, so the re-identification uses it) and the
+``unexplained`` entry's before/after are the models without/with it.
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ from .onestep import OneStep, one_step
 from .runs import FullRun, full_run, restarted_run
 from .select import UNEXPLAINED_RATIO, StageResult, StagewiseSelector, law_variance_share
 from .systematic import Mismatch, contact_scatter, systematic_mismatch
+from .tone import TONE_EFFECT, ToneDecision, model_structure_tone
 
 log = logging.getLogger(__name__)
 
@@ -189,10 +193,15 @@ def explain_cor(chain: FindingChain, kind: str, stage: StageResult, library: Can
 
 
 def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: StageResult | None,
-                        f_stage: StageResult | None, patterns: list[Mismatch]) -> DiscrepancyFinding | None:
+                        f_stage: StageResult | None, patterns: list[Mismatch], before: ModelStep | None = None,
+                        tone: ToneDecision | None = None) -> DiscrepancyFinding | None:
     """What the final model leaves that is not noise (a stage's residual above UNEXPLAINED_RATIO x its
-    noise floor, the systematic patterns of :mod:`.systematic`), or None; random COR scatter is not."""
+    noise floor, the systematic patterns of :mod:`.systematic`), or None; random COR scatter is not.
+    ``before``: the model before a located mismatch was modelled (a structure tone, ``tone.model``; its
+    parameters become the finding's, its D_r and the paper's D before/after the finding's); else the
+    finding's before and after are both the final model."""
     meas, floors, cur = chain.meas, chain.floors, chain.current
+    before = cur if before is None else before
     final_loc = locate(cur.steps, floors.cor)
     flights_words = final_loc["words"][0] if final_loc["words"] else "flights"
     leftovers = []
@@ -209,9 +218,33 @@ def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: S
     leftovers += [p.words() for p in patterns]
     if not leftovers:
         return None
-    details = {"paper_deviation_before": cur.run.deviation, "paper_deviation_after": cur.run.deviation,
-               "mismatches": [p.to_dict() for p in patterns]}
-    return finding(UNEXPLAINED, {}, "; ".join(leftovers), cur.restarted, cur.restarted, None, details)
+    details: dict[str, Any] = {"paper_deviation_before": before.run.deviation,
+                               "paper_deviation_after": cur.run.deviation,
+                               "mismatches": [p.to_dict() for p in patterns]}
+    params: dict[str, Any] = {}
+    stds = None
+    if tone is not None and tone.tests and tone.model is None:   # located, tested, not modelled: why
+        details["tone_tests"] = tone.to_dict()
+    if tone is not None and tone.model is not None:
+        params, stds = tone.model.parameters(), tone.model.parameter_stds()
+        details["model"] = tone.model.to_dict()
+        details["one_step_before"] = before.steps.summary()
+        details["one_step_after"] = cur.steps.summary()
+        leftovers.append(tone.model.words())
+    return finding(UNEXPLAINED, params, "; ".join(leftovers), before.restarted, cur.restarted, stds, details)
+
+
+def add_structure_tone(chain: FindingChain, tone: ToneDecision) -> ModelStep | None:
+    """When a located tone is modelled: the chain's model with its structure fit replaced by the one with
+    the tone (flights and COR law kind kept, the COR law refitted on the corrected impacts) becomes the
+    final model. Returns the model step before it (None: nothing modelled)."""
+    if tone.model is None:
+        return None
+    before = chain.current
+    cur = before.model
+    model = fit_model(chain.meas, structure=tone.model.fit, flights=cur.flights, cor_kind=cur.cor.kind)
+    chain.steps.append(evaluate(chain.meas, TONE_EFFECT, model, chain.floors))
+    return before
 
 
 # ---------------------------------------------------------------- model and show
@@ -288,7 +321,12 @@ class DiscrepancyEstimator:
         explain_cor(chain, kind, c_stage, self.library)
         fps = 1.0 / float(np.median(np.diff(meas.t_s)))
         patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps)
-        leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns)
+        tone = model_structure_tone(meas, chain.current.model.structure, patterns, fps)
+        before_tone = add_structure_tone(chain, tone)
+        if before_tone is not None:   # the contact levels and CORs again, under the model with the tone
+            patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
+                                           structure=[p for p in patterns if p.series == "structure"])
+        leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone)
 
         cur = chain.current
         findings = chain.findings + ([] if leftover is None else [leftover])

@@ -222,6 +222,44 @@ class StructureModelFit:
     def sigma(self) -> float:
         return math.sqrt(self.sse / self.dof)
 
+    def label_terms(self) -> list[str]:
+        """What this structure model adds to the pure sine, for the model's label."""
+        extra = tuple(k for k in self.orders if k > 1)
+        return ["structure_harmonics" + str(extra)] if extra else []
+
+    #: the frequencies (Hz) at the end of :meth:`parameters`
+    n_frequencies = 1
+
+    def parameters(self) -> np.ndarray:
+        """The fitted parameters [coefs..., frequency_hz] (m, Hz): the order of :meth:`jacobian`."""
+        return np.append(np.asarray(self.coefs, dtype=float), float(self.frequency_hz))
+
+    def velocity_with(self, params: np.ndarray, t_s: float) -> float:
+        """dY_s/dt (m/s) at ``t_s`` with the parameters ``params`` (as :meth:`parameters`)."""
+        c, w = params[:-1], 2 * math.pi * float(params[-1])
+        return sum(k * w * (c[1 + 2 * j] * math.cos(k * w * t_s) - c[2 + 2 * j] * math.sin(k * w * t_s))
+                   for j, k in enumerate(self.orders))
+
+    def jacobian(self, t_s: np.ndarray) -> np.ndarray:
+        """d Y_s(t) / d parameters (N x P, as :meth:`parameters`) at the fitted values."""
+        t = np.asarray(t_s, dtype=float)
+        c, f = np.asarray(self.coefs, dtype=float), float(self.frequency_hz)
+        w = 2 * math.pi * f
+        d_f = np.zeros_like(t)
+        for j, k in enumerate(self.orders):
+            a, b = c[1 + 2 * j], c[2 + 2 * j]
+            d_f += 2 * math.pi * k * t * (a * np.cos(k * w * t) - b * np.sin(k * w * t))
+        return np.column_stack([_design(t, f, self.orders), d_f])
+
+    def covariance(self, t_s: np.ndarray) -> np.ndarray:
+        """Covariance of :meth:`parameters` (Gauss-Newton on the fitted samples ``t_s``, sigma^2 = sse / dof);
+        NaN when singular."""
+        J = self.jacobian(t_s)
+        try:
+            return self.sigma ** 2 * np.linalg.inv(J.T @ J)
+        except np.linalg.LinAlgError:
+            return np.full((J.shape[1], J.shape[1]), np.nan)
+
 
 def _design(t: np.ndarray, f: float, orders: Sequence[int]) -> np.ndarray:
     w = 2 * math.pi * f

@@ -7,11 +7,9 @@ from __future__ import annotations
 import math
 from typing import Iterable
 
-import numpy as np
-
 from vibro_io.dictrack import DicTrack
 from vibro_model.results import ResultsDocument
-from vibro_ros.convert import flight_from_message, impact_from_message, structure_from_message
+from vibro_ros.convert import dic_track_from_messages, flight_from_message, impact_from_message, structure_from_message
 
 
 def document_from_messages(structure, flights: Iterable, impacts: Iterable, recording: str = "graph run"
@@ -23,17 +21,9 @@ def document_from_messages(structure, flights: Iterable, impacts: Iterable, reco
 
 
 def track_from_messages(frames: Iterable) -> DicTrack:
-    """A DicTrack from DicFrame messages (sorted by frame index; lost frames kept with NaN)."""
-    rows = sorted(frames, key=lambda m: int(m.frame_index))
-
-    def col(name, dtype=float):
-        return np.array([getattr(m, name) for m in rows], dtype=dtype)
-
-    lost = col("lost", bool)
-    ball = col("ball_mm")
-    struct = col("structure_mm")
-    ball[lost] = math.nan
-    struct[lost] = math.nan
-    return DicTrack(frame=col("frame_index", int), t_s=col("t_s"), ball_mm=ball, structure_mm=struct,
-                    ball_valid=col("ball_valid_points", int), structure_valid=col("structure_valid_points", int),
-                    ball_zncc=col("ball_mean_zncc"), structure_zncc=col("structure_mean_zncc"), lost=lost)
+    """A DicTrack from DicFrame messages (:func:`vibro_ros.convert.dic_track_from_messages`; lost frames kept
+    with NaN displacements)."""
+    track = dic_track_from_messages(frames)
+    track.ball_mm[track.lost] = math.nan
+    track.structure_mm[track.lost] = math.nan
+    return track

@@ -66,9 +66,7 @@ class FittedModel:
                           tilt_deg=self.tilt_deg)
 
     def label(self) -> str:
-        parts = []
-        if len(self.structure.orders) > 1:
-            parts.append("structure_harmonics" + str(tuple(k for k in self.structure.orders if k > 1)))
+        parts = self.structure.label_terms()
         parts += [t.effect for t, c in zip(self.flights.terms, self.flights.coefs)]
         if self.cor.kind != "none":
             parts.append(self.cor.kind)

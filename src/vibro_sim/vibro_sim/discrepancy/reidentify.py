@@ -7,17 +7,19 @@ up to 0.01 with aerodynamic drag). Here each impact is measured again under the 
 
 - time t_i where the final model's flights before and after the impact meet
   (:func:`vibro_sim.discrepancy.fitting.impact_time`, Eq. 15 under the model),
-- structure velocity from the harmonic fit at t_i,
+- structure velocity from the structure fit at t_i (harmonics, and a modelled tone),
 - ball velocities before/after from the flights integrated with the identified force law,
 - COR e = -(v_after - v_s) / (v_before - v_s) (Eq. 16 with its sign),
 
 all from :func:`vibro_sim.discrepancy.fitting.recompute_impacts` (the engine's own computation, kept in
 its ``final`` model), with a 1-sigma std propagated to first order (:func:`impact_stds`).
 
-Only findings that change how an impact is *measured* trigger it: ``structure_harmonics`` and the
-flight terms (``coulomb_friction``, ``viscous_drag``, ``quadratic_drag``, ``gravity_tilt``). A COR
-law (``asymmetric_restitution``, ``velocity_dependent_restitution``) describes the measured CORs and
-does not change them; ``unexplained`` has no model. Without such a finding, or for an impact the final
+Only findings that change how an impact is *measured* trigger it: ``structure_harmonics``, the
+flight terms (``coulomb_friction``, ``viscous_drag``, ``quadratic_drag``, ``gravity_tilt``) and an
+``unexplained`` finding whose located structure tone was modelled (:mod:`.tone`; its parameters carry
+the tone, its ``cor_method`` part is ``structure_tone``). A COR law (``asymmetric_restitution``,
+``velocity_dependent_restitution``) describes the measured CORs and does not change them; any other
+``unexplained`` mismatch has no model. Without such a finding, or for an impact the final
 model does not see from both sides (a flight too short to fit), the identification's values stay and
 the impact's ``cor_method`` is ``"paper"``.
 
@@ -39,12 +41,14 @@ import numpy as np
 from vibro_model.results import CorSummary, Impact, ResultsDocument, link_impacts
 
 from .data import Measured
-from .fitting import StructureModelFit, _design
+from .fitting import StructureModelFit
 from .library import FLIGHT_TERMS
 from .model import FittedModel
+from .tone import TONE_EFFECT, modelled_tone
 
-#: findings whose model changes how an impact is measured (structure velocity, flight law)
-MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS)
+#: findings whose model changes how an impact is measured (structure velocity, flight law); an
+#: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
+MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS) + (TONE_EFFECT,)
 PAPER = "paper"
 #: an identified impact and a measured one are the same when their times agree this well (s): both are
 #: the same float read from the same results document
@@ -71,6 +75,8 @@ def measurement_effects(findings: Iterable[object]) -> list[str]:
     out = []
     for f in findings:
         name = f.get("effect") if isinstance(f, dict) else getattr(f, "effect", None)
+        if modelled_tone(f):
+            name = TONE_EFFECT
         if name in MEASUREMENT_EFFECTS and name not in out:
             out.append(name)
     return out
@@ -82,40 +88,17 @@ def cor_method_name(effects: Sequence[str]) -> str:
 
 
 def _structure_velocity_gradient(fit: StructureModelFit, t_s: float) -> np.ndarray:
-    """d v_s(t) / d [coefs..., frequency] of the structure fit (central differences), m/s per unit."""
-
-    def velocity(coefs: np.ndarray, f_hz: float) -> float:
-        w = 2 * math.pi * f_hz
-        return sum(k * w * (coefs[1 + 2 * j] * math.cos(k * w * t_s) - coefs[2 + 2 * j] * math.sin(k * w * t_s))
-                   for j, k in enumerate(fit.orders))
-
-    c, f = np.asarray(fit.coefs, dtype=float), float(fit.frequency_hz)
-    grad = np.zeros(c.size + 1)
-    for j in range(c.size):
-        h = 1e-6 * max(abs(c[j]), 1e-9)
-        cp, cm = c.copy(), c.copy()
-        cp[j] += h
-        cm[j] -= h
-        grad[j] = (velocity(cp, f) - velocity(cm, f)) / (2 * h)
-    hf = 1e-7 * f
-    grad[-1] = (velocity(c, f + hf) - velocity(c, f - hf)) / (2 * hf)
+    """d v_s(t) / d parameters of the structure fit (:meth:`StructureModelFit.parameters`; central
+    differences), m/s per unit."""
+    p = fit.parameters()
+    grad = np.zeros(p.size)
+    for j in range(p.size):
+        h = (1e-7 if j >= p.size - fit.n_frequencies else 1e-6) * max(abs(p[j]), 1e-9)
+        pp, pm = p.copy(), p.copy()
+        pp[j] += h
+        pm[j] -= h
+        grad[j] = (fit.velocity_with(pp, t_s) - fit.velocity_with(pm, t_s)) / (2 * h)
     return grad
-
-
-def _structure_cov(fit: StructureModelFit, meas: Measured) -> np.ndarray:
-    """Covariance of [coefs..., frequency] of the structure fit (Gauss-Newton, sigma^2 = sse / dof)."""
-    t = meas.t_s
-    c, f = np.asarray(fit.coefs, dtype=float), float(fit.frequency_hz)
-    w = 2 * math.pi * f
-    d_f = np.zeros_like(t)
-    for j, k in enumerate(fit.orders):
-        a, b = c[1 + 2 * j], c[2 + 2 * j]
-        d_f += 2 * math.pi * k * t * (a * np.cos(k * w * t) - b * np.sin(k * w * t))
-    J = np.column_stack([_design(t, f, fit.orders), d_f])
-    try:
-        return fit.sigma ** 2 * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return np.full((J.shape[1], J.shape[1]), np.nan)
 
 
 def _flight_state_cov(meas: Measured, model: FittedModel, k: int) -> np.ndarray:
@@ -150,7 +133,7 @@ def impact_stds(meas: Measured, model: FittedModel, j: int) -> tuple[float, floa
     a_s = float(motion.acceleration(t))
     # parameters: [y0_b, v0_b, y0_a, v0_a, structure...]
     s_grad = _structure_velocity_gradient(model.structure, t)
-    s_cov = _structure_cov(model.structure, meas)
+    s_cov = model.structure.covariance(meas.t_s)
     n_s = s_grad.size
     cov = np.zeros((4 + n_s, 4 + n_s))
     cov[:2, :2] = _flight_state_cov(meas, model, kb)

@@ -24,9 +24,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from vibro_model.codec import json_number as _f
+from vibro_model.tail_probability import chi2_sf, f_sf
 
 from .data import Measured
 from .fitting import (FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, fit_structure_harmonics)
@@ -86,7 +86,7 @@ def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit,
     for k in (2, 3):
         without = fits[(1, 5 - k)]   # the other harmonic kept: test k given it
         chi = (without.sse - full.sse) / sig2
-        p = float(stats.chi2.sf(chi, 2))
+        p = chi2_sf(chi, 2)
         amp = full.harmonic_amplitudes()[k]
         ok = p < ALPHA and amp >= MIN_HARMONIC_SIGMA * sigma_m
         stage.decisions.append(Decision(f"harmonic {k}", chi, p, amp / sigma_m, ok,
@@ -121,7 +121,7 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
     singles = {(t.effect,): fit_flights(meas, (t,)) for t in terms}
     for key, f in singles.items():
         chi = (base.sse - f.sse) / sig2
-        p = float(stats.chi2.sf(chi, 1))
+        p = chi2_sf(chi, 1)
         ex = _explained_rms(base.sse, f.sse, n) / sigma_m
         ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(f.coefs > 0))
         stage.decisions.append(Decision(key[0], chi, p, ex, ok, f"explains {ex:.2f} x noise floor per frame"))
@@ -145,7 +145,7 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         ref = current
         dp = 2 - len(chosen)
         chi = (ref.sse - pf.sse) / sig2
-        p = float(stats.chi2.sf(chi, max(dp, 1)))
+        p = chi2_sf(chi, max(dp, 1))
         ex = _explained_rms(ref.sse, pf.sse, n) / sigma_m
         ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(pf.coefs > 0))
         stage.decisions.append(Decision(" + ".join(pk), chi, p, ex, ok,
@@ -166,7 +166,7 @@ def _f_test(small, big) -> tuple[float, float]:
     if dp <= 0 or big.n <= big.p or big.sse <= 0:
         return float("nan"), 1.0
     F = ((small.sse - big.sse) / dp) / (big.sse / big.dof)
-    return F, float(stats.f.sf(F, dp, big.dof))
+    return F, f_sf(F, dp, big.dof)
 
 
 def select_cor(impacts: ImpactSet, cor_noise: float) -> tuple[str, dict, StageResult]:

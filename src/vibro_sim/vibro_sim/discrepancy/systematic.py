@@ -28,9 +28,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from vibro_model.codec import json_number as _num
+from vibro_model.tail_probability import chi2_sf, f_sf
 
 from .data import Measured
 from .model import FittedModel
@@ -65,6 +65,7 @@ class Mismatch:
     step_time_s: float | None = None
     step_between_s: tuple[float, float] | None = None   # the samples either side of the step (s)
     size_ms: float | None = None   # contact level: the impact-time shift it causes (ms)
+    frequencies_searched: int | None = None   # periodic: independent frequencies the search tried
     fit: np.ndarray | None = None  # the pattern's values on the series (for subtraction)
 
     def what(self) -> str:
@@ -105,6 +106,8 @@ class Mismatch:
             out["step_between_s"] = [_num(x) for x in self.step_between_s]
         if self.size_ms is not None:
             out["size_ms"] = _num(self.size_ms)
+        if self.frequencies_searched is not None:
+            out["frequencies_searched"] = int(self.frequencies_searched)
         return out
 
 
@@ -179,9 +182,17 @@ def _periodogram(t: np.ndarray, r: np.ndarray, f_lo: float, f_hi: float, exclude
     return float(d2[m]), fit, {"size": float(math.hypot(a[m], b[m])), "frequency_hz": float(fine[m])}, trials
 
 
+def tone_search(t: np.ndarray, r: np.ndarray, f0_hz: float, fps: float):
+    """The strongest tone of the residual ``r`` (m) in the structure analysis' band (1.5/T to fps/2, drive
+    harmonics 1..DRIVE_HARMONICS +- 1/T left out): (drop of the sum of squares, fit, {"size",
+    "frequency_hz"}, independent frequencies searched) or None."""
+    T = float(t.max() - t.min())
+    return _periodogram(t, r, 1.5 / T, 0.5 * fps, [k * f0_hz for k in range(1, DRIVE_HARMONICS + 1)], 1.0 / T)
+
+
 def _p_known(drop: float, sigma: float, dof: int, trials: int, n_tests: int) -> tuple[float, float]:
     chi = drop / max(sigma, 1e-300) ** 2
-    return chi, min(1.0, float(stats.chi2.sf(chi, dof)) * trials * n_tests)
+    return chi, min(1.0, chi2_sf(chi, dof) * trials * n_tests)
 
 
 def _p_estimated(drop: float, sse_after: float, dof: int, n: int, n_par: int, trials: int, n_tests: int
@@ -190,7 +201,7 @@ def _p_estimated(drop: float, sse_after: float, dof: int, n: int, n_par: int, tr
     if den <= 0 or sse_after <= 0:
         return float("nan"), 1.0
     F = (drop / dof) / (sse_after / den)
-    return F, min(1.0, float(stats.f.sf(F, dof, den)) * trials * n_tests)
+    return F, min(1.0, f_sf(F, dof, den) * trials * n_tests)
 
 
 # --- the three series -----------------------------------------------------------------------------
@@ -277,33 +288,32 @@ def structure_mismatch(t: np.ndarray, structure_m: np.ndarray, sigma_m: float, f
     the drive frequency refined on the track: every structure model of the library is one), sizes in um.
     Each accepted pattern is refitted jointly with the harmonics and the patterns before it."""
     r0 = np.asarray(structure_m, float)
-    T = float(t[-1] - t[0])
     f0_hz = _refine_frequencies(t, r0, f0_hz, [])
     r, _ = _joint_fit(t, r0, f0_hz, [])
-    accepted: list[tuple[str, dict, float, float]] = []
+    accepted: list[tuple[str, dict, float, float, int]] = []
     for _ in range(MAX_COMPONENTS):
         cands = []
         for shape, c in (("trend", _trend(t, r)), ("step", _step(t, r - r.mean(), MIN_SPLIT_FRAMES)),
-                         ("periodic", _periodogram(t, r, 1.5 / T, 0.5 * fps,
-                                                   [k * f0_hz for k in range(1, DRIVE_HARMONICS + 1)], 1.0 / T))):
+                         ("periodic", tone_search(t, r, f0_hz, fps))):
             if c is None:
                 continue
             drop, fit, info, trials = c
             stat, p = _p_known(drop, sigma_m, 2 if shape == "periodic" else 1, trials, n_tests)
-            cands.append((p, -drop, shape, fit, info, stat))
+            cands.append((p, -drop, shape, fit, info, stat, trials))
         if not cands:
             break
-        p, _, shape, fit, info, stat = min(cands, key=lambda c: (c[0], c[1]))
+        p, _, shape, fit, info, stat, trials = min(cands, key=lambda c: (c[0], c[1]))
         p = min(1.0, p * len(cands))   # Bonferroni over the shapes tried
         if p >= ALPHA_FAMILY or abs(info["size"]) < MIN_STRUCTURE_SIGMA * sigma_m:
             break
-        accepted.append((shape, info, p, stat))
+        accepted.append((shape, info, p, stat, trials))
         f0_hz = _refine_frequencies(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
         r, _ = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
     _, parts = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
     return [Mismatch("structure", shape, size * 1e6, "um", float(t[0]), float(t[-1]), p, stat,
-                     frequency_hz=info.get("frequency_hz"), step_time_s=info.get("step_time_s"), fit=vals)
-            for (shape, info, p, stat), (size, vals) in zip(accepted, parts)]
+                     frequency_hz=info.get("frequency_hz"), step_time_s=info.get("step_time_s"), fit=vals,
+                     frequencies_searched=trials if shape == "periodic" else None)
+            for (shape, info, p, stat, trials), (size, vals) in zip(accepted, parts)]
 
 
 def _series_pursuit(series: str, t: np.ndarray, r: np.ndarray, columns: dict, floor: float, unit_scale: float,
@@ -414,9 +424,11 @@ def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual:
 
 
 def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, sigma_f_m: float,
-                        fps: float) -> list[Mismatch]:
-    """Every systematic pattern the final ``model`` leaves (see the module docstring)."""
-    out = structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.frequency_hz, fps)
+                        fps: float, structure: list[Mismatch] | None = None) -> list[Mismatch]:
+    """Every systematic pattern the final ``model`` leaves (see the module docstring). ``structure``: the
+    structure track's patterns when already found (they do not depend on the model)."""
+    out = (list(structure) if structure is not None
+           else structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.frequency_hz, fps))
     out += level_mismatch(meas, model, sigma_f_m)
     imp = model.impacts
     out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.frequency_hz)
@@ -450,7 +462,7 @@ def contact_scatter(model: FittedModel, patterns: list[Mismatch], alpha: float =
         sigma = math.sqrt(sse / dof)
         if noise > 0:
             chi = sse / noise ** 2
-            p = float(stats.chi2.sf(chi, dof))
+            p = chi2_sf(chi, dof)
         else:
             chi, p = float("inf"), 0.0
         out[name] = {"n": k, "sigma": _num(sigma), "noise_sigma": _num(noise), "chi2": _num(chi), "dof": _num(dof),

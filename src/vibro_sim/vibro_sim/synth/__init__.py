@@ -6,7 +6,17 @@ options and effects, :mod:`.trajectory` (physics), :mod:`.render` (images),
 """
 
 from .scenario import DEFAULT_ACCEL_MS2, EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args
-from .write import synthesize, truth_path
+
+
+def __getattr__(name: str):
+    """``synthesize``/``truth_path`` load :mod:`.write` (renderer, simulator: scipy) on first use, so that
+    ``vibro --help`` and the other subcommands do not pay for it at start-up."""
+    if name in ("synthesize", "truth_path"):
+        from . import write
+
+        return getattr(write, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["DEFAULT_ACCEL_MS2", "EFFECT_NAMES", "EFFECTS", "SynthConfig", "SynthError",
            "parse_effect_args", "synthesize", "truth_path"]

@@ -21,10 +21,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import numpy as np
 
 from ..restitution import RestitutionLaw
-from ..structure import StructureKinematics
+from ..structure import StructureKinematics, StructureWithTone  # noqa: F401 - StructureWithTone: its home was here
 
 INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "cor_drift": {"drift_per_s": (-0.2, -2.0, 2.0)},
@@ -55,27 +54,6 @@ def check_invented(effects: dict[str, dict[str, float]], frequency_hz: float) ->
                         f"{TONE_CLEARANCE_HZ} Hz of drive harmonic {k} ({k * frequency_hz} Hz): that is "
                         f"structure_harmonics, not an out-of-catalogue tone")
     return None
-
-
-@dataclass(frozen=True)
-class StructureWithTone(StructureKinematics):
-    """StructureKinematics plus a tone of ``tone_amplitude_m`` at ``tone_frequency_hz`` (any frequency)."""
-
-    tone_amplitude_m: float = 0.0
-    tone_frequency_hz: float = 0.0
-    tone_phase_rad: float = 0.0
-
-    def _sum(self, t, order: int):
-        base = super()._sum(t, order)
-        w = 2.0 * math.pi * self.tone_frequency_hz
-        tone = self.tone_amplitude_m * w ** order * np.sin(w * np.asarray(t, dtype=float) + self.tone_phase_rad
-                                                           + order * 0.5 * math.pi)
-        out = base + tone
-        return out if np.ndim(out) else float(out)
-
-    def bound(self, order: int) -> float:
-        return super().bound(order) + self.tone_amplitude_m * (2.0 * math.pi * self.tone_frequency_hz) ** order
-
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,14 @@ patch analytically every frame: each impulse is a Gaussian blob (the same sigma)
 rotated about the ball centre by the frame's angle (+ counter-clockwise as the camera sees the
 image) and moved by the fractional row; the disc's erf edge and shading are evaluated about the
 same sub-pixel centre. Without spin the frames are exactly those drawn before spin existed.
+
+An unspeckled, shiny ball (``Renderer(..., ball_surface="shiny")``, real footage's common case) is a dark
+glossy sphere drawn analytically every frame about its sub-pixel centre (orthographic camera): ambient +
+Lambert diffuse + Blinn-Phong specular of one directional light at ``light_deg`` from the camera axis,
+tilted towards the top of the image. Its highlight sits where the sphere's normal bisects the light and
+view directions, ``R sin(light_deg / 2)`` above the centre: fixed relative to the light, so it moves with
+the ball's centre but never with a texture (a spinning shiny ball looks the same). The highlight's core
+saturates (clipped at 255), as it does on film.
 """
 
 from __future__ import annotations
@@ -146,6 +154,45 @@ class _SpinningBall:
         return (60.0 + 180.0 * tex) * shade * alpha, alpha
 
 
+SHINY_AMBIENT = 12.0   # gray levels of the dark sphere without light
+SHINY_DIFFUSE = 18.0   # Lambert term at normal incidence
+SHINY_SPECULAR = 260.0  # Blinn-Phong peak (the core clips at 255)
+SHINY_GLOSS = 150.0    # Blinn-Phong exponent: the highlight's normal-angle std is 1/sqrt(150) = 4.7 deg
+
+
+class _ShinyBall:
+    """A dark glossy sphere without texture, lit by a directional light (see module doc)."""
+
+    def __init__(self, patch_px: int, radius_px: float, centre_row: float, centre_col: float, light_deg: float):
+        self.pr = np.arange(patch_px) - centre_row
+        self.pc = np.arange(patch_px) - centre_col
+        self.radius_px = radius_px
+        th = math.radians(light_deg)
+        # camera axes: x right, y down (rows), z towards the camera; the light is tilted towards the image top
+        self.light = np.array([0.0, -math.sin(th), math.cos(th)])
+        half = self.light + np.array([0.0, 0.0, 1.0])
+        self.half = half / np.linalg.norm(half)
+
+    def patch(self, down_px: float, angle_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(premultiplied value, alpha) with the ball moved down by ``down_px`` (fractional); ``angle_rad``
+        is ignored: an untextured sphere looks the same at any spin."""
+        y = self.pr[:, None] - down_px
+        x = self.pc[None, :]
+        r = np.sqrt(x ** 2 + y ** 2)
+        alpha = _smooth_step(self.radius_px - r)
+        rr = np.maximum(r, 1e-12)
+        scale = np.minimum(rr, self.radius_px) / rr  # outside the disc: the limb's normal (under the erf edge)
+        nx, ny = x * scale / self.radius_px, y * scale / self.radius_px
+        nz = np.sqrt(np.clip(1.0 - nx ** 2 - ny ** 2, 0.0, 1.0))
+        lam = np.clip(nx * self.light[0] + ny * self.light[1] + nz * self.light[2], 0.0, None)
+        spec = np.clip(nx * self.half[0] + ny * self.half[1] + nz * self.half[2], 0.0, None) ** SHINY_GLOSS
+        value = SHINY_AMBIENT + SHINY_DIFFUSE * lam + SHINY_SPECULAR * spec * (lam > 0)
+        return value * alpha, alpha
+
+
+BALL_SURFACES = ("speckle", "shiny")
+
+
 def _smooth_step(x):
     """0 -> 1 across x = 0 with an erf edge of width EDGE_SIGMA_PX (x in px)."""
     return 0.5 * (1.0 + erf(x / (math.sqrt(2.0) * EDGE_SIGMA_PX)))
@@ -182,7 +229,8 @@ class _ShiftLayer:
 class Renderer:
     """Draws one frame from the structure displacement and the ball height (mm)."""
 
-    def __init__(self, layout: Layout, rng: np.random.Generator, drift: bool = False, spin: bool = False):
+    def __init__(self, layout: Layout, rng: np.random.Generator, drift: bool = False, spin: bool = False,
+                 ball_surface: str = "speckle", light_deg: float = 30.0):
         self.L = layout
         H, W, M = layout.height_px, layout.width_px, layout.margin_px
         rows = np.arange(H)[:, None]
@@ -223,13 +271,20 @@ class Renderer:
         self.ball_layer = _ShiftLayer(tex_b * alpha_b, alpha_b)
         self.spinning_ball = (_SpinningBall(imp_b, scale_b, R, self.patch_centre_row, hp / 2 - 0.5)
                               if spin else None)
+        if ball_surface not in BALL_SURFACES:
+            raise ValueError(f"ball surface must be one of {BALL_SURFACES}, got {ball_surface!r}")
+        # the speckle draws above stay, so that the rest of the scene is the same whatever the ball's surface
+        self.shiny_ball = (_ShinyBall(hp, R, self.patch_centre_row, hp / 2 - 0.5, light_deg)
+                           if ball_surface == "shiny" else None)
 
     def _ball_over(self, img: np.ndarray, ball_mm: float, dr: float, angle_rad: float = 0.0) -> np.ndarray:
         L = self.L
         H, W = L.height_px, L.width_px
         row_b = float(L.row_of_mm(ball_mm)) + dr
         ri = math.floor(row_b)
-        if self.spinning_ball is not None:
+        if self.shiny_ball is not None:
+            pv, pa = self.shiny_ball.patch(row_b - ri, angle_rad)
+        elif self.spinning_ball is not None:
             pv, pa = self.spinning_ball.patch(row_b - ri, angle_rad)
         else:
             pv, pa = self.ball_layer.shifted(row_b - ri)
@@ -304,8 +359,15 @@ class Renderer:
         return [x, y, L.width_px - 16, STRUCT_ROI_H_PX]
 
 
-def quantise(img: np.ndarray, tiff16: bool) -> np.ndarray:
-    """Round a float image (gray levels of 255) to uint8, or to uint16 (x 257)."""
+def quantise(img: np.ndarray, tiff16: bool, jpeg_quality: int = 0) -> np.ndarray:
+    """Round a float image (gray levels of 255) to uint8, or to uint16 (x 257). ``jpeg_quality`` 1..100: the
+    8-bit image then goes through a JPEG encode/decode at that quality (lossy video; 0 = none)."""
     if tiff16:
         return np.clip(np.rint(img * 257.0), 0, 65535).astype(np.uint16)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    if jpeg_quality:
+        ok, enc = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        out = cv2.imdecode(enc, cv2.IMREAD_GRAYSCALE)
+    return out

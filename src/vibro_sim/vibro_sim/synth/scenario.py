@@ -96,6 +96,13 @@ class SynthConfig:
                    the ball's in-plane spin (rad/s, + counter-clockwise on screen): each flight spins at
                    spin_rad_s + spin_sigma_rad_s z, z ~ N(0, 1) drawn anew at every impact (default 0: the
                    ball's texture does not rotate and the frames are those of a build without spin).
+    ball_surface   "speckle" (default: a speckle pattern DIC can track) or "shiny": a dark glossy sphere without
+                   texture whose specular highlight is fixed relative to the light (real footage's common
+                   case; :mod:`.render`).
+    light_deg      with "shiny": the light's angle from the camera axis, tilted towards the image top (30);
+                   the highlight sits R sin(light_deg / 2) above the ball's centre.
+    jpeg_quality   1..100: every 8-bit frame goes through a JPEG encode/decode at that quality before it is
+                   written (lossy video); 0 (default) = none.
     spin_cor_coupling_s_per_rad
                    COR change per rad/s of spin change at the impact (0: the COR ignores the spin); see
                    :mod:`.spin`. DIC follows a rotation of up to a few 0.01 rad from frame 0 (its
@@ -129,6 +136,9 @@ class SynthConfig:
     spin_rad_s: float = 0.0
     spin_sigma_rad_s: float = 0.0
     spin_cor_coupling_s_per_rad: float = 0.0
+    ball_surface: str = "speckle"
+    light_deg: float = 30.0
+    jpeg_quality: int = 0
     ball_mass_kg: float = BALL_MASS_KG
     ball_diameter_mm: float = m_to_mm(BALL_DIAMETER_M)
     gap_mm: float = m_to_mm(GAP_M)
@@ -150,6 +160,10 @@ class SynthConfig:
             ("spin_rad_s", abs(self.spin_rad_s) <= 100.0, "within +-100 rad/s"),
             ("spin_sigma_rad_s", 0.0 <= self.spin_sigma_rad_s <= 100.0, "in [0, 100] rad/s"),
             ("spin_cor_coupling_s_per_rad", abs(self.spin_cor_coupling_s_per_rad) <= 1.0, "within +-1 s/rad"),
+            ("ball_surface", self.ball_surface in ("speckle", "shiny"), "'speckle' or 'shiny'"),
+            ("light_deg", 0.0 <= self.light_deg < 180.0, "in [0, 180) degrees"),
+            ("jpeg_quality", isinstance(self.jpeg_quality, int) and 0 <= self.jpeg_quality <= 100,
+             "an integer in [0, 100] (0 = no JPEG)"),
         ]
         for name, ok, expect in checks:
             value = getattr(self, name)
@@ -159,6 +173,8 @@ class SynthConfig:
                 raise SynthError(f"synth option '{name}' must be {expect}, got {value!r}")
         if self.mm_per_px is not None and not self.mm_per_px > 0:
             raise SynthError(f"synth option 'mm_per_px' must be > 0, got {self.mm_per_px!r}")
+        if self.jpeg_quality and self.tiff16:
+            raise SynthError("synth option 'jpeg_quality' needs 8-bit frames (not tiff16)")
         if not math.isfinite(self.clock_offset_s) or abs(self.clock_offset_s) > 1.0:
             raise SynthError(f"synth option 'clock_offset_s' must be within +-1 s, got {self.clock_offset_s!r}")
         why = check_invented(self.effects, self.frequency_hz)

@@ -93,7 +93,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     _prepare_dir(out_dir, overwrite)
     render_rng = np.random.default_rng([cfg.seed, 1])
     noise_rng = np.random.default_rng([cfg.seed, 2])
-    renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift, spin=models.spinning)
+    renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift, spin=models.spinning,
+                        ball_surface=cfg.ball_surface, light_deg=cfg.light_deg)
 
     t = traj.frame_t_s
     ball_mm = m_to_mm(traj.ball_m)
@@ -196,7 +197,7 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
         img = img * gain
         if cfg.noise_gray > 0:
             img = img + rng.normal(0.0, cfg.noise_gray, img.shape)
-        ok = cv2.imwrite(str(folder / f"{k:06d}{ext}"), quantise(img, cfg.tiff16), params)
+        ok = cv2.imwrite(str(folder / f"{k:06d}{ext}"), quantise(img, cfg.tiff16, cfg.jpeg_quality), params)
         if not ok:
             raise SynthError(f"{folder / f'{k:06d}{ext}'}: cannot write frame")
 
