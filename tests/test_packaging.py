@@ -70,7 +70,8 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "cv2": "pytho
 #: Import name -> pip distribution, for packages rosdep has no key for: requirements.txt pins them and
 #: README lists them under "Python dependencies".
 PIP_ONLY = {"mcap": "mcap", "rosbags": "rosbags", "pysindy": "pysindy",
-            "nptdms": "nptdms", "pyMRAW": "pymraw", "pycine": "pycine", "foxglove": "foxglove-sdk"}
+            "nptdms": "nptdms", "pyMRAW": "pymraw", "pycine": "pycine", "foxglove": "foxglove-sdk",
+            "distributed": "distributed"}
 #: ROS packages imported under their own name (the rosdep key is the package name).
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "sensor_msgs", "diagnostic_msgs", "launch", "launch_ros",
                 "ament_index_python", "vibro_msgs", *PYTHON_PACKAGES}

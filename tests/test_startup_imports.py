@@ -2,7 +2,8 @@
 
 Every graph run starts eight node processes and every test calls the CLI in a fresh process, so the
 start-up imports are paid many times over (scipy.stats ~1.5 s of CPU, scipy.signal ~1.7 s with
-scipy.stats inside, matplotlib ~1 s on this machine). These modules are loaded where they are used.
+scipy.stats inside, matplotlib ~1 s on this machine; dask and distributed, which only campaigns and
+chunked DIC use, ~1 s). These modules are loaded where they are used.
 The property checked is which modules are loaded, not a time (no timing asserts: machines are noisy).
 What replaced scipy.stats (chi-square and F tail probabilities, the normal Q-Q of the COR statistics,
 Spearman's rho of the spin analysis) is checked against scipy.stats itself.
@@ -18,7 +19,7 @@ import sys
 import numpy as np
 import pytest
 
-HEAVY = ("scipy.stats", "scipy.signal", "matplotlib", "scipy.ndimage")
+HEAVY = ("scipy.stats", "scipy.signal", "matplotlib", "scipy.ndimage", "dask", "distributed")
 NODES = ("vibro_dic.frame_source_node", "vibro_dic.dic_tracker_node", "vibro_fit.accel_source_node",
          "vibro_fit.impact_detector_node", "vibro_fit.trajectory_fitter_node", "vibro_sim.simulator_node",
          "vibro_sim.discrepancy_node", "vibro_bringup.recorder_node")

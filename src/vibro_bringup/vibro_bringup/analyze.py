@@ -1,7 +1,8 @@
 """``analyze_recording``: DIC -> identification -> simulation (COR and Hertz models) -> results + report.
 
-The same cores as the nodes: vibro_dic.tracker.track_recording, vibro_fit.identify (which runs the
-streaming fitter), vibro_sim.replay.simulate_measured (COR and Hertz models), vibro_sim.deviation (Eq. 18).
+The same cores as the nodes: vibro_dic.tracker.track_recording (or its chunked form on Dask workers,
+vibro_dic.chunked), vibro_fit.identify (which runs the streaming fitter), vibro_sim.replay.simulate_measured
+(COR and Hertz models), vibro_sim.deviation (Eq. 18).
 
 Replay of the identified motion (``replay_models``, on the results document's domain-model types, SI):
 the structure is the fitted sine (track coordinates, m; a structure that does not move beyond DIC noise
@@ -80,13 +81,15 @@ def analyze_outputs() -> tuple[str, ...]:
 
 
 def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, progress: bool, dic_method: str,
-                out_dir: Path, overwrite: bool = False, quality=None):
+                out_dir: Path, overwrite: bool = False, quality=None, workers: int | None = None,
+                scheduler: str | None = None):
     """(rig, track, accel) from a recording: DIC unless ``track_csv`` is given (then frames are not read).
 
-    The inputs are opened (and validated) before ``out_dir`` is prepared (:func:`prepare_output_dir`);
-    with DIC the track is written to ``out_dir/dic.csv`` and ``quality`` (a
-    :class:`vibro_dic.quality.TrackQuality`, optional) receives the texture check and the correlation
-    quality."""
+    DIC runs in this process, or in chunks on Dask workers (``workers`` > 1 local processes, or the cluster
+    at ``scheduler``): the same track and quality (:func:`vibro_dic.chunked.track_rows`). The inputs are
+    opened (and validated) before ``out_dir`` is prepared (:func:`prepare_output_dir`); with DIC the track is
+    written to ``out_dir/dic.csv`` and ``quality`` (a :class:`vibro_dic.quality.TrackQuality`, optional)
+    receives the texture check and the correlation quality."""
     rec_dir = Path(recording_dir)
     inputs = [rec_dir] + ([Path(track_csv)] if track_csv is not None else [])
     if track_csv is not None:
@@ -97,12 +100,13 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
         accel = load_recording_accel(rec_dir, rig)
         prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
         return rig, track, accel
-    from vibro_dic.tracker import track_recording
+    from vibro_dic.chunked import track_rows
 
     rec = open_recording(rec_dir)
     accel = rec.load_accel()
     prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
-    rows = list(track_recording(rec, method=dic_method, progress=progress, quality=quality))
+    rows = list(track_rows(rec, workers=workers, scheduler=scheduler, method=dic_method, progress=progress,
+                           quality=quality))
     with atomic_path(out_dir / DIC_CSV) as tmp:
         write_dic_csv(tmp, rows)
     return rec.rig, DicTrack.from_frames(rows), accel
@@ -126,11 +130,12 @@ def _write_discrepancy_figure(disc_run, path: Path) -> Path | None:
 
 def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progress: bool = True,
                       method: str = "paper", track_csv: str | Path | None = None, dic_method: str = "icgn",
-                      report: bool = True, weights: str | None = None, overwrite: bool = False) -> dict:
+                      report: bool = True, weights: str | None = None, overwrite: bool = False,
+                      workers: int | None = None, scheduler: str | None = None) -> dict:
     """Run the whole analysis; writes results.json, flights.csv, impacts.csv, PNG figures and report.html
     into ``out_dir`` (created; refused when it holds anything but this run's inputs, unless ``overwrite``:
     see :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically. Returns the results
-    mapping."""
+    mapping. ``workers``/``scheduler``: DIC in chunks on Dask workers (:func:`load_inputs`)."""
     from vibro_dic.quality import TrackQuality, dic_quality_section
     from vibro_fit.identify import identify
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
@@ -146,7 +151,8 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         bar.set_description("DIC" if track_csv is None else "read track")
         quality = TrackQuality() if track_csv is None else None
         rig, track, accel = load_inputs(recording_dir, track_csv, progress=progress, dic_method=dic_method,
-                                        out_dir=out, overwrite=overwrite, quality=quality)
+                                        out_dir=out, overwrite=overwrite, quality=quality, workers=workers,
+                                        scheduler=scheduler)
         dic_warnings = [] if quality is None else quality.check()  # refuses a body lost in most frames
         bar.update(1)
         bar.set_description("identify")

@@ -21,6 +21,7 @@ SUBCOMMAND_MODULES = (
     "vibro_dic.cli",
     "vibro_fit.cli",
     "vibro_bringup.cmd_analyze",
+    "vibro_bringup.cmd_campaign",
     "vibro_bringup.cmd_graph",
     "vibro_bringup.bag_results",
     "vibro_bringup.cmd_replay",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from vibro_dic.cluster import add_cluster_args
 from vibro_fit.methods import METHODS
 
 
@@ -22,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--track", help="use this dic.csv instead of running DIC (frames are then not read)")
     p.add_argument("--dic-method", default="icgn", help="DIC sub-pixel method (icgn, parabolic)")
     p.add_argument("--no-report", action="store_true", help="skip figures and report.html")
+    add_cluster_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -32,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     progress = not args.no_progress and sys.stderr.isatty()
     doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,
                             track_csv=args.track, dic_method=args.dic_method, report=not args.no_report,
-                            weights=args.weights, overwrite=args.overwrite)
+                            weights=args.weights, overwrite=args.overwrite, workers=args.workers,
+                            scheduler=args.scheduler)
     summ = doc["cor_summary"]
     sim = doc["simulation"]
 

@@ -11,6 +11,8 @@ from vibro_io.dictrack import DicTrack, write_dic_csv
 from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_io.recording import open_recording
 
+from .chunked import track_rows
+from .cluster import add_cluster_args
 from .noise import DEFAULT_SPLIT_HZ, noise_study
 from .tracker import METHODS, track_recording
 
@@ -27,6 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace the dic.csv of an earlier 'vibro track' in --out (refused if it holds other files)")
     _common(p)
+    add_cluster_args(p)
     p.set_defaults(func=run_track)
 
     q = sub.add_parser("noise", help="noise study of a motionless recording (paper Fig. 17)")
@@ -72,7 +75,8 @@ def run_track(args: argparse.Namespace) -> int:
     rec = open_recording(args.recording)
     out = prepare_output_dir(args.out, overwrite=args.overwrite, owned=(DIC_CSV,), command="track",
                              inputs=[rec.path])
-    rows = _Counter(track_recording(rec, method=args.method, progress=_progress(args), zncc_min=args.zncc_min))
+    rows = _Counter(track_rows(rec, workers=args.workers, scheduler=args.scheduler, method=args.method,
+                               progress=_progress(args), zncc_min=args.zncc_min))
     with atomic_path(out / DIC_CSV) as tmp:
         write_dic_csv(tmp, rows)
     lost = f" (first lost: {', '.join(map(str, rows.first_lost))})" if rows.lost else ""

@@ -30,7 +30,13 @@ Pipeline for each mesh (ball, structure) and each frame:
    displacements about the mesh centroid, each point's lever arm corrected for what a translation-only
    subset measures of a rotation (its gradient-weighted centre); small angle. Positive counter-clockwise
    as the camera sees the image; with its 1-sigma noise from the residuals about the rigid fit.
-6. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
+6. **Re-seed**: the prediction history (step 1) never crosses a multiple of ``reseed_every`` frames
+   (:data:`RESEED_EVERY_FRAMES`, 100): at the first frame of each segment ``[j*K, (j+1)*K)`` of frame
+   indices, both meshes start again as at frame 1 (no prediction: the search of step 2 from the frame-0
+   position, widened to the whole image when the body has moved). The segments are a fixed property of the
+   tracking, whoever runs it: one process (:func:`track_recording`) or chunks of whole segments on Dask
+   workers (:mod:`vibro_dic.chunked`) give identical rows, whatever the number of workers.
+7. **Lost**: no ZNCC peak >= ``zncc_min`` anywhere, the bounding box leaving the image, or
    fewer than ``min_valid_fraction`` of the points kept. A lost mesh reports NaN
    displacement and 0 valid points; it is never extrapolated. The frame is flagged lost
    if either mesh is lost or the image is missing (the other mesh keeps its value).
@@ -45,7 +51,7 @@ import logging
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -69,6 +75,9 @@ MIN_SUBSET_STD = 2.0  # gray levels: below this a subset holds no usable pattern
 # The bounding-box IC-GN stops at a finer step than the subsets' tol_px, so that the one
 # per-subset step that follows is dominated by the subset's own (noise) deviation.
 BOX_TOL_PX = 0.005
+#: frames per tracking segment: the motion prediction restarts at every multiple of this frame index
+#: (module doc, step 6); chunked tracking splits a recording only there
+RESEED_EVERY_FRAMES = 100
 
 
 @dataclass
@@ -133,6 +142,10 @@ class MeshTracker:
             raise RecordingError(
                 f"dic.{name}_roi {roi.as_list()}: only {textured} of {n} subsets have speckle texture in "
                 f"frame 0 (gray-level std >= {MIN_SUBSET_STD:g}); need {self.min_valid}: put the ROI on the pattern")
+
+    def reseed(self) -> None:
+        """Forget the motion history: the next frame is searched as if it were the first after frame 0."""
+        self.history.clear()
 
     # --- prediction and integer search ---------------------------------------------------------
     def predict(self, k: int) -> np.ndarray:
@@ -293,12 +306,14 @@ class DicTracker:
 
     ``dic_config`` gives subset size, mesh step and the two ROIs (px, frame 0);
     ``mm_per_px`` converts to mm. ``method``: "icgn" (default) or "parabolic" (baseline).
-    Call :meth:`track` once per frame, in order; it keeps the motion prediction.
+    Call :meth:`track` once per frame, in order; it keeps the motion prediction within a segment of
+    ``reseed_every`` frame indices (module doc, step 6).
     """
 
     def __init__(self, reference_image: np.ndarray, dic_config: DicConfig, mm_per_px: float, *,
                  method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
-                 search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1):
+                 search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1,
+                 reseed_every: int = RESEED_EVERY_FRAMES):
         if method not in METHODS:
             raise RecordingError(f"DIC method must be one of {', '.join(METHODS)}, got {method!r}")
         ref = np.asarray(reference_image)
@@ -314,6 +329,10 @@ class DicTracker:
             raise RecordingError(f"interpolation taps must be one of {KERNEL_TAPS}, got {taps!r}")
         if search_px < 1:
             raise RecordingError(f"search_px must be >= 1, got {search_px!r}")
+        if isinstance(reseed_every, bool) or not isinstance(reseed_every, int) or reseed_every < 1:
+            raise RecordingError(f"reseed_every must be a positive number of frames, got {reseed_every!r}")
+        self.reseed_every = reseed_every
+        self._segment: int | None = None  # segment (index // reseed_every) of the last frame tracked
         rows, cols = ref.shape
         before, after = patch_margin(taps)
         for name in ("ball_roi", "structure_roi"):
@@ -350,6 +369,11 @@ class DicTracker:
 
     def track_image(self, index: int, t_s: float, image: np.ndarray | None) -> FrameTrack:
         """Track one image (2-D array, same size as the reference) of frame ``index`` at ``t_s`` (s)."""
+        segment = index // self.reseed_every
+        if segment != self._segment:
+            self.ball.reseed()
+            self.structure.reseed()
+            self._segment = segment
         if image is None:
             self.last_results = {}
             return FrameTrack(index, t_s, float("nan"), float("nan"), 0, 0, float("nan"), float("nan"), True)
@@ -371,54 +395,111 @@ class DicTracker:
         )
 
 
+@dataclass(frozen=True)
+class SlotNote:
+    """What the tracking of one frame slot tells beside its row: the frame was unreadable (``error``) or
+    dropped (no file), and the tracker's per-mesh results (``results``, {body: :class:`MeshResult`}; empty
+    when the image was missing), for the correlation quality. Lets a chunk tracked elsewhere be checked,
+    logged and accumulated as one pass would."""
+
+    index: int
+    ok: bool
+    dropped: bool
+    error: str | None
+    results: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, frame: Frame, results: dict[str, MeshResult]) -> "SlotNote":
+        return cls(frame.index, frame.ok, frame.dropped, frame.error, results)
+
+
+def reference_texture(recording, *, max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX,
+                      min_valid_fraction: float = 0.5, quality: TrackQuality | None = None) -> TextureReport:
+    """The check before a pass over ``recording``, once per pass whoever tracks it: frame 0 (the reference)
+    must decode and hold the ROIs; the texture check (:func:`vibro_dic.texture.check_texture`, noise from
+    frames 0 and 1) logs its warnings and raises :class:`vibro_dic.texture.TextureError` when a body has too
+    few usable subsets. Returns the report (given to every tracker of the pass: :func:`track_slots`) and
+    hands it to ``quality``."""
+    rig = recording.rig
+    head = list(recording.frames.iter_slots(0, 2))
+    if not head:
+        raise FrameError("the recording has no frame")
+    first = head[0]
+    if first.image is None:
+        raise FrameError(f"frame {first.index} (reference): {first.error or 'cannot be read'}")
+    second = head[1].image if len(head) > 1 else None
+    check_rois_in_image(rig, *np.asarray(first.image).shape[:2])  # before the texture check reads the ROIs
+    texture, warnings = check_texture(first.image, second, rig.dic, max_subset_sigma_px=max_subset_sigma_px,
+                                      min_valid_fraction=min_valid_fraction)
+    for w in warnings:
+        log.warning("texture: %s", w)
+    if quality is not None:
+        quality.texture = texture
+    return texture
+
+
+def track_slots(recording, start: int = 0, stop: int | None = None, *, texture: TextureReport,
+                method: str = "icgn", **tracker_kwargs) -> Iterator[tuple[FrameTrack, SlotNote]]:
+    """Track the frame slots ``start`` .. ``stop`` - 1 (positions; ``stop`` None: to the end) of
+    ``recording`` with a new tracker on its first frame (the reference, which must decode), leaving out the
+    subsets ``texture`` (:func:`reference_texture` of the same recording) found unusable.
+
+    ``start`` must be the first slot of a tracking segment (a frame index multiple of ``reseed_every``, or
+    slot 0): then the rows equal those of one pass over the whole recording (module doc, step 6).
+    The unreadable-fraction check, the log lines and the correlation quality are the caller's
+    (:func:`emit_rows`).
+    """
+    frames = recording.frames
+    reference = next(iter(frames.iter_slots(0, 1)), None)
+    if reference is None or reference.image is None:
+        where = "0" if reference is None else reference.index
+        raise FrameError(f"frame {where} (reference): {getattr(reference, 'error', None) or 'cannot be read'}")
+    tracker = DicTracker(reference.image, recording.rig.dic, recording.rig.camera.mm_per_px, method=method,
+                         **tracker_kwargs)
+    tracker.use_texture(texture)
+    for frame in frames.iter_slots(start, stop):
+        row = tracker.track(frame)
+        yield row, SlotNote.of(frame, tracker.last_results)
+
+
+def emit_rows(noted_rows: Iterable[tuple[FrameTrack, SlotNote]], guard, bar=None,
+              quality: TrackQuality | None = None) -> Iterator[FrameTrack]:
+    """The rows of a pass over a recording, in frame order: each slot's frame is checked by ``guard``
+    (:meth:`vibro_io.frames.FrameSequence.unreadable_guard`: too many unreadable frames refuse the
+    recording), a frame that could not be read is logged with its index, its results go to ``quality``
+    (:class:`vibro_dic.quality.TrackQuality`, optional), then its row (lost for such a frame) is yielded."""
+    for row, note in noted_rows:
+        guard.check(note)
+        if not note.ok:
+            log.warning("frame %d skipped: %s", note.index, note.error)
+        if quality is not None:
+            quality.add(note.index, note.results)
+        yield row
+        if bar is not None:
+            bar.update(1)
+
+
 def track_recording(recording, *, method: str = "icgn", progress: bool = False, quality: TrackQuality | None = None,
                     max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX, **tracker_kwargs
                     ) -> Iterator[FrameTrack]:
     """Stream :class:`FrameTrack` rows for every frame slot of ``recording`` (a vibro_io Recording).
 
     Frame 0 is the reference (it must decode). Before tracking, the texture check
-    (:func:`vibro_dic.texture.check_texture`, noise from frames 0 and 1) logs its warnings and raises
+    (:func:`reference_texture`: noise from frames 0 and 1) logs its warnings and raises
     :class:`vibro_dic.texture.TextureError` when a body has too few usable subsets; unusable subsets are
     left out. Frames are read one at a time; a frame that failed to decode is logged with its index and
     yields a lost row. ``quality`` (optional) receives the texture report and every frame's results
-    (:class:`vibro_dic.quality.TrackQuality`). ``tracker_kwargs`` go to :class:`DicTracker`.
+    (:class:`vibro_dic.quality.TrackQuality`). ``tracker_kwargs`` go to :class:`DicTracker`. The same
+    rows and quality, tracked in chunks on Dask workers: :func:`vibro_dic.chunked.track_recording_chunked`.
     """
     from tqdm import tqdm
 
-    rig = recording.rig
-    frames = iter(recording.frames)
-    first = next(frames, None)
-    if first is None:
-        raise FrameError("the recording has no frame")
-    if first.image is None:
-        raise FrameError(f"frame {first.index} (reference): {first.error or 'cannot be read'}")
-    second = next(frames, None)
-    check_rois_in_image(rig, *np.asarray(first.image).shape[:2])  # before the texture check reads the ROIs
-    texture, warnings = check_texture(first.image, None if second is None else second.image, rig.dic,
-                                      max_subset_sigma_px=max_subset_sigma_px,
-                                      min_valid_fraction=tracker_kwargs.get("min_valid_fraction", 0.5))
-    for w in warnings:
-        log.warning("texture: %s", w)
-    tracker = DicTracker(first.image, rig.dic, rig.camera.mm_per_px, method=method, **tracker_kwargs)
-    tracker.use_texture(texture)
-    if quality is not None:
-        quality.texture = texture
+    texture = reference_texture(recording, max_subset_sigma_px=max_subset_sigma_px,
+                                min_valid_fraction=tracker_kwargs.get("min_valid_fraction", 0.5), quality=quality)
     bar = tqdm(total=len(recording.frames), unit="frame", disable=not progress, desc="track", leave=False)
     try:
-        for frame in ([first] if second is None else [first, second]):
-            yield _track_one(tracker, frame, quality)
-            bar.update(1)
-        for frame in frames:
-            yield _track_one(tracker, frame, quality)
-            bar.update(1)
+        yield from emit_rows(track_slots(recording, texture=texture, method=method, **tracker_kwargs),
+                             recording.frames.unreadable_guard(), bar, quality)
     finally:
         bar.close()
 
-
-def _track_one(tracker: DicTracker, frame: Frame, quality: TrackQuality | None) -> FrameTrack:
-    if frame.image is None:
-        log.warning("frame %d skipped: %s", frame.index, frame.error)
-    row = tracker.track(frame)
-    if quality is not None:
-        quality.add(frame.index, tracker.last_results)
-    return row

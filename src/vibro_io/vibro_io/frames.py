@@ -161,6 +161,18 @@ class FrameSequence:
     def __len__(self) -> int:
         return self._count
 
+    def __getstate__(self) -> dict:
+        """Pickled for another process (a Dask worker tracking a chunk): a camera file's reader is opened
+        again there (by its path); the file list, sizes and numbering are carried over, not re-checked."""
+        state = self.__dict__.copy()
+        state["_camera_file"] = None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if self.source.is_file() and self.source.suffix.lower() in CAMERA_FILE_SUFFIXES:
+            self._camera_file = open_camera_file(self.source)
+
     def _mismatch(self, image: np.ndarray, where: str) -> str | None:
         """Why ``image`` does not match the first frame (size, pixel type), or None."""
         if image.shape != self.shape:
@@ -172,22 +184,25 @@ class FrameSequence:
         return None
 
     def __iter__(self) -> Iterator[Frame]:
-        if self._camera_file is not None:
-            frames = self._iter_camera_file()
-        else:
-            frames = self._iter_files() if self._slots else self._iter_video()
-        unreadable: list[str] = []
-        for frame in frames:
-            if not frame.ok and not frame.dropped:
-                unreadable.append(frame.error or f"frame {frame.index}")
-                if len(unreadable) > self.max_unreadable:
-                    raise FrameError(
-                        f"{self.source}: {len(unreadable)} of {self._count} frames are unreadable (more than "
-                        f"{MAX_UNREADABLE_FRACTION:.0%}); the recording is refused; first: {unreadable[0]}")
+        guard = self.unreadable_guard()
+        for frame in self.iter_slots():
+            guard.check(frame)
             yield frame
 
-    def _iter_files(self) -> Iterator[Frame]:
-        for pos, path in enumerate(self._slots):
+    def unreadable_guard(self) -> "UnreadableGuard":
+        """The check that refuses the recording once too many of its frames are unreadable (fed in order)."""
+        return UnreadableGuard(self.source, self._count, self.max_unreadable)
+
+    def iter_slots(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Frames of slot positions ``start`` .. ``stop`` - 1 (``stop`` None: to the end), WITHOUT the
+        unreadable-fraction check (:meth:`unreadable_guard`, which ``iter()`` applies): a chunk of the
+        recording for one worker, whose frames the caller feeds to the guard in order."""
+        if self._camera_file is not None:
+            return self._iter_camera_file(start, stop)
+        return self._iter_files(start, stop) if self._slots else self._iter_video(start, stop)
+
+    def _iter_files(self, start: int, stop: int | None) -> Iterator[Frame]:
+        for pos, path in enumerate(self._slots[start:stop], start=start):
             k = self.first_index + pos
             t = self.camera.frame_time_s(k)
             if path is None:
@@ -201,8 +216,8 @@ class FrameSequence:
             problem = self._mismatch(image, f"frame {k}: {path}")
             yield Frame(k, t, None if problem else image, str(path), problem)
 
-    def _iter_camera_file(self) -> Iterator[Frame]:
-        for k in range(self._count):
+    def _iter_camera_file(self, start: int, stop: int | None) -> Iterator[Frame]:
+        for k in range(start, self._count if stop is None else min(stop, self._count)):
             where = f"{self.source} frame {k}"
             t = self.camera.frame_time_s(k)
             try:
@@ -213,11 +228,13 @@ class FrameSequence:
             problem = self._mismatch(image, where)
             yield Frame(k, t, None if problem else image, where, problem)
 
-    def _iter_video(self) -> Iterator[Frame]:
+    def _iter_video(self, start: int, stop: int | None) -> Iterator[Frame]:
         cap = self._open_video()
         try:
             k = 0
-            while True:
+            while k < start and cap.grab():  # frame-exact skip (seeking by position is not, in every codec)
+                k += 1
+            while stop is None or k < stop:
                 ok, image = cap.read()
                 if not ok:
                     break
@@ -231,10 +248,27 @@ class FrameSequence:
                     problem = self._mismatch(gray, where)
                     yield Frame(k, t, None if problem else gray, where, problem)
                 k += 1
-            if k < self._count:
+            if k < self._count and (stop is None or stop > k):
                 log.warning("%s: video ended after %d of %d announced frames", self.source, k, self._count)
         finally:
             cap.release()
+
+
+class UnreadableGuard:
+    """Counts the unreadable frames (not dropped ones) of one pass over a recording, in frame order, and
+    raises :class:`FrameError` when more than ``max_unreadable`` of the ``count`` slots are unreadable."""
+
+    def __init__(self, source: Path, count: int, max_unreadable: int):
+        self.source, self.count, self.max_unreadable = source, count, max_unreadable
+        self.unreadable: list[str] = []
+
+    def check(self, frame: Frame) -> None:
+        if not frame.ok and not frame.dropped:
+            self.unreadable.append(frame.error or f"frame {frame.index}")
+            if len(self.unreadable) > self.max_unreadable:
+                raise FrameError(
+                    f"{self.source}: {len(self.unreadable)} of {self.count} frames are unreadable (more than "
+                    f"{MAX_UNREADABLE_FRACTION:.0%}); the recording is refused; first: {self.unreadable[0]}")
 
 
 def find_frames_source(recording: str | Path) -> Path:

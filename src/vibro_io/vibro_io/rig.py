@@ -67,6 +67,9 @@ class StructureConfig:
 @dataclass(frozen=True)
 class ExcitationConfig:
     frequency_hz: float
+    #: nominal shaker acceleration amplitude (m/s^2), when rig.yaml gives it (optional): what a campaign
+    #: sweeps beside the frequency; vibro identifies the structure's actual motion itself
+    acceleration_ms2: float | None = None
 
 
 @dataclass(frozen=True)
@@ -123,6 +126,8 @@ class RigConfig:
             out["accelerometers"] = {k: v for k, v in out["accelerometers"].items() if v is not None}
         if self.camera.start_time_unix_s is None:
             out["camera"].pop("start_time_unix_s")
+        if self.excitation.acceleration_ms2 is None:
+            out["excitation"].pop("acceleration_ms2")
         return out
 
 
@@ -276,7 +281,8 @@ def _check(value: Any, kind: str, where: str) -> Any:
 
 
 #: Optional keys per section (kind, as in _SCHEMA): absent = None.
-_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time"}}
+_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time"},
+                                        "excitation": {"acceleration_ms2": "pos"}}
 #: 2000-01-01T00:00:00Z: an earlier recording start is a wrong unit or a camera clock, not a date.
 _EARLIEST_UNIX_S = 946684800.0
 
@@ -304,9 +310,10 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
         if key not in block:
             raise RigError(f"{src}: missing required key '{name}.{key}'")
         out[key] = _check(block[key], kind, f"{src}: key '{name}.{key}'")
-    for key in _OPTIONAL.get(name, {}):
+    for key, kind in _OPTIONAL.get(name, {}).items():
         if key in block and block[key] is not None:
-            out[key] = _check_unix_time(block[key], f"{src}: key '{name}.{key}'")
+            where = f"{src}: key '{name}.{key}'"
+            out[key] = _check_unix_time(block[key], where) if kind == "unix_time" else _check(block[key], kind, where)
     for key in block:
         if key not in schema and key not in _OPTIONAL.get(name, {}):
             log.warning("%s: unknown key '%s.%s' ignored", src, name, key)

@@ -1,0 +1,118 @@
+"""The Dask cluster vibro's parallel work runs on: chunked DIC (:mod:`vibro_dic.chunked`) and campaigns
+(:mod:`vibro_bringup.campaign`).
+
+Default: a ``distributed.LocalCluster`` of worker *processes* (not threads: DIC and the fits hold the
+GIL), one thread each, as many as asked (default: the CPU cores); no dashboard. ``scheduler``: connect to
+an existing cluster instead (``tcp://host:8786``); its workers must see the recordings' and outputs' paths
+(a shared file system) and run the same vibro. Nothing starts at import time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Iterator
+
+from vibro_io.errors import RecordingError
+
+if TYPE_CHECKING:  # only for the annotation: distributed is imported where a cluster is made
+    import distributed
+
+#: seconds to wait for an existing scheduler (``--scheduler``) before giving up with one line
+CONNECT_TIMEOUT_S = 10.0
+
+
+def default_workers() -> int:
+    """Worker processes of a local cluster when none are asked: the CPU cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def add_cluster_args(p: argparse.ArgumentParser, *, workers_help: str | None = None,
+                     scheduler_help: str | None = None) -> None:
+    """``--workers N`` / ``--scheduler ADDRESS`` (one or the other) on a subcommand's parser; the help
+    texts default to DIC in chunks on Dask workers (:mod:`vibro_dic.chunked`). Imports nothing of Dask
+    (the CLI parser stays light)."""
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help=workers_help or "track in chunks of frames on N local worker processes (Dask); the "
+                                            "same dic.csv as one process (default: one process)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help=scheduler_help or "track in chunks on the Dask cluster at ADDRESS (e.g. "
+                                              "tcp://host:8786; its workers must see the recording's path)")
+
+
+def check_workers(workers: int | None, where: str = "--workers") -> int | None:
+    """``workers`` if it is None or a positive integer, else :class:`RecordingError` naming ``where``."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise RecordingError(f"{where}: expected a positive number of worker processes, got {workers!r}")
+    return workers
+
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator["distributed.Client"]:
+    """A ``distributed.Client`` on a new local cluster of ``workers`` processes x 1 thread (default
+    :func:`default_workers`), or on the existing scheduler at ``scheduler``; closed (and the local cluster
+    shut down) on exit. A scheduler that cannot be reached: :class:`RecordingError` (one line)."""
+    import distributed  # noqa: F401  (its loggers exist from here on, to be quietened)
+
+    check_workers(workers)
+    with _QuietDistributed(logging.WARNING):
+        client, cluster = _connect(workers, scheduler)
+    try:
+        yield client
+    finally:
+        # at shutdown the nanny kills a worker still exiting after 4 s (its work is done): no warning for that
+        with _QuietDistributed(logging.ERROR):
+            client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+class _QuietDistributed:
+    """Dask's own lines below ``level`` (scheduler, nanny, worker start and stop) off unless vibro logs at
+    DEBUG (-v)."""
+
+    def __init__(self, level: int):
+        self.level = level
+
+    def __enter__(self):
+        self.levels = {}
+        if logging.getLogger().isEnabledFor(logging.DEBUG):
+            return
+        names = [n for n in logging.root.manager.loggerDict if n == "distributed" or n.startswith("distributed.")]
+        for name in names:  # distributed sets levels on its sub-loggers itself
+            logger = logging.getLogger(name)
+            self.levels[name] = logger.level
+            if logger.getEffectiveLevel() < self.level:
+                logger.setLevel(self.level)
+
+    def __exit__(self, *exc):
+        for name, level in self.levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def _connect(workers: int | None, scheduler: str | None):
+    """(client, local cluster or None)."""
+    from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise RecordingError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there "
+                                 f"({type(exc).__name__}: {' '.join(str(exc).split()) or 'no answer'})") from None
+        return client, None
+    cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR,
+                           # no dashboard; the scheduler's own HTTP routes on a free loopback port (not 8787)
+                           scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        cluster.close()
+        raise
