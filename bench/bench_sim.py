@@ -52,7 +52,7 @@ def timed(fn, repeat):
 
 
 def fine_step_ode(t_end=1.5):
-    b, m, g = CAV.free_play_m, CAV.mass_kg, CAV.g_eff_ms2
+    b, g = CAV.free_play_m, CAV.g_eff_ms2
     t, y, v, k = 0.0, 0.0, 0.0, 0
     n_imp = 0
     while t < t_end:

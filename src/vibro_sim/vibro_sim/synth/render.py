@@ -326,7 +326,7 @@ class Renderer:
         ball texture's rotation (+ counter-clockwise on screen; a renderer built with ``spin=True``).
         """
         L = self.L
-        H, W, M = L.height_px, L.width_px, L.margin_px
+        H, M = L.height_px, L.margin_px
         dr = -drift_mm / L.mm_per_px  # rows down
         if self.drift:
             bgv, _ = self.bg_layer.shifted(dr)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from vibro_io.errors import RecordingError
 from vibro_model.units import m_to_mm, mm_to_m
@@ -23,6 +23,9 @@ from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, Velocit
 from ..structure import StructureKinematics
 from .invented import INVENTED_EFFECTS, DriftingCOR, check_invented, drift_per_impact, tone_structure
 from .spin import SpinCoupled, spin_sequence
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class SynthError(RecordingError):
