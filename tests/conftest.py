@@ -48,16 +48,6 @@ def tiny_recording() -> Path:
 
 
 @pytest.fixture
-def udp_only(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Fast DDS over UDP loopback only, without its shared-memory transport, for a test's processes. In full
-    suite runs (two workers, other tests SIGKILLing nodes) the echo twice never received the finding the node
-    logged as published, while it passes alone: Fast DDS 2.14's shared-memory transport is known to lose
-    samples after processes were killed (eProsima/Fast-DDS#5053, #5469). What such a test checks (a node's
-    results over DDS) does not depend on the transport."""
-    monkeypatch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(FIXTURES / "fastdds_udp_only.xml"))
-
-
-@pytest.fixture
 def ros_domain(monkeypatch: pytest.MonkeyPatch) -> str:
     """A private ROS_DOMAIN_ID so parallel test runs on this machine do not cross-talk."""
     domain = private_domain()

@@ -43,7 +43,10 @@ def run_discrepancy_node(case_file: Path, rig_file: Path, msg_type: str, topic: 
     then stop them."""
     echo = _start(str(HERE / "ros_echo.py"), msg_type, topic, "--count", str(count), "--seconds", "90",
                   "--qos", "results")
-    node = _start("-m", "vibro_sim.discrepancy_node", "--ros-args", "-p", f"rig_file:={rig_file}")
+    # the echo is the node's declared reader, as the node table makes the recorder: without it the node exits
+    # as soon as its results are published, and an echo not yet matched by then never gets them
+    node = _start("-m", "vibro_sim.discrepancy_node", "--ros-args", "-p", f"rig_file:={rig_file}",
+                  "-p", "readers:=[vibro_test_echo]")
     feeder = None
     try:
         assert echo.stdout.readline().strip() == "READY"

@@ -33,7 +33,7 @@ def test_document_from_messages_roundtrip():
     assert [i.t_s for i in back.impacts] == [i["t"] for i in sections["impacts"]]
 
 
-def test_node_publishes_findings_over_dds(tmp_path: Path, ros_domain: str, udp_only: None):
+def test_node_publishes_findings_over_dds(tmp_path: Path, ros_domain: str):
     sections, track, rig, _ = make_case({"coulomb_friction": {"force_n": 1.5e-4}}, seed=62, frames=300)
     write_rig(rig, tmp_path / "rig.yaml")
     run = run_discrepancy_node(feed_case(tmp_path / "case.json", sections, track), tmp_path / "rig.yaml",
