@@ -53,6 +53,21 @@ def test_calibrated_delta_a_restitutes_the_target(e):
         assert hertz_single_impact(CAV, e, v, delta_a="calibrated")[0] == pytest.approx(e, abs=1e-3)
 
 
+def test_eq11_calibration_table_is_what_the_hertz_impact_gives_for_any_ball():
+    # The stored table (EQ11_GRID -> EQ11_EFFECTIVE) must be the effective COR of a Hertz impact with
+    # delta_a = delta_max, for this rig's ball and for one 7x heavier, 2x larger, of other moduli, at other
+    # speeds: the impact is self-similar, so only the solver's error (rtol 1e-10) may differ. Every 5th point.
+    from vibro_sim.hertz_model import EQ11_EFFECTIVE, EQ11_GRID
+
+    other = BallCavity(mass_kg=CAV.mass_kg * 7.3, radius_m=CAV.radius_m * 2.1, free_play_m=CAV.free_play_m,
+                       gravity_ms2=9.81, ball_E_pa=CAV.ball_E_pa * 0.3, ball_nu=0.3, plate_E_pa=CAV.plate_E_pa * 2,
+                       plate_nu=0.25)
+    assert np.all(np.diff(EQ11_EFFECTIVE) > 0)  # monotone: invertible by interpolation
+    for k in range(0, EQ11_GRID.size, 5):
+        for cav, v in ((CAV, 1.0), (other, 0.3)):
+            assert hertz_single_impact(cav, float(EQ11_GRID[k]), v)[0] == pytest.approx(EQ11_EFFECTIVE[k], abs=1e-8)
+
+
 def test_effective_cor_rises_with_speed_for_fixed_delta_a():
     # Fixed c: the Hertz stiffness grows with penetration, so the damping ratio falls
     # with speed and the restitution rises.
