@@ -14,7 +14,7 @@ DEMO_DIR ?= demo
 PYTEST_ARGS ?=
 # test processes (pytest-xdist); each test file runs whole in one worker (module fixtures made once). Three on
 # two cores: the multi-process ROS tests wait on streams and discovery part of their time, and a third
-# worker fills it (measured on 2 cores: 458 s with 3 workers, 593 s with 2).
+# worker fills it.
 TEST_WORKERS ?= 3
 
 .PHONY: setup demo test msgs clean bench
