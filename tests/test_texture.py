@@ -136,6 +136,21 @@ def test_track_quality_counts_low_zncc_lost_frames_and_lost_subsets() -> None:
         q.check()
 
 
+def test_a_correlation_of_one_to_rounding_reads_as_no_residual_noise() -> None:
+    # A subset that matches its reference exactly (the reference frame itself) can come out at ZNCC 1 + 1e-12.
+    # The residual noise sqrt((1 - ZNCC) V) is then 0, not the square root of a negative number: this crashed the
+    # tracker node's diagnostics timer when its first report came after such frames only.
+    img = speckle_pattern((80, 80), seed=3).render()
+    dic = DicConfig(subset_px=31, mesh_step_px=10, ball_roi=Roi(10, 10, 41, 41), structure_roi=Roi(10, 10, 41, 41))
+    q = TrackQuality()
+    q.texture = assess_texture(img, dic, noise_from_image(img))
+    n = len(q.texture.bodies["ball"].points)
+    for k in range(3):
+        q.add(k, {"ball": _mesh(1.0 + 1e-12, [True] * n)})
+    b = q.summary()["bodies"]["ball"]
+    assert b["zncc_median"] == pytest.approx(1.0) and b["noise_ratio"] == 0.0
+
+
 # --- rendered recordings -----------------------------------------------------------------------------------
 def test_speckled_control_passes_and_tracks_within_the_predicted_accuracy(speckled) -> None:
     rec_dir, truth = speckled

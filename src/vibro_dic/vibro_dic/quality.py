@@ -105,7 +105,9 @@ class TrackQuality:
                 var = self._variance(name)
                 if var is not None and len(var) == len(b.kept) and r.point_valid.any():
                     v = r.point_valid
-                    b.residual_var.append(float(np.mean((1.0 - r.point_zncc[v]) * var[v])))
+                    # ZNCC <= 1 mathematically; a subset matching its reference to rounding (frame 0 itself) can
+                    # read 1 + 1e-12: no residual, not a negative one
+                    b.residual_var.append(float(np.mean(np.clip(1.0 - r.point_zncc[v], 0.0, None) * var[v])))
 
     def _variance(self, name: str) -> np.ndarray | None:
         if self.texture is None or name not in self.texture.bodies:
