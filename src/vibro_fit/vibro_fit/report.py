@@ -42,7 +42,8 @@ def figure_formats() -> set[str]:
     return set(FigureCanvasAgg.get_supported_filetypes())
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` atomically (110 dpi; format from the suffix) and close it."""
     fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
@@ -86,7 +87,7 @@ def fig_displacements(track: DicTrack, ident: Identification, path: Path, zoom_c
         ax.set_ylabel("displacement (mm)")
     axes[0].legend(loc="upper right", fontsize=8)
     axes[0].set_title("Displacements, fits and impact instants (red: top, blue: bottom)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _reidentified(impacts) -> bool:
@@ -110,7 +111,7 @@ def fig_cor(impacts, path: Path) -> Path:
     ax.set_ylabel("COR e" + (" (final model)" if _reidentified(impacts) else " (Eq. 16)"))
     ax.set_title("Coefficient of restitution per impact (error bars: propagated 1 sigma)")
     _legend(ax)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fig_friction(ident: Identification, path: Path) -> Path:
@@ -126,7 +127,7 @@ def fig_friction(ident: Identification, path: Path) -> Path:
     ax.set_ylabel("friction force (mN, positive up)")
     ax.set_title("Friction per free flight, Eq. 17: F = m (2a + g)")
     _legend(ax)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fig_accel(ident: Identification, path: Path) -> Path | None:
@@ -143,7 +144,7 @@ def fig_accel(ident: Identification, path: Path) -> Path | None:
     ax.set_title(f"Accelerometer impact spectrum ({len(acc.impacts)} impacts); peaks: "
                  + ", ".join(f"{p:.0f}" for p in acc.peaks_hz) + " Hz")
     ax.legend()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fig_hist_qq(impacts, path: Path) -> Path | None:
@@ -170,7 +171,7 @@ def fig_hist_qq(impacts, path: Path) -> Path | None:
         ax.set_title(f"{plate}: normal Q-Q, r = {nc.r:.3f}")
         ax.set_xlabel("theoretical quantiles")
         ax.set_ylabel("ordered COR")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fig_simulated(t_s: np.ndarray, measured_mm: np.ndarray, sims: dict[str, np.ndarray], deviations: dict,
@@ -184,7 +185,7 @@ def fig_simulated(t_s: np.ndarray, measured_mm: np.ndarray, sims: dict[str, np.n
     ax.set_ylabel("ball displacement (mm)")
     ax.set_title("Simulated vs measured ball displacement (Eq. 18)")
     ax.legend(fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def fig_errorbars(rows: list[dict], path: Path) -> Path:
@@ -199,7 +200,7 @@ def fig_errorbars(rows: list[dict], path: Path) -> Path:
     ax.set_xticks(range(len(labels)), labels)
     ax.set_ylabel("mean COR +- sigma")
     ax.legend()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, sim: dict | None = None,

@@ -14,7 +14,7 @@ import io
 import json
 from pathlib import Path
 
-from vibro_io.outputs import atomic_open, atomic_path, atomic_write_text
+from vibro_io.outputs import atomic_open, atomic_write_text
 
 from .summary import MIN_GROUP, PLATES, Z_FLAG, excitation_key, excitation_label
 
@@ -82,6 +82,8 @@ def write_figures(out: Path, rows: list[dict]) -> dict[str, Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from vibro_fit.report import save_figure
+
     ok = [r for r in rows if r["status"] == "ok"]
     n_colours = 10 if len(ok) <= 10 else 20
     paths = {}
@@ -104,11 +106,7 @@ def write_figures(out: Path, rows: list[dict]) -> dict[str, Path]:
     if 0 < len(ok) <= 12:
         axes[1].legend(fontsize=7, loc="best")
     fig.suptitle("COR per impact against impact speed, all runs (red ring: run flagged on that plate)")
-    fig.tight_layout()
-    with atomic_path(out / FIGURES["cor_vs_speed"]) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    paths["cor_vs_speed"] = out / FIGURES["cor_vs_speed"]
+    paths["cor_vs_speed"] = save_figure(fig, out / FIGURES["cor_vs_speed"])
 
     keys = sorted({excitation_key(r) for r in ok}, key=lambda k: tuple(-1 if v is None else v for v in k))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
@@ -128,11 +126,7 @@ def write_figures(out: Path, rows: list[dict]) -> dict[str, Path]:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("COR (run mean ± σ)")
     fig.suptitle("COR per run against the excitation (red: flagged)")
-    fig.tight_layout()
-    with atomic_path(out / FIGURES["cor_vs_excitation"]) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    paths["cor_vs_excitation"] = out / FIGURES["cor_vs_excitation"]
+    paths["cor_vs_excitation"] = save_figure(fig, out / FIGURES["cor_vs_excitation"])
     return paths
 
 
