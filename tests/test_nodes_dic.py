@@ -90,6 +90,17 @@ def test_missing_parameter_is_one_clear_line(ros_domain: str) -> None:
     assert "parameter 'rig_file' is required" in res.stderr and "Traceback" not in res.stderr
 
 
+@pytest.mark.parametrize("value", ["0.0", "-0.05", ".nan"])
+def test_a_texture_threshold_that_is_not_a_positive_px_is_refused(tiny_recording: Path, ros_domain: str,
+                                                                   value: str) -> None:
+    # NaN would pass every subset (no comparison is true), <= 0 would refuse every one as "too little texture"
+    res = subprocess.run([sys.executable, "-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p",
+                          f"rig_file:={tiny_recording / 'rig.yaml'}", "-p", f"max_subset_sigma_px:={value}"],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == 2, res.stderr
+    assert "'max_subset_sigma_px' must be a positive" in res.stderr and "Traceback" not in res.stderr
+
+
 def test_a_misspelt_stream_to_keep_history_for_is_refused_not_waited_for(tiny_recording: Path,
                                                                           ros_domain: str) -> None:
     # a stream name no node ever finishes would keep the node up until the run's timeout

@@ -91,6 +91,9 @@ class DicTrackerNode(Node):
             raise RecordingError("dic_tracker: parameter 'rig_file' is required")
         if self.frames_expected < 0:
             raise RecordingError(f"dic_tracker: parameter 'frames_expected' must be >= 0, got {self.frames_expected}")
+        if not (math.isfinite(self.max_subset_sigma_px) and self.max_subset_sigma_px > 0):
+            raise RecordingError(f"dic_tracker: parameter 'max_subset_sigma_px' must be a positive number of px, "
+                                 f"got {self.max_subset_sigma_px}")
         if self.method not in METHODS:
             raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
         self.rig = load_rig(rig_file)
