@@ -88,15 +88,14 @@ def reference_run(tmp_path_factory) -> dict:
 
 def _make_reference_run(tmp: Path) -> None:
     import json
-    import shutil
     import subprocess
     import sys
     import time
 
     from vibro_sim.synth import SynthConfig, synthesize
 
-    if tmp.exists():
-        shutil.rmtree(tmp)  # a run that failed half-way
+    if tmp.exists():  # a run that failed half-way: kept beside (its logs say why), not reused
+        tmp.rename(tmp.with_name(f"{tmp.name}.failed-{time.time_ns()}"))
     tmp.mkdir(parents=True)
     rec = tmp / "rec"
     synthesize(rec, SynthConfig(frames=300, seed=11, effects={"asymmetric_restitution": {}}), progress=False)

@@ -117,3 +117,10 @@ def test_installed_nodes_run_with_the_installed_params_file_under_a_namespace(
     assert source_params == {**lab, "recording": str(tiny_recording)}
     for proc, err in zip(procs, errs):
         assert proc.returncode == 0 and "Traceback" not in err, err
+
+
+def test_the_installed_vibro_ros_carries_its_fast_dds_profile(colcon_install: Path) -> None:
+    # run_node points Fast DDS at vibro_ros/fastdds_profile.xml beside the module: it must be installed too
+    found = list((colcon_install / "vibro_ros").rglob("vibro_ros/fastdds_profile.xml"))
+    assert found, "fastdds_profile.xml missing from the colcon install of vibro_ros"
+    assert found[0].read_text() == (SRC / "vibro_ros" / "vibro_ros" / "fastdds_profile.xml").read_text()

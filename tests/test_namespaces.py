@@ -86,6 +86,9 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
             # tracker stays up after the stream (exit_when_done false) so that its parameters can be read
             params["dic_tracker"].update(zncc_min=zncc_min, readers=["frame_source"], exit_when_done=False)
             params["frame_source"]["readers"] = ["dic_tracker"]
+            # the probe is no declared reader, and discovering a node took it 2-3 s here: the source streams at
+            # 1 frame/s (its diagnostics go out every 1 s) so that it is still up when the probe matches it
+            params["frame_source"]["rate_hz"] = 1.0
             params_file = write_params_file(params, tmp_path / f"params{ns.replace('/', '_')}.yaml")
             procs.append(_start_node("vibro_dic.dic_tracker_node", ns, params_file))
             procs.append(_start_node("vibro_dic.frame_source_node", ns, params_file))

@@ -148,7 +148,8 @@ def test_tracker_diagnostics_report_progress_against_the_expected_frame_count(ti
     echo = _start(str(HERE / "ros_echo.py"), "diagnostic_msgs/msg/DiagnosticArray", "/diagnostics",
                   "--count", "1000", "--seconds", "60")
     tracker = _start("-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p", f"rig_file:={rec / 'rig.yaml'}",
-                     "-p", "readers:=[frame_source]", "-p", f"frames_expected:={n + 3}")
+                     # the echo is a declared reader too: the tracker waits for it, and for its acknowledgements
+                     "-p", "readers:=[frame_source,vibro_test_echo]", "-p", f"frames_expected:={n + 3}")
     try:
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(

@@ -66,3 +66,90 @@ def test_recorder_keeps_waiting_while_a_writers_streams_have_not_ended(tmp_path:
         if recorder.poll() is None:
             recorder.send_signal(2)
         recorder.communicate(timeout=30)
+
+
+#: a writer named impact_detector that publishes ``n`` impacts, announces ``announced`` as its final count,
+#: and then stays up: to the recorder, a writer whose listing in the ROS graph never goes away
+LINGERING_WRITER = """
+import sys, time, rclpy
+from vibro_msgs.msg import AccelImpact, StreamStatus
+from vibro_ros.node_support import RESULTS_QOS
+from rclpy.duration import Duration
+n, announced, seconds = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+rclpy.init(args=sys.argv)
+node = rclpy.create_node("impact_detector")
+impacts = node.create_publisher(AccelImpact, "vibro/accel_impacts", RESULTS_QOS)
+status = node.create_publisher(StreamStatus, "vibro/status", RESULTS_QOS)
+start = time.monotonic()  # the recorder must have matched both topics before anything goes out
+while (impacts.get_subscription_count() == 0 or status.get_subscription_count() == 0) and time.monotonic() < start + 40:
+    rclpy.spin_once(node, timeout_sec=0.1)
+for k in range(n):
+    impacts.publish(AccelImpact(index=k))
+status.publish(StreamStatus(stream="accel_impacts", items_sent=announced, items_lost=0, finished=True))
+for pub in (impacts, status):
+    pub.wait_for_all_acked(Duration(seconds=10))
+end = time.monotonic() + seconds  # then up ``seconds`` more
+while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.5)
+"""
+
+
+def _recorder_and_lingering_writer(bag: Path, namespace: str, n: int, announced: int, seconds: float):
+    ns = ["-r", f"__ns:={namespace}"]
+    recorder = subprocess.Popen([sys.executable, "-m", "vibro_bringup.recorder_node", "--ros-args", *ns,
+                                 "-p", f"bag:={bag}", "-p", "writers:=[impact_detector]",
+                                 "-p", "stale_listing_s:=2.0"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    writer = subprocess.Popen([sys.executable, "-c", LINGERING_WRITER, str(n), str(announced), str(seconds),
+                               "--ros-args", *ns], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return recorder, writer
+
+
+def test_recorder_ends_on_a_stale_listing_once_every_announced_item_arrived(tmp_path: Path, ros_domain: str) -> None:
+    # seen in CI: every writer had exited, yet the recorder's graph view listed one for over 60 s
+    from vibro_ros.bags import read_messages
+
+    recorder, writer = _recorder_and_lingering_writer(tmp_path / "bag", "/lab9", 5, 5, 40)
+    try:
+        t0 = time.monotonic()
+        out, err = recorder.communicate(timeout=60)
+        elapsed = time.monotonic() - t0
+    finally:
+        for p in (recorder, writer):
+            if p.poll() is None:
+                p.kill()
+            p.communicate()
+    assert recorder.returncode == 0, err
+    assert "impact_detector still listed as publishing" in err and "taken as gone" in err, err
+    assert elapsed < 40, elapsed  # it ended on the stale rule, not on the writer leaving
+    recorded = list(read_messages(tmp_path / "bag", {"vibro/accel_impacts"}))
+    assert len(recorded) == 5
+
+
+def test_recorder_does_not_take_a_listed_writer_as_gone_while_announced_items_are_missing(
+        tmp_path: Path, ros_domain: str) -> None:
+    recorder, writer = _recorder_and_lingering_writer(tmp_path / "bag", "/lab10", 3, 5, 30)
+    try:
+        time.sleep(14)  # the writer stays up 30 s: this is far past the 2 s stale rule
+        assert recorder.poll() is None, recorder.communicate()[1]
+    finally:
+        for p in (recorder, writer):
+            if p.poll() is None:
+                p.send_signal(2)
+        out, err = recorder.communicate(timeout=30)
+        writer.communicate(timeout=30)
+    assert "items not received yet: accel_impacts 3 of 5" in err, err
+
+
+def test_recorder_says_what_did_not_come_when_a_writer_leaves_short(tmp_path: Path, ros_domain: str) -> None:
+    # the writer announces 5 impacts, sends 3 and leaves: the recorder waits its grace, then ends saying so
+    recorder, writer = _recorder_and_lingering_writer(tmp_path / "bag", "/lab11", 3, 5, 3)
+    try:
+        out, err = recorder.communicate(timeout=60)
+    finally:
+        for p in (recorder, writer):
+            if p.poll() is None:
+                p.kill()
+            p.communicate()
+    assert recorder.returncode == 0, err
+    assert "items received of those announced: accel_impacts 3 of 5" in err, err

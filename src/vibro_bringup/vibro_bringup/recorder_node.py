@@ -42,6 +42,12 @@ def message_class(ros_type: str):
 
 
 class Recorder(Node):
+    #: rclpy's SingleThreadedExecutor: under rclpy 7.1's EventsExecutor the recorder's timers (17: topic
+    #: discovery, flushing, end of inputs, one per adaptive subscription) were seen to stop firing for 10-60 s
+    #: while its subscriptions still ran (1 of 6 loaded runs; 0 of 9 with this executor), so the bag stayed
+    #: open long after every writer had gone (a CI timeout)
+    EXECUTOR = "single"
+
     def __init__(self) -> None:
         super().__init__("recorder")
         bag = declare(self, "bag", "", "bag directory to create (rosbag2, MCAP storage)")
@@ -81,8 +87,15 @@ class Recorder(Node):
         self.create_timer(0.2, self.writer.flush_if_due)
         self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag}")
         # file mode: ends once every declared writer has come and gone (they wait for this recorder)
-        self.inputs = WriterWatch(self, list(self.pending))
+        self.received: dict[str, int] = {}  # fully qualified topic -> messages received
+        stream_topic = {t.name.rsplit("/", 1)[-1]: self.resolve_topic_name(t.name) for t in topics.ALL_TOPICS}
+        self.inputs = WriterWatch(self, list(self.pending), received=lambda stream: self._received(stream_topic, stream))
         self.done = self.inputs.done
+
+    def _received(self, stream_topic: dict[str, str], stream: str) -> int | None:
+        """Messages received on ``stream``'s topic (None: a topic this recorder does not record)."""
+        topic = stream_topic.get(stream, "")
+        return self.received.get(topic, 0) if topic in self.subscriptions_by_topic else None
 
     def _discover(self, final: bool = False) -> None:
         """Write the channel of each topic whose publishers are discovered, with their offered profiles."""
@@ -106,6 +119,7 @@ class Recorder(Node):
 
     def _on_message(self, topic: str, data: bytes) -> None:
         stamp_ns = self.get_clock().now().nanoseconds
+        self.received[topic] = self.received.get(topic, 0) + 1
         held = self._held.get(topic)
         if held is not None:  # channel not written yet: its publishers' QoS is still being discovered
             held.append((stamp_ns, data))

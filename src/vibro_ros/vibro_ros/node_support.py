@@ -239,20 +239,24 @@ class StatusPublisher:
             self.publish(*self._last)
 
 
-def flush_publishers(node: Node, timeout_s: float = 3.0) -> None:
+def flush_publishers(node: Node, timeout_s: float = 3.0) -> list[str]:
     """Wait (bounded) until subscribers acknowledged what this node published, so that a node that
-    ends by itself does not take its last messages (e.g. an end-of-stream status) with it."""
+    ends by itself does not take its last messages (e.g. an end-of-stream status) with it. Returns the
+    topics still unacknowledged after ``timeout_s`` (also logged: what a reader may have missed)."""
     from rclpy.duration import Duration
 
     deadline = time.monotonic() + timeout_s
+    unacknowledged = []
     for pub in list(node.publishers):
-        left = deadline - time.monotonic()
-        if left <= 0:
-            break
         try:
-            pub.wait_for_all_acked(Duration(seconds=left))
+            if not pub.wait_for_all_acked(Duration(seconds=max(0.0, deadline - time.monotonic()))):
+                unacknowledged.append(pub.topic_name)
         except Exception:  # best effort: a publisher without reliable readers has nothing to wait for
             pass
+    if unacknowledged:
+        node.get_logger().warning(f"exiting with messages not acknowledged after {timeout_s:g} s on "
+                                  f"{', '.join(sorted(set(unacknowledged)))} (a reader may have missed them)")
+    return unacknowledged
 
 
 #: Executors a node can spin in (environment variable ``VIBRO_EXECUTOR``). ``events`` (rclpy's
@@ -261,11 +265,12 @@ def flush_publishers(node: Node, timeout_s: float = 3.0) -> None:
 EXECUTORS = ("events", "single")
 
 
-def make_executor():
-    """The executor named by ``VIBRO_EXECUTOR`` (default ``events``); RecordingError for an unknown name."""
+def make_executor(default: str = "events"):
+    """The executor named by ``VIBRO_EXECUTOR``, else ``default`` (a node class's ``EXECUTOR``);
+    RecordingError for an unknown name."""
     from vibro_io.errors import RecordingError
 
-    kind = os.environ.get("VIBRO_EXECUTOR", "events") or "events"
+    kind = os.environ.get("VIBRO_EXECUTOR", "") or default
     if kind == "events":
         from rclpy.experimental import EventsExecutor
 
@@ -322,6 +327,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
     from vibro_io.errors import RecordingError
 
+    from .dds_profile import use_vibro_dds_profile
     from .node_help import handle_command_line
 
     argv = list(sys.argv if args is None else args)
@@ -331,12 +337,13 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _note_stop)
+    use_vibro_dds_profile()  # acknowledgements in 0.1 s, so the node's end-of-stream wait is short
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
     try:
         node = factory()
-        executor = make_executor()
+        executor = make_executor(getattr(node, "EXECUTOR", "events"))
         executor.add_node(node)
         done = getattr(node, "done", None)
         spin_until_done(executor, done)
@@ -353,6 +360,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             raise
         # a callback that ran while SIGINT/SIGTERM was shutting the context down: clean stop
     finally:
+        cleanup_from = time.monotonic()
+        name = node.get_fully_qualified_name() if node is not None else ""
         if node is not None:  # a stop signal during this cleanup is only noted (_note_stop), never raised
             close = getattr(node, "close", None)
             if close is not None:
@@ -368,6 +377,9 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown(uninstall_handlers=False)  # uninstalling what was never installed: SIGINT -> SIG_DFL
+        if name:  # when it left the ROS graph, for a reader of the logs (its peers' view of it may lag)
+            print(f"[{time.time():.6f}] {name}: left the ROS graph with exit code {code} (cleanup {time.monotonic() - cleanup_from:.2f} s)",
+                  file=sys.stderr, flush=True)
     for sig in (signal.SIGINT, signal.SIGTERM):
         # the node has stopped; the interpreter's finalisation resets Python handlers to SIG_DFL (not SIG_IGN),
         # so a second Ctrl-C arriving now would still kill the process with -2

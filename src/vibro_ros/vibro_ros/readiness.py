@@ -238,10 +238,24 @@ def streams_published_by(node_name: str) -> set[str]:
 class WriterWatch:
     """A sink's inputs have ended: every declared writer (parameter ``writers``) has been seen publishing
     on ``topic_names`` (this node's namespace) and all of them have left since. Writers wait for their
-    declared readers' acknowledgements before they exit, so by then everything has arrived; ``done``
-    completes ``drain_s`` later (callbacks still queued), when ``exit_when_done``."""
+    declared readers' acknowledgements before they exit, so by then everything has arrived in DDS; ``done``
+    completes (when ``exit_when_done``) once this node's callbacks have also taken every writer's
+    end-of-stream statuses and every item they announced (``received``), ``drain_s`` after the writers left
+    at the earliest, ``grace_s`` at the latest (then with a warning naming what did not come).
 
-    def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5):
+    The ROS graph view is DDS discovery, which can lag or miss a change under load, so the writers'
+    end-of-stream statuses (vibro/status) also count: a writer never listed whose streams all ended is taken
+    as gone at once; a writer still listed ``stale_after_s`` after the last stream ended, with every item the
+    streams announced received (``received``: items received per stream, None for a stream this node does
+    not take), is taken as gone too (a stale
+    listing: seen in a CI run, the recorder waited over 60 s after every writer had exited). Both are logged
+    as warnings; the graph runner's count check (recorded vs announced) still follows."""
+
+    REPORT_EVERY_S = 5.0
+
+    def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5,
+                 stale_after_s: float = 15.0, received: Callable[[str], int | None] | None = None,
+                 grace_s: float = 5.0):
         from rcl_interfaces.msg import ParameterDescriptor as Descriptor
 
         from .node_support import run_id_parameter
@@ -250,20 +264,33 @@ class WriterWatch:
             description="node names whose outputs this node takes; it exits once all have come and gone "
                         "(with exit_when_done)", read_only=True))
         self.writers = sorted({str(w).strip() for w in node.get_parameter("writers").value if str(w).strip()})
+        node.declare_parameter("stale_listing_s", float(stale_after_s), Descriptor(
+            description="s after every writer's streams ended (all announced items received) after which "
+                        "writers still listed in the ROS graph are taken as gone (a stale discovery view)",
+            read_only=True))
+        self.stale_after_s = float(node.get_parameter("stale_listing_s").value)
+        if not self.stale_after_s > 0:
+            from vibro_io.errors import RecordingError
+
+            raise RecordingError(f"{node.get_name()}: parameter 'stale_listing_s' must be > 0 s, "
+                                 f"got {self.stale_after_s}")
         _, _, self.exit_when_done = declare_readiness_parameters(node)
         self.node = node
         self.topic_names = [node.resolve_topic_name(t) for t in topic_names]
         self.drain_s = drain_s
+        self.grace_s = grace_s
+        self.received = received
         self.seen: set[str] = set()
         self.done = Future()
         self.exit_code = 0
         self._ended_at: float | None = None
-        # A writer's end-of-stream statuses also say it is done: DDS has been seen (two graphs on one domain,
-        # loaded machine) to deliver a writer's data while this node's ROS graph view never lists it.
         self._run_id = run_id_parameter(node)
         self.finished_streams: set[str] = set()
+        self.announced: dict[str, int] = {}  # stream -> items its final status announced
         self.streams_of = {w: streams_published_by(w) for w in self.writers}
         self._unlisted_logged: set[str] = set()
+        self._all_ended_at: float | None = None
+        self._last_report: float | None = None
         if self.writers and self.exit_when_done:
             from .adaptive_qos import results_subscription
 
@@ -272,7 +299,9 @@ class WriterWatch:
 
     def _on_status(self, msg: StreamStatus) -> None:
         if msg.finished and (not self._run_id or not msg.run_id or msg.run_id == self._run_id):
-            self.finished_streams.add(str(msg.stream))
+            stream = str(msg.stream)
+            self.finished_streams.add(stream)
+            self.announced[stream] = max(self.announced.get(stream, 0), int(msg.items_sent))
 
     def _ended_unlisted(self) -> set[str]:
         """Writers never listed in the graph whose every stream has announced its end."""
@@ -290,15 +319,71 @@ class WriterWatch:
         return {i.node_name for t in self.topic_names for i in self.node.get_publishers_info_by_topic(t)
                 if i.node_namespace == ns and i.node_name in self.writers}
 
+    def missing_items(self) -> dict[str, tuple[int, int]]:
+        """stream -> (received, announced) for the ended streams with fewer items received than announced
+        (empty without a ``received`` counter: nothing to compare)."""
+        if self.received is None:
+            return {}
+        counts = {s: (self.received(s), n) for s, n in self.announced.items()}
+        return {s: c for s, c in counts.items() if c[0] is not None and c[0] < c[1]}
+
     def _poll(self) -> None:
         if self.done.done():
             return
+        now = time.monotonic()
         now_present = self.present()
         self.seen |= now_present
+        all_ended = bool(self.writers) and all(self.streams_of[w] <= self.finished_streams for w in self.writers)
+        self._all_ended_at = (self._all_ended_at or now) if all_ended else None
+        if now_present and self._stale(now_present, now):
+            now_present = set()
         if (self.seen | self._ended_unlisted()) >= set(self.writers) and not now_present:
-            self._ended_at = self._ended_at or time.monotonic()
-            if time.monotonic() - self._ended_at >= self.drain_s:
+            self._ended_at = self._ended_at or now
+            # every end-of-stream status and announced item taken (not only sent: callbacks may still be
+            # queued in this node), or the grace for them is over
+            complete = self._all_ended_at is not None and not self.missing_items()
+            if (complete and now - self._ended_at >= self.drain_s) or now - self._ended_at >= self.grace_s:
+                if not complete:
+                    self._warn_incomplete()
                 self.node.get_logger().info(f"inputs ended: {', '.join(self.writers)} came and went")
                 self.done.set_result(True)
         else:
             self._ended_at = None
+            self._report_waiting(now_present, now)
+
+    def _warn_incomplete(self) -> None:
+        silent = sorted(w for w in self.writers if not self.streams_of[w] <= self.finished_streams)
+        short = "; ".join(f"{s} {got} of {n}" for s, (got, n) in sorted(self.missing_items().items()))
+        self.node.get_logger().warning(
+            f"the writers left {self.grace_s:g} s ago"
+            + (f"; no end-of-stream status from {', '.join(silent)}" if silent else "")
+            + (f"; items received of those announced: {short}" if short else "") + ": ending with what came")
+
+    def _stale(self, listed: set[str], now: float) -> bool:
+        """Whether the writers still ``listed`` are a stale listing: every stream ended ``stale_after_s`` ago
+        and every announced item received."""
+        if self._all_ended_at is None or now - self._all_ended_at < self.stale_after_s or self.missing_items():
+            return False
+        if not getattr(self, "_stale_logged", False):
+            self._stale_logged = True
+            self.node.get_logger().warning(
+                f"{', '.join(sorted(listed))} still listed as publishing {now - self._all_ended_at:.0f} s after "
+                "every input stream ended with all announced items received: taken as gone (a stale ROS graph "
+                "view)")
+        return True
+
+    def _report_waiting(self, listed: set[str], now: float) -> None:
+        """Every ``REPORT_EVERY_S`` once every writer's streams have ended, say which writers this node still
+        waits for and why (still listed as publishing, never seen, items not received)."""
+        if self._all_ended_at is None:
+            return
+        last = self._last_report or self._all_ended_at
+        if now - last < self.REPORT_EVERY_S:
+            return
+        self._last_report = now
+        unseen = sorted(set(self.writers) - self.seen)
+        short = "; ".join(f"{s} {got} of {n}" for s, (got, n) in sorted(self.missing_items().items()))
+        self.node.get_logger().warning(
+            f"every input stream announced its end {now - self._all_ended_at:.0f} s ago; still listed as "
+            f"publishing: {', '.join(sorted(listed)) or 'none'}; never seen: {', '.join(unseen) or 'none'}"
+            + (f"; items not received yet: {short}" if short else ""))
