@@ -37,17 +37,23 @@ def _recorder_and_announcer(bag: Path, namespace: str, script: str, seconds: int
     return recorder, announcer
 
 
-def test_recorder_ends_when_an_unlisted_writers_streams_have_ended(tmp_path: Path, ros_domain: str) -> None:
-    recorder, announcer = _recorder_and_announcer(tmp_path / "bag", "/lab7", ANNOUNCER, 20)
+def _wait_for_recorder(recorder: subprocess.Popen, other: subprocess.Popen) -> tuple[str, float]:
+    """The recorder's stderr once it has exited (up to 60 s), and how long that took; both processes end."""
     try:
         t0 = time.monotonic()
-        out, err = recorder.communicate(timeout=60)
+        _, err = recorder.communicate(timeout=60)
         elapsed = time.monotonic() - t0
     finally:
-        for p in (recorder, announcer):
+        for p in (recorder, other):
             if p.poll() is None:
                 p.kill()
             p.communicate()
+    return err, elapsed
+
+
+def test_recorder_ends_when_an_unlisted_writers_streams_have_ended(tmp_path: Path, ros_domain: str) -> None:
+    recorder, announcer = _recorder_and_announcer(tmp_path / "bag", "/lab7", ANNOUNCER, 20)
+    err, elapsed = _wait_for_recorder(recorder, announcer)
     assert recorder.returncode == 0, err
     assert "impact_detector never appeared in this node's ROS graph view" in err, err
     assert "accel_impacts" in err and "Traceback" not in err
@@ -110,15 +116,7 @@ def test_recorder_ends_on_a_stale_listing_once_every_announced_item_arrived(tmp_
     from vibro_ros.bags import read_messages
 
     recorder, writer = _recorder_and_lingering_writer(tmp_path / "bag", "/lab9", 5, 5, 40)
-    try:
-        t0 = time.monotonic()
-        out, err = recorder.communicate(timeout=60)
-        elapsed = time.monotonic() - t0
-    finally:
-        for p in (recorder, writer):
-            if p.poll() is None:
-                p.kill()
-            p.communicate()
+    err, elapsed = _wait_for_recorder(recorder, writer)
     assert recorder.returncode == 0, err
     assert "impact_detector still listed as publishing" in err and "taken as gone" in err, err
     assert elapsed < 40, elapsed  # it ended on the stale rule, not on the writer leaving
@@ -144,12 +142,6 @@ def test_recorder_does_not_take_a_listed_writer_as_gone_while_announced_items_ar
 def test_recorder_says_what_did_not_come_when_a_writer_leaves_short(tmp_path: Path, ros_domain: str) -> None:
     # the writer announces 5 impacts, sends 3 and leaves: the recorder waits its grace, then ends saying so
     recorder, writer = _recorder_and_lingering_writer(tmp_path / "bag", "/lab11", 3, 5, 3)
-    try:
-        out, err = recorder.communicate(timeout=60)
-    finally:
-        for p in (recorder, writer):
-            if p.poll() is None:
-                p.kill()
-            p.communicate()
+    err, _ = _wait_for_recorder(recorder, writer)
     assert recorder.returncode == 0, err
     assert "items received of those announced: accel_impacts 3 of 5" in err, err
