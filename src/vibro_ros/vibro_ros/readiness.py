@@ -291,6 +291,7 @@ class WriterWatch:
         self._unlisted_logged: set[str] = set()
         self._all_ended_at: float | None = None
         self._last_report: float | None = None
+        self._stale_logged = False
         if self.writers and self.exit_when_done:
             from .adaptive_qos import results_subscription
 
@@ -351,9 +352,13 @@ class WriterWatch:
             self._ended_at = None
             self._report_waiting(now_present, now)
 
+    def _missing_text(self) -> str:
+        """The missing items as "stream received of announced; ..." ("" when none)."""
+        return "; ".join(f"{s} {got} of {n}" for s, (got, n) in sorted(self.missing_items().items()))
+
     def _warn_incomplete(self) -> None:
         silent = sorted(w for w in self.writers if not self.streams_of[w] <= self.finished_streams)
-        short = "; ".join(f"{s} {got} of {n}" for s, (got, n) in sorted(self.missing_items().items()))
+        short = self._missing_text()
         self.node.get_logger().warning(
             f"the writers left {self.grace_s:g} s ago"
             + (f"; no end-of-stream status from {', '.join(silent)}" if silent else "")
@@ -364,7 +369,7 @@ class WriterWatch:
         and every announced item received."""
         if self._all_ended_at is None or now - self._all_ended_at < self.stale_after_s or self.missing_items():
             return False
-        if not getattr(self, "_stale_logged", False):
+        if not self._stale_logged:
             self._stale_logged = True
             self.node.get_logger().warning(
                 f"{', '.join(sorted(listed))} still listed as publishing {now - self._all_ended_at:.0f} s after "
@@ -382,7 +387,7 @@ class WriterWatch:
             return
         self._last_report = now
         unseen = sorted(set(self.writers) - self.seen)
-        short = "; ".join(f"{s} {got} of {n}" for s, (got, n) in sorted(self.missing_items().items()))
+        short = self._missing_text()
         self.node.get_logger().warning(
             f"every input stream announced its end {now - self._all_ended_at:.0f} s ago; still listed as "
             f"publishing: {', '.join(sorted(listed)) or 'none'}; never seen: {', '.join(unseen) or 'none'}"
