@@ -47,6 +47,34 @@ def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, t
     assert live["dic_tracker"].parameters["readers"] == ["discrepancy", "simulator", "trajectory_fitter"]
 
 
+def test_reader_topics_pair_every_declared_reader_with_topics_the_node_publishes(recording: Path, tmp_path: Path
+                                                                                 ) -> None:
+    import yaml
+
+    from vibro_bringup.graph_spec import ALL_SPECS, default_params_file, launch_nodes
+
+    for node in launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path):
+        if node.spec.role == "sink":
+            assert "reader_topics" not in node.parameters
+            continue
+        pairs = [tuple(p.split("=")) for p in node.parameters["reader_topics"] if p]
+        published = set(node.spec.publishes) | {"vibro/status"}
+        assert {r for r, _ in pairs} == set(node.parameters["readers"]) - {""}, node.spec.name
+        assert all(t in published and t in ALL_SPECS[r].subscribes for r, t in pairs), (node.spec.name, pairs)
+    simulator = next(n for n in launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path)
+                     if n.spec.name == "simulator")
+    assert "recorder=vibro/simulation" in simulator.parameters["reader_topics"]  # not only its vibro/status
+    # a recorder told not to record the frames is not waited for on them (it never subscribes)
+    base = yaml.safe_load(default_params_file().read_text())
+    key = next(k for k in base if k.endswith("recorder"))
+    base[key]["ros__parameters"]["exclude_topics"] = ["vibro/frames"]
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(base))
+    source = next(n for n in launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path,
+                                          base=tmp_path / "p.yaml") if n.spec.name == "frame_source")
+    assert "recorder=vibro/status" in source.parameters["reader_topics"]
+    assert "recorder=vibro/frames" not in source.parameters["reader_topics"]
+
+
 def test_launch_in_any_order_equals_vibro_graph(recording: Path, reference_run: dict, tmp_path: Path) -> None:
     from vibro_bringup.bag_results import results_from_bag
     from vibro_bringup.graph_spec import launch_nodes
@@ -147,3 +175,56 @@ def test_readers_are_matched_by_name_in_the_nodes_namespace_or_the_node_fails(ti
     assert re.search(r"declared readers dic_tracker never matched [^;]*/here/vibro/frames", res.stderr), res.stderr
     assert "waiting for readers dic_tracker" in res.stderr  # said while waiting, before failing
     assert "streaming:" not in res.stderr and "Traceback" not in res.stderr
+
+
+_LATE_READER = r'''
+import sys, time
+import rclpy
+from sensor_msgs.msg import Image
+from vibro_msgs.msg import StreamStatus
+from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS
+rclpy.init()
+node = rclpy.create_node("probe", namespace="/here")
+node.create_subscription(StreamStatus, "vibro/status", lambda m: None, RESULTS_QOS)
+got = []
+start = time.monotonic()
+while time.monotonic() - start < float(sys.argv[1]):  # seen on vibro/status only, for a while
+    rclpy.spin_once(node, timeout_sec=0.05)
+node.create_subscription(Image, "vibro/frames", got.append, STREAM_QOS)
+print("subscribed to frames", flush=True)
+while len(got) < int(sys.argv[2]) and time.monotonic() - start < 60:
+    rclpy.spin_once(node, timeout_sec=0.05)
+print(f"frames received {len(got)}", flush=True)
+'''
+
+
+def test_a_reader_counts_only_once_matched_on_each_of_its_topics(tiny_recording: Path, ros_domain: str) -> None:
+    """Each subscription of a node is discovered on its own: a reader seen on vibro/status is not yet a reader of
+    vibro/frames. With reader_topics (the node table's pairs) the source streams only once its reader is matched
+    on the frames too; counted as present on any topic, it sent all 5 frames before the reader's frames
+    subscription existed, and they were lost (volatile stream) -- the CI run that recorded 0 of 2 vibro/simulation."""
+    from vibro_io.recording import open_recording
+
+    frames = len(open_recording(tiny_recording).frames)
+    probe = subprocess.Popen([sys.executable, "-c", _LATE_READER, "3.0", str(frames)], stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True)
+    try:
+        res = subprocess.run([*_main_of("vibro_dic.frame_source_node"), "--ros-args", "-r", "__ns:=/here",
+                              "-p", f"recording:={tiny_recording}", "-p", "readers:=[probe]",
+                              "-p", "reader_topics:=[probe=vibro/frames, probe=vibro/status]",
+                              "-p", "wait_for_readers_s:=30.0"], capture_output=True, text=True, timeout=90)
+        out, _ = probe.communicate(timeout=90)
+    finally:
+        if probe.poll() is None:
+            probe.kill()
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "subscribed to frames" in out and f"frames received {frames}" in out, out + res.stderr
+
+
+def test_reader_topics_must_name_a_topic_the_node_publishes(tiny_recording: Path, ros_domain: str) -> None:
+    res = subprocess.run([*_main_of("vibro_dic.frame_source_node"), "--ros-args",
+                          "-p", f"recording:={tiny_recording}", "-p", "readers:=[dic_tracker]",
+                          "-p", "reader_topics:=[dic_tracker=vibro/frame]"], capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stdout + res.stderr
+    assert "reader_topics" in res.stderr and "/vibro/frame " in res.stderr, res.stderr

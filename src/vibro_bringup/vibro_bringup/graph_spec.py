@@ -13,6 +13,9 @@ from vibro_ros.lab_clock import TIME_ORIGIN_PARAMETER
 
 #: The in-process node ``vibro graph`` watches the graph with; a declared reader of every node there.
 MONITOR = "vibro_graph_monitor"
+#: The topics the monitor subscribes to (cmd_graph.Monitor).
+MONITOR_SUBSCRIBES = (T.STATUS.name, T.DIC.name, T.IMPACTS.name, T.SIMULATION.name, T.DISCREPANCY.name,
+                      T.ACCEL.name, T.ACCEL_IMPACTS.name)
 
 
 @dataclass(frozen=True)
@@ -117,6 +120,25 @@ def history_kept_until(name: str, present: Iterable[str]) -> list[str]:
 def readers_of(name: str, present: Iterable[str]) -> list[str]:
     """The declared readers of node ``name`` among the nodes ``present``."""
     return sorted(n for n in set(present) if n != name and _reads(ALL_SPECS[n], ALL_SPECS[name]))
+
+
+def reader_topics_of(name: str, readers: Iterable[str], excluded: Iterable[str] = ()) -> list[str]:
+    """``reader=topic`` pairs for node ``name``'s parameter ``reader_topics``: each of ``readers`` must be matched on
+    every topic of ``name`` (its data topics and vibro/status) that it subscribes to (the monitor: MONITOR_SUBSCRIBES;
+    the recorder: all but its ``excluded`` topics). /diagnostics is not waited for."""
+    published = set(ALL_SPECS[name].publishes) | {T.STATUS.name}
+    pairs = []
+    for reader in sorted(set(readers)):
+        if reader == MONITOR:
+            subscribed = set(MONITOR_SUBSCRIBES)
+        elif reader in ALL_SPECS:
+            subscribed = set(ALL_SPECS[reader].subscribes)
+            if ALL_SPECS[reader].role == "sink":  # as the recorder takes exclude_topics: relative or qualified
+                subscribed = {t for t in subscribed if not any(x == t or x.endswith("/" + t) for x in excluded)}
+        else:
+            continue  # a reader the table does not know: matched on any topic
+        pairs += [f"{reader}={topic}" for topic in sorted(published & subscribed)]
+    return pairs
 
 
 def writers_of(name: str, present: Iterable[str]) -> list[str]:
@@ -277,6 +299,9 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
             p.update(foxglove or {})
             continue
         p["readers"] = readers_of(name, present) + sorted(set(extra_readers) - set(present))
+        if ALL_SPECS[name].role != "sink":  # a sink's outputs are files: it has no reader to wait for
+            excluded = [t for t in params.get("recorder", {}).get("exclude_topics", []) if t]
+            p["reader_topics"] = reader_topics_of(name, p["readers"], excluded) or [""]
         p["exit_when_done"] = not live
         p["keep_history_until"] = history_kept_until(name, present) or [""]
         if ALL_SPECS[name].role == "sink":

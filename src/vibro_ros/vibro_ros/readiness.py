@@ -6,7 +6,11 @@ launch file and ``vibro graph`` pass that list to the node as the parameter ``re
 
 * a source sends nothing, and ``dic_tracker`` holds its results, until every declared reader
   is matched on the node's topics (seen by node name in its own namespace in the ROS graph,
-  and counted as matched by DDS, for ``settle_s``) -- :attr:`ReaderGate.open`;
+  and counted as matched by DDS, for ``settle_s``) -- :attr:`ReaderGate.open`. With
+  ``reader_topics`` (``reader=topic`` pairs, from the node table) a reader counts only once it is
+  matched on every topic listed for it: each subscription of a node is discovered on its own, so
+  being seen on one topic (vibro/status) says nothing of another (vibro/simulation); a reader
+  without pairs counts once seen on any of the node's topics;
 * a node that has finished (``finish()``) exits only once every declared reader it still
   expects is matched and has acknowledged everything the node published, so its latched
   results and end-of-stream status reach readers that started late. A reader seen earlier
@@ -41,6 +45,7 @@ from . import topics
 
 #: Parameter names, one definition for the nodes and the node table.
 READERS = "readers"
+READER_TOPICS = "reader_topics"
 WAIT_FOR_READERS_S = "wait_for_readers_s"
 EXIT_WHEN_DONE = "exit_when_done"
 
@@ -66,6 +71,33 @@ def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()
     if not wait_s > 0:
         raise RecordingError(f"{node.get_name()}: parameter '{WAIT_FOR_READERS_S}' must be > 0, got {wait_s}")
     return sorted(set(names)), wait_s, exit_when_done
+
+
+def declare_reader_topics(node: Node, readers: Sequence[str]) -> dict[str, set[str]]:
+    """Declare ``reader_topics`` (``reader=topic`` pairs: the topics of this node each declared reader must be
+    matched on) and return reader -> fully qualified topic names. Refuses a malformed pair; pairs of a reader
+    not in ``readers`` are ignored with a warning."""
+    from vibro_io.errors import RecordingError
+
+    from .node_support import declare
+
+    values = declare(node, READER_TOPICS, [""],
+                     "reader=topic pairs: a declared reader counts as matched only once it is matched on each topic "
+                     "listed for it (readers without a pair: on any of this node's topics)")
+    out: dict[str, set[str]] = {}
+    for value in (str(v).strip() for v in values):
+        if not value:
+            continue
+        reader, sep, topic = value.partition("=")
+        if not sep or not reader or not topic or "/" in reader:
+            raise RecordingError(f"{node.get_name()}: parameter '{READER_TOPICS}' takes reader=topic pairs "
+                                 f"(e.g. recorder=vibro/frames), got {value!r}")
+        out.setdefault(reader, set()).add(node.resolve_topic_name(topic))
+    ignored = sorted(set(out) - set(readers))
+    if ignored:  # e.g. 'readers' overridden in a params file: the pairs of a reader not waited for do not apply
+        node.get_logger().warning(f"parameter '{READER_TOPICS}' names {', '.join(ignored)}, not among the declared "
+                                  f"'{READERS}' {list(readers)}: their pairs are ignored")
+    return {r: t for r, t in out.items() if r in readers}
 
 
 def declare_keep_history_until(node: Node) -> list[str]:
@@ -97,6 +129,8 @@ class ReaderGate:
                  default_readers: Sequence[str] = ()):
         self.node = node
         self.readers, self.wait_s, self.exit_when_done = declare_readiness_parameters(node, default_readers)
+        self.reader_topics = declare_reader_topics(node, self.readers)
+        self._checked_topics = False
         self.keep_until = declare_keep_history_until(node)
         self.streams_ended: set[str] = set()
         if self.keep_until:
@@ -141,18 +175,33 @@ class ReaderGate:
 
     # ------------------------------------------------------------------ polling
     def _matched(self) -> set[str]:
-        """Declared readers subscribed to any of the publishers' topics, in this node's namespace, where DDS
-        has matched at least as many subscriptions as the ROS graph names."""
+        """Declared readers subscribed, in this node's namespace, to each of their ``reader_topics`` (a reader
+        without pairs: to any of the publishers' topics), where DDS has matched at least as many subscriptions
+        as the ROS graph names."""
         ns = self.node.get_namespace()
-        found: set[str] = set()
-        short = False
+        on_topic: dict[str, set[str]] = {}
         for pub in self.publishers:
             names = {i.node_name for i in self.node.get_subscriptions_info_by_topic(pub.topic_name)
                      if i.node_namespace == ns and i.node_name in self.readers}
             if pub.get_subscription_count() < len(names):
-                short = True  # named in the graph, not yet matched by DDS: not yet
-            found |= names
-        return set() if short else found
+                return set()  # named in the graph, not yet matched by DDS: not yet
+            on_topic[pub.topic_name] = names
+        anywhere = set().union(*on_topic.values()) if on_topic else set()
+        return {r for r in anywhere if all(r in on_topic.get(t, ()) for t in self.reader_topics.get(r, ()))}
+
+    def _check_reader_topics(self) -> bool:
+        """Every topic in ``reader_topics`` is one this node publishes (a typo would wait for a match that cannot
+        come, then blame the reader); otherwise fail with exit code 2 naming it."""
+        self._checked_topics = True
+        published = {p.topic_name for p in self.publishers}
+        unknown = sorted({t for ts in self.reader_topics.values() for t in ts} - published)
+        if unknown:
+            from vibro_io.errors import RecordingError
+
+            self.done.set_exception(RecordingError(
+                f"{self.node.get_name()}: parameter '{READER_TOPICS}' names topics this node does not publish: "
+                f"{', '.join(unknown)} (it publishes {', '.join(sorted(published))})"))
+        return not unknown
 
     def missing(self) -> list[str]:
         """Declared readers the node is waiting for now (at the end: not counting those that came and left)."""
@@ -176,7 +225,7 @@ class ReaderGate:
         return True
 
     def _poll(self) -> None:
-        if self.done.done():
+        if self.done.done() or (not self._checked_topics and not self._check_reader_topics()):
             return
         self._ticks += 1
         if self.open and not self._finishing and self._ticks % 10:
