@@ -83,8 +83,7 @@ class Recorder(Node):
                 self.subscriptions_by_topic[name] = ResultsSubscription(
                     self, message_class(topic.msg_type), topic.name, lambda data, n=name: self._on_message(n, data),
                     QOS_BY_KIND[topic.qos], raw=True)
-        self.create_timer(DISCOVERY_S, self._discover)
-        self.create_timer(0.2, self.writer.flush_if_due)
+        self.create_timer(DISCOVERY_S, self._tick)  # one timer: each costs the executor a wake-up
         self.get_logger().info(f"recording {', '.join(sorted(self.pending))} to {bag}")
         # file mode: ends once every declared writer has come and gone (they wait for this recorder)
         self.received: dict[str, int] = {}  # fully qualified topic -> messages received
@@ -96,6 +95,11 @@ class Recorder(Node):
         """Messages received on ``stream``'s topic (None: a topic this recorder does not record)."""
         topic = stream_topic.get(stream, "")
         return self.received.get(topic, 0) if topic in self.subscriptions_by_topic else None
+
+    def _tick(self) -> None:
+        if self.pending:
+            self._discover()
+        self.writer.flush_if_due()  # a quiet topic's last messages reach the disk within a second
 
     def _discover(self, final: bool = False) -> None:
         """Write the channel of each topic whose publishers are discovered, with their offered profiles."""

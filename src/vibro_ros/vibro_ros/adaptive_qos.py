@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 from collections import OrderedDict
+from weakref import WeakKeyDictionary
 from typing import Any, Callable
 
 from rclpy.node import Node
@@ -31,6 +32,15 @@ from .qos_format import profile_dict as _profile_dict
 
 #: How often a ResultsSubscription looks for publishers it cannot match (s).
 POLL_S = 0.5
+
+#: node -> the ResultsSubscriptions it holds, checked by one timer per node (a timer each cost the recorder
+#: 12 executor wake-ups a second, each rebuilding the wait set)
+_POLLED: "WeakKeyDictionary[Node, list[ResultsSubscription]]" = WeakKeyDictionary()
+
+
+def _poll_publishers_of(node: Node) -> None:
+    for sub in list(_POLLED.get(node, ())):
+        sub._check_publishers()
 
 
 def profile_dict(qos: QoSProfile) -> dict[str, Any]:
@@ -108,7 +118,10 @@ class ResultsSubscription:
         self._keep = max(2 * int(profile.depth), 1000)
         self.subscriptions = [node.create_subscription(msg_type, topic, self._on_message, profile, raw=True)]
         self.companion_profile: QoSProfile | None = None
-        self._timer = node.create_timer(POLL_S, self._check_publishers)
+        if node not in _POLLED:
+            _POLLED[node] = []
+            node.create_timer(POLL_S, lambda: _poll_publishers_of(node))
+        _POLLED[node].append(self)
 
     @property
     def topic_name(self) -> str:
