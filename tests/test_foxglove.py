@@ -79,11 +79,9 @@ def live_run(tmp_path_factory) -> dict:
 
 def _logs_tail(log_dir: Path, lines: int = 12) -> str:
     """The last lines of every node's log of the run (what a failed run's reader needs first)."""
-    parts = []
-    for log in sorted(log_dir.glob("*.log")):
-        tail = log.read_text(errors="replace").splitlines()[-lines:]
-        parts.append(f"\n--- {log.name} (last {len(tail)} lines) ---\n" + "\n".join(tail))
-    return "".join(parts)
+    from vibro_bringup.supervisor import log_tail
+
+    return "".join(f"\n--- {log.name} ---\n{log_tail(log, lines)}" for log in sorted(log_dir.glob("*.log")))
 
 
 @pytest.fixture(scope="module")

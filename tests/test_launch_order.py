@@ -75,6 +75,23 @@ def test_reader_topics_pair_every_declared_reader_with_topics_the_node_publishes
     assert "recorder=vibro/frames" not in source.parameters["reader_topics"]
 
 
+def test_the_monitor_subscribes_to_what_the_node_table_says(recording: Path, ros_domain: str) -> None:
+    """MONITOR_SUBSCRIBES (the monitor's reader_topics pairs) is the vibro graph monitor's own subscriptions: a topic
+    listed but not subscribed would hold every writer until wait_for_readers_s; one subscribed but not listed
+    would be the any-topic race again."""
+    from vibro_bringup.cmd_graph import GraphSummary, Monitor
+    from vibro_bringup.graph_spec import MONITOR_SUBSCRIBES
+    from vibro_bringup.isolation import new_run_identity
+
+    identity = new_run_identity()
+    monitor = Monitor(GraphSummary(), recording, identity)
+    try:
+        subscribed = {s.topic_name for s in monitor.node.subscriptions} - {"/parameter_events"}
+    finally:
+        monitor.close()
+    assert subscribed == {f"{identity.namespace}/{t}" for t in MONITOR_SUBSCRIBES}
+
+
 def test_launch_in_any_order_equals_vibro_graph(recording: Path, reference_run: dict, tmp_path: Path) -> None:
     from vibro_bringup.bag_results import results_from_bag
     from vibro_bringup.graph_spec import launch_nodes

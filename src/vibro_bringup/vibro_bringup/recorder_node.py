@@ -97,8 +97,7 @@ class Recorder(Node):
         return self.received.get(topic, 0) if topic in self.subscriptions_by_topic else None
 
     def _tick(self) -> None:
-        if self.pending:
-            self._discover()
+        self._discover()
         self.writer.flush_if_due()  # a quiet topic's last messages reach the disk within a second
 
     def _discover(self, final: bool = False) -> None:
