@@ -80,7 +80,7 @@ class FrameSource(Node):
         self.gate = ReaderGate(self, health=self.health, default_readers=("dic_tracker",))
         self.gate.start_clock()
         self.done = self.gate.done
-        self.create_timer(0.01, self._tick)
+        self._timer = self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{self.total} frames from {self.recording.frames.source}")
 
     def _on_ack(self, msg: DicFrame) -> None:
@@ -144,6 +144,7 @@ class FrameSource(Node):
             self.get_logger().info(
                 f"done: {self.sent} published, {self.lost} unreadable, {self.acked} acknowledged of {self.total}")
             self._acked_or_lingered = True
+            self._timer.cancel()  # nothing left to send or await: no more wake-ups (the gate polls for the exit)
             self.gate.finish(always=True)
 
 

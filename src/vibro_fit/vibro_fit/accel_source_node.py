@@ -60,7 +60,7 @@ class AccelSource(Node):
         self.gate = ReaderGate(self, health=self.health, default_readers=("trajectory_fitter",))
         self.gate.start_clock()
         self.done = self.gate.done
-        self.create_timer(0.005, self._tick)
+        self._timer = self.create_timer(0.005, self._tick)
         self.get_logger().info(f"{len(data)} samples at {self.rate_hz:.0f} Hz in {len(self.starts)} blocks")
 
     def _block(self, i: int) -> AccelBlock:
@@ -92,6 +92,7 @@ class AccelSource(Node):
         self.status.publish(self.next_block, 0, finished)
         if finished:
             self.get_logger().info(f"done: {n} blocks published")
+            self._timer.cancel()  # nothing left to send: no more wake-ups (the gate polls for the exit)
             self.gate.finish(always=True)
 
 

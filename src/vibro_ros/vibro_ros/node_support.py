@@ -213,30 +213,49 @@ class Health:
 class StatusPublisher:
     """Publishes :class:`StreamStatus` for one stream (items sent/lost, finished).
 
-    Once finished, the last status is repeated every second, so a subscriber whose queue
-    overflowed or that matched late still learns that the stream has ended.
+    :meth:`publish` may be called as often as the node likes (a source calls it on every tick): a status
+    equal to the last one published is not sent again, and progress (not finished) goes out at most every
+    ``min_interval_s`` (the latest value, at the next call or the next repeat); every reader of vibro/status
+    deserializes each one. A finished status goes out at once, and is repeated every second, so a subscriber
+    whose queue overflowed or that matched late still learns that the stream has ended.
     """
 
-    def __init__(self, node: Node, stream: str):
+    def __init__(self, node: Node, stream: str, min_interval_s: float = 0.1):
         if stream not in topics.STATUS_STREAMS:
             raise ValueError(f"StatusPublisher: unknown stream {stream!r} (vibro_ros.topics.STATUS_STREAMS)")
         self._node = node
         self._stream = stream
-        self._last: tuple[int, int, bool] | None = None
+        self._min_interval_s = min_interval_s
+        self._last: tuple[int, int, bool] | None = None  # last published
+        self._pending: tuple[int, int, bool] | None = None  # newest value, not yet published
+        self._last_time = -float("inf")
         self._run_id = run_id_parameter(node)
         self._pub = node.create_publisher(StreamStatus, topics.STATUS.name, RESULTS_QOS)
         node.create_timer(1.0, self._repeat)
 
     def publish(self, sent: int, lost: int, finished: bool) -> None:
-        self._last = (int(sent), int(lost), bool(finished))
+        value = (int(sent), int(lost), bool(finished))
+        if value == self._last:
+            self._pending = None
+            return
+        if finished or time.monotonic() - self._last_time >= self._min_interval_s:
+            self._send(value)
+        else:
+            self._pending = value
+
+    def _send(self, value: tuple[int, int, bool]) -> None:
+        self._last, self._pending, self._last_time = value, None, time.monotonic()
+        sent, lost, finished = value
         msg = StreamStatus(stream=self._stream, items_sent=sent, items_lost=lost, finished=finished,
                            run_id=self._run_id)
         msg.header.stamp = self._node.get_clock().now().to_msg()
         self._pub.publish(msg)
 
     def _repeat(self) -> None:
-        if self._last is not None and self._last[2]:
-            self.publish(*self._last)
+        if self._pending is not None:
+            self._send(self._pending)
+        elif self._last is not None and self._last[2]:
+            self._send(self._last)
 
 
 def flush_publishers(node: Node, timeout_s: float = 3.0) -> list[str]:
