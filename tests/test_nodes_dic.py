@@ -56,6 +56,21 @@ def test_frames_cross_dds_and_a_corrupt_frame_is_a_visible_gap(tiny_recording: P
     assert tracker.returncode == 0 and "Traceback" not in tracker_err
 
 
+def _first_stderr_line(proc: subprocess.Popen, timeout_s: float) -> str:
+    """The first line ``proc`` writes to stderr (text pipe), waiting at most ``timeout_s``."""
+    import selectors
+
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stderr, selectors.EVENT_READ)
+    try:
+        if not sel.select(timeout=timeout_s):
+            proc.kill()
+            pytest.fail(f"no log line within {timeout_s} s (exit code {proc.poll()})")
+        return proc.stderr.readline()
+    finally:
+        sel.close()
+
+
 @pytest.mark.parametrize("executor", ["events", "single"])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_nodes_stop_cleanly_on_sigint_and_sigterm(tiny_recording: Path, ros_domain: str, executor: str,
@@ -65,10 +80,14 @@ def test_nodes_stop_cleanly_on_sigint_and_sigterm(tiny_recording: Path, ros_doma
                                 "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                env={**os.environ, "VIBRO_EXECUTOR": executor})
-    time.sleep(2.0)
+    # the signal must reach a running node, not an interpreter still importing numpy (2 s was too short on a
+    # loaded machine): wait for the node's first log line, written once it exists
+    first = _first_stderr_line(tracker, timeout_s=60)
+    time.sleep(0.5)
     tracker.send_signal(sig)
     try:
         _, err = tracker.communicate(timeout=20)
+        err = first + err
     except subprocess.TimeoutExpired:
         tracker.kill()
         pytest.fail(f"dic_tracker ({executor} executor) did not stop within 20 s of {sig.name}")
