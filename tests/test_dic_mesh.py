@@ -1,11 +1,13 @@
-"""Mesh placement and the synthetic speckle helper (vibro_dic.mesh, vibro_dic.speckle)."""
+"""Mesh placement, the synthetic speckle helper, interpolation weights and the IC-GN step
+(vibro_dic.mesh, vibro_dic.speckle, vibro_dic.interp, vibro_dic.icgn)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from vibro_dic.interp import kernel_weights, sample_blocks
+from vibro_dic.icgn import IcgnBlocks
+from vibro_dic.interp import kernel_weights, kernel_weights_one, sample_blocks
 from vibro_dic.mesh import mesh_points
 from vibro_dic.speckle import speckle_pattern
 from vibro_io.errors import RecordingError
@@ -69,3 +71,48 @@ def test_interpolation_reproduces_polynomials(taps: int) -> None:
     got = sample_blocks(ramp, x0, y0, (5, 7), taps)
     want = 0.7 * (x0[:, None, None] + np.arange(7)) - 0.4 * (y0[:, None, None] + np.arange(5)[:, None])
     assert np.allclose(got, want, atol=1e-4)
+
+
+@pytest.mark.parametrize("taps", [4, 6])
+def test_one_offset_weights_equal_the_batched_ones(taps: int) -> None:
+    # the per-frame one-block path writes each tap's weight as a cubic in t: the same polynomials
+    t = np.linspace(0.0, 0.999, 41)
+    want = kernel_weights(t, taps)
+    got = np.array([kernel_weights_one(float(x), taps) for x in t])
+    assert np.allclose(got, want, rtol=0, atol=4 * np.finfo(np.float32).eps)
+
+
+def _znssd_gauss_newton_step(blocks: IcgnBlocks, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The IC-GN translation step from its definition (module doc of vibro_dic.icgn), in float64:
+    e = f~ - (df/dg) g~, du = H^-1 sum J e with J = (fx, fy); and the ZNCC f~.g~ / (df dg)."""
+    g = g.reshape(len(g), -1).astype(np.float64)
+    gt = g - g.mean(axis=1, keepdims=True)
+    ft, fx, fy = (a.astype(np.float64) for a in (blocks.f_tilde, blocks.fx, blocks.fy))
+    df, dg = np.linalg.norm(ft, axis=1), np.linalg.norm(gt, axis=1)
+    e = ft - (df / dg)[:, None] * gt
+    du = []
+    for i in range(len(g)):
+        h = np.array([[fx[i] @ fx[i], fx[i] @ fy[i]], [fx[i] @ fy[i], fy[i] @ fy[i]]])
+        du.append(np.linalg.solve(h, [fx[i] @ e[i], fy[i] @ e[i]]))
+    return np.array(du), np.einsum("ij,ij->i", ft, gt) / (df * dg)
+
+
+def test_icgn_step_is_the_gauss_newton_step_of_the_znssd() -> None:
+    # the step is computed from a few precomputed sums (one product with g); it must be the textbook step
+    pat = speckle_pattern((90, 120), seed=6)
+    ref = pat.render().astype(np.float32)
+    cur = (1.1 * pat.render(0.37, -0.21) + 7.0).astype(np.float32)  # shifted, with a gain and an offset
+    corners = np.array([[20, 15], [52, 40], [70, 20]])
+    blocks = IcgnBlocks(ref, corners, (21, 21))
+    g = blocks.sample(cur, np.zeros((3, 2)))
+    du, zncc, ok = blocks.step(g)
+    want_du, want_zncc = _znssd_gauss_newton_step(blocks, g)
+    assert ok.all()
+    assert np.allclose(du, want_du, rtol=0, atol=1e-9)
+    assert np.allclose(zncc, want_zncc, rtol=0, atol=1e-12)
+    # the step moves towards the true shift (0.37, -0.21) px: Gauss-Newton from 0.4 px off lands within 0.05 px
+    assert np.all(np.abs(du - [0.37, -0.21]) < 0.05)
+    # a single block (a mesh's bounding box) through the scalar path gives the same step
+    one = IcgnBlocks(ref, corners[1:2], (21, 21))
+    dux, duy, z = one.step_one(one.sample_one(cur, 0.0, 0.0))
+    assert np.allclose([dux, duy, z], [*du[1], zncc[1]], rtol=0, atol=1e-12)

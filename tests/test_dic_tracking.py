@@ -158,3 +158,46 @@ def test_bad_parameters_and_images_are_refused(scene: RigScene) -> None:
     tr = DicTracker(ref, rig.dic, 0.05)
     with pytest.raises(FrameError, match="frame 3"):
         tr.track(Frame(3, 0.003, ref[:100], "mem"))
+
+
+def _flights(n: int, fps: float = 1000.0) -> np.ndarray:
+    """Ball height (px, up) of a ball bouncing on a plate: free-flight parabolas under 9.81 m/s^2 from a launch
+    at 0.1 m/s, 0 at frame 0, with an impact (the height back near 0, the velocity reversed) every 20 frames."""
+    g_px = 9.81e3 / MM_PER_PX / fps**2  # px per frame^2
+    v0 = 0.1e3 / MM_PER_PX / fps  # px per frame
+    k = np.arange(n) % 20
+    return v0 * k - 0.5 * g_px * k**2
+
+
+def test_refining_from_the_prediction_lands_where_the_search_does(scene: RigScene, monkeypatch) -> None:
+    # In free flight the quadratic prediction is exact to the noise, so the tracker refines the box straight
+    # from it (no ZNCC search); at each impact the prediction is wrong by several px and the frame must go
+    # through the search. Both paths end on the same ZNSSD optimum: they may differ only by what the
+    # convergence tolerances leave, O(tol_px^2) = 4e-4 px, far below the 0.01 px accuracy goal.
+    import vibro_dic.tracker as tracker_module
+
+    n = 96
+    ball = _flights(n)
+    structure = 15.0 * np.sin(2 * np.pi * 22.0 * np.arange(n) / 1000.0)
+    rng = np.random.default_rng(12)
+    frames = [scene.frame(b, s, noise_sigma=2.0, rng=rng) for b, s in zip(ball, structure)]
+
+    def run() -> tuple[DicTracker, list]:
+        tr = _tracker(scene, frames[0])
+        return tr, [tr.track(Frame(k, k / 1000.0, img, "mem")) for k, img in enumerate(frames)]
+
+    fast, rows = run()
+    monkeypatch.setattr(tracker_module, "PREDICTION_MAX_ITER", 0)  # every frame searched
+    searched, ref_rows = run()
+    assert searched.ball.n_predicted == 0 and searched.structure.n_predicted == 0
+    impacts = int(np.count_nonzero(np.arange(1, n) % 20 == 0))
+    # every frame with a quadratic history (3 frames back within the flight) but those right after an impact
+    assert fast.structure.n_predicted == n - 3
+    assert n - 3 - 3 * impacts <= fast.ball.n_predicted < n - 3
+    for a, b in zip(rows, ref_rows):
+        assert not a.lost and not b.lost
+        assert (a.ball_valid, a.structure_valid) == (b.ball_valid, b.structure_valid)
+        assert abs(a.ball_mm - b.ball_mm) / MM_PER_PX <= 1e-3
+        assert abs(a.structure_mm - b.structure_mm) / MM_PER_PX <= 1e-3
+    got = np.array([r.ball_mm for r in rows]) / MM_PER_PX
+    assert np.sqrt(np.mean((got - ball) ** 2)) <= 0.01  # and both are right

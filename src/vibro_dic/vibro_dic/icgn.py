@@ -24,12 +24,13 @@ that is ~4e-4 px, far below the 0.01 px accuracy goal (checked in the tests).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from .interp import sample_blocks, support_inside
+from .interp import patch_margin, sample_block, sample_blocks, support_inside
 
 _D4 = np.array([[1.0, -8.0, 0.0, 8.0, -1.0]], dtype=np.float32) / 12.0
 
@@ -91,6 +92,26 @@ class IcgnBlocks:
         det = np.where(self.textured, det, 1.0)
         self.ixx, self.ixy, self.iyy = hyy / det, -hxy / det, hxx / det
         self.grad_sq = np.column_stack([hxx, hyy])  # sum of squared x and y gradients (gray^2)
+        # One product per step gives every sum it needs (see :meth:`step`): with e = f~ - (df/dg) g~,
+        # du = H^-1 [fx.e, fy.e] = H^-1 [fx.f~, fy.f~] - (df/dg) H^-1 [fx.g~, fy.g~], and x.g~ = (x - mean x).g.
+        # Rows: 1 (sum g), f~ - mean (f~.g~), then H^-1 applied to the centred gradients (the step's g~ part).
+        fx0 = self.fx.astype(np.float64)
+        fy0 = self.fy.astype(np.float64)
+        fx0 -= fx0.mean(axis=1, keepdims=True)
+        fy0 -= fy0.mean(axis=1, keepdims=True)
+        ft0 = self.f_tilde.astype(np.float64)
+        ft0 -= ft0.mean(axis=1, keepdims=True)
+        ixx, ixy, iyy = self.ixx[:, None], self.ixy[:, None], self.iyy[:, None]
+        self._proj = np.stack([np.ones_like(ft0), ft0, ixx * fx0 + ixy * fy0, ixy * fx0 + iyy * fy0], axis=1)
+        bx0 = np.einsum("ij,ij->i", self.fx, self.f_tilde, dtype=np.float64)
+        by0 = np.einsum("ij,ij->i", self.fy, self.f_tilde, dtype=np.float64)
+        self._du_f = np.column_stack([self.ixx * bx0 + self.ixy * by0, self.ixy * bx0 + self.iyy * by0])  # H^-1 [fx.f~, fy.f~]
+        # block 0's constants as Python floats, for :meth:`step_one`
+        self._one = (float(self.df[0]), float(self._du_f[0, 0]), float(self._du_f[0, 1]))
+        before, after = patch_margin(taps)
+        # block 0's top-left and its interpolation support's reach (px) before and after it, for :meth:`inside_one`
+        self._span_one = (float(self.corners[0, 0]), float(self.corners[0, 1]), before,
+                          self.size[1] - 1 + after, self.size[0] - 1 + after)
 
     def __len__(self) -> int:
         return len(self.corners)
@@ -99,6 +120,13 @@ class IcgnBlocks:
         """Mask of blocks whose interpolation support, displaced by u (N, 2) px, is inside the image."""
         return support_inside(self.corners[:, 0] + u[:, 0], self.corners[:, 1] + u[:, 1],
                               self.size, self.taps, shape)
+
+    def inside_one(self, ux: float, uy: float, shape: tuple[int, int]) -> bool:
+        """:meth:`inside` of block 0 displaced by (ux, uy) px, in Python scalars."""
+        x0, y0, before, right, below = self._span_one
+        ix, iy = math.floor(x0 + ux), math.floor(y0 + uy)
+        rows, cols = shape
+        return ix - before >= 0 and ix + right <= cols - 1 and iy - before >= 0 and iy + below <= rows - 1
 
     def sample(self, image: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(N, h, w) samples of all blocks displaced by u (N, 2) px (supports must be inside)."""
@@ -111,20 +139,36 @@ class IcgnBlocks:
         the sample has texture). ``idx`` None means all blocks.
         """
         sl = slice(None) if idx is None else idx
-        g = g.reshape(len(g), -1).astype(np.float32, copy=False)
-        g_tilde = g - g.mean(axis=1, keepdims=True)
-        dg = np.sqrt(np.einsum("ij,ij->i", g_tilde, g_tilde).astype(np.float64))
-        ft = self.f_tilde[sl]
+        g = g.reshape(len(g), -1).astype(np.float64)
+        # In float64, so that dg^2 = g.g - (sum g)^2 / n loses nothing; rows of _proj: see __init__
+        sums = np.matmul(self._proj[sl], g[:, :, None])[..., 0]  # (m, 4): sum g, f~.g~, H^-1 [fx.g~, fy.g~]
+        dg2 = np.einsum("ij,ij->i", g, g) - sums[:, 0] * sums[:, 0] / g.shape[1]
+        ok = dg2 > 1e-6
+        dg = np.sqrt(np.where(ok, dg2, 1.0))
         df = self.df[sl]
-        ok = dg > 1e-3
-        dg = np.where(ok, dg, 1.0)
-        zncc = np.where(ok, np.einsum("ij,ij->i", ft, g_tilde) / (df * dg), np.nan)
-        e = ft - (df / dg).astype(np.float32)[:, None] * g_tilde
-        bx = np.einsum("ij,ij->i", self.fx[sl], e).astype(np.float64)
-        by = np.einsum("ij,ij->i", self.fy[sl], e).astype(np.float64)
-        du = np.column_stack([self.ixx[sl] * bx + self.ixy[sl] * by, self.ixy[sl] * bx + self.iyy[sl] * by])
+        zncc = np.where(ok, sums[:, 1] / (df * dg), np.nan)
+        du = self._du_f[sl] - (df / dg)[:, None] * sums[:, 2:]
         du[~ok] = 0.0
         return du, zncc, ok
+
+    def step_one(self, g: np.ndarray) -> tuple[float, float, float] | None:
+        """:meth:`step` of block 0 alone (its samples ``g``, h x w), in Python scalars: (dux, duy px to ADD to u,
+        zncc at the current u), or None when the sample has no texture. The per-frame iterations of a mesh's
+        bounding box go through here, where numpy's cost per call would outweigh the arithmetic."""
+        v = g.reshape(-1).astype(np.float64)
+        s_g, f_g, hx_g, hy_g = (self._proj[0] @ v).tolist()
+        df, du_fx, du_fy = self._one
+        dg2 = float(v @ v) - s_g * s_g / v.size
+        if not dg2 > 1e-6:
+            return None
+        dg = math.sqrt(dg2)
+        scale = df / dg
+        return du_fx - scale * hx_g, du_fy - scale * hy_g, f_g / (df * dg)
+
+    def sample_one(self, image: np.ndarray, ux: float, uy: float) -> np.ndarray:
+        """(h, w) samples of block 0 displaced by (ux, uy) px (support inside: :meth:`inside_one`)."""
+        return sample_block(image, float(self.corners[0, 0]) + ux, float(self.corners[0, 1]) + uy, self.size,
+                            self.taps)
 
     def refine(self, image: np.ndarray, u0: np.ndarray, active: np.ndarray | None = None) -> IcgnResult:
         """Refine displacements from the start ``u0`` (N, 2) px on ``image`` (2-D float32).

@@ -49,6 +49,27 @@ def kernel_weights(t: np.ndarray, taps: int = 6) -> np.ndarray:
     return (((c[0] * s + c[1]) * s + c[2]) * s + c[3]).astype(np.float32)
 
 
+def _cubic_in_t(taps: int) -> np.ndarray:
+    """(taps, 4) coefficients of each tap's weight as a cubic in t itself (t in [0, 1): s = t - off for the
+    taps at or before 0, off - t after), highest power first."""
+    offs, c = _TABLE[taps]
+    rows = []
+    for off, (c3, c2, c1, c0) in zip(offs, c.T):
+        sign = 1.0 if off <= 0 else -1.0  # s = sign * (t - off)
+        poly = np.poly1d([c3, c2, c1, c0])(np.poly1d([sign, -sign * off]))
+        rows.append(np.pad(poly.coeffs, (4 - len(poly.coeffs), 0)))
+    return np.array(rows)
+
+
+_CUBIC_IN_T = {taps: _cubic_in_t(taps) for taps in KERNEL_TAPS}
+
+
+def kernel_weights_one(t: float, taps: int = 6) -> np.ndarray:
+    """(taps,) float32 weights of one fractional offset t in [0, 1): :func:`kernel_weights` of a single
+    offset as one product with precomputed cubics in t (the per-frame one-block path)."""
+    return (_CUBIC_IN_T[taps] @ (t * t * t, t * t, t, 1.0)).astype(np.float32)
+
+
 def patch_margin(taps: int) -> tuple[int, int]:
     """Pixels needed (before, after) the subset's integer span for the interpolation support."""
     return taps // 2 - 1, taps // 2
@@ -94,8 +115,7 @@ def sample_block(image: np.ndarray, x0: float, y0: float, size: tuple[int, int],
     bh, bw = size
     before, after = patch_margin(taps)
     ix, iy = math.floor(x0), math.floor(y0)
-    w = kernel_weights(np.array([x0 - ix, y0 - iy]), taps)
-    wx, wy = w[0], w[1]
+    wx, wy = kernel_weights_one(x0 - ix, taps), kernel_weights_one(y0 - iy, taps)
     win = image[iy - before: iy + bh + after, ix - before: ix + bw + after]
     if win.dtype != np.float32:
         win = win.astype(np.float32)

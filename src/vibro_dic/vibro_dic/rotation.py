@@ -83,15 +83,15 @@ def fit_rotation(u_px: np.ndarray, arms_px: np.ndarray) -> RotationFit:
     n = len(u)
     if n < 2:
         return NO_ROTATION
-    da = a - a.mean(axis=0)
-    du = u - u.mean(axis=0)
-    spread = float(np.einsum("ij,ij->", da, da))
+    da = a - a.sum(axis=0) / n
+    du = u - u.sum(axis=0) / n
+    spread = float(np.vdot(da, da))
     if not spread >= MIN_ARM_SPREAD_PX2:
         return NO_ROTATION
-    theta = float(np.einsum("ij,ij->", du, da)) / spread
+    theta = float(np.vdot(du, da)) / spread
     dof = 2 * n - 3
     if dof < 1:
         return RotationFit(theta, math.nan, math.nan, n)
     res = du - theta * da
-    sigma = math.sqrt(float(np.einsum("ij,ij->", res, res)) / dof)
+    sigma = math.sqrt(float(np.vdot(res, res)) / dof)
     return RotationFit(theta, sigma / math.sqrt(spread), sigma, n)

@@ -5,6 +5,14 @@ Pipeline for each mesh (ball, structure) and each frame:
 1. **Prediction**: the mesh displacement is extrapolated from the last good frames
    (constant acceleration from three, constant velocity from two; frame indices are
    used, so dropped frames are handled).
+2'. **Refine from the prediction** (``method="icgn"``, three frames of history): the bounding box is
+   refined by IC-GN straight from the predicted displacement, without a search. In free flight a
+   quadratic prediction is exact to the noise, so this converges in 2-3 steps. It is kept only if it
+   converged within :data:`PREDICTION_MAX_ITER` steps, within :data:`PREDICTION_TRUST_PX` of the
+   prediction (inside the Gauss-Newton basin of speckle, so the peak reached is the one the search would
+   find), with ZNCC >= ``zncc_min``, and the mesh is not lost (step 7). Otherwise (an impact, a reseed,
+   a lost frame before) the frame goes through steps 2-3 as below. The search costs about as much as
+   the rest of a frame's DIC.
 2. **Integer search** by ZNCC (paper Eq. 1, ``cv2.matchTemplate`` TM_CCOEFF_NORMED) of the
    mesh's bounding box (the union of its subsets, frame 0) in a window of +-``search_px`` (default 4)
    around the prediction. If the peak is below ``zncc_min`` or on the window's border,
@@ -75,6 +83,12 @@ MIN_SUBSET_STD = 2.0  # gray levels: below this a subset holds no usable pattern
 # The bounding-box IC-GN stops at a finer step than the subsets' tol_px, so that the one
 # per-subset step that follows is dominated by the subset's own (noise) deviation.
 BOX_TOL_PX = 0.005
+#: the box refined from the motion prediction (step 2') is kept only within this distance of it (px per axis):
+#: well inside the +-1-2 px Gauss-Newton basin of speckle, so the peak reached is the one a search would find
+PREDICTION_TRUST_PX = 0.5
+#: ... and only when it converged within this many Gauss-Newton steps (from a prediction that close it takes 2-3;
+#: a wrong prediction, at an impact, is given up early and the frame searched)
+PREDICTION_MAX_ITER = 4
 #: frames per tracking segment: the motion prediction restarts at every multiple of this frame index
 #: (module doc, step 6); chunked tracking splits a recording only there
 RESEED_EVERY_FRAMES = 100
@@ -127,6 +141,10 @@ class MeshTracker:
         self.subsets = IcgnBlocks(reference, self.corners, (subset_px, subset_px), taps=taps, tol_px=tol_px,
                                   max_move_px=2.0)
         self.offsets = (self.corners - self.box_corner).astype(np.intp)  # subset corners inside the box
+        # flat indices of every subset's pixels in the (h, w) box: the subsets' samples are one take of the box's
+        span = np.arange(subset_px)
+        self._subset_take = ((self.offsets[:, 1, None, None] + span[None, :, None]) * self.box_size[1]
+                             + self.offsets[:, 0, None, None] + span[None, None, :])
         self.lever_arms = rotation_lever_arms(self.subsets, self.points, subset_px)  # (N, 2) px per rad
         if method == "parabolic":
             self.subset_templates = extract_blocks(reference, self.corners[:, 0], self.corners[:, 1],
@@ -134,6 +152,7 @@ class MeshTracker:
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=3)
         self.n_widened = 0  # frames whose first search window missed (statistics)
         self.n_global = 0  # frames that needed the whole-image search
+        self.n_predicted = 0  # frames refined straight from the prediction, with no search (step 2')
         # bad input: a ROI without speckle (flat, saturated) cannot be tracked at all
         std = self.subsets.df / math.sqrt(subset_px * subset_px)  # gray-level std of each subset
         self.subsets.textured &= std >= MIN_SUBSET_STD  # such subsets are never used
@@ -152,19 +171,19 @@ class MeshTracker:
         """Predicted displacement (x, y) px at frame k: quadratic (3 frames), linear (2) or last (1) fit."""
         if not self.history:
             return np.zeros(2)
-        ks = np.array([h[0] for h in self.history], dtype=float)
-        us = np.array([h[1] for h in self.history])
-        if len(ks) == 1:
-            return us[0].copy()
+        if len(self.history) == 1:
+            return self.history[0][1].copy()
         # Lagrange extrapolation through the stored points (exact for constant velocity/acceleration)
-        out = np.zeros(2)
-        for i in range(len(ks)):
+        ks = [float(h[0]) for h in self.history]
+        ux = uy = 0.0
+        for i, (_, u) in enumerate(self.history):
             w = 1.0
-            for j in range(len(ks)):
+            for j, kj in enumerate(ks):
                 if j != i:
-                    w *= (k - ks[j]) / (ks[i] - ks[j])
-            out += w * us[i]
-        return out
+                    w *= (k - kj) / (ks[i] - kj)
+            ux += w * float(u[0])
+            uy += w * float(u[1])
+        return np.array([ux, uy])
 
     def search(self, image: np.ndarray, k: int) -> SearchResult | None:
         def good(res: SearchResult | None) -> bool:
@@ -198,40 +217,79 @@ class MeshTracker:
         return None
 
     # --- sub-pixel ---------------------------------------------------------------------------------
+    def _refine_box(self, image: np.ndarray, u_start: np.ndarray, *, max_move_px: float | None = None,
+                    max_iter: int | None = None) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """IC-GN of the whole bounding box from ``u_start`` (2,) px to a step below BOX_TOL_PX: (u px, the box
+        sampled at u, its ZNCC), or None when it leaves the image, moves more than ``max_move_px`` (default the
+        box's) from the start, or has not converged in ``max_iter`` iterations (default the box's).
+        One block: Python scalars throughout (:meth:`IcgnBlocks.step_one`)."""
+        box = self.box
+        max_move_px = box.max_move_px if max_move_px is None else max_move_px
+        x_start, y_start = float(u_start[0]), float(u_start[1])
+        ux, uy = x_start, y_start
+        tol2 = box.tol_px ** 2
+        for _ in range(box.max_iter if max_iter is None else max_iter):
+            if abs(ux - x_start) > max_move_px or abs(uy - y_start) > max_move_px \
+                    or not box.inside_one(ux, uy, image.shape):
+                return None
+            g = box.sample_one(image, ux, uy)
+            step = box.step_one(g)
+            if step is None:
+                return None
+            dux, duy, zncc = step
+            if dux * dux + duy * duy <= tol2:
+                return np.array([ux, uy]), g, zncc  # sampled at u; the per-subset steps start from here
+            ux += dux
+            uy += duy
+        return None
+
+    def _subset_points(self, image: np.ndarray, u_box: np.ndarray, g_box: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One Gauss-Newton step per subset from the converged box (its samples ``g_box`` at ``u_box``);
+        points whose step exceeds tol are iterated on their own."""
+        du, zncc, ok = self.subsets.step(np.take(g_box, self._subset_take))
+        pu = u_box + du
+        big = np.einsum("ij,ij->i", du, du) > self.subsets.tol_px ** 2
+        converged = ok & ~big & self.subsets.textured
+        if np.any(big & ok):
+            again = self.subsets.refine(image, pu, active=big & ok)
+            pu[big] = again.u[big]
+            zncc[big] = again.zncc[big]
+            converged |= again.converged & big
+        return pu, zncc, converged
+
     def _icgn_points(self, image: np.ndarray, u_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """IC-GN on the bounding box to convergence, then one Gauss-Newton step per subset from the
-        box's last sample (points whose step exceeds tol are iterated on their own)."""
-        n = len(self.points)
-        box = self.box
-        u = u_start.astype(float).copy()
-        g_box = None
-        for _ in range(box.max_iter):
-            if abs(u[0] - u_start[0]) > box.max_move_px or abs(u[1] - u_start[1]) > box.max_move_px \
-                    or not box.inside(u[None], image.shape)[0]:
-                break
-            g = box.sample(image, u[None])
-            du, _, ok = box.step(g)
-            if not ok[0]:
-                break
-            if du[0, 0] ** 2 + du[0, 1] ** 2 <= box.tol_px ** 2:
-                g_box = g[0]  # sampled at u; the per-subset steps start from here
-                break
-            u += du[0]
-        if g_box is not None:
-            windows = np.lib.stride_tricks.sliding_window_view(g_box, (self.subset_px, self.subset_px))
-            g = windows[self.offsets[:, 1], self.offsets[:, 0]]
-            du, zncc, ok = self.subsets.step(g)
-            pu = u + du
-            big = np.einsum("ij,ij->i", du, du) > self.subsets.tol_px ** 2
-            converged = ok & ~big & self.subsets.textured
-            if np.any(big & ok):
-                again = self.subsets.refine(image, pu, active=big & ok)
-                pu[big] = again.u[big]
-                zncc[big] = again.zncc[big]
-                converged |= again.converged & big
-            return pu, zncc, converged
-        res = self.subsets.refine(image, np.repeat(u_start[None], n, axis=0))
+        box's last sample; every subset on its own from ``u_start`` when the box does not converge."""
+        box = self._refine_box(image, u_start)
+        if box is not None:
+            return self._subset_points(image, box[0], box[1])
+        res = self.subsets.refine(image, np.repeat(u_start[None], len(self.points), axis=0))
         return res.u, res.zncc, res.converged
+
+    def _track_predicted(self, image: np.ndarray, k: int) -> MeshResult | None:
+        """Step 2' (IC-GN only): the box refined straight from the prediction, with no integer search.
+
+        Kept only when the prediction is quadratic (three frames of history), the box converges within
+        PREDICTION_TRUST_PX of it (far inside the Gauss-Newton basin of a speckle pattern, so no other
+        correlation peak can be reached) with ZNCC >= ``zncc_min``, and the mesh is not lost; otherwise
+        None, and the frame goes through the search (an impact, a reseed, a lost frame)."""
+        if self.method != "icgn" or len(self.history) < 3:
+            return None
+        pred = self.predict(k)
+        if not self.box.inside(pred[None], image.shape)[0]:
+            return None
+        box = self._refine_box(image, pred, max_move_px=PREDICTION_TRUST_PX, max_iter=PREDICTION_MAX_ITER)
+        if box is None:
+            return None
+        u_box, g_box, zncc_box = box
+        if not zncc_box >= self.zncc_min:
+            return None
+        out = self._combine(*self._subset_points(image, u_box, g_box))
+        if out.lost:
+            return None
+        self.n_predicted += 1
+        return out
 
     def _parabolic_points(self, image: np.ndarray, d_int: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         n = len(self.points)
@@ -254,6 +312,10 @@ class MeshTracker:
 
     def track(self, image: np.ndarray, k: int) -> MeshResult:
         """Track this mesh in ``image`` (2-D float32) of frame index ``k``."""
+        out = self._track_predicted(image, k)
+        if out is not None:
+            self.history.append((k, out.u_px.copy()))
+            return out
         res = self.search(image, k)
         if res is None:
             pred = self.predict(k)
@@ -276,28 +338,30 @@ class MeshTracker:
 
     def _combine(self, u: np.ndarray, zncc: np.ndarray, conv: np.ndarray) -> MeshResult:
         n = len(u)
-        cand = conv & np.isfinite(zncc) & (zncc >= self.zncc_min) & np.all(np.isfinite(u), axis=1)
-        valid = cand.copy()
-        m = int(cand.sum())
+        # NaN compares False, so a point without a ZNCC is no candidate
+        valid = conv & (zncc >= self.zncc_min) & np.isfinite(u).all(axis=1)
+        m = int(np.count_nonzero(valid))
         if m:
-            srt = np.sort(u[cand], axis=0)
+            uc = u[valid]
+            srt = np.sort(uc, axis=0)
             med = 0.5 * (srt[(m - 1) // 2] + srt[m // 2])
-            dev = np.sort(np.abs(u[cand] - med), axis=0)
-            mad = 1.4826 * 0.5 * (dev[(m - 1) // 2] + dev[m // 2])
-            thr = np.maximum(self.outlier_k * mad, self.outlier_floor_px)
-            valid &= np.all(np.abs(u - med) <= thr, axis=1)
-        nv = int(valid.sum())
+            dev = np.sort(np.abs(uc - med), axis=0)
+            thr = np.maximum((self.outlier_k * 1.4826 * 0.5) * (dev[(m - 1) // 2] + dev[m // 2]),
+                             self.outlier_floor_px)
+            valid &= (np.abs(u - med) <= thr).all(axis=1)
+        nv = int(np.count_nonzero(valid))
         if nv < self.min_valid:
             r = self.lost(f"{self.name}: too few valid points ({nv} of {n}, need {self.min_valid})")
             r.point_u_px, r.point_valid, r.point_zncc = u, valid, zncc
             return r
-        rot = fit_rotation(u[valid], self.lever_arms[valid])
-        mean_u = u[valid].mean(axis=0)
-        if self.rotation_corrected and np.isfinite(rot.angle_rad):
+        u_kept, arms_kept = u[valid], self.lever_arms[valid]
+        rot = fit_rotation(u_kept, arms_kept)
+        mean_u = u_kept.sum(axis=0) / nv
+        if self.rotation_corrected and math.isfinite(rot.angle_rad):
             # the mean of the points' estimates is the displacement of their mean lever arm's point (their
             # gradient-weighted centre, ~1-2 px off the centroid): remove the rotation's share there
-            mean_u = mean_u - rot.angle_rad * self.lever_arms[valid].mean(axis=0)
-        return MeshResult(self.name, mean_u, nv, float(zncc[valid].mean()), False, "",
+            mean_u -= (rot.angle_rad / nv) * arms_kept.sum(axis=0)
+        return MeshResult(self.name, mean_u, nv, float(zncc[valid].sum()) / nv, False, "",
                           u, valid, zncc, rot.angle_rad, rot.std_rad)
 
 
