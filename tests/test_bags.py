@@ -38,8 +38,11 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
                                                         ros_domain: str) -> None:
     bag = tmp_path / "run1"
     recorder = _popen("-m", "vibro_bringup.recorder_node", "--ros-args", "-p", f"bag:={bag}")
+    # the recorder is the tracker's declared reader: its DicFrames wait until the recorder has matched vibro/dic
+    # (a fixed sleep before stopping the tracker lost them all once under load: the recorder had not yet
+    # discovered the topic), and the tracker exits by itself once the recorder acknowledged them
     tracker = _popen("-m", "vibro_dic.dic_tracker_node", "--ros-args", "-p",
-                     f"rig_file:={tiny_recording / 'rig.yaml'}")
+                     f"rig_file:={tiny_recording / 'rig.yaml'}", "-p", "readers:=[recorder]")
     try:
         assert _wait_for(lambda: (bag / "metadata.yaml").exists(), 30)
         time.sleep(1.0)  # let discovery match the recorder's subscriptions
@@ -47,7 +50,7 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
                               "-p", f"recording:={tiny_recording}", "-p", "readers:=[dic_tracker, recorder]"],
                              capture_output=True, text=True, timeout=60)
         assert src.returncode == 0, src.stderr
-        time.sleep(1.0)
+        assert tracker.wait(timeout=60) == 0, tracker.communicate()[1][-2000:]
     finally:
         for proc in (tracker, recorder):
             proc.send_signal(signal.SIGINT)

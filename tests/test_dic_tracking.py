@@ -201,3 +201,37 @@ def test_refining_from_the_prediction_lands_where_the_search_does(scene: RigScen
         assert abs(a.structure_mm - b.structure_mm) / MM_PER_PX <= 1e-3
     got = np.array([r.ball_mm for r in rows]) / MM_PER_PX
     assert np.sqrt(np.mean((got - ball) ** 2)) <= 0.01  # and both are right
+
+
+def test_the_driven_structure_is_predicted_as_a_sine_across_dropped_frames(scene: RigScene) -> None:
+    # A live tracker that falls behind sees every 7th frame: 7 ms apart, 0.97 rad of a 22 Hz drive. A parabola
+    # through three such frames misses the next by pixels (a search, widened), the sine at the drive frequency
+    # through them is exact for the driven motion: the box is refined straight from it.
+    n, stride, drive_hz, fps = 210, 7, 22.0, 1000.0
+    structure = 15.0 * np.sin(2 * np.pi * drive_hz * np.arange(n) / fps + 0.4)
+    structure -= structure[0]
+    rng = np.random.default_rng(13)
+    ks = list(range(0, n, stride))
+    frames = {k: scene.frame(0.0, structure[k], noise_sigma=2.0, rng=rng) for k in ks}
+
+    def run(**kw) -> tuple[DicTracker, np.ndarray]:
+        tr = _tracker(scene, frames[0], reseed_every=10_000, **kw)
+        rows = [tr.track(Frame(k, k / fps, frames[k], "mem")) for k in ks]
+        assert not any(r.lost for r in rows)
+        return tr, np.array([r.structure_mm for r in rows]) / MM_PER_PX
+
+    sine, got = run(structure_drive_cycles_per_frame=drive_hz / fps)
+    parabola, got_parabola = run()
+    with_history = len(ks) - 3
+    # only the two frames before three are in the history may need a wider search
+    assert sine.structure.n_predicted == with_history and sine.structure.n_widened <= 2
+    assert parabola.structure.n_widened >= with_history // 2  # the case the sine is for
+    assert np.sqrt(np.mean((got - structure[ks]) ** 2)) <= 0.01
+    assert np.max(np.abs(got - got_parabola)) <= 1e-3  # the same optimum either way
+
+
+@pytest.mark.parametrize("cycles", [0.0, 0.5, -0.1, float("nan"), "22"])
+def test_a_drive_frequency_beyond_nyquist_or_not_a_number_is_refused(scene: RigScene, cycles) -> None:
+    ref = scene.frame(0.0, 0.0)
+    with pytest.raises(RecordingError, match="structure_drive_cycles_per_frame"):
+        _tracker(scene, ref, structure_drive_cycles_per_frame=cycles)

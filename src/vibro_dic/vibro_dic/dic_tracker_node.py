@@ -222,7 +222,7 @@ class DicTrackerNode(Node):
             ref = image
             if k != 0:
                 self.get_logger().warning(f"first image is frame {k}; it is the DIC reference")
-        tracker = DicTracker(ref, self.rig.dic, self.rig.camera.mm_per_px, method=self.method, zncc_min=self.zncc_min)
+        tracker = DicTracker.for_rig(ref, self.rig, method=self.method, zncc_min=self.zncc_min)
         # the texture check (vibro_dic.texture): noise from this image against the reference when they differ,
         # else from the reference alone (an upper bound on speckle); a refusal is raised like a bad ROI
         texture, warnings = check_texture(ref, image, self.rig.dic, max_subset_sigma_px=self.max_subset_sigma_px)

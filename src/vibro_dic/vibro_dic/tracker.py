@@ -4,7 +4,12 @@ Pipeline for each mesh (ball, structure) and each frame:
 
 1. **Prediction**: the mesh displacement is extrapolated from the last good frames
    (constant acceleration from three, constant velocity from two; frame indices are
-   used, so dropped frames are handled).
+   used, so dropped frames are handled). The structure, which the shaker drives
+   sinusoidally, is extrapolated instead by the sine at the drive frequency (and an offset)
+   through its last three frames when the tracker is given that frequency
+   (``structure_drive_cycles_per_frame``; :meth:`DicTracker.for_rig` takes it from rig.yaml):
+   exact for the driven motion however far apart those frames are, where a parabola through
+   frames 5-10 ms apart (a live tracker that fell behind and dropped images) misses by pixels.
 2'. **Refine from the prediction** (``method="icgn"``, three frames of history): the bounding box is
    refined by IC-GN straight from the predicted displacement, without a search. In free flight a
    quadratic prediction is exact to the noise, so this converges in 2-3 steps. It is kept only if it
@@ -117,8 +122,10 @@ class MeshTracker:
     def __init__(self, name: str, reference: np.ndarray, roi: Roi, subset_px: int, step_px: int, *,
                  method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
                  search_px: int = 4, taps: int = 6, tol_px: float = 0.02, outlier_k: float = 3.0,
-                 outlier_floor_px: float = 0.1, rotation_corrected: bool = False):
+                 outlier_floor_px: float = 0.1, rotation_corrected: bool = False,
+                 drive_rad_per_frame: float | None = None):
         self.name = name
+        self.drive_rad_per_frame = drive_rad_per_frame  # sinusoidal prediction (step 1) when given
         self.rotation_corrected = rotation_corrected
         self.method = method
         self.subset_px = subset_px
@@ -173,6 +180,8 @@ class MeshTracker:
             return np.zeros(2)
         if len(self.history) == 1:
             return self.history[0][1].copy()
+        if self.drive_rad_per_frame is not None and len(self.history) == 3:
+            return self._predict_sine(k)
         # Lagrange extrapolation through the stored points (exact for constant velocity/acceleration)
         ks = [float(h[0]) for h in self.history]
         ux = uy = 0.0
@@ -184,6 +193,16 @@ class MeshTracker:
             ux += w * float(u[0])
             uy += w * float(u[1])
         return np.array([ux, uy])
+
+    def _predict_sine(self, k: int) -> np.ndarray:
+        """The sine at the drive frequency plus an offset, u = a cos(w j) + b sin(w j) + c (j frames after the
+        last good frame), through the three history frames, at frame k (px)."""
+        w = self.drive_rad_per_frame
+        k_last = self.history[-1][0]
+        basis = np.array([[math.cos(w * (kh - k_last)), math.sin(w * (kh - k_last)), 1.0] for kh, _ in self.history])
+        target = np.array([math.cos(w * (k - k_last)), math.sin(w * (k - k_last)), 1.0])
+        weights = np.linalg.solve(basis.T, target)  # u(k) = weights . u(history)
+        return weights @ np.array([u for _, u in self.history])
 
     def search(self, image: np.ndarray, k: int) -> SearchResult | None:
         def good(res: SearchResult | None) -> bool:
@@ -377,7 +396,7 @@ class DicTracker:
     def __init__(self, reference_image: np.ndarray, dic_config: DicConfig, mm_per_px: float, *,
                  method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
                  search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1,
-                 reseed_every: int = RESEED_EVERY_FRAMES):
+                 reseed_every: int = RESEED_EVERY_FRAMES, structure_drive_cycles_per_frame: float | None = None):
         if method not in METHODS:
             raise RecordingError(f"DIC method must be one of {', '.join(METHODS)}, got {method!r}")
         ref = np.asarray(reference_image)
@@ -395,6 +414,10 @@ class DicTracker:
             raise RecordingError(f"search_px must be >= 1, got {search_px!r}")
         if isinstance(reseed_every, bool) or not isinstance(reseed_every, int) or reseed_every < 1:
             raise RecordingError(f"reseed_every must be a positive number of frames, got {reseed_every!r}")
+        drive = structure_drive_cycles_per_frame
+        if drive is not None and not (isinstance(drive, (int, float)) and 0.0 < drive < 0.5):
+            raise RecordingError(f"structure_drive_cycles_per_frame (excitation frequency / camera fps) must be in "
+                                 f"(0, 0.5), below the Nyquist limit; got {drive!r}")
         self.reseed_every = reseed_every
         self._segment: int | None = None  # segment (index // reseed_every) of the last frame tracked
         rows, cols = ref.shape
@@ -417,8 +440,17 @@ class DicTracker:
         self.ball = MeshTracker("ball", ref32, dic_config.ball_roi, dic_config.subset_px,
                                 dic_config.mesh_step_px, rotation_corrected=True, **kw)
         self.structure = MeshTracker("structure", ref32, dic_config.structure_roi, dic_config.subset_px,
-                                     dic_config.mesh_step_px, **kw)
+                                     dic_config.mesh_step_px, **kw,
+                                     drive_rad_per_frame=None if drive is None else 2.0 * math.pi * drive)
         self.last_results: dict[str, MeshResult] = {}
+
+    @classmethod
+    def for_rig(cls, reference_image: np.ndarray, rig, **kwargs) -> "DicTracker":
+        """The tracker of a rig (:class:`vibro_io.rig.Rig`): its DIC configuration and scale, and the structure
+        predicted as a sine at the excitation frequency (step 1). ``kwargs`` as for the constructor."""
+        cycles = rig.excitation.frequency_hz / rig.camera.fps
+        return cls(reference_image, rig.dic, rig.camera.mm_per_px,
+                   structure_drive_cycles_per_frame=cycles if cycles < 0.5 else None, **kwargs)
 
     def use_texture(self, texture: TextureReport) -> None:
         """Leave out the subsets the texture check found unusable (:mod:`vibro_dic.texture`)."""
@@ -518,8 +550,7 @@ def track_slots(recording, start: int = 0, stop: int | None = None, *, texture: 
     if reference is None or reference.image is None:
         where = "0" if reference is None else reference.index
         raise FrameError(f"frame {where} (reference): {getattr(reference, 'error', None) or 'cannot be read'}")
-    tracker = DicTracker(reference.image, recording.rig.dic, recording.rig.camera.mm_per_px, method=method,
-                         **tracker_kwargs)
+    tracker = DicTracker.for_rig(reference.image, recording.rig, method=method, **tracker_kwargs)
     tracker.use_texture(texture)
     for frame in frames.iter_slots(start, stop):
         row = tracker.track(frame)
