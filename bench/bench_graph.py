@@ -60,7 +60,7 @@ def stage_costs(rec: Path, n: int = 300) -> dict[str, float]:
     t = time.perf_counter()
     images = [image_array(deserialize_message(w, Image)) for w in wire]
     de = (time.perf_counter() - t) / n
-    tracker = DicTracker(images[0], recording.rig.dic, recording.rig.camera.mm_per_px)
+    tracker = DicTracker.for_rig(images[0], recording.rig)
     t = time.perf_counter()
     for k, img in enumerate(images):
         tracker.track_image(k, recording.rig.camera.frame_time_s(k), img)

@@ -235,3 +235,17 @@ def test_a_drive_frequency_beyond_nyquist_or_not_a_number_is_refused(scene: RigS
     ref = scene.frame(0.0, 0.0)
     with pytest.raises(RecordingError, match="structure_drive_cycles_per_frame"):
         _tracker(scene, ref, structure_drive_cycles_per_frame=cycles)
+
+
+def test_history_a_whole_drive_period_apart_falls_back_to_the_parabola(scene: RigScene) -> None:
+    # 25 Hz at 1000 frames/s: frames 40 apart are one period apart, so three history frames 0, 40, 80 (a long
+    # loss between them) cannot determine a sine: the prediction must come from the parabola, not fail
+    ref = scene.frame(0.0, 0.0)
+    tr = _tracker(scene, ref, structure_drive_cycles_per_frame=25.0 / 1000.0)
+    mesh = tr.structure
+    for k, u in ((0, 0.0), (40, 1.0), (80, 4.0)):
+        mesh.history.append((k, np.array([0.0, u])))
+    pred = mesh.predict(81)
+    assert np.all(np.isfinite(pred))
+    # the parabola through (0, 0), (40, 1), (80, 4) px: u = k^2 / 1600, so 81^2 / 1600 at frame 81
+    assert pred[1] == pytest.approx(81.0**2 / 1600.0, abs=1e-9)

@@ -88,6 +88,9 @@ MIN_SUBSET_STD = 2.0  # gray levels: below this a subset holds no usable pattern
 # The bounding-box IC-GN stops at a finer step than the subsets' tol_px, so that the one
 # per-subset step that follows is dominated by the subset's own (noise) deviation.
 BOX_TOL_PX = 0.005
+#: a sinusoidal prediction (step 1) whose weights on the three history frames sum (in absolute value) beyond
+#: this amplifies their noise too much (history frames nearly a whole drive period apart); the parabola is used
+MAX_SINE_WEIGHT_SUM = 100.0
 #: the box refined from the motion prediction (step 2') is kept only within this distance of it (px per axis):
 #: well inside the +-1-2 px Gauss-Newton basin of speckle, so the peak reached is the one a search would find
 PREDICTION_TRUST_PX = 0.5
@@ -181,7 +184,9 @@ class MeshTracker:
         if len(self.history) == 1:
             return self.history[0][1].copy()
         if self.drive_rad_per_frame is not None and len(self.history) == 3:
-            return self._predict_sine(k)
+            sine = self._predict_sine(k)
+            if sine is not None:
+                return sine
         # Lagrange extrapolation through the stored points (exact for constant velocity/acceleration)
         ks = [float(h[0]) for h in self.history]
         ux = uy = 0.0
@@ -194,14 +199,21 @@ class MeshTracker:
             uy += w * float(u[1])
         return np.array([ux, uy])
 
-    def _predict_sine(self, k: int) -> np.ndarray:
+    def _predict_sine(self, k: int) -> np.ndarray | None:
         """The sine at the drive frequency plus an offset, u = a cos(w j) + b sin(w j) + c (j frames after the
-        last good frame), through the three history frames, at frame k (px)."""
+        last good frame), through the three history frames, at frame k (px); None when those frames do not
+        determine it (two of them a whole number of drive periods apart, after a long loss)."""
         w = self.drive_rad_per_frame
         k_last = self.history[-1][0]
         basis = np.array([[math.cos(w * (kh - k_last)), math.sin(w * (kh - k_last)), 1.0] for kh, _ in self.history])
         target = np.array([math.cos(w * (k - k_last)), math.sin(w * (k - k_last)), 1.0])
-        weights = np.linalg.solve(basis.T, target)  # u(k) = weights . u(history)
+        try:
+            weights = np.linalg.solve(basis.T, target)  # u(k) = weights . u(history)
+        except np.linalg.LinAlgError:
+            return None
+        # a near-singular fit amplifies the history's noise without bound: then the parabola predicts
+        if not np.sum(np.abs(weights)) <= MAX_SINE_WEIGHT_SUM:
+            return None
         return weights @ np.array([u for _, u in self.history])
 
     def search(self, image: np.ndarray, k: int) -> SearchResult | None:
