@@ -63,9 +63,70 @@ QOS_BY_KIND = {"stream": STREAM_QOS, "results": RESULTS_QOS, "sensor": SENSOR_QO
 
 
 def declare(node: Node, name: str, default: Any, description: str, read_only: bool = True) -> Any:
-    """Declare a parameter with a description and return its value."""
-    node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only))
-    return node.get_parameter(name).value
+    """Declare a parameter with a description and return its value, of the default's type.
+
+    The value a user gives (``-p``, a params file, launch) is checked here rather than by rclpy, whose type
+    errors are a crash trace: an integer is taken for a float parameter (``end_wait_s:=5``), an empty list
+    (``readers:=[]``, which reaches ROS without a type) for an empty list, and anything else of the wrong
+    type is a :class:`vibro_io.errors.RecordingError` naming the node, the parameter, what it takes and what
+    it got (one line, exit code 2 from :func:`run_node`)."""
+    node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only,
+                                                              dynamic_typing=True))
+    return parameter_of_type(node.get_name(), name, node.get_parameter(name).value, default)
+
+
+_PLURAL = {bool: "true/false values", int: "whole numbers", float: "numbers", str: "strings"}
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, int):
+        return "a whole number"
+    if isinstance(value, float):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    return type(value).__name__
+
+
+def parameter_of_type(node_name: str, name: str, value: Any, default: Any) -> Any:
+    """``value`` of parameter ``name`` as the type of its ``default`` (see :func:`declare`), or RecordingError."""
+    from vibro_io.errors import RecordingError
+
+    def refuse(expected: str) -> RecordingError:
+        got = "no value" if value is None else f"{value!r} ({_kind(value)})"
+        return RecordingError(f"{node_name}: parameter '{name}' takes {expected}, got {got}")
+
+    if isinstance(default, (list, tuple)):
+        if value is None:  # an empty list has no type on the command line or in YAML
+            return []
+        if not isinstance(value, (list, tuple)):
+            raise refuse("a list")
+        item = default[0] if len(default) else None
+        if item is None:
+            return list(value)
+        try:
+            return [parameter_of_type(node_name, name, v, item) for v in value]
+        except RecordingError:
+            raise refuse(f"a list of {_PLURAL.get(type(item), _kind(item))}") from None
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        raise refuse("true or false")
+    if isinstance(default, int):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise refuse("a whole number")
+    if isinstance(default, float):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise refuse("a number")
+    if isinstance(default, str):
+        if isinstance(value, str):
+            return value
+        raise refuse("a string (quote a number meant as text: name:=\"'123'\")")
+    return value
 
 
 def run_id_parameter(node: Node) -> str:

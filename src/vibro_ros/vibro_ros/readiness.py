@@ -305,19 +305,15 @@ class WriterWatch:
     def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5,
                  stale_after_s: float = 15.0, received: Callable[[str], int | None] | None = None,
                  grace_s: float = 5.0):
-        from rcl_interfaces.msg import ParameterDescriptor as Descriptor
+        from .node_support import declare, run_id_parameter
 
-        from .node_support import run_id_parameter
-
-        node.declare_parameter("writers", [""], Descriptor(
-            description="node names whose outputs this node takes; it exits once all have come and gone "
-                        "(with exit_when_done)", read_only=True))
-        self.writers = sorted({str(w).strip() for w in node.get_parameter("writers").value if str(w).strip()})
-        node.declare_parameter("stale_listing_s", float(stale_after_s), Descriptor(
-            description="s after every writer's streams ended (all announced items received) after which "
-                        "writers still listed in the ROS graph are taken as gone (a stale discovery view)",
-            read_only=True))
-        self.stale_after_s = float(node.get_parameter("stale_listing_s").value)
+        writers = declare(node, "writers", [""], "node names whose outputs this node takes; it exits once all "
+                          "have come and gone (with exit_when_done)")
+        self.writers = sorted({str(w).strip() for w in writers if str(w).strip()})
+        self.stale_after_s = float(declare(
+            node, "stale_listing_s", float(stale_after_s), "s after every writer's streams ended (all announced "
+            "items received) after which writers still listed in the ROS graph are taken as gone (a stale "
+            "discovery view)"))
         if not self.stale_after_s > 0:
             from vibro_io.errors import RecordingError
 
