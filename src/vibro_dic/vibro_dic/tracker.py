@@ -160,6 +160,7 @@ class MeshTracker:
             self.subset_templates = extract_blocks(reference, self.corners[:, 0], self.corners[:, 1],
                                                    (subset_px, subset_px))
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=3)
+        self._weights: dict[tuple, np.ndarray] = {}  # prediction weights by history pattern (predict)
         self.n_widened = 0  # frames whose first search window missed (statistics)
         self.n_global = 0  # frames that needed the whole-image search
         self.n_predicted = 0  # frames refined straight from the prediction, with no search (step 2')
@@ -178,43 +179,51 @@ class MeshTracker:
 
     # --- prediction and integer search ---------------------------------------------------------
     def predict(self, k: int) -> np.ndarray:
-        """Predicted displacement (x, y) px at frame k: quadratic (3 frames), linear (2) or last (1) fit."""
+        """Predicted displacement (x, y) px at frame k: quadratic (3 frames), linear (2) or last (1) fit, or the
+        drive's sine through 3 frames (module doc, step 1)."""
         if not self.history:
             return np.zeros(2)
         if len(self.history) == 1:
             return self.history[0][1].copy()
-        if self.drive_rad_per_frame is not None and len(self.history) == 3:
-            sine = self._predict_sine(k)
+        k_last = self.history[-1][0]
+        pattern = (tuple(kh - k_last for kh, _ in self.history), k - k_last)  # frame offsets: weights depend on these
+        weights = self._weights.get(pattern)
+        if weights is None:
+            weights = self._prediction_weights(*pattern)
+            if len(self._weights) >= 256:  # a tracker that keeps dropping frames meets many patterns
+                self._weights.clear()
+            self._weights[pattern] = weights
+        return weights @ np.array([u for _, u in self.history])
+
+    def _prediction_weights(self, offsets: tuple[int, ...], target: int) -> np.ndarray:
+        """Weights of the history frames (at ``offsets`` from the last, in frames) giving the prediction at
+        ``target``: the drive's sine when it is given and determined by 3 frames, else Lagrange extrapolation
+        (exact for constant velocity or acceleration)."""
+        if self.drive_rad_per_frame is not None and len(offsets) == 3:
+            sine = self._sine_weights(offsets, target)
             if sine is not None:
                 return sine
-        # Lagrange extrapolation through the stored points (exact for constant velocity/acceleration)
-        ks = [float(h[0]) for h in self.history]
-        ux = uy = 0.0
-        for i, (_, u) in enumerate(self.history):
-            w = 1.0
-            for j, kj in enumerate(ks):
+        weights = np.ones(len(offsets))
+        for i, ki in enumerate(offsets):
+            for j, kj in enumerate(offsets):
                 if j != i:
-                    w *= (k - kj) / (ks[i] - kj)
-            ux += w * float(u[0])
-            uy += w * float(u[1])
-        return np.array([ux, uy])
+                    weights[i] *= (target - kj) / (ki - kj)
+        return weights
 
-    def _predict_sine(self, k: int) -> np.ndarray | None:
-        """The sine at the drive frequency plus an offset, u = a cos(w j) + b sin(w j) + c (j frames after the
-        last good frame), through the three history frames, at frame k (px); None when those frames do not
-        determine it (two of them a whole number of drive periods apart, after a long loss)."""
+    def _sine_weights(self, offsets: tuple[int, ...], target: int) -> np.ndarray | None:
+        """Weights for u = a cos(w j) + b sin(w j) + c through the frames at ``offsets`` (j in frames), at
+        ``target``; None when those frames do not determine it (two of them a whole number of drive periods
+        apart, after a long loss)."""
         w = self.drive_rad_per_frame
-        k_last = self.history[-1][0]
-        basis = np.array([[math.cos(w * (kh - k_last)), math.sin(w * (kh - k_last)), 1.0] for kh, _ in self.history])
-        target = np.array([math.cos(w * (k - k_last)), math.sin(w * (k - k_last)), 1.0])
+        basis = np.array([[math.cos(w * j), math.sin(w * j), 1.0] for j in offsets])
         try:
-            weights = np.linalg.solve(basis.T, target)  # u(k) = weights . u(history)
+            weights = np.linalg.solve(basis.T, [math.cos(w * target), math.sin(w * target), 1.0])
         except np.linalg.LinAlgError:
             return None
         # a near-singular fit amplifies the history's noise without bound: then the parabola predicts
         if not np.sum(np.abs(weights)) <= MAX_SINE_WEIGHT_SUM:
             return None
-        return weights @ np.array([u for _, u in self.history])
+        return weights
 
     def search(self, image: np.ndarray, k: int) -> SearchResult | None:
         def good(res: SearchResult | None) -> bool:
