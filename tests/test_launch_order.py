@@ -39,12 +39,16 @@ def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, t
                                            "simulator", "discrepancy", "frame_source", "accel_source"}
     for n in nodes:
         assert scripts[(n.spec.package, n.spec.executable)] == f"{n.spec.module}:main", n.spec
-    # live: no file source, the camera topic remapped, processing nodes stay up and respawn
+    # live: no file source, the camera topic remapped, processing nodes stay up and respawn; no end-of-run
+    # nodes (simulator, discrepancy: a live stream never ends, they would only hoard DicFrames)
     live = {n.spec.name: n for n in launch_nodes(recording, None, live=True, camera_topic="/camera/image_raw")}
-    assert "frame_source" not in live and "recorder" not in live
+    assert set(live) == {"dic_tracker", "impact_detector", "trajectory_fitter", "accel_source"}
     assert live["dic_tracker"].remappings == (("vibro/frames", "/camera/image_raw"),)
     assert live["dic_tracker"].respawn and live["dic_tracker"].parameters["exit_when_done"] is False
-    assert live["dic_tracker"].parameters["readers"] == ["discrepancy", "simulator", "trajectory_fitter"]
+    assert live["dic_tracker"].parameters["readers"] == ["trajectory_fitter"]
+    assert live["dic_tracker"].parameters["keep_history_until"] == ["impacts"]
+    recorded = {n.spec.name for n in launch_nodes(recording, tmp_path / "live_bag", live=True)}
+    assert recorded == set(live) | {"recorder"}
 
 
 def test_reader_topics_pair_every_declared_reader_with_topics_the_node_publishes(recording: Path, tmp_path: Path

@@ -73,14 +73,23 @@ BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringu
 ALL_SPECS: dict[str, NodeSpec] = {s.name: s for s in (*NODES, BAG_SOURCE)}
 
 
+#: nodes that act once, at the end of a run (the simulation and the discrepancy need the whole run's final
+#: fits): a live stream has no end, so a live graph leaves them out. They would only hold every DicFrame in
+#: memory (3.6 million an hour at 1000 frames/s) and cost each frame about 0.2 ms of CPU; a live session is
+#: simulated once it has ended, from its saved frames.
+END_OF_RUN_NODES = ("simulator", "discrepancy")
+
+
 def graph_nodes(*, bag: bool, with_accel: bool, live: bool = False, replay: bool = False,
                 foxglove: bool = False) -> list[NodeSpec]:
     """The nodes of one run, in start order (sink, processing, sources): the recorder only when a bag
-    is recorded, impact_detector and accel_source only with accelerometers, no file source when live
-    (a camera driver publishes the frames), bag_source instead of the file sources for a replay, the
-    Foxglove bridge only with ``foxglove``."""
+    is recorded, impact_detector and accel_source only with accelerometers, no file source and none of
+    :data:`END_OF_RUN_NODES` when live (a camera driver publishes the frames, and the stream has no end),
+    bag_source instead of the file sources for a replay, the Foxglove bridge only with ``foxglove``."""
     out = []
     for spec in NODES:
+        if live and spec.name in END_OF_RUN_NODES:
+            continue
         if spec.name == "recorder" and not bag:
             continue
         if spec.role == VIEWER and not foxglove:
