@@ -348,14 +348,17 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
 
     rec = open_recording(recording)
     bag = str(bag) if bag else None
-    nodes = graph_nodes(bag=bag is not None, with_accel=rec.has_accel, live=live, foxglove=foxglove is not None)
+    # live, the recording only gives the rig: its accelerometer files are an old run's, which next to a live
+    # camera would put that run's impacts into this one's flights; a live graph is camera-only
+    with_accel = rec.has_accel and not live
+    nodes = graph_nodes(bag=bag is not None, with_accel=with_accel, live=live, foxglove=foxglove is not None)
     reference = None
     if not live:
         import tempfile
 
         folder = Path(reference_dir) if reference_dir is not None else Path(tempfile.mkdtemp(prefix="vibro-launch-"))
         reference = write_reference_frame(rec.path, folder / "reference_frame0.png")
-    params = node_parameters(rec.path, bag, base, rec.has_accel, reference, nodes=nodes, live=live, foxglove=foxglove)
+    params = node_parameters(rec.path, bag, base, with_accel, reference, nodes=nodes, live=live, foxglove=foxglove)
     params["dic_tracker"]["live_camera"] = live
     remap = ((T.FRAMES.name, camera_topic),) if camera_topic != T.FRAMES.name else ()
     restarted = ("processing", VIEWER)
