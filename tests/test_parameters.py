@@ -28,14 +28,14 @@ def test_values_of_the_right_kind_are_taken_as_the_defaults_type(value, default,
 
 
 @pytest.mark.parametrize("value,default,expected", [
-    ("abc", 0.5, "takes a number, got 'abc' (a string)"),
-    (1.5, 32, "takes a whole number, got 1.5 (a number)"),
-    (True, 32, "takes a whole number, got True (true or false)"),
-    (1, False, "takes true or false, got 1 (a whole number)"),
-    (123, "", "takes a string"),
-    ("x", [""], "takes a list, got 'x' (a string)"),
-    ([1, 2], [""], "takes a list of strings, got [1, 2]"),
-    (None, 0.5, "takes a number, got no value"),
+    ("abc", 0.5, "takes a double, got 'abc' (string)"),
+    (1.5, 32, "takes an int, got 1.5 (double)"),
+    (True, 32, "takes an int, got True (bool)"),
+    (1, False, "takes a bool, got 1 (int)"),
+    (123, "", "takes a string, got 123 (int) (quote a number"),
+    ("x", [""], "takes a string[], got 'x' (string)"),
+    ([1, 2], [""], "takes a string[], got [1, 2] (int[])"),
+    (None, 0.5, "takes a double, got no value"),
 ])
 def test_values_of_another_kind_are_refused_naming_node_parameter_and_value(value, default, expected) -> None:
     with pytest.raises(RecordingError) as err:
@@ -44,9 +44,9 @@ def test_values_of_another_kind_are_refused_naming_node_parameter_and_value(valu
 
 
 @pytest.mark.parametrize("module,args,what", [
-    ("vibro_dic.dic_tracker_node", ["zncc_min:=abc"], "parameter 'zncc_min' takes a number, got 'abc'"),
-    ("vibro_fit.trajectory_fitter_node", ["use_accelerometers:=1"], "parameter 'use_accelerometers' takes true"),
-    ("vibro_bringup.recorder_node", ["exclude_topics:=[1, 2]"], "parameter 'exclude_topics' takes a list of str"),
+    ("vibro_dic.dic_tracker_node", ["zncc_min:=abc"], "parameter 'zncc_min' takes a double, got 'abc' (string)"),
+    ("vibro_fit.trajectory_fitter_node", ["use_accelerometers:=1"], "parameter 'use_accelerometers' takes a bool"),
+    ("vibro_bringup.recorder_node", ["exclude_topics:=[1, 2]"], "parameter 'exclude_topics' takes a string[]"),
 ])
 def test_a_wrongly_typed_parameter_stops_a_node_with_one_line(tiny_recording: Path, ros_domain: str, module: str,
                                                              args: list[str], what: str) -> None:

@@ -138,7 +138,9 @@ def node_interface(node_class: type) -> NodeInterface:
     return NodeInterface(list(params.values()), list(topics.values()))
 
 
-def _type_name(value: Any) -> str:
+def parameter_type_name(value: Any) -> str:
+    """The ROS parameter type of a Python value, as ``--help`` and parameter errors name it (bool, int, double,
+    string, string[], ...)."""
     if isinstance(value, bool):
         return "bool"
     if isinstance(value, int):
@@ -148,7 +150,7 @@ def _type_name(value: Any) -> str:
     if isinstance(value, str):
         return "string"
     if isinstance(value, (list, tuple)):
-        return f"{_type_name(value[0]) if value else 'string'}[]"
+        return f"{parameter_type_name(value[0]) if value else 'string'}[]"
     return type(value).__name__
 
 
@@ -183,7 +185,7 @@ def usage(node_class: type, executable: str | None = None) -> str:
     width = max((len(p.name) for p in interface.parameters), default=0)
     for p in interface.parameters:
         default = ("default set by the node" if p.default is NODE_DEFAULT
-                   else f"{_type_name(p.default)}, default {_format_default(p.default)}")
+                   else f"{parameter_type_name(p.default)}, default {_format_default(p.default)}")
         lines.append(f"  {p.name:<{width}}  {default}: {p.description}")
     for direction, title in (("subscribes", "reads (subscribes to)"), ("publishes", "writes (publishes)")):
         lines += ["", f"{title}:"]

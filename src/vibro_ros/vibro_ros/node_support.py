@@ -75,57 +75,46 @@ def declare(node: Node, name: str, default: Any, description: str, read_only: bo
     return parameter_of_type(node.get_name(), name, node.get_parameter(name).value, default)
 
 
-_PLURAL = {bool: "true/false values", int: "whole numbers", float: "numbers", str: "strings"}
-
-
-def _kind(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true or false"
-    if isinstance(value, int):
-        return "a whole number"
-    if isinstance(value, float):
-        return "a number"
-    if isinstance(value, str):
-        return "a string"
-    return type(value).__name__
-
-
 def parameter_of_type(node_name: str, name: str, value: Any, default: Any) -> Any:
-    """``value`` of parameter ``name`` as the type of its ``default`` (see :func:`declare`), or RecordingError."""
+    """``value`` of parameter ``name`` as the type of its ``default`` (see :func:`declare`), or RecordingError
+    naming the types as ``--help`` does (:func:`vibro_ros.node_help.parameter_type_name`)."""
     from vibro_io.errors import RecordingError
 
-    def refuse(expected: str) -> RecordingError:
-        got = "no value" if value is None else f"{value!r} ({_kind(value)})"
-        return RecordingError(f"{node_name}: parameter '{name}' takes {expected}, got {got}")
+    from .node_help import parameter_type_name
+
+    def refuse(hint: str = "") -> RecordingError:
+        got = "no value" if value is None else f"{value!r} ({parameter_type_name(value)})"
+        wanted = parameter_type_name(default)
+        article = "an" if wanted[0] in "aeiou" else "a"
+        return RecordingError(f"{node_name}: parameter '{name}' takes {article} {wanted}, got {got}{hint}")
 
     if isinstance(default, (list, tuple)):
         if value is None:  # an empty list has no type on the command line or in YAML
             return []
         if not isinstance(value, (list, tuple)):
-            raise refuse("a list")
-        item = default[0] if len(default) else None
-        if item is None:
+            raise refuse()
+        if not len(default):
             return list(value)
         try:
-            return [parameter_of_type(node_name, name, v, item) for v in value]
+            return [parameter_of_type(node_name, name, v, default[0]) for v in value]
         except RecordingError:
-            raise refuse(f"a list of {_PLURAL.get(type(item), _kind(item))}") from None
+            raise refuse() from None
     if isinstance(default, bool):
         if isinstance(value, bool):
             return value
-        raise refuse("true or false")
+        raise refuse()
     if isinstance(default, int):
         if isinstance(value, int) and not isinstance(value, bool):
             return value
-        raise refuse("a whole number")
+        raise refuse()
     if isinstance(default, float):
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)
-        raise refuse("a number")
+        raise refuse()
     if isinstance(default, str):
         if isinstance(value, str):
             return value
-        raise refuse("a string (quote a number meant as text: name:=\"'123'\")")
+        raise refuse(" (quote a number meant as text: name:=\"'123'\")")
     return value
 
 
