@@ -101,13 +101,15 @@ class TrackQuality:
                 if len(b.first_below) < _FIRST:
                     b.first_below.append(frame_index)
             if b.kept is not None and len(r.point_valid) == len(b.kept):
-                b.kept += r.point_valid.astype(np.int64)
+                b.kept += r.point_valid  # bool counts as 0/1
                 var = self._variance(name)
-                if var is not None and len(var) == len(b.kept) and r.point_valid.any():
+                if var is not None and len(var) == len(b.kept) and r.valid > 0:
                     v = r.point_valid
                     # ZNCC <= 1 mathematically; a subset matching its reference to rounding (frame 0 itself) can
-                    # read 1 + 1e-12: no residual, not a negative one
-                    b.residual_var.append(float(np.mean(np.clip(1.0 - r.point_zncc[v], 0.0, None) * var[v])))
+                    # read 1 + 1e-12: no residual, not a negative one (once per frame: plain ufuncs, not clip/mean)
+                    residual = 1.0 - r.point_zncc[v]
+                    np.maximum(residual, 0.0, out=residual)
+                    b.residual_var.append(float(residual @ var[v]) / len(residual))
 
     def _variance(self, name: str) -> np.ndarray | None:
         if self.texture is None or name not in self.texture.bodies:
