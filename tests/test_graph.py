@@ -153,6 +153,43 @@ def test_replaying_a_bag_reproduces_its_results(reference_run: dict, tmp_path: P
         assert "Traceback" not in log.read_text(), log
 
 
+def _bag_with_frames_on(source: Path, out: Path, image_topics: list[str]) -> Path:
+    """``source``'s raw topics rewritten as a live session records them: its frames on each of ``image_topics``
+    (a camera driver's topic instead of vibro/frames), its accelerometer blocks and metadata as they were."""
+    from vibro_ros.bags import BagWriter, read_custom_data, read_messages
+
+    w = BagWriter(out, custom_data=read_custom_data(source))
+    for m in read_messages(source, {"vibro/frames", "vibro/accel"}):
+        for topic in image_topics if m.topic == "vibro/frames" else ["/vibro/accel"]:
+            w.add_topic(topic, m.msg_type)
+            w.write(topic, m.timestamp_ns, m.data)
+    w.close()
+    return out
+
+
+def test_a_live_sessions_bag_replays_from_its_camera_topic(reference_run: dict, tmp_path: Path) -> None:
+    # a live graph records the camera where the driver publishes it (vibro/frames remapped); before, a replay
+    # read vibro/frames only and refused such a bag ("no vibro/frames messages to replay")
+    live = _bag_with_frames_on(reference_run["bag"], tmp_path / "live", ["/camera/image_raw"])
+    replay = _vibro("replay", str(live), "--out", str(tmp_path / "re"))
+    assert replay.returncode == 0, replay.stdout + replay.stderr
+    assert "replay: frames from /camera/image_raw" in replay.stdout
+    assert "frames in 300 / tracked 300 / lost 0" in replay.stdout, replay.stdout
+    a = reference_run["bag_doc"]
+    b = json.loads((tmp_path / "re" / "results.json").read_text())
+    assert len(a["impacts"]) == len(b["impacts"]) > 0  # the same frames: the same numbers
+    assert all(abs(x["cor"] - y["cor"]) < 1e-9 for x, y in zip(a["impacts"], b["impacts"]))
+
+
+def test_replay_says_which_image_topic_when_it_cannot_tell(reference_run: dict, tmp_path: Path) -> None:
+    two = _bag_with_frames_on(reference_run["bag"], tmp_path / "two", ["/cam_a/image_raw", "/cam_b/image_raw"])
+    res = _vibro("replay", str(two), "--out", str(tmp_path / "re"))
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert "several image topics (/cam_a/image_raw, /cam_b/image_raw)" in res.stderr and "--frames-topic" in res.stderr
+    res = _vibro("replay", str(two), "--out", str(tmp_path / "re2"), "--frames-topic", "/cam_c/image_raw")
+    assert res.returncode == 2 and "no sensor_msgs/msg/Image topic /cam_c/image_raw recorded" in res.stderr
+
+
 def test_replay_refuses_a_bag_without_a_rig(tmp_path: Path) -> None:
     from vibro_ros.bags import BagWriter
 

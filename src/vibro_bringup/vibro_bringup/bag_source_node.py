@@ -1,5 +1,8 @@
 """ROS node ``bag_source``: republish a bag's raw topics (frames, accelerometer blocks) for a replay.
 
+Frames are read from ``frames_topic`` (default vibro/frames; a live session's bag holds its camera's topic)
+and published on vibro/frames.
+
 Messages go out as recorded (serialized CDR, no re-encoding), stamps included: their lab clock is
 the bag's (metadata ``vibro.time_origin_unix_ns``, 0 for an older bag), which ``vibro replay`` gives
 every node as ``time_origin_unix_ns``; another nonzero value is refused. Frames are flow-controlled
@@ -33,6 +36,9 @@ class BagSource(Node):
     def __init__(self) -> None:
         super().__init__("bag_source")
         bag = declare(self, "bag", "", "bag directory recorded by vibro graph")
+        self.frames_topic = declare(self, "frames_topic", topics.FRAMES.name,
+                                    "the bag's topic of camera images (a live session's camera, e.g. "
+                                    "/camera/image_raw); they are replayed on vibro/frames")
         self.window = int(declare(self, "window", 32, "frames in flight before waiting for the tracker"))
         self.linger_s = float(declare(self, "linger_s", 3.0, "seconds to wait for the last acknowledgements"))
         if not bag:
@@ -53,12 +59,12 @@ class BagSource(Node):
             raise RecordingError(f"bag_source: parameter '{TIME_ORIGIN_PARAMETER}' is {origin} but the frames of {bag} "
                                  f"are stamped on origin {self.recorded_origin_ns} (metadata '{BAG_TIME_ORIGIN_KEY}'): "
                                  "the replayed stamps keep it; give every node that origin")
-        raw = list(read_messages(bag, {topics.FRAMES.name, topics.ACCEL.name}))
-        self.frames = [m.data for m in raw if m.topic == topics.FRAMES.name]
+        raw = list(read_messages(bag, {self.frames_topic, topics.ACCEL.name}))
+        self.frames = [m.data for m in raw if m.topic == self.frames_topic]
         self.run_id = run_id_parameter(self)
         self.accel = [self._restamped_block(m.data, bag) for m in raw if m.topic == topics.ACCEL.name]
         if not self.frames:
-            raise RecordingError(f"{bag}: no {topics.FRAMES.name} messages to replay")
+            raise RecordingError(f"{bag}: no {self.frames_topic} messages to replay")
         self.sent = 0
         self.last_index_acked = -1
         self.guard = InputGuard(self)  # the acknowledgements must be this run's tracker's

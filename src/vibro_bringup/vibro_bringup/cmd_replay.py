@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+from vibro_ros import topics
 from vibro_ros.bags import read_custom_data
 from vibro_io.errors import RecordingError
 from vibro_io.outputs import atomic_write_text, prepare_output_dir
@@ -20,7 +21,7 @@ from vibro_model.codec import write_results
 from .bag_results import document_from_bag
 from .cmd_graph import (add_run_options, bag_outputs, execute_graph, foxglove_parameters, new_bag_path,
                         prepare_environment, print_summary)
-from .graph_spec import BAG_SOURCE, bag_time_origin_ns, reference_from_bag
+from .graph_spec import BAG_SOURCE, bag_time_origin_ns, frames_topic_of_bag, reference_from_bag
 
 REPLAY_BAG = "bag"
 REPLAY_OUTPUTS = ("rig.yaml", "results.json", *bag_outputs(REPLAY_BAG))  # what --overwrite may replace
@@ -31,6 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("bag", help="bag directory recorded by vibro graph")
     p.add_argument("--out", help="output folder (default: <bag>.replay): rig.yaml, bag/, bag.logs/ and results.json; "
                                  "created; must be empty unless --overwrite")
+    p.add_argument("--frames-topic", help="the bag's topic of camera images (default: vibro/frames, else the "
+                                          "bag's only sensor_msgs/msg/Image topic, e.g. a live camera's)")
     add_run_options(p)
     p.set_defaults(func=run)
 
@@ -42,6 +45,9 @@ def run(args: argparse.Namespace) -> int:
         raise RecordingError(f"{source_bag}: the bag holds no rig.yaml (metadata custom_data 'vibro.rig_yaml'); "
                              "it was not recorded by vibro graph")
     time_origin_ns = bag_time_origin_ns(source_bag)  # the replayed frames keep their stamps: the same clock
+    frames_topic = frames_topic_of_bag(source_bag, args.frames_topic)
+    if frames_topic != topics.FRAMES.name:
+        print(f"replay: frames from {frames_topic}")
     out = Path(args.out) if args.out else source_bag.parent / f"{source_bag.name}.replay"
     if (out / REPLAY_BAG).resolve() == source_bag.resolve():
         raise RecordingError(f"{out}: the replay writes its own bag to {out / REPLAY_BAG}, which is the source bag; "
@@ -55,11 +61,13 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, params_base=args.params,
                                          timeout_s=args.timeout_s, env=env,
-                                         extra_params={"bag_source": {"bag": str(source_bag.resolve())}},
+                                         extra_params={"bag_source": {"bag": str(source_bag.resolve()),
+                                                                      "frames_topic": frames_topic}},
                                          respawn=args.respawn, namespace=args.namespace,
                                          time_origin_ns=time_origin_ns, foxglove=foxglove,
                                          reference=lambda folder: reference_from_bag(
-                                             source_bag, folder / "reference_frame0.png", out / "rig.yaml"))
+                                             source_bag, folder / "reference_frame0.png", out / "rig.yaml",
+                                             frames_topic))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     if ok:

@@ -76,7 +76,7 @@ ALL_SPECS: dict[str, NodeSpec] = {s.name: s for s in (*NODES, BAG_SOURCE)}
 #: nodes that act once, at the end of a run (the simulation and the discrepancy need the whole run's final
 #: fits): a live stream has no end, so a live graph leaves them out. They would only hold every DicFrame in
 #: memory (3.6 million an hour at 1000 frames/s) and cost each frame about 0.2 ms of CPU; a live session is
-#: simulated once it has ended, from its saved frames.
+#: simulated once it has ended (``vibro replay`` of its bag).
 END_OF_RUN_NODES = ("simulator", "discrepancy")
 
 
@@ -239,22 +239,49 @@ def bag_time_origin_ns(bag: str | Path) -> int:
         raise RecordingError(str(exc)) from None
 
 
-def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Path) -> Path | None:
-    """Write the recorded ``vibro/frames`` image of frame 0 (index from its stamp on the bag's lab clock and
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+
+
+def frames_topic_of_bag(bag: str | Path, requested: str | None = None) -> str:
+    """The bag topic holding the camera images to replay: ``requested`` (checked: recorded, as an Image), else
+    ``vibro/frames`` (any namespace), else the bag's only Image topic (a live session's camera, e.g.
+    ``/camera/image_raw``); RecordingError naming the Image topics when none or several could be meant."""
+    from vibro_io.errors import RecordingError
+    from vibro_ros.bags import matching_name, recorded_topics
+
+    recorded = recorded_topics(bag)
+    images = sorted(name for name, kind in recorded.items() if kind == IMAGE_TYPE)
+    if requested:
+        if any(matching_name(name, {requested}) for name in images):
+            return requested
+        raise RecordingError(f"{bag}: no {IMAGE_TYPE} topic {requested} recorded; its image topics: "
+                             f"{', '.join(images) or 'none'}")
+    if any(matching_name(name, {T.FRAMES.name}) for name in images):
+        return T.FRAMES.name
+    if len(images) == 1:
+        return images[0]
+    if not images:
+        raise RecordingError(f"{bag}: no camera images recorded (no {IMAGE_TYPE} topic): nothing to replay")
+    raise RecordingError(f"{bag}: no {T.FRAMES.name} but several image topics ({', '.join(images)}): "
+                         "choose one with --frames-topic")
+
+
+def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Path,
+                       frames_topic: str = T.FRAMES.name) -> Path | None:
+    """Write the image of frame 0 recorded on ``frames_topic`` (index from its stamp on the bag's lab clock and
     rig.yaml's camera) to ``out_png``; None when the bag holds no frame 0."""
     import cv2
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image
 
     from vibro_dic.dic_tracker_node import image_array
-    from vibro_ros import topics
     from vibro_ros.bags import read_messages
     from vibro_ros.node_support import seconds_from_stamp
     from vibro_io.rig import load_rig
 
     cam = load_rig(rig_yaml).camera
     origin_ns = bag_time_origin_ns(bag)
-    for m in read_messages(bag, {topics.FRAMES.name}):
+    for m in read_messages(bag, {frames_topic}):
         msg = deserialize_message(m.data, Image)
         if int(round((seconds_from_stamp(msg.header, origin_ns) - cam.t0_s) * cam.fps)) != 0:
             continue

@@ -248,16 +248,28 @@ def write_metadata_file(bag: Path, info: dict) -> None:
     tmp.replace(bag / "metadata.yaml")
 
 
-def read_custom_data(bag: str | Path) -> dict[str, str]:
-    """The ``custom_data`` strings of a bag's metadata.yaml (empty when none)."""
+def _bag_information(bag: str | Path) -> dict:
     path = Path(bag) / "metadata.yaml"
     if not path.is_file():
         raise BagError(f"{bag}: no metadata.yaml (not a rosbag2 directory)")
     try:
-        info = yaml.safe_load(path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        return yaml.safe_load(path.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
     except (yaml.YAMLError, KeyError, TypeError) as exc:
         raise BagError(f"{path}: not a rosbag2 metadata file ({exc})") from None
-    return dict(info.get("custom_data") or {})
+
+
+def read_custom_data(bag: str | Path) -> dict[str, str]:
+    """The ``custom_data`` strings of a bag's metadata.yaml (empty when none)."""
+    return dict(_bag_information(bag).get("custom_data") or {})
+
+
+def recorded_topics(bag: str | Path) -> dict[str, str]:
+    """{topic name as recorded: ROS type ``pkg/msg/Type``} from a bag's metadata.yaml."""
+    try:
+        return {t["topic_metadata"]["name"]: t["topic_metadata"]["type"]
+                for t in _bag_information(bag).get("topics_with_message_count") or []}
+    except (KeyError, TypeError) as exc:
+        raise BagError(f"{bag}/metadata.yaml: malformed topic list ({exc})") from None
 
 
 @dataclass
