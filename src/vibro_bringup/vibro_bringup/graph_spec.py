@@ -131,11 +131,19 @@ def readers_of(name: str, present: Iterable[str]) -> list[str]:
     return sorted(n for n in set(present) if n != name and _reads(ALL_SPECS[n], ALL_SPECS[name]))
 
 
-def reader_topics_of(name: str, readers: Iterable[str], excluded: Iterable[str] = ()) -> list[str]:
+#: topics a node does not subscribe to in a run without accelerometers (trajectory_fitter with
+#: use_accelerometers false): a source that publishes them anyway (a replay's bag_source) must not wait for it there
+UNREAD_WITHOUT_ACCEL = {"trajectory_fitter": (T.ACCEL.name,)}
+
+
+def reader_topics_of(name: str, readers: Iterable[str], excluded: Iterable[str] = (),
+                     unread: dict[str, Iterable[str]] | None = None) -> list[str]:
     """``reader=topic`` pairs for node ``name``'s parameter ``reader_topics``: each of ``readers`` must be matched on
     every topic of ``name`` (its data topics and vibro/status) that it subscribes to (the monitor: MONITOR_SUBSCRIBES;
-    the recorder: all but its ``excluded`` topics). /diagnostics is not waited for."""
+    the recorder: all but its ``excluded`` topics; any reader: not the topics ``unread`` lists for it in this run,
+    e.g. :data:`UNREAD_WITHOUT_ACCEL`). /diagnostics is not waited for."""
     published = set(ALL_SPECS[name].publishes) | {T.STATUS.name}
+    unread = unread or {}
     pairs = []
     for reader in sorted(set(readers)):
         if reader == MONITOR:
@@ -146,6 +154,7 @@ def reader_topics_of(name: str, readers: Iterable[str], excluded: Iterable[str] 
                 subscribed = {t for t in subscribed if not any(x == t or x.endswith("/" + t) for x in excluded)}
         else:
             continue  # a reader the table does not know: matched on any topic
+        subscribed -= set(unread.get(reader, ()))
         pairs += [f"{reader}={topic}" for topic in sorted(published & subscribed)]
     return pairs
 
@@ -337,7 +346,8 @@ def node_parameters(recording: str | Path, bag: str | Path | None, base: str | P
         p["readers"] = readers_of(name, present) + sorted(set(extra_readers) - set(present))
         if ALL_SPECS[name].role != "sink":  # a sink's outputs are files: it has no reader to wait for
             excluded = [t for t in params.get("recorder", {}).get("exclude_topics", []) if t]
-            p["reader_topics"] = reader_topics_of(name, p["readers"], excluded) or [""]
+            p["reader_topics"] = reader_topics_of(name, p["readers"], excluded,
+                                                  None if with_accel else UNREAD_WITHOUT_ACCEL) or [""]
         p["exit_when_done"] = not live
         p["keep_history_until"] = history_kept_until(name, present) or [""]
         if ALL_SPECS[name].role == "sink":
