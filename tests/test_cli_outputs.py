@@ -271,6 +271,8 @@ def result_bag(tmp_path_factory) -> Path:
 
     bag = tmp_path_factory.mktemp("bags") / "run1"
     writer = BagWriter(bag, custom_data={"vibro.rig_yaml": RIG_YAML.read_text()})
+    writer.add_topic(topics.FRAMES.name, topics.FRAMES.msg_type)  # declared as vibro graph records it (no image
+    # needed here; a replay refuses a bag with no image topic at all before it looks at its --out)
     writer.add_topic(topics.STRUCTURE.name, topics.STRUCTURE.msg_type)
     writer.add_topic(topics.STATUS.name, topics.STATUS.msg_type)
     writer.write(topics.STRUCTURE.name, 1, serialize_message(
@@ -356,6 +358,23 @@ def test_replay_refusals_before_any_node_starts(result_bag, tmp_path, capsys):
     (out / "bag" / "my_notes.txt").write_text("mine")  # inside the bag: the folder is no longer ours
     before = snapshot(out)
     assert "bag/" in refused(capsys, ["replay", str(result_bag), "--out", str(out), "--overwrite"])
+    assert snapshot(out) == before
+
+
+def test_a_bag_with_no_images_is_refused_before_an_earlier_replay_is_overwritten(tmp_path, capsys):
+    # the bag's content is checked before --overwrite clears the output folder: a replay that cannot run must
+    # not cost the user the previous replay's outputs
+    from vibro_ros import topics
+    from vibro_ros.bags import BagWriter
+
+    bag = tmp_path / "no_images"
+    writer = BagWriter(bag, custom_data={"vibro.rig_yaml": RIG_YAML.read_text()})
+    writer.add_topic(topics.STATUS.name, topics.STATUS.msg_type)
+    writer.close()
+    out = tmp_path / "re"
+    fake_replay_folder(out, bag)
+    before = snapshot(out)
+    assert "no camera images recorded" in refused(capsys, ["replay", str(bag), "--out", str(out), "--overwrite"])
     assert snapshot(out) == before
 
 
