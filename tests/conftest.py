@@ -17,7 +17,7 @@ SHARED = REPO.parent / "shared"
 #: (``--dist loadfile``) do not end with one of them alone on a long file
 LONGEST_FIRST = ("test_discrepancy_prove.py", "test_isolation.py", "test_graph_faults.py", "test_graph.py",
                  "test_restart_recovery.py", "test_reidentify.py", "test_structure_tone.py", "test_launch_order.py",
-                 "test_bags_rosbag2.py")
+                 "test_bags_rosbag2.py", "test_replay_live.py")
 
 
 def pytest_sessionstart(session) -> None:
