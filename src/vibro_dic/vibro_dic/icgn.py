@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .interp import patch_margin, sample_block, sample_blocks, support_inside
+from .interp import sample_block, sample_blocks, support_inside, support_inside_one
 
 _D4 = np.array([[1.0, -8.0, 0.0, 8.0, -1.0]], dtype=np.float32) / 12.0
 
@@ -108,10 +108,6 @@ class IcgnBlocks:
         self._du_f = np.column_stack([self.ixx * bx0 + self.ixy * by0, self.ixy * bx0 + self.iyy * by0])  # H^-1 [fx.f~, fy.f~]
         # block 0's constants as Python floats, for :meth:`step_one`
         self._one = (float(self.df[0]), float(self._du_f[0, 0]), float(self._du_f[0, 1]))
-        before, after = patch_margin(taps)
-        # block 0's top-left and its interpolation support's reach (px) before and after it, for :meth:`inside_one`
-        self._span_one = (float(self.corners[0, 0]), float(self.corners[0, 1]), before,
-                          self.size[1] - 1 + after, self.size[0] - 1 + after)
 
     def __len__(self) -> int:
         return len(self.corners)
@@ -123,10 +119,8 @@ class IcgnBlocks:
 
     def inside_one(self, ux: float, uy: float, shape: tuple[int, int]) -> bool:
         """:meth:`inside` of block 0 displaced by (ux, uy) px, in Python scalars."""
-        x0, y0, before, right, below = self._span_one
-        ix, iy = math.floor(x0 + ux), math.floor(y0 + uy)
-        rows, cols = shape
-        return ix - before >= 0 and ix + right <= cols - 1 and iy - before >= 0 and iy + below <= rows - 1
+        return support_inside_one(float(self.corners[0, 0]) + ux, float(self.corners[0, 1]) + uy, self.size,
+                                  self.taps, shape)
 
     def sample(self, image: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(N, h, w) samples of all blocks displaced by u (N, 2) px (supports must be inside)."""

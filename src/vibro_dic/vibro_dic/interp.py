@@ -127,14 +127,21 @@ def sample_block(image: np.ndarray, x0: float, y0: float, size: tuple[int, int],
 def support_inside(x0: np.ndarray, y0: np.ndarray, size: tuple[int, int], taps: int,
                    shape: tuple[int, int]) -> np.ndarray:
     """Boolean mask: the interpolation support of block i (top-left at x0, y0) lies inside an image of ``shape``."""
+    if np.size(x0) == 1:
+        return np.array([support_inside_one(float(np.ravel(x0)[0]), float(np.ravel(y0)[0]), size, taps, shape)])
     bh, bw = size
     before, after = patch_margin(taps)
     rows, cols = shape
-    if np.size(x0) == 1:
-        ix, iy = math.floor(float(np.ravel(x0)[0])), math.floor(float(np.ravel(y0)[0]))
-        return np.array([ix - before >= 0 and ix + bw - 1 + after <= cols - 1
-                         and iy - before >= 0 and iy + bh - 1 + after <= rows - 1])
     ix = np.floor(x0)
     iy = np.floor(y0)
     return ((ix - before >= 0) & (ix + bw - 1 + after <= cols - 1)
             & (iy - before >= 0) & (iy + bh - 1 + after <= rows - 1))
+
+
+def support_inside_one(x0: float, y0: float, size: tuple[int, int], taps: int, shape: tuple[int, int]) -> bool:
+    """:func:`support_inside` of one block (top-left at x0, y0 px), in Python scalars."""
+    bh, bw = size
+    before, after = patch_margin(taps)
+    rows, cols = shape
+    ix, iy = math.floor(x0), math.floor(y0)
+    return ix - before >= 0 and ix + bw - 1 + after <= cols - 1 and iy - before >= 0 and iy + bh - 1 + after <= rows - 1

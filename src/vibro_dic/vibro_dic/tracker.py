@@ -316,9 +316,7 @@ class MeshTracker:
         None, and the frame goes through the search (an impact, a reseed, a lost frame)."""
         if self.method != "icgn" or len(self.history) < 3:
             return None
-        pred = self.predict(k)
-        if not self.box.inside(pred[None], image.shape)[0]:
-            return None
+        pred = self.predict(k)  # a prediction outside the image: _refine_box gives None (its first check)
         box = self._refine_box(image, pred, max_move_px=PREDICTION_TRUST_PX, max_iter=PREDICTION_MAX_ITER)
         if box is None:
             return None
