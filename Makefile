@@ -9,7 +9,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 DEPS_STAMP := $(VENV)/.deps-$(shell cat requirements.txt requirements-nodeps.txt | sha256sum | cut -c1-16)
 PTH := $(VENV)/lib/python3.11/site-packages/vibro_src.pth
-PACKAGES := vibro_model vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_eval vibro_bringup
+PACKAGES := vibro_model vibro_io vibro_ros vibro_dic vibro_fit vibro_sim vibro_discrepancy vibro_foxglove vibro_eval vibro_app vibro_bringup
 DEMO_DIR ?= demo
 PYTEST_ARGS ?=
 # test processes (pytest-xdist); each test file runs whole in one worker (module fixtures made once). Three on
@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # worker fills it.
 TEST_WORKERS ?= 3
 
-.PHONY: setup demo test msgs clean bench
+.PHONY: setup demo test msgs clean bench FORCE
 
 setup: $(DEPS_STAMP) $(PTH) msgs
 
@@ -31,9 +31,12 @@ $(DEPS_STAMP): requirements.txt requirements-nodeps.txt | $(PY)
 	rm -f $(VENV)/.deps-* && touch $@
 
 # Development install of the ament_python packages: their source folders on sys.path
-# (a lab PC uses `colcon build` instead; see README).
-$(PTH): Makefile | $(PY)
-	@for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done > $@
+# (a lab PC uses `colcon build` instead; see README). Rewritten whenever the list differs.
+$(PTH): FORCE | $(PY)
+	@for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done | cmp -s - $@ 2>/dev/null \
+	  || for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done > $@
+
+FORCE:
 
 msgs: $(DEPS_STAMP)
 	@scripts/build_msgs.sh

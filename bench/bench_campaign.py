@@ -64,7 +64,7 @@ def synthesize(root: Path, runs: int, frames: int, long_frames: int, parallel: i
 
 
 def bench_campaign(sweep: Path, tmp: Path, workers: int) -> dict:
-    from vibro_bringup.campaign.engine import run_campaign
+    from vibro_app.campaign.engine import run_campaign
 
     out = tmp / f"campaign_w{workers}"
     shutil.rmtree(out, ignore_errors=True)
@@ -119,7 +119,7 @@ def bench_chunked(long_rec: Path, tmp: Path, workers_list: list[int]) -> tuple[d
 def bench_analyze(long_rec: Path, tmp: Path, workers: int, track_csv: Path) -> dict:
     """``analyze_recording`` with DIC on ``workers`` (1: in this process), and the serial rest measured
     directly: the same analysis given the track (``track_csv``: no DIC)."""
-    from vibro_bringup.analyze import analyze_recording
+    from vibro_app.analyze import analyze_recording
 
     t0 = time.perf_counter()
     analyze_recording(long_rec, tmp / f"analyze_w{workers}", progress=False, workers=workers if workers > 1 else None)

@@ -109,7 +109,7 @@ def end_to_end(n: int = N, mm_per_px: float = 0.05) -> dict:
     -> vibro analyze (DIC icgn + identification) -> errors against the truth, fitted vs finite differences."""
     import tempfile
 
-    from vibro_bringup.analyze import analyze_recording
+    from vibro_app.analyze import analyze_recording
     from vibro_dic.speckle import RigScene, write_scene_recording
     from vibro_fit.validation import compare_to_truth
     from vibro_io.dictrack import read_dic_csv
@@ -170,7 +170,7 @@ def synth_recordings() -> list[dict]:
     clock offset) -> vibro analyze (DIC + identification + replay) -> errors against the truth file."""
     import tempfile
 
-    from vibro_bringup.analyze import analyze_recording
+    from vibro_app.analyze import analyze_recording
     from vibro_fit.validation import compare_to_truth
     from vibro_io.dictrack import read_dic_csv
     from vibro_sim.synth import SynthConfig, synthesize

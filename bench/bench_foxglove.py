@@ -44,7 +44,7 @@ def _free_port() -> int:
 
 def run_graph(rec: Path, out: Path, mode: str, domain: int) -> dict:
     port = _free_port()
-    cmd = [sys.executable, "-m", "vibro_bringup.cli", "graph", str(rec), "--bag", str(out / f"bag_{mode}")]
+    cmd = [sys.executable, "-m", "vibro_app.cli", "graph", str(rec), "--bag", str(out / f"bag_{mode}")]
     if mode != "off":
         cmd += ["--foxglove-port", str(port), "--foxglove-host", "127.0.0.1"]
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from proc_cpu import CpuSampler  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 DOMAIN = "77"
 
 

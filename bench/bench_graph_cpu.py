@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from proc_cpu import CpuSampler  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 DOMAIN = os.environ.get("VIBRO_BENCH_DOMAIN", "76")
 
 

@@ -60,7 +60,7 @@ def cached_recording(frames: int) -> Path:
     truth = rec.parent / f"{rec.name}.truth.json"
     if not (truth.is_file() and (rec / "rig.yaml").is_file()):
         rec.parent.mkdir(parents=True, exist_ok=True)
-        subprocess.run([sys.executable, "-m", "vibro_bringup.cli", "synth", "--no-accel", "--frames", str(frames),
+        subprocess.run([sys.executable, "-m", "vibro_app.cli", "synth", "--no-accel", "--frames", str(frames),
                         "--seed", str(SEED), "--out", str(rec), "--overwrite", "--no-progress"], check=True)
     return rec
 

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from side_by_side import fmt, print_side_by_side, ratio  # noqa: E402
 from vibro_eval.prove import EVIDENCE, GOALS, format_family_table, format_summary, prove  # noqa: E402
-from vibro_io.errors import RecordingError  # noqa: E402
+from vibro_model.errors import RecordingError  # noqa: E402
 
 
 def main(argv=None) -> int:

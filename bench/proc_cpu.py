@@ -14,7 +14,7 @@ def process_name(cmd: list[bytes]) -> str | None:
     """The node name of a bench process from its command line, or None for other processes.
 
     ``vibro_bringup.child <module>`` (vibro graph's children), a ``-r __node:=<name>`` remap (nodes
-    started as launch does, and the bench's own camera/probe processes), ``vibro_bringup.cli`` (vibro
+    started as launch does, and the bench's own camera/probe processes), ``vibro_app.cli`` (vibro
     graph's monitor) or ``python -m <module>_node``.
     """
     if b"vibro_bringup.child" in cmd:
@@ -22,7 +22,7 @@ def process_name(cmd: list[bytes]) -> str | None:
     for arg in cmd:
         if arg.startswith(b"__node:="):
             return arg[len(b"__node:="):].decode()
-    if b"vibro_bringup.cli" in cmd:
+    if b"vibro_app.cli" in cmd:
         return "vibro graph (monitor)"
     if len(cmd) > 2 and cmd[1] == b"-m" and cmd[2].endswith(b"_node"):
         return cmd[2].decode().rsplit(".", 1)[-1]

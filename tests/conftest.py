@@ -101,7 +101,7 @@ def _make_reference_run(tmp: Path) -> None:
     synthesize(rec, SynthConfig(frames=300, seed=11, effects={"asymmetric_restitution": {}}), progress=False)
     ros_env = {"ROS_DOMAIN_ID": private_domain(), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     env = dict(os.environ, **ros_env)
-    vibro = [sys.executable, "-m", "vibro_bringup.cli"]
+    vibro = [sys.executable, "-m", "vibro_app.cli"]
 
     def run(*args: str) -> subprocess.CompletedProcess:
         res = subprocess.run([*vibro, *args], capture_output=True, text=True, timeout=300, env=env)

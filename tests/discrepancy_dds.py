@@ -45,7 +45,7 @@ def run_discrepancy_node(case_file: Path, rig_file: Path, msg_type: str, topic: 
                   "--qos", "results")
     # the echo is the node's declared reader, as the node table makes the recorder: without it the node exits
     # as soon as its results are published, and an echo not yet matched by then never gets them
-    node = _start("-m", "vibro_sim.discrepancy_node", "--ros-args", "-p", f"rig_file:={rig_file}",
+    node = _start("-m", "vibro_discrepancy.discrepancy_node", "--ros-args", "-p", f"rig_file:={rig_file}",
                   "-p", "readers:=[vibro_test_echo]")
     feeder = None
     try:

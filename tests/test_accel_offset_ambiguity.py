@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_fit.accel_impacts import estimate_clock_offset
 
 PERIOD_S = 1.0 / 22.0

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_fit.identify import track_rows
 from vibro_fit.synthetic import accel_signals, paper_rig, sample_track, simulate
 from vibro_io.accel import write_accel
@@ -45,7 +45,7 @@ def test_analyze_writes_contract_results_and_report(recording, tmp_path, capsys)
     # below the paper's 2.5-3.5 % on real data. 1 % bound.
     d = doc["simulation"]["cor_model"]["deviation"]
     assert d is not None and d < 0.01
-    # discrepancy (vibro_sim.discrepancy): the baseline's constant COR cannot follow plates restituting
+    # discrepancy (vibro_discrepancy): the baseline's constant COR cannot follow plates restituting
     # 0.6 vs 0.75 (scatter 0.03, 17 impacts: the difference is > 10 standard errors) -> found, D improves
     disc = doc["discrepancy"]
     assert disc["baseline_deviation"] > disc["final_deviation"] > 0

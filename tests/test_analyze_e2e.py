@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vibro_bringup.analyze import analyze_recording
+from vibro_app.analyze import analyze_recording
 from vibro_fit.impacts import finite_difference_cor
 from vibro_fit.synthetic import simulate
 from vibro_fit.validation import compare_to_truth

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_fit.validation import compare_to_truth
 
 M_KG = 1.82e-4

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 #: the graph runs the same cores on the same CDR-exact numbers as analyze: only float rounding may differ
 TOL = 1e-9
 

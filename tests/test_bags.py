@@ -37,7 +37,7 @@ def _wait_for(predicate, seconds: float) -> bool:
 def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, tmp_path: Path,
                                                         ros_domain: str) -> None:
     bag = tmp_path / "run1"
-    recorder = _popen("-m", "vibro_bringup.recorder_node", "--ros-args", "-p", f"bag:={bag}")
+    recorder = _popen("-m", "vibro_ros.recorder_node", "--ros-args", "-p", f"bag:={bag}")
     # the recorder is the tracker's declared reader: its DicFrames wait until the recorder has matched vibro/dic
     # (a fixed sleep before stopping the tracker lost them all once under load: the recorder had not yet
     # discovered the topic), and the tracker exits by itself once the recorder acknowledged them
@@ -91,7 +91,7 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
 def test_killed_recorder_leaves_a_readable_bag(tiny_recording: Path, tmp_path: Path, ros_domain: str,
                                                caplog: pytest.LogCaptureFixture) -> None:
     bag = tmp_path / "killed"
-    recorder = _popen("-m", "vibro_bringup.recorder_node", "--ros-args", "-p", f"bag:={bag}", "-p", "chunk_kb:=1")
+    recorder = _popen("-m", "vibro_ros.recorder_node", "--ros-args", "-p", f"bag:={bag}", "-p", "chunk_kb:=1")
     try:
         assert _wait_for(lambda: (bag / "metadata.yaml").exists(), 30)
         time.sleep(1.0)

@@ -20,7 +20,7 @@ from mcap.reader import make_reader
 
 HERE = Path(__file__).resolve().parent
 PEER = [sys.executable, str(HERE / "bags_peer.py")]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 
 
 def _popen(argv: list[str]) -> subprocess.Popen:
@@ -86,7 +86,7 @@ def test_recorder_writes_rosbag2_names_and_offered_qos_and_records_a_best_effort
 
     bag = tmp_path / "lab"
     ns = ["--ros-args", "-r", "__ns:=/lab1"]
-    recorder = _popen([sys.executable, "-m", "vibro_bringup.recorder_node", *ns, "-p", f"bag:={bag}"])
+    recorder = _popen([sys.executable, "-m", "vibro_ros.recorder_node", *ns, "-p", f"bag:={bag}"])
     try:
         assert _wait_for(lambda: (bag / "metadata.yaml").exists(), 30)
         time.sleep(1.5)  # the recorder's subscriptions are created after metadata.yaml
@@ -145,7 +145,7 @@ def test_killed_recorder_bag_is_read_then_reindexed_for_rosbags_and_mcap(tiny_re
     from vibro_ros.bags import read_messages
 
     bag = tmp_path / "killed"
-    recorder = _popen([sys.executable, "-m", "vibro_bringup.recorder_node", "--ros-args", "-p", f"bag:={bag}",
+    recorder = _popen([sys.executable, "-m", "vibro_ros.recorder_node", "--ros-args", "-p", f"bag:={bag}",
                        "-p", "chunk_kb:=1", "-p", "rig_file:=" + str(tiny_recording / "rig.yaml")])
     try:
         assert _wait_for(lambda: (bag / "metadata.yaml").exists(), 30)
@@ -217,7 +217,7 @@ def test_a_bag_written_by_rosbags_like_ros2_bag_record_gives_the_same_results(gr
                                                     offered_qos_profiles=c.ext.offered_qos_profiles)
             for c, t, raw in reader.messages():
                 writer.write(conns[c.id], t, raw)
-    from vibro_bringup.bag_results import results_from_bag  # what `vibro results` prints
+    from vibro_app.bag_results import results_from_bag  # what `vibro results` prints
 
     results = []
     for bag in (graph_bag, copy):

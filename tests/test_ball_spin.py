@@ -194,7 +194,7 @@ def _through_cdr(track: DicTrack) -> list:
 
 def test_graph_path_spin_per_flight_matches_truth(independent):
     """The graph's DicFrames carry the rotation; vibro results' section of them is analyze's, within sigma of truth."""
-    from vibro_bringup.bag_results import ball_spin_from_frames
+    from vibro_app.bag_results import ball_spin_from_frames
 
     frames = _through_cdr(independent["track"])
     assert np.allclose([m.ball_rot_rad for m in frames], independent["track"].ball_rot_rad, rtol=0, atol=0,
@@ -214,7 +214,7 @@ def test_dicframes_without_a_measured_rotation_give_no_spin(independent):
     from vibro_msgs.msg import DicFrame
 
     from old_msgdefs import old_dicframe_typestore
-    from vibro_bringup.bag_results import ball_spin_from_frames
+    from vibro_app.bag_results import ball_spin_from_frames
     from vibro_ros.convert import dic_track_from_messages
 
     old = old_dicframe_typestore()

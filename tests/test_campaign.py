@@ -25,12 +25,12 @@ import yaml
 
 from conftest import REPO
 
-from vibro_bringup.campaign.summary import Z_FLAG, flag_disagreeing
-from vibro_bringup.cli import main
+from vibro_app.campaign.summary import Z_FLAG, flag_disagreeing
+from vibro_app.cli import main
 from vibro_dic.quality import TrackQuality, dic_quality_section
 from vibro_dic.texture import TextureError
 from vibro_io.dictrack import read_dic_csv, write_dic_csv
-from vibro_io.errors import FrameError
+from vibro_model.errors import FrameError
 from vibro_io.recording import open_recording
 
 VIBRO = str(REPO / "vibro")

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from vibro_bringup.cli import main
-from vibro_io.errors import RecordingError
+from vibro_app.cli import main
+from vibro_model.errors import RecordingError
 from vibro_io.outputs import TEMP_MARK, OutputError, atomic_open, atomic_write_text, prepare_output_dir
 
 REPO = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 ANALYZE_FIGURES = ("displacements.png", "cor_per_impact.png", "report.html")
 
 
@@ -380,8 +380,8 @@ def test_a_bag_with_no_images_is_refused_before_an_earlier_replay_is_overwritten
 
 def test_replay_and_graph_outputs_are_recognised_as_their_own(result_bag, tmp_path):
     # what --overwrite removes for replay (and graph) matches what BagWriter and the node logs really write
-    from vibro_bringup.cmd_graph import new_bag_path
-    from vibro_bringup.cmd_replay import REPLAY_OUTPUTS
+    from vibro_bringup.graph_runner import new_bag_path
+    from vibro_app.cmd_replay import REPLAY_OUTPUTS
 
     out = tmp_path / "re"
     fake_replay_folder(out, result_bag)
@@ -407,7 +407,7 @@ def test_domain_id_out_of_range_is_an_argparse_error(command, domain_id, tiny_re
 
 
 def test_domain_id_range_ends_are_accepted():
-    from vibro_bringup.cli import build_parser
+    from vibro_app.cli import build_parser
 
     parser = build_parser()
     for value in (0, 232):

@@ -25,7 +25,8 @@ from ros_probe import Probe
 from vibro_bringup.graph_spec import BAG_SOURCE, NODES, NodeSpec, params_file_key
 
 SRC = Path(__file__).resolve().parents[1] / "src"
-RUNTIME_PACKAGES = ["vibro_io", "vibro_ros", "vibro_dic", "vibro_fit", "vibro_sim", "vibro_bringup"]
+RUNTIME_PACKAGES = ["vibro_model", "vibro_io", "vibro_ros", "vibro_dic", "vibro_fit", "vibro_sim", "vibro_discrepancy",
+                    "vibro_foxglove", "vibro_app", "vibro_bringup"]
 BUILD_TIMEOUT_S = 400
 
 
@@ -64,8 +65,7 @@ def test_installed_console_scripts_print_usage(colcon_install: Path) -> None:
     where = subprocess.run(installed(colcon_install, sys.executable, "-c",
                                      "import vibro_dic.dic_tracker_node as m; print(m.__file__)"),
                            capture_output=True, text=True, timeout=60)
-    cli = subprocess.run(installed(colcon_install, colcon_install / "vibro_bringup" / "lib" / "vibro_bringup" /
-                                   "vibro", "--help"), capture_output=True, text=True, timeout=60)
+    cli = subprocess.run(installed(colcon_install, colcon_install / "vibro_app" / "lib" / "vibro_app" / "vibro", "--help"), capture_output=True, text=True, timeout=60)
     for spec, proc in procs.items():
         out, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, f"{spec.executable} --help: exit {proc.returncode}\n{err}"

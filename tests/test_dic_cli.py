@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_dic.speckle import RigScene, write_scene_recording
 from vibro_dic.tracker import track_recording
 from vibro_io.dictrack import DIC_COLUMNS, read_dic_csv

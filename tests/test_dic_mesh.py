@@ -10,7 +10,7 @@ from vibro_dic.icgn import IcgnBlocks
 from vibro_dic.interp import kernel_weights, kernel_weights_one, sample_blocks
 from vibro_dic.mesh import mesh_points
 from vibro_dic.speckle import speckle_pattern
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_io.rig import Roi
 
 

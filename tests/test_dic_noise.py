@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from vibro_dic.noise import cramer_rao_px, split_noise
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 
 def test_split_separates_slow_drift_from_white_noise() -> None:

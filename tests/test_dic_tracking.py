@@ -10,7 +10,7 @@ import pytest
 
 from vibro_dic.speckle import RigScene, scene_rig_mapping
 from vibro_dic.tracker import DicTracker
-from vibro_io.errors import FrameError, RecordingError
+from vibro_model.errors import FrameError, RecordingError
 from vibro_io.frames import Frame
 from vibro_io.rig import DicConfig, Roi, parse_rig
 

@@ -20,7 +20,7 @@ import pytest
 
 from discrepancy_cases import NOISE_MM, make_case
 from vibro_sim.deviation import cor_variance_share, deviation
-from vibro_sim.discrepancy import run_discrepancy
+from vibro_discrepancy import run_discrepancy
 
 SCATTER = 0.015
 FRAMES = 500

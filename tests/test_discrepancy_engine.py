@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from discrepancy_cases import make_case
-from vibro_io.errors import RecordingError
-from vibro_sim.discrepancy import EFFECTS, analyse_discrepancy, run_discrepancy
-from vibro_sim.discrepancy.library import CoulombFriction, GravityTilt
+from vibro_model.errors import RecordingError
+from vibro_discrepancy import EFFECTS, analyse_discrepancy, run_discrepancy
+from vibro_discrepancy.library import CoulombFriction, GravityTilt
 from vibro_eval.truth import (main_parameter, score_case, true_model_measured_run, true_model_restarted_run,
                               true_model_run)
 
@@ -207,8 +207,8 @@ def test_bad_input_is_named():
 
 
 def test_figure_and_report_section(analysed, tmp_path):
-    from vibro_fit.report import discrepancy_html
-    from vibro_sim.discrepancy.figures import write_discrepancy_figure
+    from vibro_app.report import discrepancy_html
+    from vibro_discrepancy.figures import write_discrepancy_figure
 
     run, _ = analysed["coulomb_friction"]
     path = write_discrepancy_figure(run, tmp_path / "discrepancy.png")

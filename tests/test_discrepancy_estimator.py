@@ -17,9 +17,9 @@ import pytest
 from discrepancy_cases import make_case
 from vibro_model.results import (Discrepancy, DiscrepancyFinding, Flight, Impact, ResultsDocument,
                                  StructureMotion)
-from vibro_sim.discrepancy import CandidateLibrary, DiscrepancyEstimator, run_discrepancy
-from vibro_sim.discrepancy.data import measured_from_document
-from vibro_sim.discrepancy.library import GravityTilt
+from vibro_discrepancy import CandidateLibrary, DiscrepancyEstimator, run_discrepancy
+from vibro_discrepancy.data import measured_from_document
+from vibro_discrepancy.library import GravityTilt
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ import json
 
 import pytest
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_eval.prove import (CONTROL, EFFECTS, EVIDENCE, FAMILIES, GOALS, INVENTED, Draws, draw_cases, draw_evidence,
                               prove)
 

@@ -8,7 +8,7 @@ import pytest
 from vibro_fit.accel_impacts import analyse_accel, estimate_clock_offset, find_clipping, highpass
 from vibro_fit.identify import identify
 from vibro_fit.synthetic import accel_signals, paper_rig, sample_track, simulate
-from vibro_io.errors import AccelError
+from vibro_model.errors import AccelError
 
 FS = 50_000.0
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_fit.identify import track_rows
 from vibro_fit.synthetic import paper_rig, sample_track, simulate
 from vibro_io.dictrack import write_dic_csv

@@ -10,7 +10,7 @@ from vibro_fit.impacts import finite_difference_cor
 from vibro_fit.streaming import StreamingFitter
 from vibro_fit.synthetic import paper_rig, sample_track, simulate
 from vibro_io.dictrack import DicTrack
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 M_KG = 1.82e-4
 G = 9.81

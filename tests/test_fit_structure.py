@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vibro_fit.structure_fit import fit_structure, spectral_peak_hz
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 
 def _sine(n=1500, fps=1000.0, a=3.0, f=22.0, phi=0.3, b=-0.5, sigma=0.0005, seed=0):

@@ -47,7 +47,7 @@ def live_run(tmp_path_factory) -> dict:
     url = f"ws://127.0.0.1:{port}"
     env = dict(os.environ, ROS_DOMAIN_ID=private_domain(), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-m", "vibro_bringup.cli", "graph", str(rec), "--bag", str(tmp / "bag"),
+    proc = subprocess.Popen([sys.executable, "-m", "vibro_app.cli", "graph", str(rec), "--bag", str(tmp / "bag"),
                              "--foxglove-port", str(port), "--foxglove-host", "127.0.0.1",
                              "--timeout-s", str(GRAPH_TIMEOUT_S)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

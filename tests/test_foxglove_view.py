@@ -1,4 +1,4 @@
-"""The Foxglove conversions and server of the foxglove_bridge node, without ROS: vibro_bringup.foxglove_view
+"""The Foxglove conversions and server of the foxglove_bridge node, without ROS: vibro_foxglove.view
 turns the graph's messages (the real vibro_msgs/diagnostic_msgs classes, which import without rclpy) into
 Foxglove payloads, decoded here as the Foxglove app decodes them (protobuf from the advertised schema, strict
 JSON), and serves them on a real foxglove-sdk WebSocket server read by a real WebSocket client."""
@@ -20,7 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from foxglove_client import SUBPROTOCOLS, capture, protobuf_class  # noqa: E402
 
-from vibro_bringup import foxglove_view as fv  # noqa: E402
+from vibro_foxglove import view as fv  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -45,7 +45,7 @@ def _stamped(msg, ns: int):
 
 
 def test_the_core_imports_without_rclpy() -> None:
-    code = ("import sys, vibro_bringup.foxglove_view as v; v.foxglove_layout(); "
+    code = ("import sys, vibro_foxglove.view as v; v.foxglove_layout(); "
             "assert 'rclpy' not in sys.modules, 'rclpy imported'")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
@@ -151,7 +151,7 @@ def test_frame_throttle_sends_at_most_the_rate_whatever_the_camera_rate() -> Non
 def test_the_shipped_layout_is_generated_and_refers_to_served_channels_and_fields() -> None:
     shipped = REPO / "src" / "vibro_bringup" / "config" / fv.LAYOUT_FILE_NAME
     assert shipped.read_text(encoding="utf-8") == fv.layout_text(), \
-        "regenerate it: python -m vibro_bringup.foxglove_view"
+        "regenerate it: python -m vibro_foxglove.view"
     layout = json.loads(shipped.read_text())
     panels = layout["configById"]
     kinds = {k.split("!")[0] for k in panels}
@@ -283,7 +283,7 @@ def test_the_bridge_joins_the_node_table_as_nobodys_reader(tiny_recording: Path,
 
 def test_a_busy_port_is_refused_in_one_line_before_anything_starts(tiny_recording: Path, tmp_path: Path) -> None:
     with socket_listening() as port:
-        res = subprocess.run([sys.executable, "-m", "vibro_bringup.cli", "graph", str(tiny_recording), "--bag",
+        res = subprocess.run([sys.executable, "-m", "vibro_app.cli", "graph", str(tiny_recording), "--bag",
                               str(tmp_path / "bag"), "--foxglove-port", str(port), "--foxglove-host", "127.0.0.1"],
                              capture_output=True, text=True, timeout=120)
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr

@@ -15,7 +15,7 @@ from domains import private_domain
 import yaml
 
 
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 
 
 def _vibro(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

@@ -19,7 +19,7 @@ import yaml
 from vibro_sim.synth import SynthConfig, synthesize
 
 REPO = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 SUMMARY = re.compile(r"frames in (\d+) / tracked (\d+) / lost (\d+)")
 #: The fitter's COR accuracy on a synthetic DIC track (bench_fit: ~1e-4 error; test_graph uses the same bound).
 COR_TOL = 0.01
@@ -326,7 +326,7 @@ def test_a_recorder_killed_mid_run_fails_the_run_naming_the_missing_topic(short_
             assert time.monotonic() < deadline and graph.poll() is None, "frame_source never started streaming"
             time.sleep(0.05)
         time.sleep(1.5)  # ~90 of 300 frames at 60 frames/s
-        victims = _pids("vibro_bringup.recorder_node", ros_domain)
+        victims = _pids("vibro_ros.recorder_node", ros_domain)
         assert len(victims) == 1
         os.kill(victims[0], signal.SIGKILL)
         out, err = graph.communicate(timeout=120)

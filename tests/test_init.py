@@ -23,7 +23,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).parent))
 from lab_writers import write_mraw  # noqa: E402
 
-from vibro_bringup.cli import main  # noqa: E402
+from vibro_app.cli import main  # noqa: E402
 from vibro_io.frames import read_image  # noqa: E402
 from vibro_io.recording import open_recording  # noqa: E402
 from vibro_io.rig import load_rig  # noqa: E402

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import yaml
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 from vibro_io.accel import load_accel
 from vibro_io.dictrack import FrameTrack, write_dic_csv
-from vibro_io.errors import AccelError, RecordingError
+from vibro_model.errors import AccelError, RecordingError
 from vibro_io.recording import open_recording
 
 N_FRAMES = 300

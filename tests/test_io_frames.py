@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vibro_io.errors import FrameError, RecordingError
+from vibro_model.errors import FrameError, RecordingError
 from vibro_io.frames import FrameSequence, read_image
 from vibro_io.recording import open_recording
 

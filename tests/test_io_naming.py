@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import pytest
 
-from vibro_bringup.cli import main
-from vibro_io.errors import FrameError
+from vibro_app.cli import main
+from vibro_model.errors import FrameError
 from vibro_io.recording import open_recording
 from vibro_sim.synth import SynthConfig, synthesize
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vibro_bringup.cli import main
-from vibro_io.errors import RigError
+from vibro_app.cli import main
+from vibro_model.errors import RigError
 from vibro_io.recording import open_recording
 from vibro_io.rig import load_rig
 

@@ -21,7 +21,7 @@ import yaml
 from vibro_sim.synth import SynthConfig, synthesize
 
 HERE = Path(__file__).resolve().parent
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 #: Two distinct constant CORs (truth of the synthetic rig); a run that merged the other's frames would
 #: give CORs of the wrong run or a blend, far outside the fitter's accuracy (bench_fit: ~1e-4; test_graph: 0.01).
 TRUE_COR = {"a": 0.70, "b": 0.55}

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from std_msgs.msg import Header
 
-from vibro_io.errors import RigError
+from vibro_model.errors import RigError
 from vibro_io.rig import load_rig, parse_rig, write_rig
 from vibro_ros.lab_clock import (BAG_TIME_ORIGIN_KEY, data_time_from_stamp_ns, origin_from_custom_data,
                                  run_time_origin_ns, stamp_ns_from_data_time, unix_s_to_ns)
@@ -107,7 +107,7 @@ def test_rig_start_time_is_optional_and_validated(tmp_path: Path) -> None:
 def test_node_time_origin_parameter(ros_domain: str) -> None:
     import rclpy
 
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
     from vibro_ros.node_support import time_origin_parameter
 
     rclpy.init()
@@ -129,7 +129,7 @@ def test_node_time_origin_parameter(ros_domain: str) -> None:
 
 
 def test_describe_origin_names_utc() -> None:
-    from vibro_bringup.cmd_graph import describe_origin
+    from vibro_bringup.graph_runner import describe_origin
 
     assert describe_origin(1_718_000_000_123_456_789) == (
         "header stamps = 2024-06-10T06:13:20.123456789 UTC + camera time (time_origin_unix_ns 1718000000123456789)")

@@ -21,7 +21,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).parent))
 from lab_writers import write_cine, write_mraw, write_mraw12, write_tdms  # noqa: E402
 
-from vibro_bringup.cli import main  # noqa: E402
+from vibro_app.cli import main  # noqa: E402
 from vibro_io.frames import FrameSequence, read_image  # noqa: E402
 from vibro_io.recording import open_recording  # noqa: E402
 from vibro_io.rig import CameraConfig, load_rig  # noqa: E402
@@ -226,14 +226,14 @@ def test_corrupt_or_truncated_files_give_one_clear_error(lab, tmp_path, capsys):
             assert word in lines[0], (name, word, lines[0])
 
     # the real command line: exit code 2, one line, no traceback
-    res = subprocess.run([sys.executable, "-m", "vibro_bringup.cli", "analyze", str(cases["cine_cut"][0]),
+    res = subprocess.run([sys.executable, "-m", "vibro_app.cli", "analyze", str(cases["cine_cut"][0]),
                           "--out", str(tmp_path / "cli_out"), "--no-progress"], capture_output=True, text=True,
                          timeout=120, env=dict(os.environ))
     assert res.returncode == 2 and "Traceback" not in res.stderr and "frame 15" in res.stderr, res.stderr
 
 
 def test_tdms_rate_and_clipping_are_checked(lab, tmp_path, caplog):
-    from vibro_io.errors import AccelError
+    from vibro_model.errors import AccelError
     from vibro_io.tdms import load_tdms_accel
 
     cfg = open_recording(lab["mraw"]).rig.accelerometers

@@ -20,7 +20,7 @@ from domains import private_domain
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_like import console_scripts, run_as_launch  # noqa: E402
 
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_the_monitor_subscribes_to_what_the_node_table_says(recording: Path, ros
     """MONITOR_SUBSCRIBES (the monitor's reader_topics pairs) is the vibro graph monitor's own subscriptions: a topic
     listed but not subscribed would hold every writer until wait_for_readers_s; one subscribed but not listed
     would be the any-topic race again."""
-    from vibro_bringup.cmd_graph import GraphSummary, Monitor
+    from vibro_bringup.graph_runner import GraphSummary, Monitor
     from vibro_bringup.graph_spec import MONITOR_SUBSCRIBES
     from vibro_bringup.isolation import new_run_identity
 
@@ -99,7 +99,7 @@ def test_the_monitor_subscribes_to_what_the_node_table_says(recording: Path, ros
 
 
 def test_launch_in_any_order_equals_vibro_graph(recording: Path, reference_run: dict, tmp_path: Path) -> None:
-    from vibro_bringup.bag_results import results_from_bag
+    from vibro_app.bag_results import results_from_bag
     from vibro_bringup.graph_spec import launch_nodes
     from vibro_ros.bags import deserialize, make_typestore, read_messages
 

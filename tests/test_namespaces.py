@@ -134,7 +134,7 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
 def test_the_graph_summary_counts_every_status_stream_on_its_topic() -> None:
     # the stream names are listed twice (node side: vibro_ros.topics, summary side: cmd_graph); a stream added
     # to one and not the other would go unchecked against the bag
-    from vibro_bringup.cmd_graph import STREAM_TOPICS
+    from vibro_bringup.graph_runner import STREAM_TOPICS
     from vibro_ros import topics
 
     assert set(STREAM_TOPICS) == set(topics.STATUS_STREAMS)

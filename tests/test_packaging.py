@@ -12,7 +12,8 @@ import pytest
 from vibro_bringup.graph_spec import NODES
 
 SRC = Path(__file__).resolve().parents[1] / "src"
-PYTHON_PACKAGES = ["vibro_model", "vibro_io", "vibro_ros", "vibro_eval", "vibro_dic", "vibro_fit", "vibro_sim", "vibro_bringup"]
+PYTHON_PACKAGES = ["vibro_model", "vibro_io", "vibro_ros", "vibro_eval", "vibro_dic", "vibro_fit", "vibro_sim",
+                   "vibro_discrepancy", "vibro_foxglove", "vibro_app", "vibro_bringup"]
 
 
 def console_scripts(pkg: str) -> dict[str, str]:
@@ -169,14 +170,14 @@ def test_recorder_message_packages_are_declared() -> None:
     from vibro_ros import topics
 
     needed = {t.msg_type.split("/")[0] for t in topics.ALL_TOPICS}
-    assert needed <= exec_depends("vibro_bringup"), needed - exec_depends("vibro_bringup")
+    assert needed <= exec_depends("vibro_ros"), needed - exec_depends("vibro_ros")
 
 
 def test_vibro_cli_works_without_the_evaluation_harness(monkeypatch: pytest.MonkeyPatch) -> None:
     """A runtime install (no vibro_eval) still has every other subcommand; only `vibro prove` is absent."""
     import sys
 
-    from vibro_bringup import cli
+    from vibro_app import cli
 
     for name in [m for m in sys.modules if m == "vibro_eval" or m.startswith("vibro_eval.")]:
         monkeypatch.delitem(sys.modules, name)

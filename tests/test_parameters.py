@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_ros.node_support import parameter_of_type
 
 
@@ -46,7 +46,7 @@ def test_values_of_another_kind_are_refused_naming_node_parameter_and_value(valu
 @pytest.mark.parametrize("module,args,what", [
     ("vibro_dic.dic_tracker_node", ["zncc_min:=abc"], "parameter 'zncc_min' takes a double, got 'abc' (string)"),
     ("vibro_fit.trajectory_fitter_node", ["use_accelerometers:=1"], "parameter 'use_accelerometers' takes a bool"),
-    ("vibro_bringup.recorder_node", ["exclude_topics:=[1, 2]"], "parameter 'exclude_topics' takes a string[]"),
+    ("vibro_ros.recorder_node", ["exclude_topics:=[1, 2]"], "parameter 'exclude_topics' takes a string[]"),
 ])
 def test_a_wrongly_typed_parameter_stops_a_node_with_one_line(tiny_recording: Path, ros_domain: str, module: str,
                                                              args: list[str], what: str) -> None:

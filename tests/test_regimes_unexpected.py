@@ -12,7 +12,7 @@ import shutil
 import numpy as np
 import pytest
 
-from vibro_bringup.cli import main
+from vibro_app.cli import main
 
 FRAMES = 300
 LOW_COR = {"asymmetric_restitution": {"cor_top": 0.3, "cor_bottom": 0.3, "cor_sigma": 0.0}}

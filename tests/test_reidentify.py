@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 FRAMES = "300"
 SCATTER = "0.015"
 TOL_EFFECT = 0.002     # issue 13: per-impact COR error with an effect found
@@ -151,7 +151,7 @@ def test_without_an_effect_the_paper_values_stay(analysed) -> None:
 
 
 def test_results_without_the_new_keys_still_read_and_new_ones_round_trip(analysed, tmp_path) -> None:
-    from vibro_model.codec import read_results
+    from vibro_io.results_file import read_results
 
     data = analysed["harmonics"]["results"]
     path = tmp_path / "new.json"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from domains import private_domain
 
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 
 
 def _vibro(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vibro_model.codec import SCHEMA, ResultsError, json_value, read_results, write_results
+from vibro_io.results_file import read_results, write_results
+from vibro_model.codec import SCHEMA, ResultsError, json_value
 from vibro_model.results import (CorSummary, Discrepancy, DiscrepancyFinding, Flight, Impact, PlateCor,
                                  ResultsDocument, Simulation, SimulationRun, StructureMotion)
 from vibro_ros import convert
@@ -173,7 +174,7 @@ def test_vibro_fit_summary_names_the_bad_key(tmp_path: Path) -> None:
     data = _document().to_dict()
     data["cor_summary"]["bottom"]["mean"] = "0.7"
     (tmp_path / "r.json").write_text(json.dumps(data))
-    res = subprocess.run([sys.executable, "-m", "vibro_bringup.cli", "summary", str(tmp_path / "r.json"), "--out",
+    res = subprocess.run([sys.executable, "-m", "vibro_app.cli", "summary", str(tmp_path / "r.json"), "--out",
                           str(tmp_path / "s.png")], capture_output=True, text=True, timeout=60)
     assert res.returncode == 2 and "cor_summary.bottom.mean: must be a finite number" in res.stderr
     assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1

@@ -250,7 +250,7 @@ def test_bad_configuration_is_refused_with_a_clear_message(tmp_path):
 
 
 def test_cli_reports_bad_input_in_one_line(tmp_path, capsys):
-    from vibro_bringup.cli import main
+    from vibro_app.cli import main
     rc = main(["synth", "--out", str(tmp_path / "r"), "--effect", "gravity_tilt", "--param", "tilt_deg=abc"])
     err = capsys.readouterr().err
     assert rc == 2 and "tilt_deg=abc" in err and "Traceback" not in err

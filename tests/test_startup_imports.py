@@ -22,7 +22,7 @@ import pytest
 HEAVY = ("scipy.stats", "scipy.signal", "matplotlib", "scipy.ndimage", "dask", "distributed")
 NODES = ("vibro_dic.frame_source_node", "vibro_dic.dic_tracker_node", "vibro_fit.accel_source_node",
          "vibro_fit.impact_detector_node", "vibro_fit.trajectory_fitter_node", "vibro_sim.simulator_node",
-         "vibro_sim.discrepancy_node", "vibro_bringup.recorder_node")
+         "vibro_discrepancy.discrepancy_node", "vibro_ros.recorder_node")
 
 
 def _loaded_after(code: str) -> list[str]:
@@ -38,9 +38,9 @@ def test_no_node_loads_scipy_stats_signal_or_matplotlib_at_start_up() -> None:
 
 
 def test_the_cli_parser_loads_no_subcommand_work() -> None:
-    code = "import vibro_bringup.cli as c\nc.build_parser()"
+    code = "import vibro_app.cli as c\nc.build_parser()"
     assert _loaded_after(code) == []
-    probe = ("import sys\nimport vibro_bringup.cli as c\nc.build_parser()\n"
+    probe = ("import sys\nimport vibro_app.cli as c\nc.build_parser()\n"
              "print('scipy.optimize' in sys.modules, 'vibro_sim.synth.write' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert out.stdout.split() == ["False", "False"], out.stderr

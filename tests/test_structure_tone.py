@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vibro_sim.discrepancy.fitting import fit_structure_harmonics
-from vibro_sim.discrepancy.systematic import tone_search
-from vibro_sim.discrepancy.tone import TONE_EFFECT, fit_structure_tone, tone_f_test
+from vibro_discrepancy.fitting import fit_structure_harmonics
+from vibro_discrepancy.systematic import tone_search
+from vibro_discrepancy.tone import TONE_EFFECT, fit_structure_tone, tone_f_test
 
 ROOT = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_bringup.cli"]
+VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 FRAMES = 300
 FPS = 1000.0
 TOL_EFFECT = 0.002          # issue 13: per-impact COR error against the truth with an effect
@@ -231,7 +231,7 @@ def test_a_finding_read_from_its_message_still_corrects_the_impacts(analysed) ->
     in the finding's parameters, so the bag's document says the impacts were measured with the tone."""
     from vibro_model.results import DiscrepancyFinding
     from vibro_ros.convert import finding_from_message, finding_to_message
-    from vibro_sim.discrepancy.reidentify import measurement_effects
+    from vibro_discrepancy.reidentify import measurement_effects
 
     f = _unexplained(analysed["tone"]["results"])
     back = finding_from_message(finding_to_message(DiscrepancyFinding.from_dict(f), 0, 0.1))

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from vibro_bringup.cli import main as vibro
+from vibro_app.cli import main as vibro
 from vibro_dic.quality import TrackQuality, TrackQualityError
 from vibro_dic.speckle import speckle_pattern
 from vibro_dic.texture import (TextureError, assess_texture, noise_from_frames, noise_from_image)

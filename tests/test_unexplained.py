@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from discrepancy_cases import make_case
-from vibro_sim.discrepancy import EFFECTS, run_discrepancy
+from vibro_discrepancy import EFFECTS, run_discrepancy
 from vibro_sim.synth import SynthConfig, SynthError
 from vibro_sim.synth.invented import INVENTED_EFFECTS
 
@@ -50,7 +50,7 @@ def analysed():
 def _mismatches(doc: dict) -> list[dict]:
     un = [f for f in doc["findings"] if f["effect"] == "unexplained"]
     assert len(un) == 1, [f["effect"] for f in doc["findings"]]
-    # no parameters, unless a located structure tone was modelled (vibro_sim.discrepancy.tone)
+    # no parameters, unless a located structure tone was modelled (vibro_discrepancy.tone)
     modelled = {"tone_frequency_hz", "tone_amplitude_um", "tone_phase_rad"} if "model" in un[0] else set()
     assert set(un[0]["parameters"]) == modelled
     return un[0]["mismatches"]
@@ -66,7 +66,7 @@ def _only(doc: dict, series: str) -> dict:
 
 def test_invented_effects_are_outside_the_catalogue():
     assert set(INVENTED_EFFECTS).isdisjoint(EFFECTS)
-    from vibro_sim.cli import _effects_help
+    from vibro_app.cmd_synth import _effects_help
 
     text = _effects_help()
     for name, params in INVENTED_EFFECTS.items():

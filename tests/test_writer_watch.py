@@ -29,7 +29,7 @@ while time.monotonic() < end:
 def _recorder_and_announcer(bag: Path, namespace: str, script: str, seconds: int):
     """A recorder declaring impact_detector as its writer, and the status announcer, in ``namespace``."""
     ns = ["-r", f"__ns:={namespace}"]
-    recorder = subprocess.Popen([sys.executable, "-m", "vibro_bringup.recorder_node", "--ros-args", *ns,
+    recorder = subprocess.Popen([sys.executable, "-m", "vibro_ros.recorder_node", "--ros-args", *ns,
                                  "-p", f"bag:={bag}", "-p", "writers:=[impact_detector]"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     announcer = subprocess.Popen([sys.executable, "-c", script, str(seconds), "--ros-args", *ns],
@@ -102,7 +102,7 @@ while time.monotonic() < end:
 
 def _recorder_and_lingering_writer(bag: Path, namespace: str, n: int, announced: int, seconds: float):
     ns = ["-r", f"__ns:={namespace}"]
-    recorder = subprocess.Popen([sys.executable, "-m", "vibro_bringup.recorder_node", "--ros-args", *ns,
+    recorder = subprocess.Popen([sys.executable, "-m", "vibro_ros.recorder_node", "--ros-args", *ns,
                                  "-p", f"bag:={bag}", "-p", "writers:=[impact_detector]",
                                  "-p", "stale_listing_s:=2.0"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -18,14 +18,10 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Launch files, parameters, the node-graph runner and the vibro command-line interface.",
+    description="Launch files, parameters, the node table and the graph runner.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "recorder = vibro_bringup.recorder_node:main",
-            "bag_source = vibro_bringup.bag_source_node:main",
-            "foxglove_bridge = vibro_bringup.foxglove_bridge_node:main",
-            "vibro = vibro_bringup.cli:main",
         ],
     },
 )

@@ -15,7 +15,12 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="ROS 2 plumbing shared by the vibro nodes: topic table, QoS profiles, node support (parameters, diagnostics, shutdown), result collection and rosbag2/MCAP bag I/O.",
+    description="ROS 2 plumbing shared by the vibro nodes: topic table, QoS profiles, node support (parameters, diagnostics, shutdown), result collection, rosbag2/MCAP bag I/O and the recorder and bag_source nodes.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={
+        "console_scripts": [
+            "recorder = vibro_ros.recorder_node:main",
+            "bag_source = vibro_ros.bag_source_node:main",
+        ],
+    },
 )

@@ -20,7 +20,6 @@ setup(
     entry_points={
         "console_scripts": [
             "simulator = vibro_sim.simulator_node:main",
-            "discrepancy = vibro_sim.discrepancy_node:main",
         ],
     },
 )

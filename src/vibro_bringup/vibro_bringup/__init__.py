@@ -1,1 +1,1 @@
-"""Launch files, parameters, the node-graph runner and the vibro command-line interface."""
+"""Launch files, parameters, the node table (graph_spec) and the graph runner (graph_runner, supervisor)."""

@@ -13,7 +13,7 @@ from vibro_ros.lab_clock import TIME_ORIGIN_PARAMETER
 
 #: The in-process node ``vibro graph`` watches the graph with; a declared reader of every node there.
 MONITOR = "vibro_graph_monitor"
-#: The topics the monitor subscribes to (cmd_graph.Monitor).
+#: The topics the monitor subscribes to (graph_runner.Monitor).
 MONITOR_SUBSCRIBES = (T.STATUS.name, T.DIC.name, T.IMPACTS.name, T.SIMULATION.name, T.DISCREPANCY.name,
                       T.ACCEL.name, T.ACCEL_IMPACTS.name)
 
@@ -43,7 +43,7 @@ _RESULTS = (T.STRUCTURE.name, T.FLIGHTS.name, T.IMPACTS.name)
 #: for it or for its end; vibro graph does not wait for it to finish and stops it once the graph has ended.
 VIEWER = "viewer"
 NODES: tuple[NodeSpec, ...] = (
-    NodeSpec("recorder", "vibro_bringup", "recorder", "vibro_bringup.recorder_node", "sink",
+    NodeSpec("recorder", "vibro_ros", "recorder", "vibro_ros.recorder_node", "sink",
              subscribes=tuple(t.name for t in T.ALL_TOPICS)),
     NodeSpec("dic_tracker", "vibro_dic", "dic_tracker", "vibro_dic.dic_tracker_node", "processing",
              publishes=(T.DIC.name,), subscribes=(T.FRAMES.name, T.STATUS.name)),
@@ -53,7 +53,7 @@ NODES: tuple[NodeSpec, ...] = (
              publishes=_RESULTS, subscribes=(T.DIC.name, T.ACCEL.name, T.STATUS.name)),
     NodeSpec("simulator", "vibro_sim", "simulator", "vibro_sim.simulator_node", "processing",
              publishes=(T.SIMULATION.name,), subscribes=(*_RESULTS, T.DIC.name, T.STATUS.name)),
-    NodeSpec("discrepancy", "vibro_sim", "discrepancy", "vibro_sim.discrepancy_node", "processing",
+    NodeSpec("discrepancy", "vibro_discrepancy", "discrepancy", "vibro_discrepancy.discrepancy_node", "processing",
              publishes=(T.DISCREPANCY.name, T.IMPACTS_FINAL_MODEL.name),
              subscribes=(*_RESULTS, T.DIC.name, T.STATUS.name),
              waits_for=("simulator",)),
@@ -61,13 +61,13 @@ NODES: tuple[NodeSpec, ...] = (
              publishes=(T.FRAMES.name,), subscribes=(T.DIC.name,)),
     NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source",
              publishes=(T.ACCEL.name,)),
-    NodeSpec("foxglove_bridge", "vibro_bringup", "foxglove_bridge", "vibro_bringup.foxglove_bridge_node", VIEWER,
+    NodeSpec("foxglove_bridge", "vibro_foxglove", "foxglove_bridge", "vibro_foxglove.bridge_node", VIEWER,
              subscribes=(T.FRAMES.name, T.DIC.name, *_RESULTS, T.SIMULATION.name, T.DISCREPANCY.name,
                          T.IMPACTS_FINAL_MODEL.name, T.DIAGNOSTICS.name)),
 )
 
 #: Replaces frame_source and accel_source when a recorded bag is replayed (``vibro replay``).
-BAG_SOURCE = NodeSpec("bag_source", "vibro_bringup", "bag_source", "vibro_bringup.bag_source_node", "source",
+BAG_SOURCE = NodeSpec("bag_source", "vibro_ros", "bag_source", "vibro_ros.bag_source_node", "source",
                       publishes=(T.FRAMES.name, T.ACCEL.name), subscribes=(T.DIC.name,))
 
 ALL_SPECS: dict[str, NodeSpec] = {s.name: s for s in (*NODES, BAG_SOURCE)}
@@ -177,7 +177,7 @@ def params_file_key(node_name: str) -> str:
 def node_name_of_key(key: str, source: str | Path = "params file") -> str:
     """The node name of a params-file key (``/**/name``, or a bare ``name``/``/name``);
     RecordingError naming ``source`` for keys this graph cannot map to one of its nodes."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     name = key[len(ANY_NAMESPACE):] if key.startswith(ANY_NAMESPACE) else key.removeprefix("/")
     if not name.isidentifier():
@@ -238,7 +238,7 @@ def run_time_origin(rig_yaml: str | Path) -> int:
 def bag_time_origin_ns(bag: str | Path) -> int:
     """The lab-clock origin a bag's stamps are on (metadata custom_data ``vibro.time_origin_unix_ns``; 0 for a bag
     recorded without it, whose stamps are data time); RecordingError for a malformed value."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
     from vibro_ros.bags import read_custom_data
     from vibro_ros.lab_clock import origin_from_custom_data
 
@@ -255,7 +255,7 @@ def frames_topic_of_bag(bag: str | Path, requested: str | None = None) -> str:
     """The bag topic holding the camera images to replay: ``requested`` (checked: recorded, as an Image), else
     ``vibro/frames`` (any namespace), else the bag's only Image topic (a live session's camera, e.g.
     ``/camera/image_raw``); RecordingError naming the Image topics when none or several could be meant."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
     from vibro_ros.bags import matching_name, recorded_topics
 
     recorded = recorded_topics(bag)

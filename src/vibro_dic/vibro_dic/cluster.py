@@ -1,5 +1,5 @@
 """The Dask cluster vibro's parallel work runs on: chunked DIC (:mod:`vibro_dic.chunked`) and campaigns
-(:mod:`vibro_bringup.campaign`).
+(:mod:`vibro_app.campaign`).
 
 Default: a ``distributed.LocalCluster`` of worker *processes* (not threads: DIC and the fits hold the
 GIL), one thread each, as many as asked (default: the CPU cores); no dashboard. ``scheduler``: connect to
@@ -15,7 +15,7 @@ import os
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Iterator
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 if TYPE_CHECKING:  # only for the annotation: distributed is imported where a cluster is made
     import distributed

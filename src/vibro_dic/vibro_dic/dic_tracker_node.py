@@ -25,7 +25,7 @@ from sensor_msgs.msg import Image
 
 from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import frame_track_to_message
 from vibro_ros.guard import InputGuard

@@ -50,7 +50,7 @@ class FrameSource(Node):
         self.time_origin_ns = time_origin_parameter(self)
         self.linger_s = float(declare(self, "linger_s", 3.0,
                                       "seconds to wait for the last acknowledgements before exiting"))
-        from vibro_io.errors import RecordingError
+        from vibro_model.errors import RecordingError
 
         if not path:
             raise RecordingError("frame_source: parameter 'recording' is required")

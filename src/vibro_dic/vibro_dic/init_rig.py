@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_io.rig import Roi
 
 from . import init_edges as edges

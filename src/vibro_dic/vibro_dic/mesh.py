@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_io.rig import Roi
 
 

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from vibro_io.dictrack import DicTrack
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 DEFAULT_SPLIT_HZ = 50.0
 _MIN_FRAMES = 32

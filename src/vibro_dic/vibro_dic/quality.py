@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 from .texture import TextureReport
 

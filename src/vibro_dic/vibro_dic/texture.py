@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_io.rig import DicConfig, Roi
 
 from .icgn import gradients

@@ -69,7 +69,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from vibro_io.dictrack import FrameTrack
-from vibro_io.errors import FrameError, RecordingError
+from vibro_model.errors import FrameError, RecordingError
 from vibro_io.frames import Frame
 from vibro_io.rig import DicConfig, Roi, check_rois_in_image
 

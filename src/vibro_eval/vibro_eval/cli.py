@@ -43,7 +43,7 @@ def register(sub) -> None:
 
 
 def _range(text: str | None, option: str, default: tuple[float, float]) -> tuple[float, float]:
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     if text is None:
         return default
@@ -60,7 +60,7 @@ def _range(text: str | None, option: str, default: tuple[float, float]) -> tuple
 
 def draws_of(args: argparse.Namespace):
     """The :class:`~vibro_eval.prove.Draws` of the command line (``--evidence`` fills what is not given)."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     from .prove import EVIDENCE, INVENTED, Draws
 
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     from .prove import format_summary, prove
 
     if not 0.0 <= args.pairs <= 1.0:
-        from vibro_io.errors import RecordingError
+        from vibro_model.errors import RecordingError
 
         raise RecordingError(f"--pairs must be in [0, 1], got {args.pairs}")
     draws = draws_of(args)

@@ -77,9 +77,9 @@ from typing import Any
 
 import numpy as np
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
-from vibro_sim.discrepancy.library import EFFECTS
+from vibro_discrepancy.library import EFFECTS
 from vibro_sim.synth.invented import INVENTED_EFFECTS
 
 CONTROL = "none"
@@ -274,7 +274,7 @@ def _vibro_command() -> list[str]:
     script = Path(root) / "vibro"
     if script.is_file() and os.access(script, os.X_OK):
         return [str(script)]
-    return [sys.executable, "-m", "vibro_bringup.cli"]
+    return [sys.executable, "-m", "vibro_app.cli"]
 
 
 def paper_measured(track, rig):
@@ -283,7 +283,7 @@ def paper_measured(track, rig):
     the true model are given this, as the analysis was (not the analysis' own corrected impacts)."""
     from vibro_fit.identify import identify
     from vibro_fit.results import results_model
-    from vibro_sim.discrepancy.data import measured_from_document
+    from vibro_discrepancy.data import measured_from_document
 
     return measured_from_document(results_model(identify(track, rig), "prove"), track, rig)
 

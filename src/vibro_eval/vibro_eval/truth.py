@@ -16,7 +16,7 @@ from vibro_sim.deviation import deviation
 from vibro_sim.params import BallCavity
 from vibro_sim.structure import StructureKinematics
 from vibro_sim.synth.scenario import BASELINE_COR, effect_laws
-from vibro_sim.discrepancy.data import Measured
+from vibro_discrepancy.data import Measured
 
 
 # effect -> its main parameter (scored against the 15 % goal)
@@ -77,9 +77,9 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     """The true model (laws and parameters of the truth, COR scatter left out, true structure motion in
     the DIC frame) with the flight states and plate levels measured from the recording the same way the
     analysis measures them: each flight fitted with the true force law (coefficients fixed)."""
-    from vibro_sim.discrepancy.fitting import CorModelFit, fit_flights, fit_structure_harmonics, recompute_impacts
-    from vibro_sim.discrepancy.library import FLIGHT_TERMS
-    from vibro_sim.discrepancy.model import FittedModel
+    from vibro_discrepancy.fitting import CorModelFit, fit_flights, fit_structure_harmonics, recompute_impacts
+    from vibro_discrepancy.library import FLIGHT_TERMS
+    from vibro_discrepancy.model import FittedModel
 
     eff = true_effects(truth)
     S = true_structure(truth)
@@ -113,7 +113,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
 def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
     """Full run of :func:`true_fitted_model` exactly as the analysis replays its own model: D of the true
     model on the same noisy data (the goal's reference)."""
-    from vibro_sim.discrepancy.runs import full_run
+    from vibro_discrepancy.runs import full_run
 
     return full_run(meas, true_fitted_model(meas, truth))
 
@@ -271,7 +271,7 @@ def relative(a: float | None, b: float | None) -> float | None:
 
 def true_model_restarted_run(meas: Measured, truth: Mapping[str, Any]):
     """Restarted run (D_r) of :func:`true_fitted_model`, exactly as the analysis scores its own model
-    (:func:`vibro_sim.discrepancy.engine.restarted_run`): the D_r the true model reaches on the data."""
-    from vibro_sim.discrepancy.runs import restarted_run
+    (:func:`vibro_discrepancy.engine.restarted_run`): the D_r the true model reaches on the data."""
+    from vibro_discrepancy.runs import restarted_run
 
     return restarted_run(meas, true_fitted_model(meas, truth))

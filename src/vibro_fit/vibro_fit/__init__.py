@@ -5,5 +5,5 @@ Entry points (plain Python, no rclpy):
 - :class:`vibro_fit.streaming.StreamingFitter` (frame by frame, one flight of latency; trajectory_fitter node)
 - :class:`vibro_fit.accel_impacts.AccelImpactDetector` (accelerometer blocks -> impacts; impact_detector node)
 - :func:`vibro_fit.results.results_document` (contract results.json sections)
-- :mod:`vibro_fit.report` (figures and the HTML report)
+- :mod:`vibro_app.report` (figures and the HTML report)
 """

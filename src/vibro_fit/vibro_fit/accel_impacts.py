@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vibro_io.accel import AccelData
-from vibro_io.errors import AccelError
+from vibro_model.errors import AccelError
 
 
 @dataclass

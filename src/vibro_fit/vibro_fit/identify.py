@@ -14,7 +14,7 @@ import numpy as np
 
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_io.rig import RigConfig
 from vibro_model.results import StructureMotion
 

@@ -16,7 +16,7 @@ import numpy as np
 from rclpy.node import Node
 
 from vibro_ros import topics
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.guard import InputGuard
 from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,

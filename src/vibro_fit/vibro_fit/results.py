@@ -1,7 +1,7 @@
 """Identification -> the results document (:mod:`vibro_model.results`) and CSV tables.
 
 The types are SI inside; the contract's results.json (docs/recording-format.md: times s, positions mm,
-velocities m/s, forces N) is written by :func:`vibro_model.codec.write_results`. Flight coefficients
+velocities m/s, forces N) is written by :func:`vibro_io.results_file.write_results`. Flight coefficients
 a, b, c are for Y = a t^2 + b t + c with t the absolute camera time (s). Only free flights carry a
 friction force (null otherwise) and only impacts between two free flights are listed.
 """
@@ -14,7 +14,8 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from vibro_model.codec import json_number, json_value, write_results
+from vibro_io.results_file import write_results
+from vibro_model.codec import json_number, json_value
 from vibro_model.results import ResultsDocument, Simulation
 
 from vibro_io.outputs import atomic_open

@@ -28,7 +28,7 @@ from rclpy.node import Node
 from vibro_ros import topics
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import flight_to_message, frame_track_from_message, impact_to_message, structure_to_message
 from vibro_ros.guard import InputGuard

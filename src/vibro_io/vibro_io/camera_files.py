@@ -30,7 +30,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import FrameError, RigError
+from vibro_model.errors import FrameError, RigError
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .errors import RecordingError
+from vibro_model.errors import RecordingError
 
 DIC_COLUMNS = (
     "frame", "t_s", "ball_mm", "structure_mm", "ball_valid", "structure_valid",

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .errors import FrameError
+from vibro_model.errors import FrameError
 
 NAMING_RULE = (
     "frame files must share one name pattern with exactly one integer, the frame number, changing "

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from .camera_files import CAMERA_FILE_SUFFIXES, open_camera_file
-from .errors import FrameError
+from vibro_model.errors import FrameError
 from .frame_names import NAMING_RULE, frame_numbers
 from .paths import inside_recording
 from .rig import CameraConfig

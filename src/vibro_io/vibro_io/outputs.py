@@ -14,7 +14,7 @@ figures, report.html, recordings, bags):
    one, never half of one. A killed process may leave a temporary ``.NAME.xxxxxxxx.vibro-tmp*``
    file behind; it never has the target's name, and ``--overwrite`` removes it with the rest.
 
-Errors are :class:`OutputError` (a :class:`~vibro_io.errors.RecordingError`): the CLI prints
+Errors are :class:`OutputError` (a :class:`~vibro_model.errors.RecordingError`): the CLI prints
 them as one line naming the path and the reason, exit code 2.
 """
 
@@ -30,7 +30,7 @@ from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import IO
 
-from .errors import RecordingError
+from vibro_model.errors import RecordingError
 
 TEMP_MARK = ".vibro-tmp"
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}" + re.escape(TEMP_MARK) + r"(\.[^.]*)?$")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path, PurePath
 
-from .errors import RecordingError
+from vibro_model.errors import RecordingError
 
 
 def relative_name_problem(name: str) -> str | None:

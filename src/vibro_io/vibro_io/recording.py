@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .accel import AccelData, load_accel
-from .errors import RecordingError
+from vibro_model.errors import RecordingError
 from .frames import FrameSequence, find_frames_source
 from .paths import inside_recording
 from .rig import RigConfig, check_rois_in_image, load_rig

@@ -15,7 +15,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from .errors import RigError
+from vibro_model.errors import RigError
 from .paths import relative_name_problem
 
 log = logging.getLogger(__name__)
@@ -231,7 +231,7 @@ def load_rig(path: str | Path) -> RigConfig:
     """
     data = load_yaml(path)
     from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
-    from .errors import FrameError
+    from vibro_model.errors import FrameError
     from .frames import find_frames_source
 
     try:

@@ -28,7 +28,7 @@ from typing import Iterator
 import numpy as np
 
 from .accel import AccelData, check_sample_rate, warn_if_clipped
-from .errors import AccelError
+from vibro_model.errors import AccelError
 from .rig import AccelConfig, CameraConfig
 
 log = logging.getLogger(__name__)

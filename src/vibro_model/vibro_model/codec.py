@@ -1,25 +1,19 @@
-"""The one results.json codec: schema name, JSON-number sanitiser, writer, reader with validation.
+"""The results.json codec: schema name, JSON-number sanitiser, validating field reader.
 
-Every results.json vibro writes (``vibro analyze``, ``vibro fit``, ``vibro results <bag>``) goes through
-:func:`write_results`, every one it reads through :func:`read_results`; the types of
-:mod:`vibro_model.results` turn themselves into the contract's keys (docs/recording-format.md) with the
-helpers here. A document read back is validated: a missing key, a wrong type or an unknown plate or
+The types of :mod:`vibro_model.results` turn themselves into the contract's keys
+(docs/recording-format.md) with the helpers here; :mod:`vibro_io.results_file` writes and reads the
+file (every results.json vibro writes or reads goes through it). A document read back is validated: a missing key, a wrong type or an unknown plate or
 direction raises :class:`ResultsError` naming the file and the key (``flights[3].t_start``).
 """
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from vibro_io.errors import RecordingError
-
-if TYPE_CHECKING:
-    from .results import ResultsDocument
+from vibro_model.errors import RecordingError
 
 SCHEMA = "vibro.results/1"
 
@@ -142,37 +136,3 @@ class Fields:
     def extras(self, known: Sequence[str]) -> dict[str, Any]:
         """The keys not in ``known``, as written (kept through a read/write round trip)."""
         return {k: v for k, v in self.data.items() if k not in known}
-
-
-# ---------------------------------------------------------------- documents
-def as_document(doc: "ResultsDocument | Mapping[str, Any]", source: str = "results") -> "ResultsDocument":
-    """A :class:`ResultsDocument`, validating a mapping on the way (errors name ``source`` and the key)."""
-    from .results import ResultsDocument
-
-    return doc if isinstance(doc, ResultsDocument) else ResultsDocument.from_dict(doc, source)
-
-
-def results_text(doc: "ResultsDocument | Mapping[str, Any]") -> str:
-    """The JSON text of a results document (validated; strict JSON: no NaN, indented)."""
-    return json.dumps(as_document(doc).to_dict(), indent=2, allow_nan=False) + "\n"
-
-
-def write_results(path: str | Path, doc: "ResultsDocument | Mapping[str, Any]") -> Path:
-    """Write results.json (a document or a mapping, validated first); returns the path."""
-    from vibro_io.outputs import atomic_write_text  # a crash never leaves a half-written results.json
-
-    return atomic_write_text(Path(path), results_text(doc))
-
-
-def read_results(path: str | Path) -> "ResultsDocument":
-    """Read and validate a results.json; :class:`ResultsError` names the file and the key at fault."""
-    from .results import ResultsDocument
-
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ResultsError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise ResultsError(f"{path}: not JSON ({exc})") from None
-    return ResultsDocument.from_dict(data, str(path))

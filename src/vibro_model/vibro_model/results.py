@@ -10,13 +10,14 @@ plain JSON in ``sections`` / ``details``.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .codec import SCHEMA, Fields, ResultsError, json_number, json_value
-from .units import m_to_mm, mm_to_m
+from vibro_model.codec import SCHEMA, Fields, ResultsError, json_number, json_value
+from vibro_model.units import m_to_mm, mm_to_m
 
 PLATES = ("top", "bottom")
 DIRECTIONS = ("up", "down")
@@ -131,7 +132,7 @@ class Impact:
 
     ``cor_method`` says which model measured ``t``, ``cor``, ``cor_std`` and ``v_*``: ``"paper"`` (the
     identification, Eq. 15-16) or the '+'-joined names of the discrepancy findings whose model re-measured
-    them (:mod:`vibro_sim.discrepancy.reidentify`); ``cor_paper``, ``cor_std_paper``, ``t_paper_s`` keep
+    them (:mod:`vibro_discrepancy.reidentify`); ``cor_paper``, ``cor_std_paper``, ``t_paper_s`` keep
     the identification's values beside them. All four are None in a document written before they existed
     (or rebuilt from a graph run's messages) and are then not written.
 
@@ -417,3 +418,13 @@ class ResultsDocument:
                    Simulation.from_dict(f.value("simulation", True), f"{source}.simulation"),
                    Discrepancy.from_dict(f.value("discrepancy", True), f"{source}.discrepancy"),
                    list(warnings), complete, f.extras(cls.KEYS))
+
+
+def as_document(doc: ResultsDocument | Mapping[str, Any], source: str = "results") -> ResultsDocument:
+    """A :class:`ResultsDocument`, validating a mapping on the way (errors name ``source`` and the key)."""
+    return doc if isinstance(doc, ResultsDocument) else ResultsDocument.from_dict(doc, source)
+
+
+def results_text(doc: ResultsDocument | Mapping[str, Any]) -> str:
+    """The JSON text of a results document (validated; strict JSON: no NaN, indented)."""
+    return json.dumps(as_document(doc).to_dict(), indent=2, allow_nan=False) + "\n"

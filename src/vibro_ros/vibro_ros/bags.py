@@ -30,7 +30,7 @@ from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 from .qos_format import dump_profiles, parse_profiles
 

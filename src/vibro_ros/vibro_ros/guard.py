@@ -27,7 +27,7 @@ import time
 from rclpy.node import Node
 from rclpy.task import Future
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 
 from .node_support import run_id_parameter
 from .topics import Topic

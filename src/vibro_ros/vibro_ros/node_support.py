@@ -68,7 +68,7 @@ def declare(node: Node, name: str, default: Any, description: str, read_only: bo
     The value a user gives (``-p``, a params file, launch) is checked here rather than by rclpy, whose type
     errors are a crash trace: an integer is taken for a float parameter (``end_wait_s:=5``), an empty list
     (``readers:=[]``, which reaches ROS without a type) for an empty list, and anything else of the wrong
-    type is a :class:`vibro_io.errors.RecordingError` naming the node, the parameter, what it takes and what
+    type is a :class:`vibro_model.errors.RecordingError` naming the node, the parameter, what it takes and what
     it got (one line, exit code 2 from :func:`run_node`)."""
     node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only,
                                                               dynamic_typing=True))
@@ -78,7 +78,7 @@ def declare(node: Node, name: str, default: Any, description: str, read_only: bo
 def parameter_of_type(node_name: str, name: str, value: Any, default: Any) -> Any:
     """``value`` of parameter ``name`` as the type of its ``default`` (see :func:`declare`), or RecordingError
     naming the types as ``--help`` does (:func:`vibro_ros.node_help.parameter_type_name`)."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     from .node_help import parameter_type_name
 
@@ -131,7 +131,7 @@ def run_id_parameter(node: Node) -> str:
 def history_depth_parameter(node: Node) -> int:
     """The node's ``history_depth`` parameter (declared on first use): items kept by the latched histories of
     vibro/dic and vibro/accel (:func:`history_qos`); RecordingError unless >= 1."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     if not node.has_parameter("history_depth"):
         declare(node, "history_depth", HISTORY_DEPTH,
@@ -148,7 +148,7 @@ def time_origin_parameter(node: Node) -> int:
     header stamps (:mod:`vibro_ros.lab_clock`: stamp = origin + data time, ns since the Unix epoch).
     ``vibro graph``/``vibro replay`` set it for every node; 0 (a node started by hand without it) keeps
     stamps on the data clock, which the node says once in its log. RecordingError when negative."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     if not node.has_parameter(TIME_ORIGIN_PARAMETER):
         declare(node, TIME_ORIGIN_PARAMETER, 0,
@@ -337,7 +337,7 @@ EXECUTORS = ("events", "single")
 def make_executor(default: str = "events"):
     """The executor named by ``VIBRO_EXECUTOR``, else ``default`` (a node class's ``EXECUTOR``);
     RecordingError for an unknown name."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     kind = os.environ.get("VIBRO_EXECUTOR", "") or default
     if kind == "events":
@@ -394,7 +394,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
     from rclpy.signals import SignalHandlerOptions
 
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     from .dds_profile import use_vibro_dds_profile
     from .node_help import handle_command_line

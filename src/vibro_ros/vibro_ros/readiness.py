@@ -62,7 +62,7 @@ def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()
                                                      "readers are still missing after this long (s)"))
     exit_when_done = bool(declare(node, EXIT_WHEN_DONE, True, "exit once the inputs have ended and the final outputs "
                                                         "are acknowledged (false: stay up, live graph)"))
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     names = [str(r).strip() for r in readers if str(r).strip()]
     bad = [r for r in names if "/" in r or " " in r]
@@ -77,7 +77,7 @@ def declare_reader_topics(node: Node, readers: Sequence[str]) -> dict[str, set[s
     """Declare ``reader_topics`` (``reader=topic`` pairs: the topics of this node each declared reader must be
     matched on) and return reader -> fully qualified topic names. Refuses a malformed pair; pairs of a reader
     not in ``readers`` are ignored with a warning."""
-    from vibro_io.errors import RecordingError
+    from vibro_model.errors import RecordingError
 
     from .node_support import declare
 
@@ -110,7 +110,7 @@ def declare_keep_history_until(node: Node) -> list[str]:
     names = sorted({str(v).strip() for v in values if str(v).strip()})
     unknown = [n for n in names if n not in topics.STATUS_STREAMS]
     if unknown:  # a typo would keep the node waiting for a status that never comes, until the run's timeout
-        from vibro_io.errors import RecordingError
+        from vibro_model.errors import RecordingError
 
         raise RecordingError(f"{node.get_name()}: parameter 'keep_history_until' names unknown streams {unknown}; "
                              f"known: {', '.join(topics.STATUS_STREAMS)}")
@@ -196,7 +196,7 @@ class ReaderGate:
         published = {p.topic_name for p in self.publishers}
         unknown = sorted({t for ts in self.reader_topics.values() for t in ts} - published)
         if unknown:
-            from vibro_io.errors import RecordingError
+            from vibro_model.errors import RecordingError
 
             self.done.set_exception(RecordingError(
                 f"{self.node.get_name()}: parameter '{READER_TOPICS}' names topics this node does not publish: "
@@ -315,7 +315,7 @@ class WriterWatch:
             "items received) after which writers still listed in the ROS graph are taken as gone (a stale "
             "discovery view)"))
         if not self.stale_after_s > 0:
-            from vibro_io.errors import RecordingError
+            from vibro_model.errors import RecordingError
 
             raise RecordingError(f"{node.get_name()}: parameter 'stale_listing_s' must be > 0 s, "
                                  f"got {self.stale_after_s}")

@@ -16,7 +16,7 @@ import numpy as np
 from rclpy.node import Node
 
 from vibro_ros import topics
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_ros.fit_results import FinalFitResults
 from vibro_model.codec import nan_if_none
 from vibro_model.units import mm_to_m

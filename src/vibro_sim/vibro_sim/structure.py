@@ -10,7 +10,7 @@ the whole waveform in time) and ``h2_ratio``/``h3_ratio`` are amplitude ratios t
 
 :class:`StructureWithTone` adds a tone at any frequency (not a drive harmonic): the synthetic rig's
 ``structure_tone`` effect, and the discrepancy analysis' model of a located one
-(:mod:`vibro_sim.discrepancy.tone`).
+(:mod:`vibro_discrepancy.tone`).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Out-of-catalogue effects of the synthetic rig (issue 13.3): physics that no term of the discrepancy
-library (vibro_sim.discrepancy.library) models, so the analysis must report them as ``unexplained``
+library (vibro_discrepancy.library) models, so the analysis must report them as ``unexplained``
 with where and what. They exist to test that; a lab recording may show any of them.
 
 - ``cor_drift``: the COR drifts slowly over the recording (wear, heating of the contact): from frame 0

@@ -14,7 +14,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
-from vibro_io.errors import RecordingError
+from vibro_model.errors import RecordingError
 from vibro_model.units import m_to_mm, mm_to_m
 
 from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous

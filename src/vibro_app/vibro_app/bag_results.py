@@ -1,0 +1,196 @@
+"""``vibro results <bag>``: the results.json of a recorded graph run, rebuilt from its messages.
+
+The messages become model types through :mod:`vibro_ros.convert` and the document is written by the one
+codec (:mod:`vibro_model.codec`), so a graph run's document has the keys and meanings of
+``vibro analyze``'s: flights' ``t_start``/``t_end`` are the impacts that open/close them (the first/last
+fitted frame in ``t_first_frame``/``t_last_frame``), ``free`` says whether a flight is free,
+``cor_statistics`` is computed from the impacts as analyze does. The impacts the discrepancy node measured
+again under its final model (vibro/impacts_final_model) replace the fitter's, which stay beside them as
+``cor_paper``/``t_paper`` (:mod:`vibro_discrepancy.reidentify`, as analyze does). ``ball_spin`` is
+analyze's section (:func:`vibro_fit.spin.ball_spin_section`) of the recorded DicFrames' ball rotation and the
+final flights and impacts; a bag recorded before DicFrame carried the rotation has no ``ball_spin`` and a
+warning saying why.
+
+Flights and impacts marked ``final`` (the fitter's end-of-stream pass) replace the streamed previews with
+the same index. A bag is complete when every stream the fitter, simulator and discrepancy node announced
+finished (vibro/status) has all its items in the bag; otherwise (the recorder was killed, a node died)
+the document keeps what there is (streamed estimates where no final one arrived), says
+``"complete": false`` with a warning naming what is missing, and ``vibro results`` exits 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from vibro_model.results import results_text
+from vibro_model.results import Discrepancy, ResultsDocument, Simulation
+from vibro_ros import topics
+from vibro_ros.bags import deserialize, make_typestore, read_messages
+from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
+from vibro_ros.convert import (carries_ball_rotation, dic_track_from_messages, finding_from_message,
+                               flight_from_message, impact_from_message, simulation_run_from_message,
+                               structure_from_message)
+
+#: end-of-stream statuses a complete graph run has, and the result topic each one counts
+EXPECTED_STREAMS = {"flights": topics.FLIGHTS.name, "impacts": topics.IMPACTS.name,
+                    "simulation": topics.SIMULATION.name, "discrepancy": topics.DISCREPANCY.name}
+#: the discrepancy node's stream of impacts re-measured under its final model (not in bags recorded before it)
+FINAL_MODEL_STREAM = "impacts_final_model"
+
+
+class BagResults:
+    """The result messages of one bag, sorted out: latest per index, finals apart from streamed previews."""
+
+    def __init__(self, bag: str | Path):
+        self.bag = str(bag)
+        self.structure = None
+        self.streamed: dict[str, dict[int, object]] = {topics.FLIGHTS.name: {}, topics.IMPACTS.name: {}}
+        self.final: dict[str, dict[int, object]] = {topics.FLIGHTS.name: {}, topics.IMPACTS.name: {}}
+        self.simulation: dict[str, object] = {}
+        self.findings: dict[int, object] = {}
+        self.final_model: dict[int, object] = {}  # vibro/impacts_final_model by index
+        self.finished: dict[str, int] = {}  # stream -> items the node announced at its end
+        self.frames: list = []  # vibro/dic, as recorded
+        store = make_typestore()
+        wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
+                  topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name}
+        for m in read_messages(bag, wanted):
+            msg = deserialize(m, store)
+            if m.topic == topics.DIC.name:
+                self.frames.append(msg)
+            elif m.topic == topics.STRUCTURE.name:
+                self.structure = msg
+            elif m.topic in self.final:
+                (self.final if msg.final else self.streamed)[m.topic][int(msg.index)] = msg
+            elif m.topic == topics.SIMULATION.name:
+                self.simulation[str(msg.model)] = msg
+            elif m.topic == topics.DISCREPANCY.name:
+                self.findings[int(msg.index)] = msg
+            elif m.topic == topics.IMPACTS_FINAL_MODEL.name:
+                self.final_model[int(msg.index)] = msg
+            elif msg.finished:
+                self.finished[str(msg.stream)] = int(msg.items_sent)
+
+    def received(self, stream: str) -> int:
+        topic = EXPECTED_STREAMS[stream]
+        if topic in self.final:
+            return len(self.final[topic])
+        return len(self.simulation) if stream == "simulation" else len(self.findings)
+
+    def missing(self) -> list[str]:
+        """What a complete run would hold and this bag does not, in plain words (empty: complete)."""
+        out = []
+        if self.structure is None:
+            out.append(f"no {topics.STRUCTURE.name} message (the fitter's final pass)")
+        for stream, topic in EXPECTED_STREAMS.items():
+            if stream not in self.finished:
+                out.append(f"no end-of-stream status '{stream}'")
+            elif self.received(stream) < self.finished[stream]:
+                out.append(f"{self.received(stream)} of the {self.finished[stream]} announced {topic} messages")
+        # optional: a bag recorded before the discrepancy node re-measured impacts has no such status
+        announced = self.finished.get(FINAL_MODEL_STREAM)
+        if announced is not None and len(self.final_model) < announced:
+            out.append(f"{len(self.final_model)} of the {announced} announced {topics.IMPACTS_FINAL_MODEL.name} "
+                       "messages")
+        return out
+
+    def merged(self, topic: str) -> list:
+        """Final messages, and the streamed preview of every index without a final one."""
+        return list({**self.streamed[topic], **self.final[topic]}.values())
+
+
+def ball_spin_from_frames(frames: list, flights: list, impacts: list) -> tuple[dict | None, str]:
+    """``vibro analyze``'s ``ball_spin`` section (:func:`vibro_fit.spin.ball_spin_section`) of DicFrame messages
+    (rclpy or decoded from a bag) and the final flights and impacts (model types); (None, the reason) when the
+    frames carry no ball rotation at all (none recorded, or a bag recorded before DicFrame had it)."""
+    from vibro_fit.spin import ball_spin_section
+
+    if not frames:
+        return None, f"no {topics.DIC.name} message in the bag, so no ball rotation"
+    if not all(carries_ball_rotation(m) for m in frames):
+        return None, (f"the bag's {topics.DIC.name} messages have no ball_rot_rad field (recorded before DicFrame "
+                      "carried the ball rotation); track the recording again (vibro analyze or vibro replay)")
+    return ball_spin_section(dic_track_from_messages(frames), flights, impacts), ""
+
+
+def document_from_bag(bag: str | Path) -> ResultsDocument:
+    """The results document of a recorded graph run (``complete`` False when the bag is not whole)."""
+    from vibro_fit.results import cor_statistics_section
+    from vibro_discrepancy.reidentify import apply_reidentification, measurement_effects, \
+        reidentified_from_impacts
+
+    r = BagResults(bag)
+    missing = r.missing()
+    impacts = [impact_from_message(m) for m in r.merged(topics.IMPACTS.name)]
+    flights = [flight_from_message(m) for m in r.merged(topics.FLIGHTS.name)]
+    findings = [finding_from_message(r.findings[k]) for k in sorted(r.findings)]
+    warnings = []
+    if missing:
+        warnings.append(f"bag cut short: {'; '.join(missing)}; flights and impacts without a final estimate are "
+                        "the streamed ones")
+    if "discrepancy" in r.finished and not findings:
+        # the discrepancy node publishes findings only: with none, the baseline D is not in the bag
+        warnings.append("discrepancy: no finding published; the baseline D is not recorded in a bag "
+                        "(baseline_deviation and final_deviation are null)")
+    discrepancy = Discrepancy(findings[0].deviation_before if findings else None, findings,
+                              findings[-1].deviation_after if findings else None)
+    simulation = Simulation({name: simulation_run_from_message(m) for name, m in r.simulation.items()})
+    doc = ResultsDocument.build(
+        str(bag), None if r.structure is None else structure_from_message(r.structure), flights, impacts,
+        simulation=simulation, discrepancy=discrepancy, warnings=warnings, complete=not missing)
+    remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
+    effects = measurement_effects(findings)
+    doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))
+    doc.sections["cor_statistics"] = cor_statistics_section(doc.impacts)
+    spin, why_not = ball_spin_from_frames(r.frames, doc.flights, doc.impacts)
+    if spin is None:
+        doc.warnings.append(f"ball_spin: not reported: {why_not}")
+    else:
+        doc.sections["ball_spin"] = spin
+    return doc
+
+
+def results_from_bag(bag: str | Path) -> dict:
+    """The results.json mapping of a recorded graph run (see :func:`document_from_bag`)."""
+    return document_from_bag(bag).to_dict()
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("results", help="extract results.json from a recorded graph bag")
+    p.add_argument("bag", help="bag directory (rosbag2, MCAP storage)")
+    p.add_argument("--out", help="write results.json into this folder (created; must be empty unless "
+                                 "--overwrite), or to this file if the name ends in .json (default: print it)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the results.json of an earlier 'vibro results' in --out")
+    p.set_defaults(func=run)
+
+
+def prepare_results_path(out: str | Path, overwrite: bool, inputs: list[Path]) -> Path:
+    """Where ``vibro results --out OUT`` writes: OUT itself if it ends in .json, else OUT/results.json
+    (OUT prepared by :func:`vibro_io.outputs.prepare_output_dir`)."""
+    from vibro_fit.results import RESULTS_JSON
+
+    out = Path(out)
+    if out.suffix == ".json":
+        return prepare_output_file(out, overwrite=overwrite)
+    prepare_output_dir(out, overwrite=overwrite, owned=(RESULTS_JSON,), command="results", inputs=inputs)
+    return out / RESULTS_JSON
+
+
+def run(args: argparse.Namespace) -> int:
+    doc = document_from_bag(args.bag)
+    text = results_text(doc)
+    if args.out:
+        bag = Path(args.bag)  # the bag and its graph logs may sit in --out: inputs, kept
+        out = prepare_results_path(args.out, args.overwrite, [bag, bag.parent / f"{bag.name}.logs"])
+        atomic_write_text(out, text)
+        print(f"wrote {out}")
+    else:
+        print(text, end="")
+    if not doc.complete:
+        print(f"vibro results: error: {args.bag}: the run in this bag is incomplete ({doc.warnings[0]}); "
+              "the document is marked \"complete\": false", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,191 @@
+"""``vibro graph <recording> --bag bags/NAME``: run the node graph on a recording, record it, summarise.
+
+The graph runs as separate processes over DDS (:mod:`vibro_bringup.graph_runner`); the summary says
+what came through: frames in / tracked / lost, COR per plate, D per model, findings, and whether
+the bag holds every item its publishers announced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+from vibro_bringup.graph_runner import GraphSummary, execute_graph, new_bag_path, prepare_environment
+from vibro_bringup.graph_spec import graph_nodes, write_reference_frame
+from vibro_bringup.isolation import namespace_argument
+from vibro_foxglove.view import DEFAULT_PORT
+from vibro_io.recording import open_recording
+from vibro_model.errors import RecordingError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("graph", help="run the ROS node graph on a recording and record it to a bag")
+    p.add_argument("recording", help="recording directory")
+    p.add_argument("--bag", required=True, help="bag directory to create, e.g. bags/run1")
+    add_run_options(p)
+    p.set_defaults(func=run)
+
+
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+MAX_DOMAIN_ID = 232  # Fast DDS on Linux, default port mapping: higher ids give ports above 65535
+
+
+def _domain_id(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer 0-{MAX_DOMAIN_ID}, got {text!r}") from None
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"must be 0-{MAX_DOMAIN_ID}, got {value}")
+    return value
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """Options every command that runs the node graph takes (vibro graph, vibro replay)."""
+    p.add_argument("--params", help="parameters YAML (default: vibro_bringup/config/vibro.yaml)")
+    p.add_argument("--timeout-s", type=_positive_float, default=900.0, help="give up after this many seconds")
+    p.add_argument("--domain-id", type=_domain_id, metavar="ID",
+                   help=f"ROS_DOMAIN_ID for this run, 0-{MAX_DOMAIN_ID} (the ROS 2 range for Fast DDS on Linux "
+                        "with default ports; default: inherited)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the bag and logs (and, for replay, the outputs) of an earlier run of this command")
+    p.add_argument("--namespace", type=namespace_argument, metavar="NS",
+                   help="ROS namespace of this run's nodes and topics (default: /vibro_<run id>, new per run, so "
+                        "runs on one domain stay apart; / = none)")
+    p.add_argument("--respawn", type=_non_negative_int, default=2, metavar="N",
+                   help="restart a processing node that dies mid-run at most N times (default 2; 0 = never)")
+    p.add_argument("--foxglove", action="store_true",
+                   help="also serve the graph's topics to a Foxglove app (WebSocket; frames, tracks, COR, "
+                        "diagnostics); the summary prints the ws:// URL")
+    p.add_argument("--foxglove-port", type=_port, default=None, metavar="N",
+                   help=f"TCP port of the Foxglove server (default {DEFAULT_PORT}; implies --foxglove)")
+    p.add_argument("--foxglove-host", default=None, metavar="ADDR",
+                   help="address the Foxglove server listens on (default 0.0.0.0: every interface, so a lab PC "
+                        "without ROS can connect; 127.0.0.1: this PC only; implies --foxglove)")
+
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer 1-65535, got {text!r}") from None
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be 1-65535, got {value}")
+    return value
+
+
+def foxglove_parameters(args: argparse.Namespace) -> dict | None:
+    """The Foxglove bridge's parameters from ``--foxglove``/``--foxglove-port``/``--foxglove-host`` (None: no
+    bridge); RecordingError when the port cannot be bound on that address (in use, or not this machine's)."""
+    if not (args.foxglove or args.foxglove_port is not None or args.foxglove_host is not None):
+        return None
+    host = args.foxglove_host or "0.0.0.0"
+    port = args.foxglove_port or DEFAULT_PORT
+    import socket
+
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((host, port))
+    except OSError as exc:
+        raise RecordingError(f"--foxglove-port {port} --foxglove-host {host}: cannot serve there "
+                             f"({exc.strerror or exc}); choose another port") from None
+    return {"host": host, "port": port}
+
+
+def print_summary(s: GraphSummary, bag: Path) -> None:
+    # the tracker's own end-of-stream count is authoritative (one DicFrame per frame slot);
+    # the monitor's view of vibro/dic only adds the reasons. A restarted tracker only counts what it
+    # answered itself, so after a restart the union of the frame indices seen on vibro/dic counts.
+    restarted = s.restarts.get("dic_tracker", 0)
+    if s.identity:
+        print(s.identity)
+    published, lost = (s.dic_frames, s.dic_lost) if restarted else s.counts.get("dic", (s.dic_frames, s.dic_lost))
+    tracked = published - lost
+    announced = s.frames_announced
+    note = f" (unreadable at the source: {s.frames_unreadable})" if s.frames_unreadable else ""
+    if announced == 0 and published:
+        # the source's own count did not reach this monitor; the tracker answers every frame slot
+        announced = published
+        note += " (frame count from the tracker: the source's status was not received)"
+    never = max(0, announced - published)
+    print(f"frames in {announced} / tracked {tracked} / lost {lost + never}{note}")
+    for reason, n in sorted(s.lost_reasons.items(), key=lambda kv: -kv[1]):
+        print(f"  lost x{n}: {reason}")
+    if never:
+        why = (f" (dic_tracker restarted {restarted}x mid-run: frames sent while it was down)"
+               if restarted else "")
+        print(f"  lost x{never}: no DIC result ever published{why}")
+    for node, n in sorted(s.restarts.items()):
+        print(f"restarted: {node} x{n}")
+    if s.accel_span_s and s.camera is not None and announced > 0:
+        from vibro_fit.coverage import frame_coverage
+
+        cam = s.camera
+        cov = frame_coverage([cam.frame_time_s(0), cam.frame_time_s(announced - 1)], s.accel_span_s,
+                             sorted(s.accel_impacts_s.values()), None, 1.0 / cam.fps)
+        if cov.message():
+            print(f"note: {cov.message()}")
+    print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
+    for plate in ("bottom", "top"):
+        cors = [m.cor for m in (s.final_impacts or s.impacts).values() if m.plate == plate and math.isfinite(m.cor)]
+        if cors:
+            mean = sum(cors) / len(cors)
+            std = math.sqrt(sum((c - mean) ** 2 for c in cors) / max(1, len(cors) - 1))
+            print(f"{plate:8s} {len(cors):4d} {mean:9.4f} {std:8.4f}")
+        else:
+            print(f"{plate:8s} {0:4d} {'-':>9s} {'-':>8s}")
+    for model, d in sorted(s.deviations.items()):
+        print(f"D {model:12s} {100 * d:6.2f} %")
+    if s.findings:
+        for f in s.findings:
+            params = ", ".join(f"{n}={v:.4g}" for n, v in zip(f.parameter_names, f.parameter_values))
+            print(f"finding: {f.effect} ({params}) D {100 * f.deviation_before:.2f} % -> "
+                  f"{100 * f.deviation_after:.2f} %; {f.where}")
+    else:
+        print("findings: none published")
+    if s.recorded:
+        print("recorded: " + ", ".join(f"{t} {got}/{n}" for t, (n, got) in sorted(s.recorded.items())))
+    for problem in s.count_problems:
+        print(f"MISSING: {problem}")
+    for failure in s.failures:
+        print(f"FAILED: {failure.describe()}")
+    if s.foxglove_url:
+        print(f"foxglove: {s.foxglove_url} (served while the graph ran)")
+    print(f"bag: {bag}")
+
+
+def run(args: argparse.Namespace) -> int:
+    recording = open_recording(args.recording)  # validate before starting anything
+    foxglove = foxglove_parameters(args)
+    bag = new_bag_path(args.bag, args.overwrite)
+    env = prepare_environment(args.domain_id)
+    sources = [s for s in graph_nodes(bag=True, with_accel=recording.has_accel) if s.role == "source"]
+    from vibro_ros.node_support import HISTORY_DEPTH
+
+    t0 = time.monotonic()
+    ok, summary, log_dir = execute_graph(
+        recording.path, bag, sources, with_accel=recording.has_accel, params_base=args.params,
+        timeout_s=args.timeout_s, env=env, respawn=args.respawn,
+        reference=lambda folder: write_reference_frame(recording.path, folder / "reference_frame0.png"),
+        namespace=args.namespace, history_depth=max(HISTORY_DEPTH, len(recording.frames) + 1), foxglove=foxglove)
+    print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
+    print_summary(summary, bag)
+    return 0 if ok else 1

@@ -1,0 +1,330 @@
+"""Figures (matplotlib, Agg) and one self-contained HTML report (PNGs inlined as base64).
+
+Figures follow the paper: displacements with fits and impact instants (Fig. 9), COR per impact
+(Fig. 10), friction per flight (Fig. 12), accelerometer spectrum (Fig. 7), histogram + normal Q-Q
+(Fig. 15-16), simulated vs measured (Fig. 13), and the error-bar summary across recordings (Fig. 14).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from vibro_io.dictrack import DicTrack  # noqa: E402
+from vibro_io.outputs import atomic_path, atomic_write_text  # noqa: E402
+from vibro_model.results import as_document  # noqa: E402
+from vibro_model.results import ResultsDocument  # noqa: E402
+from vibro_model.units import n_to_mn  # noqa: E402
+
+from vibro_fit.identify import Identification  # noqa: E402
+from vibro_app.report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
+from vibro_fit.statistics import normal_check  # noqa: E402
+
+PLATE_COLORS = {"top": "tab:red", "bottom": "tab:blue"}
+
+
+def _legend(ax, **kw) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kw)
+
+
+def figure_formats() -> set[str]:
+    """File name extensions (without the dot) a figure can be saved as."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    return set(FigureCanvasAgg.get_supported_filetypes())
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` atomically (110 dpi; format from the suffix) and close it."""
+    fig.tight_layout()
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def fig_displacements(track: DicTrack, ident: Identification, path: Path, zoom_cycles: float = 3.0) -> Path:
+    fig, axes = plt.subplots(2, 1, figsize=(10, 7))
+    t = track.t_s
+    s = ident.structure
+    f = s.frequency_hz
+    for ax, (lo, hi) in zip(axes, ((t[0], t[-1]), (t[0], min(t[-1], t[0] + zoom_cycles / f)))):
+        m = (t >= lo) & (t <= hi)
+        ax.plot(t[m], track.ball_mm[m], ".", ms=2, color="0.3", label="ball (DIC)")
+        ax.plot(t[m], track.structure_mm[m], ".", ms=2, color="tab:green", label="structure (DIC)")
+        tt = np.linspace(lo, hi, 2000)
+        ax.plot(tt, s.position_mm(tt), "-", lw=0.8, color="tab:green", alpha=0.7, label="sine fit (Eq. 2)")
+        first = True
+        for fl in ident.flights:
+            if fl.t_end_s < lo or fl.t_start_s > hi:
+                continue
+            t0 = fl.t_start_s
+            t1 = fl.t_end_s
+            for imp in ident.impacts:
+                if imp.flight_after == fl.index:
+                    t0 = imp.t_s
+                if imp.flight_before == fl.index:
+                    t1 = imp.t_s
+            tf = np.linspace(t0, t1, 50)
+            ax.plot(tf, fl.position_mm(tf), "-", lw=1.0, color="tab:orange" if fl.is_free else "tab:gray",
+                    label="parabola fits (Eq. 3)" if first else None)
+            first = False
+        for imp in ident.impacts:
+            if lo <= imp.t_s <= hi:
+                ax.axvline(imp.t_s, color=PLATE_COLORS[imp.plate], lw=0.5, alpha=0.5)
+        ax.set_xlim(lo, hi)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("displacement (mm)")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[0].set_title("Displacements, fits and impact instants (red: top, blue: bottom)")
+    return save_figure(fig, path)
+
+
+def _reidentified(impacts) -> bool:
+    return any(getattr(i, "cor_method", None) not in (None, "paper") for i in impacts)
+
+
+def fig_cor(impacts, path: Path) -> Path:
+    """COR per impact with its propagated 1 sigma; ``impacts``: anything with ``index``, ``plate``, ``cor``,
+    ``cor_std`` (and, when re-identified under the discrepancy's final model, ``cor_paper``, shown beside)."""
+    fig, ax = plt.subplots(figsize=(9, 4))
+    impacts = list(impacts)
+    for plate in ("bottom", "top"):
+        imps = [i for i in impacts if i.plate == plate]
+        if imps:
+            ax.errorbar([i.index for i in imps], [i.cor for i in imps], yerr=[i.cor_std for i in imps], fmt="o",
+                        ms=4, color=PLATE_COLORS[plate], label=f"{plate} (n={len(imps)})")
+            if _reidentified(imps):
+                ax.plot([i.index for i in imps], [i.cor_paper for i in imps], "x", ms=4, color=PLATE_COLORS[plate],
+                        alpha=0.5, label=f"{plate}, paper's Eq. 16 (before correction)")
+    ax.set_xlabel("impact index")
+    ax.set_ylabel("COR e" + (" (final model)" if _reidentified(impacts) else " (Eq. 16)"))
+    ax.set_title("Coefficient of restitution per impact (error bars: propagated 1 sigma)")
+    _legend(ax)
+    return save_figure(fig, path)
+
+
+def fig_friction(ident: Identification, path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for d, color in (("up", "tab:purple"), ("down", "tab:olive")):
+        fls = [f for f in ident.flights if f.is_free and f.direction == d]
+        if fls:
+            fr = [f.friction_n(ident.mass_kg) for f in fls]
+            ax.errorbar([f.index for f in fls], [n_to_mn(v) for v, _ in fr], yerr=[n_to_mn(s) for _, s in fr], fmt="s",
+                        ms=4, color=color, label=f"{d} flights")
+    ax.axhline(0, color="0.5", lw=0.5)
+    ax.set_xlabel("flight index")
+    ax.set_ylabel("friction force (mN, positive up)")
+    ax.set_title("Friction per free flight, Eq. 17: F = m (2a + g)")
+    _legend(ax)
+    return save_figure(fig, path)
+
+
+def fig_accel(ident: Identification, path: Path) -> Path | None:
+    acc = ident.accel
+    if acc is None or not acc.impacts:
+        return None
+    fig, ax = plt.subplots(figsize=(9, 4))
+    ax.semilogy(acc.freqs_hz, acc.mean_spectrum_upper + 1e-12, lw=0.8, label="upper plate")
+    ax.semilogy(acc.freqs_hz, acc.mean_spectrum_lower + 1e-12, lw=0.8, label="lower plate")
+    for fpk in acc.peaks_hz:
+        ax.axvline(fpk, color="0.4", lw=0.5, ls="--")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("|FFT| (averaged over impacts)")
+    ax.set_title(f"Accelerometer impact spectrum ({len(acc.impacts)} impacts); peaks: "
+                 + ", ".join(f"{p:.0f}" for p in acc.peaks_hz) + " Hz")
+    ax.legend()
+    return save_figure(fig, path)
+
+
+def fig_hist_qq(impacts, path: Path) -> Path | None:
+    """Histogram and normal Q-Q of the CORs per plate (plates with >= 3 impacts); ``impacts`` as in
+    :func:`fig_cor`."""
+    impacts = list(impacts)
+    plates = [p for p in ("bottom", "top") if sum(i.plate == p for i in impacts) >= 3]
+    if not plates:
+        return None
+    fig, axes = plt.subplots(len(plates), 2, figsize=(10, 3.6 * len(plates)), squeeze=False)
+    for row, plate in zip(axes, plates):
+        vals = [i.cor for i in impacts if i.plate == plate]
+        nc = normal_check(vals)
+        ax = row[0]
+        ax.hist(vals, bins=nc.edges, density=True, color=PLATE_COLORS[plate], alpha=0.6)
+        xs = np.linspace(nc.edges[0], nc.edges[-1], 200)
+        if nc.std > 0:
+            ax.plot(xs, np.exp(-0.5 * ((xs - nc.mean) / nc.std) ** 2) / (nc.std * np.sqrt(2 * np.pi)), "k-")
+        ax.set_title(f"{plate}: mu = {nc.mean:.3f}, sigma = {nc.std:.3f}")
+        ax.set_xlabel("COR")
+        ax = row[1]
+        ax.plot(nc.theoretical_quantiles, nc.ordered_values, "o", ms=4, color=PLATE_COLORS[plate])
+        ax.plot(nc.theoretical_quantiles, nc.slope * nc.theoretical_quantiles + nc.intercept, "k-")
+        ax.set_title(f"{plate}: normal Q-Q, r = {nc.r:.3f}")
+        ax.set_xlabel("theoretical quantiles")
+        ax.set_ylabel("ordered COR")
+    return save_figure(fig, path)
+
+
+def fig_simulated(t_s: np.ndarray, measured_mm: np.ndarray, sims: dict[str, np.ndarray], deviations: dict,
+                  path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(t_s, measured_mm, ".", ms=2, color="0.3", label="measured ball")
+    for name, y in sims.items():
+        d = deviations.get(name)
+        ax.plot(t_s, y, "-", lw=0.8, label=f"{name} (D = {100 * d:.2f} %)" if d is not None else name)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("ball displacement (mm)")
+    ax.set_title("Simulated vs measured ball displacement (Eq. 18)")
+    ax.legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+def fig_errorbars(rows: list[dict], path: Path) -> Path:
+    """Fig. 14 from :func:`vibro_fit.statistics.errorbar_table` rows."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    labels = sorted({r["label"] for r in rows})
+    for k, plate in enumerate(("bottom", "top")):
+        rr = [r for r in rows if r["plate"] == plate]
+        x = [labels.index(r["label"]) + (k - 0.5) * 0.15 for r in rr]
+        ax.errorbar(x, [r["mean"] for r in rr], yerr=[r["std"] or 0 for r in rr], fmt="o", capsize=4,
+                    color=PLATE_COLORS[plate], label=plate)
+    ax.set_xticks(range(len(labels)), labels)
+    ax.set_ylabel("mean COR +- sigma")
+    ax.legend()
+    return save_figure(fig, path)
+
+
+def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, sim: dict | None = None,
+                  impacts=None) -> dict[str, Path]:
+    """Write the PNG figures into ``out_dir``; ``sim`` = {"t_s", "measured_mm", "curves": {name: mm},
+    "deviations": {name: D}} for the simulated-vs-measured figure; ``impacts``: the CORs the COR figures
+    show (the results document's, re-identified under the final model; default the identification's).
+    Returns {name: path}."""
+    out = Path(out_dir)
+    files = {name: out / file for name, file in FIGURE_FILES.items()}
+    impacts = ident.impacts if impacts is None else [i for i in impacts if i.cor is not None]
+    figs: dict[str, Path | None] = {
+        "displacements": fig_displacements(track, ident, files["displacements"]),
+        "cor": fig_cor(impacts, files["cor"]),
+        "friction": fig_friction(ident, files["friction"]),
+        "accelerometer_spectrum": fig_accel(ident, files["accelerometer_spectrum"]),
+        "histogram_qq": fig_hist_qq(impacts, files["histogram_qq"]),
+    }
+    if sim and sim.get("curves"):
+        figs["simulated_vs_measured"] = fig_simulated(sim["t_s"], sim["measured_mm"], sim["curves"],
+                                                      sim.get("deviations", {}), files["simulated_vs_measured"])
+    return {k: v for k, v in figs.items() if v is not None}
+
+
+def _img(path: Path) -> str:
+    data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+    return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
+
+
+def discrepancy_html(disc: dict) -> str:
+    """The discrepancy section: D before/after, where the baseline disagrees, findings with parameters."""
+    e = html.escape
+
+    def pct(v):
+        return "n/a" if v is None else f"{100.0 * v:.3f} %"
+
+    rows = []
+    for f in disc.get("findings", []):
+        stds = f.get("parameters_std") or {}
+        params = ", ".join(f"{k} = {v:.4g}" + (f" &plusmn; {stds[k]:.2g}" if stds.get(k) is not None else "")
+                           for k, v in f.get("parameters", {}).items()) or "&ndash;"
+        alt = f"<br><i>indistinguishable here from: {e(', '.join(f['alternatives']))}</i>" if f.get("alternatives") \
+            else ""
+        rows.append(f"<tr><td><b>{e(f.get('effect', ''))}</b>{alt}</td><td>{params}</td>"
+                    f"<td>{pct(f.get('deviation_before'))} &rarr; {pct(f.get('deviation_after'))}</td>"
+                    f"<td>{e(str(f.get('where', '')))}</td></tr>")
+    table = ("<table><tr><th>effect</th><th>parameters (SI)</th><th>D before &rarr; after</th><th>where</th></tr>"
+             + "".join(rows) + "</table>") if rows else "<p>No finding: the baseline model explains the recording " \
+        "to within the measurement noise.</p>"
+    loc = (disc.get("location") or {}).get("text", "")
+    err = f"<p><b>{e(disc['error'])}</b></p>" if disc.get("error") else ""
+    return (f"<h2>Discrepancy analysis (baseline: constant COR, gravity only, pure sine, vertical)</h2>{err}"
+            f"<p>D baseline {pct(disc.get('baseline_deviation'))}, final {pct(disc.get('final_deviation'))}"
+            f" (model: {e(str(disc.get('model', 'baseline')))}).</p>"
+            + (f"<p>Where the baseline disagrees: {e(loc)}</p>" if loc else "") + table)
+
+def dic_quality_html(section: dict | None) -> str:
+    """An HTML table of results.json's ``dic_quality`` section (:mod:`vibro_dic.quality`; empty when none)."""
+    if not section:
+        return ""
+    tex = (section.get("texture") or {}).get("bodies", {})
+    corr = (section.get("correlation") or {}).get("bodies", {})
+    noise = (section.get("texture") or {}).get("noise_gray")
+
+    def f(v, spec=".4g"):
+        return "" if v is None else format(v, spec)
+
+    rows = "".join(
+        f"<tr><td>{html.escape(name)}</td><td>{t.get('n_usable', '')} of {t.get('n_subsets', '')}</td>"
+        f"<td>{f((t.get('mesh_sigma_px') or [None, None])[1])}</td><td>{f(c.get('zncc_median'))}</td>"
+        f"<td>{f(c.get('zncc_min'))}</td><td>{c.get('frames_below_zncc_warn', '')}</td>"
+        f"<td>{c.get('frames_lost', '')}</td><td>{len(c.get('subsets_lost') or [])}</td>"
+        f"<td>{f(c.get('noise_ratio'), '.2f')}</td><td>{f(c.get('sigma_px_from_zncc'))}</td></tr>"
+        for name in sorted(set(tex) | set(corr)) for t, c in [(tex.get(name, {}), corr.get(name, {}))])
+    return (f"<h2>DIC quality</h2><p>Image noise {f(noise, '.3g')} gray levels; a subset is usable when its "
+            f"predicted displacement sigma is at most {f((section.get('texture') or {}).get('max_subset_sigma_px'), 'g')}"
+            " px (README: 'Real footage').</p><table><tr><th>body</th><th>usable subsets</th>"
+            "<th>predicted sigma y (px)</th><th>median ZNCC</th><th>min ZNCC</th><th>frames below warn</th>"
+            "<th>frames lost</th><th>subsets lost</th><th>correlation noise / image noise</th>"
+            f"<th>sigma y from ZNCC (px)</th></tr>{rows}</table>")
+
+
+
+def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: str | Path) -> Path:
+    """One self-contained HTML page: summary tables, warnings, figures (inlined). ``results``: the document,
+    or a results.json mapping (validated by the codec)."""
+    e = html.escape
+    results = as_document(results).to_dict()
+    s = results.get("structure", {})
+    rows = "".join(f"<tr><td>{e(k)}</td><td>{v:.6g}</td></tr>" for k, v in s.items()
+                   if isinstance(v, (int, float)))
+    cor = results.get("cor_summary", {})
+    def fmt(v, scale=1.0, spec=".4f", unit=""):
+        return "" if v is None else format(scale * v, spec) + unit
+
+    cor_rows = "".join(
+        f"<tr><td>{p}</td><td>{fmt(d.get('mean'))}</td><td>{fmt(d.get('std'))}</td><td>{d.get('n', 0)}</td></tr>"
+        for p, d in cor.items())
+    imodel = results.get("impacts_model") or {}
+    cor_model = f"<p>{e(str(imodel['description']))}.</p>" if imodel.get("description") else ""
+    sim = results.get("simulation", {})
+    sim_rows = "".join(f"<tr><td>{e(k)}</td><td>{fmt(v.get('deviation'), 100.0, '.2f', ' %')}</td></tr>"
+                       for k, v in sim.items() if isinstance(v, dict))
+    warns = "".join(f"<li>{e(w)}</li>" for w in results.get("warnings", [])) or "<li>none</li>"
+    regime = results.get("regime", {})
+    titles = {"displacements": "Displacements with fits and impact instants", "cor": "COR per impact",
+              "friction": "Friction per flight", "accelerometer_spectrum": "Accelerometer spectrum",
+              "histogram_qq": "Histogram and normal Q-Q", "simulated_vs_measured": "Simulated vs measured"}
+    titles["discrepancy"] = "Discrepancy: residual before/after and where the mismatch was"
+    figs = "".join(f"<h2>{e(titles.get(k, k))}</h2>{_img(p)}" for k, p in figures.items())
+    disc_html = discrepancy_html(results.get("discrepancy") or {})
+    dic_html = dic_quality_html(results.get("dic_quality"))
+    page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>vibro report</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
+<h1>vibro analysis: {e(str(results.get('recording', '')))}</h1>
+<p>Regime: <b>{e(str(regime.get('name', '?')))}</b>; {len(results.get('flights', []))} flights,
+{len(results.get('impacts', []))} impacts; method {e(str(results.get('identification', {}).get('method', '')))}.</p>
+<h2>Structure (Eq. 2)</h2><table>{rows}</table>
+<h2>COR per plate (Table 2)</h2>{cor_model}<table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>{cor_rows}</table>
+<h2>Simulation deviation D (Eq. 18)</h2><table>{sim_rows}</table>
+{disc_html}
+{dic_html}
+<h2>Warnings</h2><ul>{warns}</ul>
+{figs}
+</body></html>"""
+    return atomic_write_text(path, page)

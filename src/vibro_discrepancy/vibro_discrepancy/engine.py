@@ -1,0 +1,389 @@
+"""The discrepancy estimator: baseline -> locate -> explain -> model and show -> what is left (issue 6).
+
+Shaped like PySINDy: a candidate library (:class:`~.library.CandidateLibrary`) x a selection
+(:class:`~.select.StagewiseSelector`) -> a fitted model. ``DiscrepancyEstimator(library, selector)
+.fit(measured)`` takes the measurement (:class:`~.data.Measured`: the identification as domain-model types,
+the DIC track and the rig, SI) and gives a :class:`DiscrepancyRun`: the typed result
+(:class:`vibro_model.results.Discrepancy` with one :class:`~vibro_model.results.DiscrepancyFinding` per
+finding, whose ``to_dict()`` is the contract's ``discrepancy`` block: baseline_deviation, findings[{effect,
+parameters, where, deviation_before, deviation_after}], final_deviation, plus extras: the paper's D,
+parameter uncertainties, the noise floors, the one-step errors before/after, the location of the
+baseline's mismatch, every tested candidate with its statistic) and the fitted models for figures and
+re-identification. :func:`run_discrepancy` does both steps for ``vibro analyze`` and the ``discrepancy``
+node (a results document, the track, the rig).
+
+Two deviations, both on the paper's Eq. 18 scale (a fraction of the measured displacement):
+
+- D_r, the restarted deviation (``baseline_deviation``, ``final_deviation`` and each finding's
+  ``deviation_before``/``deviation_after``): every fitted flight simulated with vibro_sim's exact COR
+  model from the measured state after the impact that opens it (:func:`.runs.restarted_run`). A real rig
+  gives every impact its own COR; restarting after each impact keeps that scatter from accumulating,
+  so D_r measures the model (flight law, structure motion), not the chaos: it falls to the noise floor
+  (sigma / RMS of the ball displacement) once the model is right, whatever the COR scatter.
+- D, the paper's free-running deviation (``paper_baseline_deviation``, ``paper_final_deviation``,
+  ``paper_deviation_before/after``): simulated once from the measured state after the first impact
+  that opens a fitted flight to the end of the track (:func:`.runs.full_run`). With per-impact COR scatter
+  the replay drifts from the record within a few impacts and D stays at a few % for any model.
+
+A COR law is judged by the per-impact CORs instead (D_r replays the measured post-impact velocities):
+``cor_variance_share``, the share of the COR variance beyond the measurement noise the law explains.
+The baseline: constant COR = the mean measured one, gravity only, pure sine structure, vertical. The
+findings are added in order (structure, flight terms, COR law); before/after are the models
+without/with each. What the final model still leaves systematically (:mod:`.systematic`) is reported as
+``unexplained``; when that holds a structure tone that passes its test (:mod:`.tone`), the tone is
+modelled (the final model's structure fit includes it, so the re-identification uses it) and the
+``unexplained`` entry's before/after are the models without/with it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Mapping
+
+import numpy as np
+
+from vibro_io.dictrack import DicTrack
+from vibro_io.rig import RigConfig
+from vibro_model.codec import json_number, json_value
+from vibro_model.results import Discrepancy, DiscrepancyFinding, ResultsDocument
+from vibro_model.units import m_to_mm
+
+from vibro_discrepancy.data import Measured, difference_sigma, measurement_of
+from vibro_discrepancy.fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure_harmonics
+from vibro_discrepancy.library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm
+from vibro_discrepancy.locate import cor_law_where, flight_term_where, locate, structure_words
+from vibro_discrepancy.model import FittedModel, fit_model
+from vibro_discrepancy.onestep import OneStep, one_step
+from vibro_discrepancy.runs import FullRun, full_run, restarted_run
+from vibro_discrepancy.select import UNEXPLAINED_RATIO, StageResult, StagewiseSelector, law_variance_share
+from vibro_discrepancy.systematic import Mismatch, contact_scatter, systematic_mismatch
+from vibro_discrepancy.tone import TONE_EFFECT, ToneDecision, model_structure_tone
+
+log = logging.getLogger(__name__)
+
+
+# ---------------------------------------------------------------- noise floors and the chain of models
+@dataclass(frozen=True)
+class NoiseFloors:
+    """White-noise floors estimated from the data: ball and structure per frame (m), COR (median cor_std)."""
+
+    ball_m: float
+    structure_m: float
+    cor: float
+
+    def to_dict(self) -> dict:
+        return {"ball_mm_per_frame": m_to_mm(self.ball_m), "structure_mm_per_frame": m_to_mm(self.structure_m),
+                "cor": self.cor}
+
+
+def noise_floors(meas: Measured) -> NoiseFloors:
+    """Ball: 3rd differences within the flights (5th over the whole track if that fails); structure: 5th
+    differences of its track; COR: the median of the identified COR stds (0 without any)."""
+    ball = difference_sigma([(f.t_s, f.y_m) for f in meas.flights], 3)
+    if not math.isfinite(ball) or ball <= 0:
+        ball = difference_sigma([(meas.t_s, meas.ball_m)], 5)
+    stds = [i.cor_std for i in meas.impacts if i.cor_std > 0]
+    return NoiseFloors(ball, difference_sigma([(meas.t_s, meas.structure_m)], 5),
+                       float(np.median(stds)) if stds else 0.0)
+
+
+@dataclass
+class ModelStep:
+    """One model of the chain: the fitted model, its paper D run, its restarted D_r run, its one-step errors."""
+
+    label: str
+    model: FittedModel
+    run: FullRun
+    restarted: FullRun
+    steps: OneStep
+
+
+def evaluate(meas: Measured, label: str, model: FittedModel, floors: NoiseFloors) -> ModelStep:
+    """``model`` replayed both ways (:mod:`.runs`) and stepped one flight/impact ahead (:mod:`.onestep`)."""
+    return ModelStep(label, model, full_run(meas, model), restarted_run(meas, model),
+                     one_step(meas, model, floors.ball_m))
+
+
+class FindingChain:
+    """The models in the order the findings are added (structure, flight terms, COR law), each finding
+    with D_r (and the paper's D, the one-step errors) of the model without and with it."""
+
+    def __init__(self, meas: Measured, floors: NoiseFloors, baseline: ModelStep):
+        self.meas, self.floors = meas, floors
+        self.steps: list[ModelStep] = [baseline]
+        self.findings: list[DiscrepancyFinding] = []
+
+    @property
+    def current(self) -> ModelStep:
+        return self.steps[-1]
+
+    def add(self, effect: str, model: FittedModel, params: dict, stds: dict, where: str,
+            extras: Mapping[str, Any] | None = None) -> None:
+        before, after = self.current, evaluate(self.meas, effect, model, self.floors)
+        details = {"paper_deviation_before": before.run.deviation, "paper_deviation_after": after.run.deviation,
+                   "one_step_before": before.steps.summary(), "one_step_after": after.steps.summary(),
+                   **(extras or {})}
+        self.findings.append(finding(effect, params, where, before.restarted, after.restarted, stds, details))
+        self.steps.append(after)
+
+
+def finding(effect: str, params: Mapping[str, Any], where: str, before: FullRun, after: FullRun,
+            stds: Mapping[str, Any] | None, details: Mapping[str, Any]) -> DiscrepancyFinding:
+    """The typed finding, plain JSON values inside (an unknown number is None)."""
+    return DiscrepancyFinding(effect, json_value(dict(params)), where, json_number(before.deviation),
+                              json_number(after.deviation), None if stds is None else json_value(dict(stds)),
+                              json_value(dict(details)))
+
+
+# ---------------------------------------------------------------- explain: one stage at a time
+def explain_structure(chain: FindingChain, s_fit: StructureModelFit, stage: StageResult | None,
+                      sine: StructureModelFit) -> None:
+    """structure_harmonics when the selection chose harmonics: ratios to the fundamental, their stds."""
+    if stage is None or not stage.chosen:
+        return
+    meas, floors = chain.meas, chain.floors
+    model = fit_model(meas, structure=s_fit, flights=fit_flights(meas))
+    mot = s_fit.motion()
+    amps = s_fit.harmonic_amplitudes()
+    params = {"h2_ratio": float(mot.h2_ratio), "h3_ratio": float(mot.h3_ratio)}
+    sd = s_fit.sigma * math.sqrt(2.0 / s_fit.n_points) / max(mot.amplitude_m, 1e-12)
+    stds = {"h2_ratio": sd if 2 in amps else None, "h3_ratio": sd if 3 in amps else None}
+    where = (structure_words(sine.residual, meas.t_s, floors.structure_m, sine.frequency_hz) + "; "
+             + locate(chain.current.steps, floors.cor, stages=("impacts",))["text"])
+    chain.add("structure_harmonics", model, params, stds, where,
+              {"phases_rad": {"h2_phase_rad": float(mot.h2_phase_rad), "h3_phase_rad": float(mot.h3_phase_rad)}})
+
+
+def explain_flights(chain: FindingChain, f_fit: FlightModelFit, stage: StageResult | None,
+                    terms: tuple[FlightTerm, ...]) -> None:
+    """The chosen flight terms, in the order of what each explains alone (the chain's D); parameters and
+    their uncertainties from the fit with all chosen terms."""
+    if stage is None or not stage.chosen:
+        return
+    meas, floors = chain.meas, chain.floors
+    single = {d.label: d.statistic for d in stage.decisions}
+    chosen = sorted((t for t in terms if t.effect in stage.chosen), key=lambda t: -single.get(t.effect, 0.0))
+    for j, term in enumerate(chosen):
+        fset = f_fit if j == len(chosen) - 1 else fit_flights(meas, tuple(chosen[:j + 1]))
+        model = fit_model(meas, structure=chain.current.model.structure, flights=fset)
+        idx = f_fit.names.index(term.effect)
+        params, stds = term.contract_parameters(float(f_fit.coefs[idx]), float(math.sqrt(f_fit.cov[idx, idx])),
+                                                meas.mass_kg, meas.g_ms2)
+        chain.add(term.effect, model, params, stds,
+                  flight_term_where(meas, chain.current.steps, model, term, floors.cor))
+
+
+def explain_cor(chain: FindingChain, kind: str, stage: StageResult, library: CandidateLibrary) -> None:
+    """The chosen COR law (``kind``, "none": the constant baseline stays) and the share of the COR
+    variance beyond noise it explains."""
+    if kind == "none":
+        return
+    meas, cur = chain.meas, chain.current.model
+    model = fit_model(meas, structure=cur.structure, flights=cur.flights, cor_kind=kind)
+    params, stds = library.impact_term(kind).contract_parameters(model.cor.coefs, model.cor.cov)
+    extras: dict[str, Any] = {"cor_variance_share": law_variance_share(model.impacts, model.cor)}
+    if stage.alternatives:
+        extras["alternatives"] = list(stage.alternatives)
+    if stage.notes:
+        extras["note"] = "; ".join(stage.notes)
+    chain.add(kind, model, params, stds, cor_law_where(meas, chain.current.steps, model, chain.floors.cor), extras)
+
+
+def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: StageResult | None,
+                        f_stage: StageResult | None, patterns: list[Mismatch], before: ModelStep | None = None,
+                        tone: ToneDecision | None = None) -> DiscrepancyFinding | None:
+    """What the final model leaves that is not noise (a stage's residual above UNEXPLAINED_RATIO x its
+    noise floor, the systematic patterns of :mod:`.systematic`), or None; random COR scatter is not.
+    ``before``: the model before a located mismatch was modelled (a structure tone, ``tone.model``; its
+    parameters become the finding's, its D_r and the paper's D before/after the finding's); else the
+    finding's before and after are both the final model."""
+    meas, floors, cur = chain.meas, chain.floors, chain.current
+    before = cur if before is None else before
+    final_loc = locate(cur.steps, floors.cor)
+    flights_words = final_loc["words"][0] if final_loc["words"] else "flights"
+    leftovers = []
+    s_ratio = s_stage.residual_ratio if s_stage is not None else sine.sigma / floors.structure_m
+    if s_ratio > UNEXPLAINED_RATIO and not any(p.series == "structure" for p in patterns):
+        leftovers.append(structure_words(cur.model.structure.residual, meas.t_s, floors.structure_m,
+                                         sine.frequency_hz).replace("the pure sine misses", "the model misses"))
+    if f_stage is not None and f_stage.unexplained:
+        leftovers.append(flights_words)
+    elif f_stage is None:
+        flights = cur.model.flights
+        if math.sqrt(flights.sse / max(flights.n_points, 1)) / floors.ball_m > 1.5:
+            leftovers.append(flights_words)
+    leftovers += [p.words() for p in patterns]
+    if not leftovers:
+        return None
+    details: dict[str, Any] = {"paper_deviation_before": before.run.deviation,
+                               "paper_deviation_after": cur.run.deviation,
+                               "mismatches": [p.to_dict() for p in patterns]}
+    params: dict[str, Any] = {}
+    stds = None
+    if tone is not None and tone.tests and tone.model is None:   # located, tested, not modelled: why
+        details["tone_tests"] = tone.to_dict()
+    if tone is not None and tone.model is not None:
+        params, stds = tone.model.parameters(), tone.model.parameter_stds()
+        details["model"] = tone.model.to_dict()
+        details["one_step_before"] = before.steps.summary()
+        details["one_step_after"] = cur.steps.summary()
+        leftovers.append(tone.model.words())
+    return finding(UNEXPLAINED, params, "; ".join(leftovers), before.restarted, cur.restarted, stds, details)
+
+
+def add_structure_tone(chain: FindingChain, tone: ToneDecision) -> ModelStep | None:
+    """When a located tone is modelled: the chain's model with its structure fit replaced by the one with
+    the tone (flights and COR law kind kept, the COR law refitted on the corrected impacts) becomes the
+    final model. Returns the model step before it (None: nothing modelled)."""
+    if tone.model is None:
+        return None
+    before = chain.current
+    cur = before.model
+    model = fit_model(chain.meas, structure=tone.model.fit, flights=cur.flights, cor_kind=cur.cor.kind)
+    chain.steps.append(evaluate(chain.meas, TONE_EFFECT, model, chain.floors))
+    return before
+
+
+# ---------------------------------------------------------------- model and show
+def stages_section(*stages: StageResult | None) -> dict:
+    """Per stage run: the chosen terms, the residual in noise floors, every candidate tested."""
+    return {st.name: {"chosen": list(st.chosen), "residual_x_noise": st.residual_ratio,
+                      "unexplained": st.unexplained, "notes": st.notes,
+                      "candidates": [d.to_dict() for d in st.decisions]}
+            for st in stages if st is not None}
+
+
+def run_details(meas: Measured, chain: FindingChain, floors: NoiseFloors, location: dict, stages: dict,
+                patterns: list[Mismatch]) -> dict:
+    """The block's extras beside the contract keys (see the module docstring)."""
+    base, cur = chain.steps[0], chain.current
+    cor = cur.model.cor
+    return {
+        "paper_baseline_deviation": base.run.deviation,
+        "paper_final_deviation": cur.run.deviation,
+        "model": cur.model.label(),
+        "replay_start_s": base.run.t_s[0] if base.run.t_s.size else None,
+        "noise_floor": floors.to_dict(),
+        "cor_scatter": math.sqrt(cor.sse / max(cor.dof, 1)) if cor.n else None,
+        "contact_scatter": contact_scatter(cur.model, patterns),
+        "one_step": {"baseline": base.steps.summary(), "final": cur.steps.summary()},
+        "location": {k: v for k, v in location.items() if k != "words"},
+        "stages": stages,
+        "notes": list(meas.notes) + [f"{s.label}: {s.run.error}" for s in chain.steps if s.run.error]
+        + [f"{s.label} (restarted): {s.restarted.error}" for s in chain.steps if s.restarted.error],
+    }
+
+
+@dataclass
+class DiscrepancyRun:
+    """The fitted discrepancy model: the typed result (``result``; ``document`` is its contract block) and
+    the models and runs behind it, for figures and re-identification."""
+
+    result: Discrepancy
+    measured: Measured | None = None
+    baseline: FittedModel | None = None
+    final: FittedModel | None = None
+    baseline_run: FullRun | None = None
+    final_run: FullRun | None = None
+    baseline_steps: OneStep | None = None
+    final_steps: OneStep | None = None
+    chain: list[tuple[str, FittedModel, FullRun]] = field(default_factory=list)
+
+    @cached_property
+    def document(self) -> dict:
+        """The contract's ``discrepancy`` block (``result.to_dict()``)."""
+        return self.result.to_dict()
+
+
+@dataclass(frozen=True)
+class DiscrepancyEstimator:
+    """Candidate library x stage-wise selection -> the fitted discrepancy model (module docstring)."""
+
+    library: CandidateLibrary = field(default_factory=CandidateLibrary)
+    selector: StagewiseSelector = field(default_factory=StagewiseSelector)
+
+    def fit(self, meas: Measured) -> DiscrepancyRun:
+        floors = noise_floors(meas)
+        base = evaluate(meas, "baseline", fit_model(meas), floors)
+        location = locate(base.steps, floors.cor)
+        sine = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))
+        s_fit, s_stage = self.selector.structure(meas, floors.structure_m, self.library)
+        f_fit, f_stage = self.selector.flights(meas, floors.ball_m, self.library)
+        pre_cor = fit_model(meas, structure=s_fit, flights=f_fit)
+        kind, c_stage = self.selector.cor(pre_cor.impacts, floors.cor, self.library)
+
+        chain = FindingChain(meas, floors, base)
+        explain_structure(chain, s_fit, s_stage, sine)
+        explain_flights(chain, f_fit, f_stage, self.library.flight_terms)
+        explain_cor(chain, kind, c_stage, self.library)
+        fps = 1.0 / float(np.median(np.diff(meas.t_s)))
+        patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps)
+        tone = model_structure_tone(meas, chain.current.model.structure, patterns, fps)
+        before_tone = add_structure_tone(chain, tone)
+        if before_tone is not None:   # the contact levels and CORs again, under the model with the tone
+            patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
+                                           structure=[p for p in patterns if p.series == "structure"])
+        leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone)
+
+        cur = chain.current
+        findings = chain.findings + ([] if leftover is None else [leftover])
+        details = run_details(meas, chain, floors, location, stages_section(s_stage, f_stage, c_stage), patterns)
+        result = Discrepancy(json_number(base.restarted.deviation), findings, json_number(cur.restarted.deviation),
+                             json_value(details))
+        return DiscrepancyRun(result, meas, base.model, cur.model, base.run, cur.run, base.steps, cur.steps,
+                              [(s.label, s.model, s.run) for s in chain.steps])
+
+
+# ---------------------------------------------------------------- entry points
+def run_discrepancy(identified: ResultsDocument | Mapping[str, Any], track: DicTrack, rig: RigConfig,
+                    flight_terms: tuple[FlightTerm, ...] = FLIGHT_TERMS,
+                    cor_terms: tuple[str, ...] = CandidateLibrary.cor_terms, harmonics: bool = True) -> DiscrepancyRun:
+    """The whole analysis of one recording (the module docstring): ``identified`` is the identification
+    (a :class:`ResultsDocument`; a results.json mapping is read through the codec first).
+    ``flight_terms``/``cor_terms``/``harmonics`` restrict the library (tests use this to check that an
+    effect outside it is reported unexplained)."""
+    library = CandidateLibrary(tuple(flight_terms), tuple(cor_terms), harmonics)
+    return DiscrepancyEstimator(library).fit(measurement_of(identified, track, rig))
+
+
+def analyse_discrepancy(identified: ResultsDocument | Mapping[str, Any], track: DicTrack, rig: RigConfig) -> dict:
+    """The contract's ``discrepancy`` block (plus extras) for one recording; see the module docstring."""
+    return run_discrepancy(identified, track, rig).document
+
+
+def discrepancy_skip_reason(doc: ResultsDocument) -> str | None:
+    """Why the discrepancy analysis does not apply to a results document, or None: no impacts (nothing for
+    an impact model to be compared with), or a rig description inconsistent with the measurement."""
+    blocking = [r for r in (doc.sections.get("rig_consistency") or []) if r.get("blocks_physics", True)]
+    if blocking:
+        keys = sorted({k for r in blocking for k in r.get("keys", [])})
+        return ("discrepancy analysis skipped: the rig description is inconsistent with the measurement ("
+                + ", ".join(keys) + "); no physics finding is built on it (see rig_consistency)")
+    if not doc.impacts:
+        motion = (doc.sections.get("motion") or {}).get("state")
+        what = f" (recording: {motion.replace('_', ' ')})" if motion else ""
+        return f"discrepancy analysis skipped: no impacts identified{what}, nothing to compare a model with"
+    return None
+
+
+def discrepancy_for_results(doc: ResultsDocument, track: DicTrack, rig: RigConfig
+                            ) -> tuple[Discrepancy, DiscrepancyRun | None, str | None]:
+    """For ``vibro analyze``: (discrepancy block, run or None, error message or None) from a results
+    document. A recording the analysis cannot handle (too few flights, a model that fails) gives the
+    baseline-only block with an ``error`` key instead of losing the identification. A recording without
+    impacts, or whose rig description contradicts the measurement (``rig_consistency`` entries that block
+    physics), is not analysed: the block carries ``skipped`` with the reason, returned as the message."""
+    d0 = doc.simulation.deviation("cor_model")
+    reason = discrepancy_skip_reason(doc)
+    if reason is not None:
+        return Discrepancy(d0, [], d0, {"skipped": reason}), None, reason
+    try:
+        run = run_discrepancy(doc, track, rig)
+        return run.result, run, None
+    except Exception as exc:  # noqa: BLE001 - reported, never fatal for the identification
+        log.warning("discrepancy analysis failed: %s", exc)
+        msg = f"discrepancy analysis failed: {type(exc).__name__}: {exc}"
+        return Discrepancy(d0, [], d0, {"error": msg}), None, msg

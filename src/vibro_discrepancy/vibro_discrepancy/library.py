@@ -1,0 +1,296 @@
+"""Candidate physics terms: what the baseline model (constant COR, gravity only, pure sine structure,
+vertical axis) may have left out. One small class per contract effect name.
+
+Each term states its parameters (SI, contract names), its signature (how it shows in the data) and
+what it modifies: the flight force law, the effective gravity, the COR law or the structure motion.
+
+Flight terms add an acceleration ``coef * basis(v)`` (m/s^2, v = ball velocity in the lab frame, m/s,
+positive up) to the ball's free flight y'' = -g + ...; the coefficient is in the term's own SI unit
+(force terms: N, N s/m, N s^2/m^2, divided by the ball mass in ``basis``; tilt: the upward change of
+acceleration g (1 - cos tilt) in m/s^2). Impact terms are linear COR laws e = X(plate, speed) @ coefs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vibro_sim.forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
+from vibro_sim.restitution import PLATES, Constant, PerPlate, RestitutionLaw, VelocityDependent
+
+EFFECTS = ("coulomb_friction", "viscous_drag", "quadratic_drag", "asymmetric_restitution",
+           "velocity_dependent_restitution", "gravity_tilt", "structure_harmonics")
+UNEXPLAINED = "unexplained"
+
+
+class Term:
+    """A candidate physics term. ``effect`` is the contract name."""
+
+    effect: str = ""
+    stage: str = ""          # "structure", "flight" or "impact"
+    modifies: str = ""       # plain words
+    parameters: tuple[str, ...] = ()
+    signature: str = ""
+
+    def describe(self) -> dict:
+        return {"effect": self.effect, "stage": self.stage, "modifies": self.modifies,
+                "parameters": list(self.parameters), "signature": self.signature}
+
+
+# --- flight terms ------------------------------------------------------------------------------
+
+class FlightTerm(Term):
+    stage = "flight"
+    unit = ""
+
+    def basis(self, v_ms: np.ndarray, mass_kg: float) -> np.ndarray:
+        """Acceleration (m/s^2) per unit coefficient at ball velocity ``v_ms``."""
+        raise NotImplementedError
+
+    def contract_parameters(self, coef: float, std: float, mass_kg: float, g_ms2: float) -> tuple[dict, dict]:
+        """(parameters, their 1-sigma std) in contract names."""
+        name = self.parameters[0]
+        return {name: float(coef)}, {name: float(std)}
+
+
+class CoulombFriction(FlightTerm):
+    effect = "coulomb_friction"
+    modifies = "flight force law"
+    parameters = ("force_n",)
+    unit = "N"
+    signature = ("constant deceleration along the motion: the ball loses more speed rising and gains less "
+                 "falling than gravity alone; the extra acceleration flips sign with the direction of motion "
+                 "and does not depend on the speed")
+
+    def basis(self, v_ms, mass_kg):
+        return -np.sign(v_ms) / mass_kg
+
+
+class ViscousDrag(FlightTerm):
+    effect = "viscous_drag"
+    modifies = "flight force law"
+    parameters = ("coefficient_ns_per_m",)
+    unit = "N s/m"
+    signature = "extra deceleration proportional to the speed: grows linearly from the apex to the fast ends"
+
+    def basis(self, v_ms, mass_kg):
+        return -np.asarray(v_ms, dtype=float) / mass_kg
+
+
+class QuadraticDrag(FlightTerm):
+    effect = "quadratic_drag"
+    modifies = "flight force law"
+    parameters = ("coefficient_ns2_per_m2",)
+    unit = "N s^2/m^2"
+    signature = "extra deceleration proportional to the speed squared: negligible near the apex, largest fast"
+
+    def basis(self, v_ms, mass_kg):
+        v = np.asarray(v_ms, dtype=float)
+        return -v * np.abs(v) / mass_kg
+
+
+class GravityTilt(FlightTerm):
+    effect = "gravity_tilt"
+    modifies = "effective gravity"
+    parameters = ("tilt_deg",)
+    unit = "m/s^2"
+    signature = ("every flight accelerates downwards by less than g by the same amount, whatever its direction "
+                 "or speed (effective gravity g cos(tilt))")
+
+    def basis(self, v_ms, mass_kg):
+        return np.ones_like(np.asarray(v_ms, dtype=float))
+
+    def contract_parameters(self, coef, std, mass_kg, g_ms2):
+        x = min(max(1.0 - coef / g_ms2, -1.0), 1.0)
+        tilt = math.degrees(math.acos(x))
+        # d tilt / d coef = 1 / (g sin(tilt)), in degrees
+        s = math.sin(math.radians(tilt))
+        std_deg = math.degrees(std / (g_ms2 * s)) if s > 1e-9 else float("inf")
+        return {"tilt_deg": tilt}, {"tilt_deg": std_deg}
+
+
+FLIGHT_TERMS: tuple[FlightTerm, ...] = (CoulombFriction(), ViscousDrag(), QuadraticDrag(), GravityTilt())
+
+
+# --- impact (COR) terms ------------------------------------------------------------------------
+
+class ImpactTerm(Term):
+    stage = "impact"
+    modifies = "COR law"
+
+    def columns(self, plates: np.ndarray, speeds_ms: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def contract_parameters(self, coefs: np.ndarray, cov: np.ndarray) -> tuple[dict, dict]:
+        raise NotImplementedError
+
+
+class ConstantRestitution(ImpactTerm):
+    """The baseline COR law: one value for every impact."""
+
+    effect = "none"
+    parameters = ("cor",)
+
+    def columns(self, plates, speeds_ms):
+        return np.ones((len(plates), 1))
+
+    def contract_parameters(self, coefs, cov):
+        return {"cor": float(coefs[0])}, {"cor": float(math.sqrt(cov[0, 0]))}
+
+
+class AsymmetricRestitution(ImpactTerm):
+    effect = "asymmetric_restitution"
+    parameters = ("cor_top", "cor_bottom")
+    signature = ("the CORs of the two plates differ whatever the impact speed; within one plate the COR does not "
+                 "follow the impact speed")
+
+    def columns(self, plates, speeds_ms):
+        p = np.asarray(plates)
+        return np.column_stack([(p == "top").astype(float), (p == "bottom").astype(float)])
+
+    def contract_parameters(self, coefs, cov):
+        return ({"cor_top": float(coefs[0]), "cor_bottom": float(coefs[1])},
+                {"cor_top": float(math.sqrt(cov[0, 0])), "cor_bottom": float(math.sqrt(cov[1, 1]))})
+
+
+class VelocityDependentRestitution(ImpactTerm):
+    effect = "velocity_dependent_restitution"
+    parameters = ("cor_at_zero", "slope_s_per_m")
+    signature = ("the COR falls with the relative impact speed on both plates alike (e = e0 - slope |v_rel|), "
+                 "also within one plate when the speeds vary")
+
+    def columns(self, plates, speeds_ms):
+        s = np.asarray(speeds_ms, dtype=float)
+        return np.column_stack([np.ones_like(s), -s])
+
+    def contract_parameters(self, coefs, cov):
+        return ({"cor_at_zero": float(coefs[0]), "slope_s_per_m": float(coefs[1])},
+                {"cor_at_zero": float(math.sqrt(cov[0, 0])), "slope_s_per_m": float(math.sqrt(cov[1, 1]))})
+
+
+class PlateAndSpeed(ImpactTerm):
+    """Both: e = e_plate - slope |v_rel| (used to test for a within-plate speed dependence)."""
+
+    effect = "asymmetric_restitution+velocity_dependent_restitution"
+    parameters = ("cor_top", "cor_bottom", "slope_s_per_m")
+
+    def columns(self, plates, speeds_ms):
+        return np.column_stack([AsymmetricRestitution().columns(plates, speeds_ms), -np.asarray(speeds_ms, float)])
+
+    def contract_parameters(self, coefs, cov):
+        names = self.parameters
+        return ({n: float(c) for n, c in zip(names, coefs)},
+                {n: float(math.sqrt(cov[i, i])) for i, n in enumerate(names)})
+
+
+IMPACT_TERMS: tuple[ImpactTerm, ...] = (AsymmetricRestitution(), VelocityDependentRestitution())
+
+
+
+@dataclass(frozen=True)
+class CandidateLibrary:
+    """What the estimator may add to the baseline model, stage by stage (PySINDy's feature library):
+    ``harmonics`` (structure_harmonics), the flight terms, the COR laws by contract name (a law outside
+    ``cor_terms`` is never chosen). A narrower library makes an effect outside it come out unexplained."""
+
+    flight_terms: tuple[FlightTerm, ...] = FLIGHT_TERMS
+    cor_terms: tuple[str, ...] = tuple(t.effect for t in IMPACT_TERMS)
+    harmonics: bool = True
+
+    def impact_term(self, effect: str) -> "ImpactTerm":
+        """The COR law named ``effect``."""
+        return next(t for t in IMPACT_TERMS if t.effect == effect)
+
+# --- structure term ------------------------------------------------------------------------------
+
+class StructureHarmonics(Term):
+    effect = "structure_harmonics"
+    stage = "structure"
+    modifies = "structure motion"
+    parameters = ("h2_ratio", "h3_ratio")
+    signature = ("the structure track departs from a pure sine periodically, at 2 and 3 times the shaker "
+                 "frequency; impacts then meet the plates earlier or later than the sine says")
+    orders = (2, 3)
+
+
+STRUCTURE_TERMS: tuple[StructureHarmonics, ...] = (StructureHarmonics(),)
+ALL_TERMS: tuple[Term, ...] = STRUCTURE_TERMS + FLIGHT_TERMS + IMPACT_TERMS
+
+
+def catalogue() -> list[dict]:
+    """The candidate terms as plain mappings (effect, stage, modifies, parameters, signature)."""
+    return [t.describe() for t in ALL_TERMS]
+
+
+# --- the vibro_sim laws of a fitted model ---------------------------------------------------------
+
+class SumForce(ForceLaw):
+    """Sum of Coulomb, viscous and quadratic forces (N, positive up) and a constant upward force;
+    integrated numerically by the COR model (kind "ode")."""
+
+    kind = "ode"
+    effect = "combined"
+
+    def __init__(self, coulomb_n: float = 0.0, viscous_ns_per_m: float = 0.0, quadratic_ns2_per_m2: float = 0.0):
+        self.coulomb_n = float(coulomb_n)
+        self.viscous = float(viscous_ns_per_m)
+        self.quadratic = float(quadratic_ns2_per_m2)
+
+    def force_n(self, v_ms: float, flight_index: int = 0) -> float:
+        s = 0.0 if v_ms == 0 else math.copysign(1.0, v_ms)
+        return -self.coulomb_n * s - self.viscous * v_ms - self.quadratic * v_ms * abs(v_ms)
+
+
+def force_law(flight_coefs: dict[str, float]) -> ForceLaw:
+    """The vibro_sim force law for fitted flight-term coefficients (tilt excluded: it is in g_eff)."""
+    f = {k: v for k, v in flight_coefs.items() if k != "gravity_tilt" and v != 0.0}
+    if not f:
+        return NoForce()
+    if len(f) == 1:
+        (name, value), = f.items()
+        return {"coulomb_friction": Coulomb, "viscous_drag": Viscous, "quadratic_drag": Quadratic}[name](value)
+    return SumForce(f.get("coulomb_friction", 0.0), f.get("viscous_drag", 0.0), f.get("quadratic_drag", 0.0))
+
+
+class PlateSpeedLaw(RestitutionLaw):
+    """e = e_plate - slope |v_rel|, clipped to [0, 1] (covers every linear COR law of the library)."""
+
+    def __init__(self, top: float, bottom: float, slope_s_per_m: float = 0.0):
+        self.top, self.bottom, self.slope = float(top), float(bottom), float(slope_s_per_m)
+
+    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+        base = self.top if plate == "top" else self.bottom
+        return float(min(1.0, max(0.0, base - self.slope * abs(v_rel_ms))))
+
+    def __repr__(self) -> str:
+        return f"PlateSpeedLaw(top={self.top:.4f}, bottom={self.bottom:.4f}, slope={self.slope:.4f})"
+
+
+def restitution_law(kind: str, coefs) -> RestitutionLaw:
+    """vibro_sim COR law for a fitted impact model: kind "none" ([e]), "asymmetric_restitution"
+    ([top, bottom]), "velocity_dependent_restitution" ([e0, slope]) or "plate_and_speed"."""
+    c = [float(x) for x in coefs]
+    if kind == "none":
+        return Constant(min(1.0, max(0.0, c[0])))
+    if kind == "asymmetric_restitution":
+        return PerPlate(min(1.0, max(0.0, c[0])), min(1.0, max(0.0, c[1])))
+    if kind == "velocity_dependent_restitution":
+        return VelocityDependent(min(1.0, max(0.0, c[0])), c[1])
+    return PlateSpeedLaw(c[0], c[1], c[2])
+
+
+def cor_values(kind: str, coefs, plates, speeds_ms) -> np.ndarray:
+    """COR predicted by a fitted impact model for each (plate, |v_rel|)."""
+    term = {"none": ConstantRestitution(), "asymmetric_restitution": AsymmetricRestitution(),
+            "velocity_dependent_restitution": VelocityDependentRestitution(),
+            "plate_and_speed": PlateAndSpeed()}[kind]
+    return np.clip(term.columns(np.asarray(plates), np.asarray(speeds_ms, float)) @ np.asarray(coefs, float), 0, 1)
+
+
+__all__ = ["ALL_TERMS", "EFFECTS", "FLIGHT_TERMS", "IMPACT_TERMS", "PLATES", "STRUCTURE_TERMS", "UNEXPLAINED",
+           "AsymmetricRestitution", "ConstantRestitution", "CoulombFriction", "FlightTerm", "GravityTilt",
+           "ImpactTerm", "PlateAndSpeed", "PlateSpeedLaw", "QuadraticDrag", "StructureHarmonics", "SumForce",
+           "Term", "VelocityDependentRestitution", "ViscousDrag", "catalogue", "cor_values", "force_law",
+           "restitution_law"]

@@ -1,0 +1,112 @@
+"""A fitted model of the recording: structure motion + flight law + COR law (and their fits).
+
+The baseline is structure orders (1,), no flight term (gravity only, vertical) and the constant COR
+law ("none") equal to the mean measured COR. Candidate models add terms from the library.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vibro_sim.params import BallCavity
+from vibro_sim.structure import StructureKinematics
+from vibro_discrepancy.data import Measured
+from vibro_discrepancy.fitting import CorModelFit, FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, \
+    fit_structure_harmonics, recompute_impacts
+from vibro_discrepancy.library import (AsymmetricRestitution, ConstantRestitution, FlightTerm, PlateAndSpeed,
+                      VelocityDependentRestitution, cor_values, force_law, restitution_law)
+
+COR_TERMS = {"none": ConstantRestitution(), "asymmetric_restitution": AsymmetricRestitution(),
+             "velocity_dependent_restitution": VelocityDependentRestitution(), "plate_and_speed": PlateAndSpeed()}
+
+
+@dataclass
+class FittedModel:
+    """Structure, flights and COR fitted together (SI, DIC frame)."""
+
+    structure: StructureModelFit
+    flights: FlightModelFit
+    impacts: ImpactSet
+    cor: CorModelFit
+    g_ms2: float
+    fixed_motion: StructureKinematics | None = None   # a known structure motion (the true model in proofs)
+
+    @property
+    def motion(self) -> StructureKinematics:
+        return self.fixed_motion if self.fixed_motion is not None else self.structure.motion()
+
+    @property
+    def tilt_deg(self) -> float:
+        da = self.flights.coef_of("gravity_tilt")
+        return math.degrees(math.acos(min(max(1.0 - da / self.g_ms2, -1.0), 1.0)))
+
+    def accel(self, v_ms: np.ndarray, mass_kg: float) -> np.ndarray:
+        """Free-flight acceleration (m/s^2) at ball velocity v (lab frame)."""
+        v = np.asarray(v_ms, dtype=float)
+        out = np.full_like(v, -self.g_ms2)
+        for t, c in zip(self.flights.terms, self.flights.coefs):
+            if c != 0.0:
+                out = out + c * t.basis(v, mass_kg)
+        return out
+
+    def cor_at(self, plates, speeds_ms) -> np.ndarray:
+        return cor_values(self.cor.kind, self.cor.coefs, plates, speeds_ms)
+
+    def force_law(self):
+        return force_law(self.flights.coef_dict())
+
+    def restitution_law(self):
+        return restitution_law(self.cor.kind, self.cor.coefs)
+
+    def cavity(self, meas: Measured, free_play_m: float) -> BallCavity:
+        return BallCavity(mass_kg=meas.mass_kg, free_play_m=free_play_m, gravity_ms2=self.g_ms2,
+                          tilt_deg=self.tilt_deg)
+
+    def label(self) -> str:
+        parts = self.structure.label_terms()
+        parts += [t.effect for t, c in zip(self.flights.terms, self.flights.coefs)]
+        if self.cor.kind != "none":
+            parts.append(self.cor.kind)
+        return " + ".join(parts) or "baseline"
+
+
+def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] = (), cor_kind: str = "none",
+              structure: StructureModelFit | None = None, flights: FlightModelFit | None = None) -> FittedModel:
+    """Fit a whole model; ``structure``/``flights`` reuse fits already made."""
+    s = structure if structure is not None else fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz,
+                                                              orders)
+    f = flights if flights is not None else fit_flights(meas, flight_terms)
+    imp = recompute_impacts(meas, f, s.motion())
+    c = fit_cor(imp, COR_TERMS[cor_kind], cor_kind)
+    return FittedModel(s, f, imp, c, meas.g_ms2)
+
+
+def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:
+    """Relative position ball - structure (m, DIC frame) of each plate at the impacts under ``model``
+    (median), the cavity offset c0 = ball centre - cavity centre at frame 0 in the DIC frame, and the
+    measured free play b (half the relative travel). One plate only: b from the rig."""
+    S = model.motion
+    vals: dict[str, list[float]] = {"top": [], "bottom": []}
+    imps = model.impacts
+    for i, t, plate in zip(imps.index, imps.t_s, imps.plate):
+        imp = meas.impacts[int(i)]
+        k = imp.flight_before if imp.flight_before is not None else imp.flight_after
+        if k is None:
+            continue
+        y, _ = model.flights.state(k, t - meas.flights[k].t_ref_s)
+        vals[plate].append(float(y) - float(S.position(t)))
+    out = {p: float(np.median(v)) for p, v in vals.items() if v}
+    b_rig = meas.free_play_m
+    if "top" in out and "bottom" in out:
+        out["offset"] = -0.5 * (out["top"] + out["bottom"])
+        out["free_play"] = 0.5 * (out["top"] - out["bottom"])
+    elif "top" in out:
+        out["offset"], out["free_play"] = b_rig - out["top"], b_rig
+    elif "bottom" in out:
+        out["offset"], out["free_play"] = -b_rig - out["bottom"], b_rig
+    else:
+        out["offset"], out["free_play"] = 0.0, b_rig
+    return out

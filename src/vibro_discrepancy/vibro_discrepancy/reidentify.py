@@ -1,0 +1,256 @@
+"""Re-identification of the impacts with the discrepancy analysis' final model (issue 13, item 2).
+
+The paper's identification (Eq. 15, 16) measures every impact with a pure-sine structure and free
+parabolas. Once the discrepancy engine has found that the structure holds harmonics or that a force
+acts during the flights, those estimates are biased (about 0.03 in the COR with 5 % of 2nd harmonic,
+up to 0.01 with aerodynamic drag). Here each impact is measured again under the engine's final model:
+
+- time t_i where the final model's flights before and after the impact meet
+  (:func:`vibro_discrepancy.fitting.impact_time`, Eq. 15 under the model),
+- structure velocity from the structure fit at t_i (harmonics, and a modelled tone),
+- ball velocities before/after from the flights integrated with the identified force law,
+- COR e = -(v_after - v_s) / (v_before - v_s) (Eq. 16 with its sign),
+
+all from :func:`vibro_discrepancy.fitting.recompute_impacts` (the engine's own computation, kept in
+its ``final`` model), with a 1-sigma std propagated to first order (:func:`impact_stds`).
+
+Only findings that change how an impact is *measured* trigger it: ``structure_harmonics``, the
+flight terms (``coulomb_friction``, ``viscous_drag``, ``quadratic_drag``, ``gravity_tilt``) and an
+``unexplained`` finding whose located structure tone was modelled (:mod:`.tone`; its parameters carry
+the tone, its ``cor_method`` part is ``structure_tone``). A COR law (``asymmetric_restitution``,
+``velocity_dependent_restitution``) describes the measured CORs and does not change them; any other
+``unexplained`` mismatch has no model. Without such a finding, or for an impact the final
+model does not see from both sides (a flight too short to fit), the identification's values stay and
+the impact's ``cor_method`` is ``"paper"``.
+
+Plain module (no rclpy, no vibro_fit), the one place this is done: ``vibro analyze``
+(:mod:`vibro_app.analyze`) applies :func:`reidentify_document` to its results document; the graph's
+``discrepancy`` node applies it to the document of the fitter's messages and publishes the re-measured
+impacts (``vibro/impacts_final_model``), which ``vibro results <bag>`` puts back with
+:func:`reidentified_from_impacts` and :func:`apply_reidentification`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from vibro_model.results import CorSummary, Impact, ResultsDocument, link_impacts
+
+from vibro_discrepancy.data import Measured
+from vibro_discrepancy.fitting import StructureModelFit
+from vibro_discrepancy.library import FLIGHT_TERMS
+from vibro_discrepancy.model import FittedModel
+from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
+
+#: findings whose model changes how an impact is measured (structure velocity, flight law); an
+#: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
+MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS) + (TONE_EFFECT,)
+PAPER = "paper"
+#: an identified impact and a measured one are the same when their times agree this well (s): both are
+#: the same float read from the same results document
+SAME_IMPACT_S = 1e-9
+
+
+@dataclass(frozen=True)
+class ReidentifiedImpact:
+    """One impact measured under the final model (SI, DIC frame, + up); ``t_s`` the camera time."""
+
+    t_identified_s: float      # the identification's time, which names the impact
+    t_s: float
+    t_std_s: float
+    v_ball_before_mps: float
+    v_ball_after_mps: float
+    v_structure_mps: float
+    cor: float
+    cor_std: float
+
+
+def measurement_effects(findings: Iterable[object]) -> list[str]:
+    """The findings (contract mappings with ``effect``, or objects with ``.effect``) that change the
+    measurement of an impact, in the order found."""
+    out = []
+    for f in findings:
+        name = f.get("effect") if isinstance(f, dict) else getattr(f, "effect", None)
+        if modelled_tone(f):
+            name = TONE_EFFECT
+        if name in MEASUREMENT_EFFECTS and name not in out:
+            out.append(name)
+    return out
+
+
+def cor_method_name(effects: Sequence[str]) -> str:
+    """The per-impact ``cor_method``: ``"paper"`` without an effect, else the effect names joined by '+'."""
+    return "+".join(effects) if effects else PAPER
+
+
+def _structure_velocity_gradient(fit: StructureModelFit, t_s: float) -> np.ndarray:
+    """d v_s(t) / d parameters of the structure fit (:meth:`StructureModelFit.parameters`; central
+    differences), m/s per unit."""
+    p = fit.parameters()
+    grad = np.zeros(p.size)
+    for j in range(p.size):
+        h = (1e-7 if j >= p.size - fit.n_frequencies else 1e-6) * max(abs(p[j]), 1e-9)
+        pp, pm = p.copy(), p.copy()
+        pp[j] += h
+        pm[j] -= h
+        grad[j] = (fit.velocity_with(pp, t_s) - fit.velocity_with(pm, t_s)) / (2 * h)
+    return grad
+
+
+def _flight_state_cov(meas: Measured, model: FittedModel, k: int) -> np.ndarray:
+    """Covariance of flight k's own state (y0 m, v0 m/s at its reference time): sigma^2 (L^T L)^-1,
+    L = [1, tau] over its fitted frames, sigma^2 the flights' pooled residual variance (the shared force
+    coefficients held at their estimate: their uncertainty is common to all impacts, not scatter)."""
+    tau = meas.flights[k].tau_s
+    L = np.column_stack([np.ones_like(tau), tau])
+    s2 = model.flights.sse / max(model.flights.dof, 1)
+    return s2 * np.linalg.inv(L.T @ L)
+
+
+def impact_stds(meas: Measured, model: FittedModel, j: int) -> tuple[float, float]:
+    """1-sigma (t_std_s, cor_std) of the model's impact j (index into ``model.impacts``), first order.
+
+    Independent inputs: each flight's state (y0, v0) (:func:`_flight_state_cov`) and the structure fit's
+    parameters (coefficients and frequency). The model flight k is y_k(t) = y0_k + v0_k tau + (terms known
+    given the force law), so a change (dy0, dv0) moves its position by dy0 + dv0 tau and its velocity by
+    dv0. The impact time solves y_b(t) = y_a(t): dt = -(dy_b - dy_a) / (v_b - v_a); velocities then move
+    with their accelerations a_b, a_a, a_s. e = -(v_a - v_s)/(v_b - v_s) gives de/dv_a = -1/(v_b - v_s),
+    de/dv_b = (v_a - v_s)/(v_b - v_s)^2, de/dv_s = (v_b - v_a)/(v_b - v_s)^2."""
+    imps = model.impacts
+    imp = meas.impacts[int(imps.index[j])]
+    kb, ka = imp.flight_before, imp.flight_after
+    t = float(imps.t_s[j])
+    vb, va, vs = float(imps.v_before[j]), float(imps.v_after[j]), float(imps.v_structure[j])
+    tau_b = t - meas.flights[kb].t_ref_s
+    tau_a = t - meas.flights[ka].t_ref_s
+    ab = float(model.accel(np.array([vb]), meas.mass_kg)[0])
+    aa = float(model.accel(np.array([va]), meas.mass_kg)[0])
+    motion = model.motion
+    a_s = float(motion.acceleration(t))
+    # parameters: [y0_b, v0_b, y0_a, v0_a, structure...]
+    s_grad = _structure_velocity_gradient(model.structure, t)
+    s_cov = model.structure.covariance(meas.t_s)
+    n_s = s_grad.size
+    cov = np.zeros((4 + n_s, 4 + n_s))
+    cov[:2, :2] = _flight_state_cov(meas, model, kb)
+    cov[2:4, 2:4] = _flight_state_cov(meas, model, ka)
+    cov[4:, 4:] = s_cov
+    dv = vb - va
+    g_t = np.zeros(4 + n_s)
+    g_t[:4] = np.array([-1.0, -tau_b, 1.0, tau_a]) / dv
+    g_vb = np.zeros(4 + n_s)
+    g_vb[1] = 1.0
+    g_vb += ab * g_t
+    g_va = np.zeros(4 + n_s)
+    g_va[3] = 1.0
+    g_va += aa * g_t
+    g_vs = np.zeros(4 + n_s)
+    g_vs[4:] = s_grad
+    g_vs += a_s * g_t
+    den = vb - vs
+    g_e = (-1.0 / den) * g_va + ((va - vs) / den ** 2) * g_vb + ((vb - va) / den ** 2) * g_vs
+    var_t = float(g_t @ cov @ g_t)
+    var_e = float(g_e @ cov @ g_e)
+    return math.sqrt(max(var_t, 0.0)), math.sqrt(max(var_e, 0.0))
+
+
+def reidentify_impacts(meas: Measured, model: FittedModel) -> list[ReidentifiedImpact]:
+    """Every impact that ``model`` sees from both sides (a fitted flight before and after it), measured
+    under ``model`` (its ``impacts``, computed by :func:`~vibro_discrepancy.fitting.recompute_impacts`),
+    with propagated stds. Impacts with a side missing are left out (they keep the identification's
+    values)."""
+    out = []
+    imps = model.impacts
+    for j in range(imps.index.size):
+        imp = meas.impacts[int(imps.index[j])]
+        if imp.flight_before is None or imp.flight_after is None:
+            continue
+        if not all(math.isfinite(float(x[j])) for x in (imps.t_s, imps.v_before, imps.v_after, imps.v_structure,
+                                                         imps.cor)):
+            continue
+        try:
+            t_std, cor_std = impact_stds(meas, model, j)
+        except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
+            continue  # no uncertainty, no claim: the impact keeps the identification's values
+        out.append(ReidentifiedImpact(float(imp.t_s), float(imps.t_s[j]), t_std, float(imps.v_before[j]),
+                                      float(imps.v_after[j]), float(imps.v_structure[j]), float(imps.cor[j]),
+                                      cor_std))
+    return out
+
+
+def _keep_paper(imp: Impact) -> Impact:
+    return replace(imp, cor_paper=imp.cor, cor_std_paper=imp.cor_std, t_paper_s=imp.t_s, cor_method=PAPER)
+
+
+def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
+                           measured: Sequence[ReidentifiedImpact]) -> ResultsDocument:
+    """``doc`` with its impacts measured under the final model: ``cor``, ``cor_std``, ``t``, ``t_std``,
+    ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
+    ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact; ``cor_summary`` from the new CORs; the
+    flights' opening/closing impact times from the new times; the top-level ``impacts_model`` section saying which model produced ``cor``. With no ``effects`` every
+    impact keeps the identification's values (``cor_method`` "paper"). The caller recomputes whatever
+    else is derived from the CORs (``cor_statistics``, figures)."""
+    method = cor_method_name(effects)
+    by_time = {round(r.t_identified_s / SAME_IMPACT_S): r for r in measured} if effects else {}
+    impacts, n_done = [], 0
+    for imp in doc.impacts:
+        base = _keep_paper(imp)
+        r = by_time.get(round(imp.t_s / SAME_IMPACT_S)) if imp.t_s is not None else None
+        if r is None or imp.cor is None:
+            impacts.append(base)
+            continue
+        n_done += 1
+        impacts.append(replace(base, t_s=r.t_s, t_std_s=r.t_std_s, cor=r.cor, cor_std=r.cor_std,
+                               v_ball_before_mps=r.v_ball_before_mps, v_ball_after_mps=r.v_ball_after_mps,
+                               v_structure_mps=r.v_structure_mps, cor_method=method))
+    n_cor = sum(i.cor is not None for i in doc.impacts)
+    section = {"cor_method": method if n_done else PAPER, "effects": list(effects) if n_done else [],
+               "n_reidentified": n_done, "n_paper": n_cor - n_done}
+    if effects and n_done:
+        section["description"] = (
+            f"cor, cor_std, t, t_std, v_* of {n_done}/{n_cor} impacts measured under the final model "
+            f"({', '.join(effects)}): impact time where its flights meet, structure velocity from its structure "
+            "fit, ball velocities from its flights integrated with its force law; cor_paper, cor_std_paper, "
+            "t_paper are the identification's (Eq. 15-16)"
+            + (f"; {n_cor - n_done} impact(s) without a fitted flight on both sides keep them" if n_cor > n_done
+               else ""))
+    elif effects:
+        section["description"] = (f"no impact was measured again under the final model ({', '.join(effects)}): "
+                                  "cor is the identification's (Eq. 15-16)")
+    else:
+        section["description"] = ("no finding changes how an impact is measured: cor is the identification's "
+                                  "(Eq. 15-16)")
+    sections = dict(doc.sections)
+    sections["impacts_model"] = section
+    # flights' t_start/t_end are the impacts that open/close them (the contract): the re-measured times
+    return replace(doc, flights=link_impacts(doc.flights, impacts), impacts=impacts,
+                   cor_summary=CorSummary.of(impacts), sections=sections)
+
+
+def reidentify_document(doc: ResultsDocument, run) -> ResultsDocument:
+    """``doc`` (with its ``discrepancy`` findings from ``run``, a
+    :class:`~vibro_discrepancy.engine.DiscrepancyRun` or None) re-identified with the engine's final
+    model when a finding changes how the impacts are measured; else with every impact marked "paper"."""
+    effects = measurement_effects(doc.discrepancy.findings)
+    if run is None or run.final is None or run.measured is None or not effects:
+        return apply_reidentification(doc, [], [])
+    return apply_reidentification(doc, effects, reidentify_impacts(run.measured, run.final))
+
+
+def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[ReidentifiedImpact]:
+    """The re-identified impacts as a graph run carries them (the ``discrepancy`` node's
+    ``vibro/impacts_final_model`` messages, converted to :class:`Impact`), matched by index to ``doc``'s
+    identified impacts (whose time names them); an index ``doc`` does not hold is dropped."""
+    t_identified = {i.index: i.t_s for i in doc.impacts if i.t_s is not None}
+    out = []
+    for c in corrected:
+        if c.index not in t_identified or None in (c.t_s, c.cor, c.v_ball_before_mps, c.v_ball_after_mps,
+                                                   c.v_structure_mps):
+            continue
+        out.append(ReidentifiedImpact(t_identified[c.index], c.t_s, c.t_std_s, c.v_ball_before_mps,
+                                      c.v_ball_after_mps, c.v_structure_mps, c.cor, c.cor_std))
+    return out

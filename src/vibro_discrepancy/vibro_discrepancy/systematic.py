@@ -1,0 +1,477 @@
+"""Systematic mismatch the final model leaves, separated from random scatter (issue 13.3).
+
+Three series of the final model's residuals are tested for a pattern, each with its own noise:
+
+- the structure track (every frame; noise sigma_s from 5th differences of the track, known): drive
+  harmonics 1..5 are fitted first (the baseline's sine and the catalogue's ``structure_harmonics`` are
+  drive-locked), then a trend in time, a step, and a tone at any other frequency (least-squares
+  periodogram);
+- each plate's contact level: the ball's position relative to the measured structure at each impact,
+  y_flight(t_i) - Y_s,measured(t_i) (the model's flights, whose meeting point is the impact time, and the
+  structure track, so a structure-model error does not leak in): the plate's height in the structure's
+  frame. Tested for a trend or a step in time (noise estimated from the series: F-tests);
+- the COR residual of the final COR law (the per-impact CORs scatter physically: the noise is that
+  scatter, estimated: F-tests): trend and step in time, slope with impact speed within each plate, a
+  difference between the plates, slope with the drive phase of the impact within each plate.
+
+Matching pursuit per series: the strongest pattern is accepted when its family-corrected p-value
+(Bonferroni over its candidate split points or frequencies, and over every test of the recording:
+``ALPHA_FAMILY``) is small AND it is large enough to matter (``MIN_*``: the floors the catalogue's
+selection uses, so a pattern too small for a catalogue term is too small here); then it is subtracted
+and the next strongest is tested (at most ``MAX_COMPONENTS``). What is left of the COR residual after
+the accepted COR patterns is the random contact scatter (:func:`contact_scatter`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vibro_model.codec import json_number as _num
+from vibro_model.tail_probability import chi2_sf, f_sf
+
+from vibro_discrepancy.data import Measured
+from vibro_discrepancy.model import FittedModel
+
+ALPHA_FAMILY = 1e-3          # family-wise false-alarm probability over all tests of one recording
+N_SERIES = 4                 # structure, two contact levels, COR: ALPHA_FAMILY is split among them
+MIN_STRUCTURE_SIGMA = 3.0    # structure pattern: amplitude / change >= this x sigma_s (as harmonics)
+MIN_LEVEL_SIGMA = 4.0        # contact level change >= this x the ball's per-frame noise floor
+MIN_COR_RMS = 0.004          # COR pattern: RMS of what it explains (as select.MIN_COR_RMS)
+MAX_COMPONENTS = 3
+DRIVE_HARMONICS = 5
+MIN_SPLIT = 3                # a step leaves at least this many samples (levels, CORs) on each side
+MIN_SPLIT_FRAMES = 10        # ... frames (structure)
+OVERSAMPLE = 4               # periodogram grid: 1 / (OVERSAMPLE T)
+
+
+@dataclass
+class Mismatch:
+    """One systematic pattern: which series (and plate), its shape, size and significance."""
+
+    series: str                 # "structure", "contact_level", "cor"
+    shape: str                  # "trend", "step", "periodic", "speed", "plate", "phase"
+    size: float                 # trend/step: change over the span / the jump; periodic: amplitude;
+                                # speed/phase: change over the range; plate: top - bottom (unit below)
+    unit: str                   # "um" or "cor"
+    t_from_s: float
+    t_to_s: float
+    p_value: float              # family-corrected
+    statistic: float
+    plate: str | None = None
+    frequency_hz: float | None = None
+    step_time_s: float | None = None
+    step_between_s: tuple[float, float] | None = None   # the samples either side of the step (s)
+    size_ms: float | None = None   # contact level: the impact-time shift it causes (ms)
+    frequencies_searched: int | None = None   # periodic: independent frequencies the search tried
+    fit: np.ndarray | None = None  # the pattern's values on the series (for subtraction)
+
+    def what(self) -> str:
+        """Plain words: where, shape, size and when."""
+        where = {"structure": "structure", "contact_level": f"{self.plate} plate height",
+                 "cor": "COR" + (f" ({self.plate} plate)" if self.plate else "")}[self.series]
+        u = " um" if self.unit == "um" else ""
+        span = f"t = {self.t_from_s:.3f} to {self.t_to_s:.3f} s"
+        ms = f" (impact times shift by {self.size_ms:.3f} ms)" if self.size_ms is not None else ""
+        if self.shape == "trend":
+            what = f"drifts by {self.size:+.3g}{u} over {span}{ms}"
+        elif self.shape == "step":
+            between = (f" (between the impacts at {self.step_between_s[0]:.3f} and {self.step_between_s[1]:.3f} s)"
+                       if self.step_between_s is not None and self.series != "structure" else "")
+            what = f"steps by {self.size:+.3g}{u} at t = {self.step_time_s:.3f} s{between}{ms}"
+        elif self.shape == "periodic":
+            what = (f"oscillates at {self.frequency_hz:.2f} Hz (not a drive harmonic) with amplitude "
+                    f"{self.size:.3g}{u} over {span}")
+        elif self.shape == "plate":
+            what = f"differs between the plates by {self.size:+.3g} (top - bottom)"
+        else:
+            what = f"changes by {self.size:+.3g} over the range of impact {self.shape}s within each plate"
+        return f"{where}: {what}"
+
+    def words(self) -> str:
+        p = f"p = {self.p_value:.1e}" if self.p_value > 1e-300 else "p < 1e-300"
+        return f"{self.what()}, {p}, which no term of the library produces"
+
+    def to_dict(self) -> dict:
+        out = {"series": self.series, "shape": self.shape, "plate": self.plate, "size": _num(self.size),
+               "unit": self.unit, "t_from_s": _num(self.t_from_s), "t_to_s": _num(self.t_to_s),
+               "p_value": _num(self.p_value), "statistic": _num(self.statistic), "words": self.words()}
+        if self.frequency_hz is not None:
+            out["frequency_hz"] = _num(self.frequency_hz)
+        if self.step_time_s is not None:
+            out["step_time_s"] = _num(self.step_time_s)
+        if self.step_between_s is not None:
+            out["step_between_s"] = [_num(x) for x in self.step_between_s]
+        if self.size_ms is not None:
+            out["size_ms"] = _num(self.size_ms)
+        if self.frequencies_searched is not None:
+            out["frequencies_searched"] = int(self.frequencies_searched)
+        return out
+
+
+# --- candidate patterns: (drop of the sum of squares, fitted values, description) -------------------
+
+def _centre(x: np.ndarray) -> np.ndarray:
+    return x - x.mean()
+
+
+def _trend(t: np.ndarray, r: np.ndarray):
+    x = _centre(t)
+    xx = float(x @ x)
+    if xx <= 0:
+        return None
+    c = float(x @ r) / xx
+    return c * c * xx, c * x, {"size": c * (t.max() - t.min())}, 1
+
+
+def _step(t: np.ndarray, r: np.ndarray, min_side: int):
+    """Best single step (r centred): drop n S_k^2 / (k (n - k)) with S_k the sum after the split."""
+    n = r.size
+    if n < 2 * min_side:
+        return None
+    order = np.argsort(t)
+    t, r = t[order], r[order]
+    tail = np.cumsum(r[::-1])[::-1]          # tail[k] = sum_{i >= k} r_i
+    k = np.arange(min_side, n - min_side + 1)
+    drop = tail[k] ** 2 * n / (k * (n - k))
+    j = int(np.argmax(drop))
+    kk = int(k[j])
+    jump = tail[kk] * n / (kk * (n - kk))
+    fit = np.where(np.arange(n) >= kk, jump * kk / n, -jump * (n - kk) / n)
+    out = np.empty_like(fit)
+    out[order] = fit
+    return float(drop[j]), out, {"size": float(jump), "step_time_s": 0.5 * float(t[kk - 1] + t[kk]),
+                                 "step_between_s": (float(t[kk - 1]), float(t[kk]))}, k.size
+
+
+def _periodogram(t: np.ndarray, r: np.ndarray, f_lo: float, f_hi: float, exclude_hz: list[float], width_hz: float):
+    """Best tone by least squares over a grid (centred sin and cos columns): (drop, fit, info, trials)."""
+    T = float(t.max() - t.min())
+    if T <= 0 or f_hi <= f_lo:
+        return None
+    grid = np.arange(f_lo, f_hi, 1.0 / (OVERSAMPLE * T))
+    keep = np.ones(grid.size, bool)
+    for f in exclude_hz:
+        keep &= np.abs(grid - f) > width_hz
+    grid = grid[keep]
+    if grid.size == 0:
+        return None
+
+    def drops(freqs):
+        ph = 2 * np.pi * np.outer(freqs, t)
+        C, S = np.cos(ph), np.sin(ph)
+        C -= C.mean(axis=1, keepdims=True)
+        S -= S.mean(axis=1, keepdims=True)
+        cc, ss, cs = (C * C).sum(1), (S * S).sum(1), (C * S).sum(1)
+        cr, sr = C @ r, S @ r
+        det = cc * ss - cs ** 2
+        a = (ss * cr - cs * sr) / det
+        b = (cc * sr - cs * cr) / det
+        return a * cr + b * sr, a, b, C, S
+
+    d, *_ = drops(grid)
+    j = int(np.nanargmax(d))
+    step = 1.0 / (OVERSAMPLE * T)
+    fine = np.linspace(grid[j] - step, grid[j] + step, 41)
+    d2, a, b, C, S = drops(fine)
+    m = int(np.nanargmax(d2))
+    fit = a[m] * C[m] + b[m] * S[m]
+    trials = max(1, int(round((f_hi - f_lo) * T)))   # independent frequencies in the band
+    return float(d2[m]), fit, {"size": float(math.hypot(a[m], b[m])), "frequency_hz": float(fine[m])}, trials
+
+
+def tone_search(t: np.ndarray, r: np.ndarray, f0_hz: float, fps: float):
+    """The strongest tone of the residual ``r`` (m) in the structure analysis' band (1.5/T to fps/2, drive
+    harmonics 1..DRIVE_HARMONICS +- 1/T left out): (drop of the sum of squares, fit, {"size",
+    "frequency_hz"}, independent frequencies searched) or None."""
+    T = float(t.max() - t.min())
+    return _periodogram(t, r, 1.5 / T, 0.5 * fps, [k * f0_hz for k in range(1, DRIVE_HARMONICS + 1)], 1.0 / T)
+
+
+def _p_known(drop: float, sigma: float, dof: int, trials: int, n_tests: int) -> tuple[float, float]:
+    chi = drop / max(sigma, 1e-300) ** 2
+    return chi, min(1.0, chi2_sf(chi, dof) * trials * n_tests)
+
+
+def _p_estimated(drop: float, sse_after: float, dof: int, n: int, n_par: int, trials: int, n_tests: int
+                 ) -> tuple[float, float]:
+    den = n - n_par
+    if den <= 0 or sse_after <= 0:
+        return float("nan"), 1.0
+    F = (drop / dof) / (sse_after / den)
+    return F, min(1.0, f_sf(F, dof, den) * trials * n_tests)
+
+
+# --- the three series -----------------------------------------------------------------------------
+
+def _drive_columns(t: np.ndarray, f0: float) -> list[np.ndarray]:
+    cols = [np.ones_like(t)]
+    for k in range(1, DRIVE_HARMONICS + 1):
+        cols += [np.sin(2 * np.pi * k * f0 * t), np.cos(2 * np.pi * k * f0 * t)]
+    return cols
+
+
+def _pattern_columns(t: np.ndarray, shape: str, info: dict) -> list[np.ndarray]:
+    if shape == "trend":
+        return [t - t.mean()]
+    if shape == "step":
+        return [(t > info["step_time_s"]).astype(float)]
+    w = 2 * np.pi * info["frequency_hz"]
+    return [np.sin(w * t), np.cos(w * t)]
+
+
+def _joint_fit(t: np.ndarray, r0: np.ndarray, f0: float, accepted: list[tuple[str, dict]]):
+    """Least squares of the drive harmonics and every accepted pattern together on the structure residual
+    r0 (short records: a tone and the harmonics are not orthogonal, so each is refitted with the others).
+    Returns (what is left, [(size, values) per accepted pattern])."""
+    cols = _drive_columns(t, f0)
+    spans = []
+    for shape, info in accepted:
+        pc = _pattern_columns(t, shape, info)
+        spans.append((len(cols), len(cols) + len(pc)))
+        cols += pc
+    X = np.column_stack(cols)
+    c, *_ = np.linalg.lstsq(X, r0, rcond=None)
+    parts = []
+    for (shape, _), (i, j) in zip(accepted, spans):
+        vals = X[:, i:j] @ c[i:j]
+        if shape == "trend":
+            size = float(c[i]) * float(t[-1] - t[0])
+        elif shape == "step":
+            size = float(c[i])
+        else:
+            size = float(math.hypot(c[i], c[i + 1]))
+        parts.append((size, vals))
+    return r0 - X @ c, parts
+
+
+def _refine(sse, x0: float, half_width: float) -> float:
+    """1-D bounded minimisation of ``sse`` around x0 (kept if it does not improve)."""
+    from scipy.optimize import minimize_scalar
+
+    res = minimize_scalar(sse, bounds=(x0 - half_width, x0 + half_width), method="bounded",
+                          options={"xatol": 1e-4 * half_width})
+    return float(res.x) if res.success and sse(res.x) <= sse(x0) else x0
+
+
+def _refine_frequencies(t: np.ndarray, r0: np.ndarray, f0: float, accepted: list[tuple[str, dict]]) -> float:
+    """Refine the drive frequency and each accepted tone's frequency (within 1/T) in the joint fit: a line
+    at a slightly wrong frequency leaves side lobes that would pass for other tones. Returns the drive
+    frequency; tone frequencies are updated in place."""
+    T = float(t[-1] - t[0])
+
+    def sse_drive(f):
+        left, _ = _joint_fit(t, r0, f, accepted)
+        return float(left @ left)
+
+    f0 = _refine(sse_drive, f0, 1.0 / T)
+    for shape, info in accepted:
+        if shape != "periodic":
+            continue
+
+        def sse_tone(f, info=info):
+            old = info["frequency_hz"]
+            info["frequency_hz"] = f
+            left, _ = _joint_fit(t, r0, f0, accepted)
+            info["frequency_hz"] = old
+            return float(left @ left)
+
+        info["frequency_hz"] = _refine(sse_tone, info["frequency_hz"], 0.5 / T)
+    return f0
+
+
+def structure_mismatch(t: np.ndarray, structure_m: np.ndarray, sigma_m: float, f0_hz: float, fps: float,
+                       n_tests: int = N_SERIES) -> list[Mismatch]:
+    """Trend, step and tones in the structure track (m) beyond any drive-locked motion (harmonics 1..5 at
+    the drive frequency refined on the track: every structure model of the library is one), sizes in um.
+    Each accepted pattern is refitted jointly with the harmonics and the patterns before it."""
+    r0 = np.asarray(structure_m, float)
+    f0_hz = _refine_frequencies(t, r0, f0_hz, [])
+    r, _ = _joint_fit(t, r0, f0_hz, [])
+    accepted: list[tuple[str, dict, float, float, int]] = []
+    for _ in range(MAX_COMPONENTS):
+        cands = []
+        for shape, c in (("trend", _trend(t, r)), ("step", _step(t, r - r.mean(), MIN_SPLIT_FRAMES)),
+                         ("periodic", tone_search(t, r, f0_hz, fps))):
+            if c is None:
+                continue
+            drop, fit, info, trials = c
+            stat, p = _p_known(drop, sigma_m, 2 if shape == "periodic" else 1, trials, n_tests)
+            cands.append((p, -drop, shape, fit, info, stat, trials))
+        if not cands:
+            break
+        p, _, shape, fit, info, stat, trials = min(cands, key=lambda c: (c[0], c[1]))
+        p = min(1.0, p * len(cands))   # Bonferroni over the shapes tried
+        if p >= ALPHA_FAMILY or abs(info["size"]) < MIN_STRUCTURE_SIGMA * sigma_m:
+            break
+        accepted.append((shape, info, p, stat, trials))
+        f0_hz = _refine_frequencies(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
+        r, _ = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
+    _, parts = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
+    return [Mismatch("structure", shape, size * 1e6, "um", float(t[0]), float(t[-1]), p, stat,
+                     frequency_hz=info.get("frequency_hz"), step_time_s=info.get("step_time_s"), fit=vals,
+                     frequencies_searched=trials if shape == "periodic" else None)
+            for (shape, info, p, stat, trials), (size, vals) in zip(accepted, parts)]
+
+
+def _series_pursuit(series: str, t: np.ndarray, r: np.ndarray, columns: dict, floor: float, unit_scale: float,
+                    unit: str, plate: str | None, n_tests: int, rms_floor: bool) -> list[Mismatch]:
+    """Matching pursuit on a short series with estimated noise (F-tests). ``columns``: extra regressors
+    {shape: x} (already centred within groups) beside the trend and the step in time. ``floor``: minimum
+    size (``rms_floor``: of the fitted pattern's RMS, else of its size)."""
+    out: list[Mismatch] = []
+    r = r - r.mean()
+    n_par = 1
+    for _ in range(MAX_COMPONENTS):
+        cands = []
+        gens = [("trend", _trend(t, r)), ("step", _step(t, r, MIN_SPLIT))]
+        for shape, x in columns.items():
+            xx = float(x @ x)
+            if xx > 0:
+                c = float(x @ r) / xx
+                gens.append((shape, (c * c * xx, c * x, {"size": c * (x.max() - x.min()) if shape != "plate"
+                                                         else c}, 1)))
+        for shape, c in gens:
+            if c is None:
+                continue
+            drop, fit, info, trials = c
+            sse_after = float(((r - fit) ** 2).sum())
+            extra = 2 if shape == "step" else 1
+            stat, p = _p_estimated(drop, sse_after, 1, r.size, n_par + extra, trials, n_tests)
+            cands.append((p, -drop, shape, fit, info, stat))
+        if not cands:
+            break
+        p, _, shape, fit, info, stat = min(cands, key=lambda c: (c[0], c[1]))
+        p = min(1.0, p * len(cands))   # Bonferroni over the shapes tried
+        size_ok = (math.sqrt(float(np.mean(fit ** 2))) >= floor) if rms_floor else abs(info["size"]) >= floor
+        if not (p < ALPHA_FAMILY) or not size_ok:
+            break
+        out.append(Mismatch(series, shape, info["size"] * unit_scale, unit, float(t.min()), float(t.max()), p, stat,
+                            plate=plate, step_time_s=info.get("step_time_s"),
+                            step_between_s=info.get("step_between_s"), fit=fit))
+        r = r - fit
+        n_par += 2 if shape == "step" else 1
+    return out
+
+
+def contact_levels(meas: Measured, model: FittedModel) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """{plate: (impact times s, contact level m, relative impact speed m/s)}: the model flight's position
+    at each impact minus the measured structure there (the structure model plus its interpolated
+    residual, so structure-model errors cancel)."""
+    S = model.motion
+    r_s = meas.structure_m - np.asarray(S.position(meas.t_s), float)
+    out: dict[str, list] = {"top": [], "bottom": []}
+    imps = model.impacts
+    for i, t, plate, spd in zip(imps.index, imps.t_s, imps.plate, imps.speed):
+        imp = meas.impacts[int(i)]
+        k = imp.flight_before if imp.flight_before is not None else imp.flight_after
+        if k is None:
+            continue
+        y, _ = model.flights.state(k, t - meas.flights[k].t_ref_s)
+        ys = float(S.position(t)) + float(np.interp(t, meas.t_s, r_s))
+        out[plate].append((float(t), float(y) - ys, float(spd)))
+    return {p: tuple(np.array(c) for c in zip(*v)) for p, v in out.items() if len(v) >= 2 * MIN_SPLIT}
+
+
+def level_mismatch(meas: Measured, model: FittedModel, sigma_f_m: float, n_tests: int = N_SERIES
+                   ) -> list[Mismatch]:
+    """Trend or step of each plate's contact level in time (um; and the impact-time shift in ms)."""
+    out = []
+    for plate, (t, lvl, spd) in contact_levels(meas, model).items():
+        found = _series_pursuit("contact_level", t, lvl, {}, MIN_LEVEL_SIGMA * sigma_f_m, 1e6, "um", plate,
+                                n_tests, rms_floor=False)
+        for m in found:
+            m.size_ms = abs(m.size) * 1e-6 / max(float(np.median(spd)), 1e-6) * 1e3
+        out += found
+    return out
+
+
+def _within(x: np.ndarray, plates: np.ndarray) -> np.ndarray:
+    out = np.zeros_like(x, dtype=float)
+    for p in ("top", "bottom"):
+        sel = plates == p
+        if sel.sum() >= 2:
+            out[sel] = x[sel] - x[sel].mean()
+    return out
+
+
+def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual: np.ndarray, f0_hz: float,
+                 n_tests: int = N_SERIES, shapes=("plate", "speed", "phase")) -> list[Mismatch]:
+    """Systematic patterns of a COR residual (measured - model COR at each impact): trend and step in
+    time, and ``shapes`` of: a plate difference, a within-plate slope with impact speed, with the drive
+    phase of the impact (rad)."""
+    t, plates, speed, r = (np.asarray(x) for x in (t, plates, speed, residual))
+    ok = np.isfinite(r)
+    t, plates, speed, r = t[ok].astype(float), plates[ok], speed[ok].astype(float), r[ok].astype(float)
+    if r.size < 2 * MIN_SPLIT:
+        return []
+    cols = {}
+    if "plate" in shapes and (plates == "top").sum() >= 2 and (plates == "bottom").sum() >= 2:
+        cols["plate"] = _centre((plates == "top").astype(float))
+    if "speed" in shapes:
+        cols["speed"] = _within(speed, plates)
+    if "phase" in shapes:
+        z = np.exp(2j * np.pi * f0_hz * t)
+        dev = np.zeros_like(t)
+        for p in ("top", "bottom"):
+            sel = plates == p
+            if sel.sum() >= 2:
+                dev[sel] = np.angle(z[sel] * np.conj(np.mean(z[sel])))   # rad from the plate's mean phase
+        cols["phase"] = _within(dev, plates)
+    return _series_pursuit("cor", t, r, cols, MIN_COR_RMS, 1.0, "cor", None, n_tests, rms_floor=True)
+
+
+def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, sigma_f_m: float,
+                        fps: float, structure: list[Mismatch] | None = None) -> list[Mismatch]:
+    """Every systematic pattern the final ``model`` leaves (see the module docstring). ``structure``: the
+    structure track's patterns when already found (they do not depend on the model)."""
+    out = (list(structure) if structure is not None
+           else structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.frequency_hz, fps))
+    out += level_mismatch(meas, model, sigma_f_m)
+    imp = model.impacts
+    out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.frequency_hz)
+    return out
+
+
+def contact_scatter(model: FittedModel, patterns: list[Mismatch], alpha: float = ALPHA_FAMILY) -> dict:
+    """The random part of the per-impact COR, per plate and pooled: sigma (after the final COR law and
+    the systematic COR patterns found), the COR measurement-noise sigma (RMS of the identification's
+    cor_std), and a chi-square test of the scatter against that noise: chi2 = sum(r^2) / noise^2 on the
+    residual's degrees of freedom; ``exceeds_noise`` when its p-value < ``alpha``."""
+    imp = model.impacts
+    r = np.asarray(model.cor.residual, float).copy()
+    n_par = model.cor.p
+    for m in patterns:
+        if m.series == "cor" and m.fit is not None:
+            r = r - m.fit
+            n_par += 2 if m.shape == "step" else 1
+    n = r.size
+    out = {}
+    for name, sel in (("top", imp.plate == "top"), ("bottom", imp.plate == "bottom"), ("all", np.ones(n, bool))):
+        k = int(sel.sum())
+        dof = k - n_par * k / max(n, 1)
+        if k < 2 or dof <= 0:
+            out[name] = {"n": k, "sigma": None, "noise_sigma": None, "exceeds_noise": None, "p_value": None}
+            continue
+        sse = float((r[sel] ** 2).sum())
+        stds = np.asarray(imp.cor_std, float)[sel]
+        stds = stds[np.isfinite(stds) & (stds > 0)]
+        noise = float(np.sqrt(np.mean(stds ** 2))) if stds.size else 0.0
+        sigma = math.sqrt(sse / dof)
+        if noise > 0:
+            chi = sse / noise ** 2
+            p = chi2_sf(chi, dof)
+        else:
+            chi, p = float("inf"), 0.0
+        out[name] = {"n": k, "sigma": _num(sigma), "noise_sigma": _num(noise), "chi2": _num(chi), "dof": _num(dof),
+                     "p_value": _num(p), "exceeds_noise": bool(p < alpha)}
+    allp = out["all"]
+    if allp.get("sigma") is not None:
+        verdict = ("exceeds the measurement noise: the contact itself scatters (random, not a model error)"
+                   if allp["exceeds_noise"] else "is within the measurement noise")
+        out["note"] = (f"per-impact COR scatter sigma {allp['sigma']:.4f} vs measurement noise "
+                       f"{allp['noise_sigma']:.4f} (chi2 = {allp['chi2']:.3g} on {allp['dof']:.1f} dof, "
+                       f"p = {allp['p_value']:.1e}) {verdict}")
+    return out

@@ -1,0 +1,1 @@
+"""The Foxglove bridge node: a vibro graph watched live in Foxglove."""
