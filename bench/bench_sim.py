@@ -52,7 +52,7 @@ def timed(fn, repeat):
 
 
 def fine_step_ode(t_end=1.5):
-    b, g = CAV.free_play_m, CAV.g_eff_ms2
+    b, g = CAV.free_play_m, CAV.g_eff_mps2
     t, y, v, k = 0.0, 0.0, 0.0, 0
     n_imp = 0
     while t < t_end:
@@ -180,7 +180,7 @@ def bench_regime():
         for eff in effects:
             good = 0
             for seed in range(4):
-                cfg = SynthConfig(effects=eff, accel_ms2=acc, seed=seed, frames=1500)
+                cfg = SynthConfig(effects=eff, accel_mps2=acc, seed=seed, frames=1500)
                 ph = float(np.random.default_rng(seed).uniform(0, 2 * math.pi))
                 r = regime(simulate_window(cfg, build_models(cfg, ph)), F_HZ)
                 good += int(r["alternating"] and abs(r["impacts_per_cycle"] - 2) < 0.05)

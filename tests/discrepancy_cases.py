@@ -20,7 +20,7 @@ NOISE_MM = 2.5e-4
 
 
 def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float = NOISE_MM,
-              accel_ms2: float = 27.0, frequency_hz: float = 22.0, cor_scatter: float = 0.0):
+              accel_mps2: float = 27.0, frequency_hz: float = 22.0, cor_scatter: float = 0.0):
     """(sections, track, rig, truth) for a synthetic recording with ``effects`` (contract names);
     ``cor_scatter``: per-impact COR scatter of the rig (SynthConfig.cor_scatter)."""
     from vibro_fit.identify import identify
@@ -29,7 +29,7 @@ def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float =
     from vibro_sim.synth.scenario import SynthConfig, build_models, effects_truth
     from vibro_sim.synth.trajectory import simulate_window
 
-    cfg = SynthConfig(effects=effects, seed=seed, frames=frames, accel_ms2=accel_ms2, frequency_hz=frequency_hz,
+    cfg = SynthConfig(effects=effects, seed=seed, frames=frames, accel_mps2=accel_mps2, frequency_hz=frequency_hz,
                       accel=False, cor_scatter=cor_scatter)
     rng = np.random.default_rng(seed)
     phase = float(rng.uniform(0.0, 2 * math.pi))
@@ -59,7 +59,7 @@ def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float =
                      "v_ball_after": i.v_ball_after_mps, "v_structure": i.v_structure_mps} for i in traj.impacts],
         "free_play_mm": models.cavity.free_play_m * 1e3,
         "ball_offset_mm": float((traj.ball_m[0] - traj.structure_m[0]) * 1e3),
-        "gravity_ms2": models.cavity.gravity_ms2,
+        "gravity_ms2": models.cavity.gravity_mps2,
         "ball_mass_kg": models.cavity.mass_kg,
     }
     return sections, track, rig, truth

@@ -131,7 +131,7 @@ def test_restarted_deviation_shares_eq18_scale():
     S = StructureKinematics(0.0, 22.0, 0.0, 0.0)   # still structure
     cav = BallCavity()
     t = np.linspace(0.0, 0.02, 21)
-    y_true = 0.3 * t - 0.5 * cav.g_eff_ms2 * t ** 2 - 0.5 * cav.free_play_m
+    y_true = 0.3 * t - 0.5 * cav.g_eff_mps2 * t ** 2 - 0.5 * cav.free_play_m
     y_meas = y_true + 1e-6 * np.sin(300 * t)
     r = restarted_deviation(t, y_meas, [Restart(0.0, 0.02, y_true[0], 0.3)], S, cav, Constant(0.7))
     assert r.deviation == pytest.approx(deviation(t, y_true, y_meas), rel=1e-9)

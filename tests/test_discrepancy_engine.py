@@ -161,7 +161,7 @@ def test_one_step_errors_before_after(analysed):
     floor_mm = doc["noise_floor"]["ball_mm_per_frame"]
     assert before["flight_rms_mm"] > 10 * floor_mm
     assert after["flight_rms_mm"] < 1.3 * floor_mm
-    assert after["impact_velocity_rms_ms"] < 0.1 * before["impact_velocity_rms_ms"]
+    assert after["impact_velocity_rms_mps"] < 0.1 * before["impact_velocity_rms_mps"]
 
 
 def test_effect_outside_the_library_is_unexplained():

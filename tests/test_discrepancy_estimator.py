@@ -110,7 +110,7 @@ def test_replay_inputs_from_domain_types():
     assert inputs.t_start_s == t0
     assert inputs.y_rel_m == pytest.approx(-4.905 * t0 ** 2 + b_mps * t0 + c_m + offset_m - A * math.sin(w * t0),
                                            abs=1e-15)
-    assert inputs.v_rel_ms == pytest.approx(-9.81 * t0 + b_mps - A * w * math.cos(w * t0), abs=1e-12)
+    assert inputs.v_rel_mps == pytest.approx(-9.81 * t0 + b_mps - A * w * math.cos(w * t0), abs=1e-12)
     # the impact before the start and the one without a time are not replayed; free flight's force only
     assert inputs.impact_times_s == [0.05] and inputs.impact_cors == [0.6] and inputs.flight_forces_n == [1e-4, 0.0]
     with pytest.raises(ValueError, match="structure sine"):

@@ -39,7 +39,7 @@ def test_draws_cover_every_family_and_stay_in_range():
     specs = draw_cases(16, seed=5, frames=400)
     assert {s.family for s in specs[:8]} == set(FAMILIES)
     for s in specs:
-        assert 20.0 <= s.frequency_hz <= 24.0 and 25.0 <= s.accel_ms2 <= 32.0 and 1.0 <= s.noise_gray <= 4.0
+        assert 20.0 <= s.frequency_hz <= 24.0 and 25.0 <= s.accel_mps2 <= 32.0 and 1.0 <= s.noise_gray <= 4.0
         assert s.cor_scatter == 0.0 and not s.blur
         if s.family == "coulomb_friction":
             assert 6e-5 <= s.effects[s.family]["force_n"] <= 3e-4

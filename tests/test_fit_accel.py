@@ -59,7 +59,7 @@ def test_detection_plate_and_spectrum(truth):
 
 
 def test_clipping_is_reported_with_channel_and_time(truth):
-    acc = accel_signals(truth, fs_hz=FS, duration_s=0.6, clip_ms2=150.0)
+    acc = accel_signals(truth, fs_hz=FS, duration_s=0.6, clip_mps2=150.0)
     res = analyse_accel(acc, 22.0)
     assert res.clipping and all(c["channel"] == "upper" for c in res.clipping)
     assert any("upper" in w and "clipped" in w and "t =" in w for w in res.warnings)

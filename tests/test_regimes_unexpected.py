@@ -71,7 +71,7 @@ def test_still_recording_is_called_still_and_claims_no_frequency(still, capsys):
 def test_structure_moving_ball_resting_is_stated(tmp_path):
     # 5 m/s^2 < g: the ball never leaves the lower plate. The structure frequency is claimed (it moves);
     # no impacts, so no discrepancy analysis, said plainly
-    _synth(tmp_path / "rec", seed=3, accel_ms2=5.0)
+    _synth(tmp_path / "rec", seed=3, accel_mps2=5.0)
     doc = _analyze(tmp_path / "rec", tmp_path / "out")
     assert doc["motion"]["state"] == "structure_only"
     assert doc["structure"]["moving"] is True
@@ -92,7 +92,7 @@ def low_cor_16(tmp_path_factory):
     # COR 0.3 at 16 m/s^2: once a cycle the ball is launched, flies ~30 ms, lands at 0.17 m/s, rebounds at
     # 0.05 m/s for 4 ms (too few frames to fit) and chatters to rest: no impact has a fitted flight after it
     base = tmp_path_factory.mktemp("lowcor16")
-    truth = _synth(base / "rec", seed=4, accel_ms2=16.0, effects=LOW_COR)
+    truth = _synth(base / "rec", seed=4, accel_mps2=16.0, effects=LOW_COR)
     return truth, _analyze(base / "rec", base / "out")
 
 

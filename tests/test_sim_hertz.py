@@ -60,7 +60,7 @@ def test_eq11_calibration_table_is_what_the_hertz_impact_gives_for_any_ball():
     from vibro_sim.hertz_model import EQ11_EFFECTIVE, EQ11_GRID
 
     other = BallCavity(mass_kg=CAV.mass_kg * 7.3, radius_m=CAV.radius_m * 2.1, free_play_m=CAV.free_play_m,
-                       gravity_ms2=9.81, ball_E_pa=CAV.ball_E_pa * 0.3, ball_nu=0.3, plate_E_pa=CAV.plate_E_pa * 2,
+                       gravity_mps2=9.81, ball_E_pa=CAV.ball_E_pa * 0.3, ball_nu=0.3, plate_E_pa=CAV.plate_E_pa * 2,
                        plate_nu=0.25)
     assert np.all(np.diff(EQ11_EFFECTIVE) > 0)  # monotone: invertible by interpolation
     for k in range(0, EQ11_GRID.size, 5):
@@ -117,7 +117,7 @@ def test_replay_of_cor_model_reproduces_the_source_simulation():
         impact_cors=[i.cor for i in ref.impacts],
         flight_forces_n=[forces.constant_n(k) for k in range(len(ref.impacts) + 1)],
         t_start_s=t_start, y_rel_m=float(ref.relative_position(t_start)),
-        v_rel_ms=float(ref.velocity(t_start) - S.velocity(t_start)), t_end_s=2.5)
+        v_rel_mps=float(ref.velocity(t_start) - S.velocity(t_start)), t_end_s=2.5)
     t = np.linspace(t_start, 2.5, 1201)
     out = simulate_measured(inputs, CAV, t)
     y_cor, res = out["cor_model"]

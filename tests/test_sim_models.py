@@ -19,11 +19,11 @@ F_HZ = 22.0
 W = 2 * math.pi * F_HZ
 CAV = BallCavity()  # paper rig: b = (16.6 - 4.77)/2 mm
 B = CAV.free_play_m
-G = CAV.g_eff_ms2
+G = CAV.g_eff_mps2
 
 
-def shaker(accel_ms2: float = 40.0, **kw) -> StructureKinematics:
-    return StructureKinematics(accel_ms2 / W ** 2, F_HZ, **kw)
+def shaker(accel_mps2: float = 40.0, **kw) -> StructureKinematics:
+    return StructureKinematics(accel_mps2 / W ** 2, F_HZ, **kw)
 
 
 def test_free_flight_is_exact_parabola():
@@ -90,7 +90,7 @@ def test_energy_across_impact_scales_with_e_squared(law):
 
 def _reference_ode(S, cav, law, force, y0, v0, t_end, max_step=2e-5):
     """Independent reference: fine-step DOP853 with solve_ivp's event location."""
-    b, m, g = cav.free_play_m, cav.mass_kg, cav.g_eff_ms2
+    b, m, g = cav.free_play_m, cav.mass_kg, cav.g_eff_mps2
     t, y, v, k = 0.0, y0, v0, 0
     ts, ys = [], []
     while t < t_end:

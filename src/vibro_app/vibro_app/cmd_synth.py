@@ -36,7 +36,7 @@ def register(sub) -> None:
                    help="effect parameter (contract names, SI), e.g. force_n=2e-4; repeatable")
     p.add_argument("--seed", type=int, default=0, help="random seed (phase, speckle, noise, scatter)")
     p.add_argument("--frequency-hz", type=float, default=22.0, help="shaker frequency (Hz)")
-    p.add_argument("--accel-ms2", type=float, default=None,
+    p.add_argument("--accel-mps2", "--accel-ms2", dest="accel_mps2", type=float, default=None,
                    help="shaker acceleration amplitude (m/s^2; default 27: two impacts per cycle)")
     p.add_argument("--noise", type=float, default=2.0, metavar="GRAY", help="read noise sigma (gray levels)")
     p.add_argument("--blur", action="store_true", help="motion blur over a 0.5 ms exposure")
@@ -78,8 +78,8 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
         raise SynthError("--drift needs --still")
     effects = parse_effect_args(args.effect, args.param)
     kw = {}
-    if args.accel_ms2 is not None:
-        kw["accel_ms2"] = args.accel_ms2
+    if args.accel_mps2 is not None:
+        kw["accel_mps2"] = args.accel_mps2
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,

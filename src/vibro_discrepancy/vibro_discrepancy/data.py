@@ -77,7 +77,7 @@ class Measured:
     structure_m: np.ndarray
     mass_kg: float
     free_play_m: float
-    g_ms2: float = G_MPS2
+    g_mps2: float = G_MPS2
     notes: list[str] = field(default_factory=list)
 
     @property

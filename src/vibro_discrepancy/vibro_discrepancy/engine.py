@@ -171,7 +171,7 @@ def explain_flights(chain: FindingChain, f_fit: FlightModelFit, stage: StageResu
         model = fit_model(meas, structure=chain.current.model.structure, flights=fset)
         idx = f_fit.names.index(term.effect)
         params, stds = term.contract_parameters(float(f_fit.coefs[idx]), float(math.sqrt(f_fit.cov[idx, idx])),
-                                                meas.mass_kg, meas.g_ms2)
+                                                meas.mass_kg, meas.g_mps2)
         chain.add(term.effect, model, params, stds,
                   flight_term_where(meas, chain.current.steps, model, term, floors.cor))
 

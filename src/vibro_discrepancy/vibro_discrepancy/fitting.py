@@ -55,7 +55,7 @@ class FlightModelFit:
     flight_n: np.ndarray
     residuals: list[np.ndarray] = field(default_factory=list)
     grids: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (u, v(u)) per flight
-    g_ms2: float = G_MPS2
+    g_mps2: float = G_MPS2
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -118,10 +118,10 @@ def _grid(fl: FlightSamples, extend_s: float = 0.0) -> np.ndarray:
 
 
 def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = FIXED_POINT_PASSES,
-                g_ms2: float | None = None, fixed_coefs: Sequence[float] | None = None) -> FlightModelFit:
+                g_mps2: float | None = None, fixed_coefs: Sequence[float] | None = None) -> FlightModelFit:
     """Fit the flights with gravity (``g_ms2``, default the measured data's g) plus ``terms``;
     ``fixed_coefs`` imposes the terms' coefficients (only the flight states are fitted then)."""
-    g = meas.g_ms2 if g_ms2 is None else g_ms2
+    g = meas.g_mps2 if g_mps2 is None else g_mps2
     terms = tuple(terms)
     p = len(terms)
     m = meas.mass_kg

@@ -45,11 +45,11 @@ class FlightTerm(Term):
     stage = "flight"
     unit = ""
 
-    def basis(self, v_ms: np.ndarray, mass_kg: float) -> np.ndarray:
+    def basis(self, v_mps: np.ndarray, mass_kg: float) -> np.ndarray:
         """Acceleration (m/s^2) per unit coefficient at ball velocity ``v_ms``."""
         raise NotImplementedError
 
-    def contract_parameters(self, coef: float, std: float, mass_kg: float, g_ms2: float) -> tuple[dict, dict]:
+    def contract_parameters(self, coef: float, std: float, mass_kg: float, g_mps2: float) -> tuple[dict, dict]:
         """(parameters, their 1-sigma std) in contract names."""
         name = self.parameters[0]
         return {name: float(coef)}, {name: float(std)}
@@ -64,8 +64,8 @@ class CoulombFriction(FlightTerm):
                  "falling than gravity alone; the extra acceleration flips sign with the direction of motion "
                  "and does not depend on the speed")
 
-    def basis(self, v_ms, mass_kg):
-        return -np.sign(v_ms) / mass_kg
+    def basis(self, v_mps, mass_kg):
+        return -np.sign(v_mps) / mass_kg
 
 
 class ViscousDrag(FlightTerm):
@@ -75,8 +75,8 @@ class ViscousDrag(FlightTerm):
     unit = "N s/m"
     signature = "extra deceleration proportional to the speed: grows linearly from the apex to the fast ends"
 
-    def basis(self, v_ms, mass_kg):
-        return -np.asarray(v_ms, dtype=float) / mass_kg
+    def basis(self, v_mps, mass_kg):
+        return -np.asarray(v_mps, dtype=float) / mass_kg
 
 
 class QuadraticDrag(FlightTerm):
@@ -86,8 +86,8 @@ class QuadraticDrag(FlightTerm):
     unit = "N s^2/m^2"
     signature = "extra deceleration proportional to the speed squared: negligible near the apex, largest fast"
 
-    def basis(self, v_ms, mass_kg):
-        v = np.asarray(v_ms, dtype=float)
+    def basis(self, v_mps, mass_kg):
+        v = np.asarray(v_mps, dtype=float)
         return -v * np.abs(v) / mass_kg
 
 
@@ -99,15 +99,15 @@ class GravityTilt(FlightTerm):
     signature = ("every flight accelerates downwards by less than g by the same amount, whatever its direction "
                  "or speed (effective gravity g cos(tilt))")
 
-    def basis(self, v_ms, mass_kg):
-        return np.ones_like(np.asarray(v_ms, dtype=float))
+    def basis(self, v_mps, mass_kg):
+        return np.ones_like(np.asarray(v_mps, dtype=float))
 
-    def contract_parameters(self, coef, std, mass_kg, g_ms2):
-        x = min(max(1.0 - coef / g_ms2, -1.0), 1.0)
+    def contract_parameters(self, coef, std, mass_kg, g_mps2):
+        x = min(max(1.0 - coef / g_mps2, -1.0), 1.0)
         tilt = math.degrees(math.acos(x))
         # d tilt / d coef = 1 / (g sin(tilt)), in degrees
         s = math.sin(math.radians(tilt))
-        std_deg = math.degrees(std / (g_ms2 * s)) if s > 1e-9 else float("inf")
+        std_deg = math.degrees(std / (g_mps2 * s)) if s > 1e-9 else float("inf")
         return {"tilt_deg": tilt}, {"tilt_deg": std_deg}
 
 
@@ -120,7 +120,7 @@ class ImpactTerm(Term):
     stage = "impact"
     modifies = "COR law"
 
-    def columns(self, plates: np.ndarray, speeds_ms: np.ndarray) -> np.ndarray:
+    def columns(self, plates: np.ndarray, speeds_mps: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
     def contract_parameters(self, coefs: np.ndarray, cov: np.ndarray) -> tuple[dict, dict]:
@@ -133,7 +133,7 @@ class ConstantRestitution(ImpactTerm):
     effect = "none"
     parameters = ("cor",)
 
-    def columns(self, plates, speeds_ms):
+    def columns(self, plates, speeds_mps):
         return np.ones((len(plates), 1))
 
     def contract_parameters(self, coefs, cov):
@@ -146,7 +146,7 @@ class AsymmetricRestitution(ImpactTerm):
     signature = ("the CORs of the two plates differ whatever the impact speed; within one plate the COR does not "
                  "follow the impact speed")
 
-    def columns(self, plates, speeds_ms):
+    def columns(self, plates, speeds_mps):
         p = np.asarray(plates)
         return np.column_stack([(p == "top").astype(float), (p == "bottom").astype(float)])
 
@@ -161,8 +161,8 @@ class VelocityDependentRestitution(ImpactTerm):
     signature = ("the COR falls with the relative impact speed on both plates alike (e = e0 - slope |v_rel|), "
                  "also within one plate when the speeds vary")
 
-    def columns(self, plates, speeds_ms):
-        s = np.asarray(speeds_ms, dtype=float)
+    def columns(self, plates, speeds_mps):
+        s = np.asarray(speeds_mps, dtype=float)
         return np.column_stack([np.ones_like(s), -s])
 
     def contract_parameters(self, coefs, cov):
@@ -176,8 +176,8 @@ class PlateAndSpeed(ImpactTerm):
     effect = "asymmetric_restitution+velocity_dependent_restitution"
     parameters = ("cor_top", "cor_bottom", "slope_s_per_m")
 
-    def columns(self, plates, speeds_ms):
-        return np.column_stack([AsymmetricRestitution().columns(plates, speeds_ms), -np.asarray(speeds_ms, float)])
+    def columns(self, plates, speeds_mps):
+        return np.column_stack([AsymmetricRestitution().columns(plates, speeds_mps), -np.asarray(speeds_mps, float)])
 
     def contract_parameters(self, coefs, cov):
         names = self.parameters
@@ -238,9 +238,9 @@ class SumForce(ForceLaw):
         self.viscous = float(viscous_ns_per_m)
         self.quadratic = float(quadratic_ns2_per_m2)
 
-    def force_n(self, v_ms: float, flight_index: int = 0) -> float:
-        s = 0.0 if v_ms == 0 else math.copysign(1.0, v_ms)
-        return -self.coulomb_n * s - self.viscous * v_ms - self.quadratic * v_ms * abs(v_ms)
+    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
+        s = 0.0 if v_mps == 0 else math.copysign(1.0, v_mps)
+        return -self.coulomb_n * s - self.viscous * v_mps - self.quadratic * v_mps * abs(v_mps)
 
 
 def force_law(flight_coefs: dict[str, float]) -> ForceLaw:
@@ -260,9 +260,9 @@ class PlateSpeedLaw(RestitutionLaw):
     def __init__(self, top: float, bottom: float, slope_s_per_m: float = 0.0):
         self.top, self.bottom, self.slope = float(top), float(bottom), float(slope_s_per_m)
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
         base = self.top if plate == "top" else self.bottom
-        return float(min(1.0, max(0.0, base - self.slope * abs(v_rel_ms))))
+        return float(min(1.0, max(0.0, base - self.slope * abs(v_rel_mps))))
 
     def __repr__(self) -> str:
         return f"PlateSpeedLaw(top={self.top:.4f}, bottom={self.bottom:.4f}, slope={self.slope:.4f})"
@@ -281,12 +281,12 @@ def restitution_law(kind: str, coefs) -> RestitutionLaw:
     return PlateSpeedLaw(c[0], c[1], c[2])
 
 
-def cor_values(kind: str, coefs, plates, speeds_ms) -> np.ndarray:
+def cor_values(kind: str, coefs, plates, speeds_mps) -> np.ndarray:
     """COR predicted by a fitted impact model for each (plate, |v_rel|)."""
     term = {"none": ConstantRestitution(), "asymmetric_restitution": AsymmetricRestitution(),
             "velocity_dependent_restitution": VelocityDependentRestitution(),
             "plate_and_speed": PlateAndSpeed()}[kind]
-    return np.clip(term.columns(np.asarray(plates), np.asarray(speeds_ms, float)) @ np.asarray(coefs, float), 0, 1)
+    return np.clip(term.columns(np.asarray(plates), np.asarray(speeds_mps, float)) @ np.asarray(coefs, float), 0, 1)
 
 
 __all__ = ["ALL_TERMS", "EFFECTS", "FLIGHT_TERMS", "IMPACT_TERMS", "PLATES", "STRUCTURE_TERMS", "UNEXPLAINED",

@@ -50,10 +50,10 @@ def flight_ratios(os: OneStep) -> np.ndarray:
 
 def impact_ratios(os: OneStep, cor_noise: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(velocity-after error, time error) in units of their noise floors (NaN: not predicted)."""
-    sig_v = np.sqrt(np.nan_to_num(os.dv_sigma_ms, nan=0.0) ** 2 * 2 + (cor_noise * os.impact_speed_ms) ** 2)
+    sig_v = np.sqrt(np.nan_to_num(os.dv_sigma_mps, nan=0.0) ** 2 * 2 + (cor_noise * os.impact_speed_mps) ** 2)
     sig_v = np.maximum(sig_v, 1e-7)
-    sig_t = 2.0 * os.flight_sigma_m / np.maximum(os.impact_speed_ms, 1e-3)
-    return np.abs(os.impact_dv_ms) / sig_v, np.abs(os.impact_dt_s) / sig_t
+    sig_t = 2.0 * os.flight_sigma_m / np.maximum(os.impact_speed_mps, 1e-3)
+    return np.abs(os.impact_dv_mps) / sig_v, np.abs(os.impact_dt_s) / sig_t
 
 
 def locate(os: OneStep, cor_noise: float = 0.0, stages=("flights", "impacts")) -> dict:
@@ -86,7 +86,7 @@ def locate(os: OneStep, cor_noise: float = 0.0, stages=("flights", "impacts")) -
         rv, rt = impact_ratios(os, cor_noise)
         ok = np.isfinite(rv) | np.isfinite(rt)
         flag_v = np.isfinite(rv) & (rv > IMPACT_FLAG)
-        patterns = cor_patterns(os.impact_t_s, os.impact_plate, os.impact_speed_ms, os.impact_de, 0.0,
+        patterns = cor_patterns(os.impact_t_s, os.impact_plate, os.impact_speed_mps, os.impact_de, 0.0,
                                 n_tests=1, shapes=("plate", "speed"))
         de = os.impact_de[np.isfinite(os.impact_de)]
         random_scatter = bool(flag_v.any()) and not patterns
@@ -95,7 +95,7 @@ def locate(os: OneStep, cor_noise: float = 0.0, stages=("flights", "impacts")) -
         flag_t = np.isfinite(rt) & (rt > IMPACT_FLAG)
         flag = flag_v | flag_t
         top = os.impact_plate == "top"
-        spd = os.impact_speed_ms
+        spd = os.impact_speed_mps
         fast = spd >= np.median(spd[ok]) if ok.any() else np.zeros_like(top)
         onset = _onset(os.impact_t_s[ok], flag[ok]) if ok.any() else None
         d = {"n": int(ok.sum()), "n_disagree": int(flag.sum()), "top": _count(flag, top & ok),

@@ -31,7 +31,7 @@ class FittedModel:
     flights: FlightModelFit
     impacts: ImpactSet
     cor: CorModelFit
-    g_ms2: float
+    g_mps2: float
     fixed_motion: StructureKinematics | None = None   # a known structure motion (the true model in proofs)
 
     @property
@@ -41,19 +41,19 @@ class FittedModel:
     @property
     def tilt_deg(self) -> float:
         da = self.flights.coef_of("gravity_tilt")
-        return math.degrees(math.acos(min(max(1.0 - da / self.g_ms2, -1.0), 1.0)))
+        return math.degrees(math.acos(min(max(1.0 - da / self.g_mps2, -1.0), 1.0)))
 
-    def accel(self, v_ms: np.ndarray, mass_kg: float) -> np.ndarray:
+    def accel(self, v_mps: np.ndarray, mass_kg: float) -> np.ndarray:
         """Free-flight acceleration (m/s^2) at ball velocity v (lab frame)."""
-        v = np.asarray(v_ms, dtype=float)
-        out = np.full_like(v, -self.g_ms2)
+        v = np.asarray(v_mps, dtype=float)
+        out = np.full_like(v, -self.g_mps2)
         for t, c in zip(self.flights.terms, self.flights.coefs):
             if c != 0.0:
                 out = out + c * t.basis(v, mass_kg)
         return out
 
-    def cor_at(self, plates, speeds_ms) -> np.ndarray:
-        return cor_values(self.cor.kind, self.cor.coefs, plates, speeds_ms)
+    def cor_at(self, plates, speeds_mps) -> np.ndarray:
+        return cor_values(self.cor.kind, self.cor.coefs, plates, speeds_mps)
 
     def force_law(self):
         return force_law(self.flights.coef_dict())
@@ -62,7 +62,7 @@ class FittedModel:
         return restitution_law(self.cor.kind, self.cor.coefs)
 
     def cavity(self, meas: Measured, free_play_m: float) -> BallCavity:
-        return BallCavity(mass_kg=meas.mass_kg, free_play_m=free_play_m, gravity_ms2=self.g_ms2,
+        return BallCavity(mass_kg=meas.mass_kg, free_play_m=free_play_m, gravity_mps2=self.g_mps2,
                           tilt_deg=self.tilt_deg)
 
     def label(self) -> str:
@@ -81,7 +81,7 @@ def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] 
     f = flights if flights is not None else fit_flights(meas, flight_terms)
     imp = recompute_impacts(meas, f, s.motion())
     c = fit_cor(imp, COR_TERMS[cor_kind], cor_kind)
-    return FittedModel(s, f, imp, c, meas.g_ms2)
+    return FittedModel(s, f, imp, c, meas.g_mps2)
 
 
 def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:

@@ -34,11 +34,11 @@ class OneStep:
     impact_index: np.ndarray        # into Measured.impacts
     impact_t_s: np.ndarray
     impact_plate: np.ndarray
-    impact_speed_ms: np.ndarray     # measured |relative speed| before
+    impact_speed_mps: np.ndarray     # measured |relative speed| before
     impact_dt_s: np.ndarray         # predicted - measured impact time
-    impact_dv_ms: np.ndarray        # predicted - measured ball velocity after the impact
+    impact_dv_mps: np.ndarray        # predicted - measured ball velocity after the impact
     impact_de: np.ndarray           # measured - predicted COR at the measured impact
-    dv_sigma_ms: np.ndarray         # noise floor of the measured velocity after each impact
+    dv_sigma_mps: np.ndarray         # noise floor of the measured velocity after each impact
 
     def summary(self) -> dict:
         """RMS errors (mm, ms, m/s, COR) over the predictable flights/impacts."""
@@ -46,9 +46,9 @@ class OneStep:
             x = x[np.isfinite(x)]
             return float(np.sqrt(np.mean(x ** 2))) if x.size else None
         out = {"flight_rms_mm": rms(self.flight_rms_m), "impact_time_rms_ms": rms(self.impact_dt_s),
-               "impact_velocity_rms_ms": rms(self.impact_dv_ms), "impact_cor_rms": rms(self.impact_de),
+               "impact_velocity_rms_mps": rms(self.impact_dv_mps), "impact_cor_rms": rms(self.impact_de),
                "n_flights": int(np.isfinite(self.flight_rms_m).sum()),
-               "n_impacts": int(np.isfinite(self.impact_dv_ms).sum())}
+               "n_impacts": int(np.isfinite(self.impact_dv_mps).sum())}
         out["flight_rms_mm"] = m_to_mm(out["flight_rms_mm"])
         out["impact_time_rms_ms"] = s_to_ms(out["impact_time_rms_ms"])
         return out

@@ -135,7 +135,7 @@ class CaseSpec:
     effects: dict
     seed: int
     frequency_hz: float
-    accel_ms2: float
+    accel_mps2: float
     noise_gray: float
     frames: int
     cor_scatter: float = 0.0
@@ -255,7 +255,7 @@ def draw_evidence(seed: int, frames: int, draws: Draws = EVIDENCE, pairs: float 
     out = []
     for i, j in enumerate(order):
         fam, k = plan[int(j)]
-        f_hz, a_ms2 = float(rng.uniform(20.0, 24.0)), float(rng.uniform(25.0, 32.0))
+        f_hz, a_mps2 = float(rng.uniform(20.0, 24.0)), float(rng.uniform(25.0, 32.0))
         u = None if k is None else (k + float(rng.uniform())) / m
         effects = draw_effect(fam, rng, u, frames / fps, f_hz)
         label = fam
@@ -263,7 +263,7 @@ def draw_evidence(seed: int, frames: int, draws: Draws = EVIDENCE, pairs: float 
             second = str(rng.choice([f for f in EFFECTS if _compatible(fam, f)]))
             effects.update(draw_effect(second, rng))
             label = f"{fam}+{second}"
-        out.append(CaseSpec(i, label, effects, int(rng.integers(0, 2 ** 31 - 1)), f_hz, a_ms2,
+        out.append(CaseSpec(i, label, effects, int(rng.integers(0, 2 ** 31 - 1)), f_hz, a_mps2,
                             float(rng.uniform(*draws.noise_gray)), frames, magnitude=k))
     return _extras(out, seed, draws)
 
@@ -308,7 +308,7 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
 
     rec = work / f"case{spec.index:03d}"
     out = work / f"case{spec.index:03d}_out"
-    cfg = SynthConfig(effects=spec.effects, seed=spec.seed, frequency_hz=spec.frequency_hz, accel_ms2=spec.accel_ms2,
+    cfg = SynthConfig(effects=spec.effects, seed=spec.seed, frequency_hz=spec.frequency_hz, accel_mps2=spec.accel_mps2,
                       noise_gray=spec.noise_gray, frames=spec.frames, accel=False, cor_scatter=spec.cor_scatter,
                       blur=spec.blur)
     t0 = time.perf_counter()

@@ -76,7 +76,7 @@ def sindy_flights(meas: Measured, threshold: float = THRESHOLDS["flight_ms2"]) -
         warnings.simplefilter("ignore")
         model.fit(vs, t=ts, feature_names=["v"])
     xi = np.asarray(model.coefficients(), dtype=float).ravel()   # [1, sign, v, v|v|]
-    m, g = meas.mass_kg, meas.g_ms2
+    m, g = meas.mass_kg, meas.g_mps2
     terms = {}
     da = xi[0] + g
     if abs(da) > threshold and da > 0:
@@ -145,7 +145,7 @@ def sindy_discrepancy(meas: Measured) -> dict:
     coefs = [fl["terms"][t.effect] for t in terms]
     f_fit = fit_flights(meas, tuple(terms), fixed_coefs=coefs) if terms else base.flights
     for t, c in zip(terms, coefs):
-        params, _ = t.contract_parameters(c, 0.0, meas.mass_kg, meas.g_ms2)
+        params, _ = t.contract_parameters(c, 0.0, meas.mass_kg, meas.g_mps2)
         findings.append({"effect": t.effect, "parameters": params})
     kind = im["kind"]
     model = fit_model(meas, structure=s_fit, flights=f_fit)
@@ -153,7 +153,7 @@ def sindy_discrepancy(meas: Measured) -> dict:
         c = im["coefs"]
         model = FittedModel(model.structure, model.flights, model.impacts,
                             type(model.cor)(kind, np.asarray(c), np.zeros((len(c), len(c))), 0.0, 0, 1,
-                                            np.zeros(0)), model.g_ms2)
+                                            np.zeros(0)), model.g_mps2)
         if kind in ("asymmetric_restitution", "plate_and_speed"):
             findings.append({"effect": "asymmetric_restitution", "parameters": {"cor_top": c[0], "cor_bottom": c[1]}})
         if kind in ("velocity_dependent_restitution", "plate_and_speed"):

@@ -83,7 +83,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
 
     eff = true_effects(truth)
     S = true_structure(truth)
-    g = float(truth.get("gravity_ms2", meas.g_ms2))
+    g = float(truth.get("gravity_ms2", meas.g_mps2))
     values = {}
     if "coulomb_friction" in eff:
         values["coulomb_friction"] = eff["coulomb_friction"]["force_n"]
@@ -94,8 +94,8 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     if "gravity_tilt" in eff:
         values["gravity_tilt"] = g * (1.0 - math.cos(math.radians(eff["gravity_tilt"]["tilt_deg"])))
     terms = tuple(t for t in FLIGHT_TERMS if t.effect in values)
-    flights = fit_flights(meas, terms, g_ms2=g, fixed_coefs=[values[t.effect] for t in terms]) if terms else \
-        fit_flights(meas, g_ms2=g)
+    flights = fit_flights(meas, terms, g_mps2=g, fixed_coefs=[values[t.effect] for t in terms]) if terms else \
+        fit_flights(meas, g_mps2=g)
     if "asymmetric_restitution" in eff:
         kind = "asymmetric_restitution"
         coefs = [eff[kind]["cor_top"], eff[kind]["cor_bottom"]]

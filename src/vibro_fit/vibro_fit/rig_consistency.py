@@ -74,7 +74,7 @@ def fall_ratio(flights, g_mps2: float) -> tuple[float, float, int] | None:
     meds, vars_ = [], []
     n = 0
     for d in ("up", "down"):
-        a = np.array([f.acceleration_mps2 for f in flights if f.is_free and f.direction == d])
+        a = np.array([f.acceleration_ms2 for f in flights if f.is_free and f.direction == d])
         if a.size == 0:
             continue
         n += a.size

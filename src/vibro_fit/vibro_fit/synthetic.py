@@ -132,8 +132,8 @@ def paper_rig(frequency_hz: float = 22.0, fps: float = 1000.0, accelerometers: b
 
 
 def accel_signals(truth: Truth, fs_hz: float = 50_000.0, duration_s: float = 1.5, offset_s: float = 0.0,
-                  ring_hz: tuple[float, float] = (3100.0, 7400.0), ring_ms2: float = 300.0, tau_s: float = 0.002,
-                  noise_ms2: float = 2.0, seed: int = 2, clip_ms2: float | None = None):
+                  ring_hz: tuple[float, float] = (3100.0, 7400.0), ring_mps2: float = 300.0, tau_s: float = 0.002,
+                  noise_mps2: float = 2.0, seed: int = 2, clip_mps2: float | None = None):
     """Synthetic accelerometer samples (vibro_io AccelData): structure acceleration + a decaying two-mode
     ringing starting at each impact (stronger on the channel of the plate hit: x1 vs x0.3) + white noise.
     DAQ clock = camera clock + ``offset_s``."""
@@ -145,17 +145,17 @@ def accel_signals(truth: Truth, fs_hz: float = 50_000.0, duration_s: float = 1.5
     s = truth.structure
     w = 2 * np.pi * s.frequency_hz
     base = -s.amplitude_m * w * w * np.sin(w * tc + s.phase_rad)
-    up = base + noise_ms2 * rng.standard_normal(t.size)
-    lo = base + noise_ms2 * rng.standard_normal(t.size)
+    up = base + noise_mps2 * rng.standard_normal(t.size)
+    lo = base + noise_mps2 * rng.standard_normal(t.size)
     for imp in truth.impacts:
         d = tc - imp.t_s
         m = d >= 0
         ring = np.zeros_like(t)
-        ring[m] = ring_ms2 * np.exp(-d[m] / tau_s) * (np.sin(2 * np.pi * ring_hz[0] * d[m])
+        ring[m] = ring_mps2 * np.exp(-d[m] / tau_s) * (np.sin(2 * np.pi * ring_hz[0] * d[m])
                                                       + 0.6 * np.sin(2 * np.pi * ring_hz[1] * d[m]))
         gu, gl = (1.0, 0.3) if imp.plate == "top" else (0.3, 1.0)
         up += gu * ring
         lo += gl * ring
-    if clip_ms2 is not None:
-        up = np.clip(up, -clip_ms2, clip_ms2)
+    if clip_mps2 is not None:
+        up = np.clip(up, -clip_mps2, clip_mps2)
     return AccelData(t, up, lo)

@@ -152,7 +152,7 @@ class _Simulator:
         self.force = force if force is not None else NoForce()
         self.b = cavity.free_play_m
         self.m = cavity.mass_kg
-        self.g = cavity.g_eff_ms2
+        self.g = cavity.g_eff_mps2
         self.stick_speed = stick_speed_mps
         self.step = scan_step_s or min(1e-4, 1.0 / (400.0 * structure.frequency_hz))
 

@@ -50,7 +50,7 @@ class Restart:
     t_start_s: float
     t_end_s: float
     y_m: float
-    v_ms: float
+    v_mps: float
 
 
 @dataclass
@@ -109,7 +109,7 @@ def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: St
         tk, yk = t[sel], y[sel]
         y_s0 = float(structure.position(r.t_start_s))
         rel = min(max(r.y_m + frame_offset_m - y_s0, -b * (1 - 1e-9)), b * (1 - 1e-9))
-        res = simulate_cor(structure, cavity, restitution, force, y_s0 + rel, r.v_ms, r.t_start_s, float(tk[-1]))
+        res = simulate_cor(structure, cavity, restitution, force, y_s0 + rel, r.v_mps, r.t_start_s, float(tk[-1]))
         sim = np.asarray(res.sample(tk), dtype=float) - frame_offset_m
         num += float(np.trapezoid((sim - yk) ** 2, tk))
         den += float(np.trapezoid(yk ** 2, tk))

@@ -32,7 +32,7 @@ class ForceLaw:
     kind = "ode"
     effect = "none"
 
-    def force_n(self, v_ms: float, flight_index: int) -> float:  # pragma: no cover - interface
+    def force_n(self, v_mps: float, flight_index: int) -> float:  # pragma: no cover - interface
         raise NotImplementedError
 
     def parameters(self) -> dict:
@@ -47,7 +47,7 @@ class NoForce(ForceLaw):
     kind = "constant"
     effect = "none"
 
-    def force_n(self, v_ms: float = 0.0, flight_index: int = 0) -> float:
+    def force_n(self, v_mps: float = 0.0, flight_index: int = 0) -> float:
         return 0.0
 
     def constant_n(self, flight_index: int) -> float:
@@ -76,10 +76,10 @@ class Coulomb(ForceLaw):
     def __hash__(self) -> int:
         return hash(("Coulomb", self.magnitude_n))
 
-    def force_n(self, v_ms: float, flight_index: int = 0) -> float:
-        if v_ms > 0:
+    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
+        if v_mps > 0:
             return -self.magnitude_n
-        if v_ms < 0:
+        if v_mps < 0:
             return self.magnitude_n
         return 0.0
 
@@ -99,8 +99,8 @@ class Viscous(ForceLaw):
     def __post_init__(self) -> None:
         _finite("Viscous.coefficient_ns_per_m", self.coefficient_ns_per_m, nonneg=True)
 
-    def force_n(self, v_ms: float, flight_index: int = 0) -> float:
-        return -self.coefficient_ns_per_m * v_ms
+    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
+        return -self.coefficient_ns_per_m * v_mps
 
     def parameters(self) -> dict:
         return {"coefficient_ns_per_m": self.coefficient_ns_per_m}
@@ -118,8 +118,8 @@ class Quadratic(ForceLaw):
     def __post_init__(self) -> None:
         _finite("Quadratic.coefficient_ns2_per_m2", self.coefficient_ns2_per_m2, nonneg=True)
 
-    def force_n(self, v_ms: float, flight_index: int = 0) -> float:
-        return -self.coefficient_ns2_per_m2 * v_ms * abs(v_ms)
+    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
+        return -self.coefficient_ns2_per_m2 * v_mps * abs(v_mps)
 
     def parameters(self) -> dict:
         return {"coefficient_ns2_per_m2": self.coefficient_ns2_per_m2}
@@ -149,5 +149,5 @@ class PerFlight(ForceLaw):
             return self.forces_n[flight_index]
         return self.default_n
 
-    def force_n(self, v_ms: float = 0.0, flight_index: int = 0) -> float:
+    def force_n(self, v_mps: float = 0.0, flight_index: int = 0) -> float:
         return self.constant_n(flight_index)

@@ -48,16 +48,16 @@ E_MIN = 1e-3  # e -> 0 would need infinite damping
 NO_TENSION = True  # clip the contact force so that the plate never pulls the ball
 
 
-def undamped_max_penetration(cavity: BallCavity, v_ms: float) -> float:
+def undamped_max_penetration(cavity: BallCavity, v_mps: float) -> float:
     """delta_max (m) of an undamped Hertz impact at relative speed v: (5 m v^2 / (4 K))^(2/5)."""
-    return (5.0 * cavity.mass_kg * v_ms ** 2 / (4.0 * cavity.contact_stiffness)) ** 0.4
+    return (5.0 * cavity.mass_kg * v_mps ** 2 / (4.0 * cavity.contact_stiffness)) ** 0.4
 
 
-def hertz_contact_time(cavity: BallCavity, v_ms: float) -> float:
+def hertz_contact_time(cavity: BallCavity, v_mps: float) -> float:
     """Hertz contact duration (s) of an undamped sphere on a rigid-mass flat at speed v:
     t_c = 2.87 (m^2 / (R E*^2 v))^(1/5)."""
     m, R, E = cavity.mass_kg, cavity.radius_m, cavity.effective_modulus_pa
-    return 2.868 * (m * m / (R * E * E * abs(v_ms))) ** 0.2
+    return 2.868 * (m * m / (R * E * E * abs(v_mps))) ** 0.2
 
 
 def damping_coefficient(cavity: BallCavity, e: float, delta_a_m: float) -> float:
@@ -196,20 +196,20 @@ def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restituti
     return res
 
 
-def hertz_single_impact(cavity: BallCavity, e: float, v_ms: float, delta_a: str | float = "impact",
+def hertz_single_impact(cavity: BallCavity, e: float, v_mps: float, delta_a: str | float = "impact",
                         rtol: float = 1e-10) -> tuple[float, float]:
     """One impact of the ball on a fixed bottom plate at speed v (no gravity, no force).
 
     Returns (effective COR = v_out / v_in, contact duration in s).
     """
     cav = BallCavity(mass_kg=cavity.mass_kg, radius_m=cavity.radius_m, free_play_m=cavity.free_play_m,
-                     gravity_ms2=0.0, ball_E_pa=cavity.ball_E_pa, ball_nu=cavity.ball_nu,
+                     gravity_mps2=0.0, ball_E_pa=cavity.ball_E_pa, ball_nu=cavity.ball_nu,
                      plate_E_pa=cavity.plate_E_pa, plate_nu=cavity.plate_nu)
     S = StructureKinematics(0.0, 1.0)
     t_hit = 1e-4
-    y0 = -cav.free_play_m + v_ms * t_hit
-    tc = hertz_contact_time(cav, v_ms)
-    r = simulate_hertz(S, cav, Constant(e), NoForce(), y0, -v_ms, 0.0, t_hit + 20 * tc,
+    y0 = -cav.free_play_m + v_mps * t_hit
+    tc = hertz_contact_time(cav, v_mps)
+    r = simulate_hertz(S, cav, Constant(e), NoForce(), y0, -v_mps, 0.0, t_hit + 20 * tc,
                        delta_a=delta_a, rtol=rtol)
     return r.effective_cors[0], r.contact_durations_s[0]  # type: ignore[attr-defined]
 
@@ -244,13 +244,13 @@ def calibrated_eq11_cor(cavity: BallCavity, e: float) -> float:
     return float(np.interp(min(max(e, 0.0), 1.0), EQ11_EFFECTIVE, EQ11_GRID))
 
 
-def hertz_effective_cor(cavity: BallCavity, targets=(0.6, 0.75, 0.9), speeds_ms=(0.1, 0.2, 0.5, 1.0, 2.0),
+def hertz_effective_cor(cavity: BallCavity, targets=(0.6, 0.75, 0.9), speeds_mps=(0.1, 0.2, 0.5, 1.0, 2.0),
                         delta_a: str | float = "impact") -> list[dict]:
     """Table of the Hertz model's effective COR vs the target e across impact speeds."""
     rows = []
     for e in targets:
-        for v in speeds_ms:
+        for v in speeds_mps:
             eff, tc = hertz_single_impact(cavity, e, v, delta_a)
-            rows.append({"target_cor": e, "speed_ms": v, "effective_cor": eff,
+            rows.append({"target_cor": e, "speed_mps": v, "effective_cor": eff,
                          "error": eff - e, "contact_time_s": tc})
     return rows

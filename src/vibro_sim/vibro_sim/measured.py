@@ -60,7 +60,7 @@ def replay_inputs(structure: StructureMotion, flights: Sequence[Flight], impacts
     return ReplayInputs(structure=motion, impact_times_s=[i.t_s for i in later],
                         impact_plates=[i.plate for i in later], impact_cors=[nan_if_none(i.cor) for i in later],
                         flight_forces_n=forces, t_start_s=t0, y_rel_m=y_rel_m,
-                        v_rel_ms=v_mps - float(motion.velocity(t0)), t_end_s=float(t_end_s))
+                        v_rel_mps=v_mps - float(motion.velocity(t0)), t_end_s=float(t_end_s))
 
 
 def replay_and_score(inputs: ReplayInputs, cavity: BallCavity, t_s: np.ndarray, ball_dic_m: np.ndarray,

@@ -29,7 +29,7 @@ class BallCavity:
     mass_kg: float = BALL_MASS_KG
     radius_m: float = 0.5 * BALL_DIAMETER_M
     free_play_m: float = 0.5 * (GAP_M - BALL_DIAMETER_M)
-    gravity_ms2: float = G_MPS2
+    gravity_mps2: float = G_MPS2
     tilt_deg: float = 0.0
     ball_E_pa: float = BALL_E_PA
     ball_nu: float = BALL_NU
@@ -47,15 +47,15 @@ class BallCavity:
         for name in ("ball_nu", "plate_nu"):
             if not -1.0 < getattr(self, name) < 0.5:
                 raise ValueError(f"BallCavity.{name} must be in (-1, 0.5), got {getattr(self, name)}")
-        if self.gravity_ms2 < 0:
+        if self.gravity_mps2 < 0:
             raise ValueError(f"BallCavity.gravity_ms2 must be >= 0, got {self.gravity_ms2}")
         if not -90.0 <= self.tilt_deg <= 90.0:
             raise ValueError(f"BallCavity.tilt_deg must be in [-90, 90], got {self.tilt_deg}")
 
     @property
-    def g_eff_ms2(self) -> float:
+    def g_eff_mps2(self) -> float:
         """Gravity along the motion axis, g cos(tilt) (m/s^2, pulls down)."""
-        return self.gravity_ms2 * math.cos(math.radians(self.tilt_deg))
+        return self.gravity_mps2 * math.cos(math.radians(self.tilt_deg))
 
     @property
     def effective_modulus_pa(self) -> float:
@@ -70,13 +70,13 @@ class BallCavity:
         return 4.0 * math.sqrt(self.radius_m) / (3.0 * math.pi * (k_b + k_s))
 
     @classmethod
-    def from_rig(cls, rig, gravity_ms2: float = G_MPS2, tilt_deg: float = 0.0) -> "BallCavity":
+    def from_rig(cls, rig, gravity_mps2: float = G_MPS2, tilt_deg: float = 0.0) -> "BallCavity":
         """Build from a :class:`vibro_io.rig.RigConfig` (mm in the rig -> m here)."""
         return cls(
             mass_kg=rig.ball.mass_kg,
             radius_m=0.5e-3 * rig.ball.diameter_mm,
             free_play_m=1e-3 * rig.free_play_mm,
-            gravity_ms2=gravity_ms2,
+            gravity_mps2=gravity_mps2,
             tilt_deg=tilt_deg,
             ball_E_pa=rig.ball.youngs_modulus_pa,
             ball_nu=rig.ball.poisson_ratio,

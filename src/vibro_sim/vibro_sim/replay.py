@@ -48,7 +48,7 @@ class ReplayInputs:
     flight_forces_n: Sequence[float]
     t_start_s: float
     y_rel_m: float
-    v_rel_ms: float
+    v_rel_mps: float
     t_end_s: float
     metadata: dict = field(default_factory=dict)
 
@@ -60,7 +60,7 @@ class ReplayInputs:
         for i, p in enumerate(self.impact_plates):
             if p not in PLATES:
                 raise ValueError(f"ReplayInputs.impact_plates[{i}] must be 'top' or 'bottom', got {p!r}")
-        for name in ("t_start_s", "y_rel_m", "v_rel_ms", "t_end_s"):
+        for name in ("t_start_s", "y_rel_m", "v_rel_mps", "t_end_s"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"ReplayInputs.{name} must be finite, got {getattr(self, name)!r}")
         if self.t_end_s <= self.t_start_s:
@@ -81,7 +81,7 @@ class MeasuredCors(RestitutionLaw):
             vals = [e for q, e in zip(self.plates, self.cors) if q == p]
             self.means[p] = float(np.mean(vals)) if vals else 0.7
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
         if impact_index < len(self.cors) and self.plates[impact_index] == plate:
             return self.cors[impact_index]
         return self.means[plate]
@@ -119,7 +119,7 @@ def simulate_measured(inputs: ReplayInputs, cavity: BallCavity, t_eval_s,
     S = inputs.structure
     t0 = inputs.t_start_s
     y0 = float(S.position(t0)) + min(max(inputs.y_rel_m, -b), b)
-    v0 = float(S.velocity(t0)) + inputs.v_rel_ms
+    v0 = float(S.velocity(t0)) + inputs.v_rel_mps
     law, force = replay_laws(inputs)
     out: dict[str, tuple[np.ndarray, SimResult]] = {}
     for name in models:

@@ -35,7 +35,7 @@ class RestitutionLaw:
 
     effect = "none"
 
-    def cor(self, plate: str, v_rel_ms: float, impact_index: int) -> float:  # pragma: no cover
+    def cor(self, plate: str, v_rel_mps: float, impact_index: int) -> float:  # pragma: no cover
         raise NotImplementedError
 
     def parameters(self) -> dict:
@@ -51,7 +51,7 @@ class Constant(RestitutionLaw):
     def __post_init__(self) -> None:
         _cor_value("Constant.e", self.e)
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
         _check_plate(plate)
         return self.e
 
@@ -69,7 +69,7 @@ class PerPlate(RestitutionLaw):
         _cor_value("PerPlate.top", self.top)
         _cor_value("PerPlate.bottom", self.bottom)
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
         _check_plate(plate)
         return self.top if plate == "top" else self.bottom
 
@@ -91,9 +91,9 @@ class VelocityDependent(RestitutionLaw):
         if not math.isfinite(self.slope_s_per_m):
             raise ValueError(f"VelocityDependent.slope_s_per_m must be finite, got {self.slope_s_per_m!r}")
 
-    def cor(self, plate: str, v_rel_ms: float, impact_index: int = 0) -> float:
+    def cor(self, plate: str, v_rel_mps: float, impact_index: int = 0) -> float:
         _check_plate(plate)
-        return float(min(1.0, max(0.0, self.cor_at_zero - self.slope_s_per_m * abs(v_rel_ms))))
+        return float(min(1.0, max(0.0, self.cor_at_zero - self.slope_s_per_m * abs(v_rel_mps))))
 
     def parameters(self) -> dict:
         return {"cor_at_zero": self.cor_at_zero, "slope_s_per_m": self.slope_s_per_m}
@@ -119,7 +119,7 @@ class PerImpact(RestitutionLaw):
         else:
             _cor_value("PerImpact.default", self.default)
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
         _check_plate(plate)
         if 0 <= impact_index < len(self.cors):
             return self.cors[impact_index]
@@ -149,8 +149,8 @@ class Scattered(RestitutionLaw):
     def effect(self) -> str:  # type: ignore[override]
         return self.base.effect
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
-        e = self.base.cor(plate, v_rel_ms, impact_index)
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
+        e = self.base.cor(plate, v_rel_mps, impact_index)
         z = self._z[impact_index % self.max_impacts]  # type: ignore[attr-defined]
         return float(min(1.0, max(0.0, e + self.sigma * z)))
 

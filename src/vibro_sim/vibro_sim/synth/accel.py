@@ -32,7 +32,7 @@ class AccelSignals:
 
 
 def make_accel(structure, impacts, mass_kg: float, t_first_s: float, t_last_s: float,
-               rate_hz: float, noise_ms2: float, clock_offset_s: float,
+               rate_hz: float, noise_mps2: float, clock_offset_s: float,
                rng: np.random.Generator) -> AccelSignals:
     """Samples on the DAQ clock covering the camera window [t_first_s, t_last_s]."""
     n0 = int(math.ceil((t_first_s + clock_offset_s) * rate_hz))
@@ -59,7 +59,7 @@ def make_accel(structure, impacts, mass_kg: float, t_first_s: float, t_last_s: f
         hit, other = (upper, lower) if imp.plate == "top" else (lower, upper)
         hit[i0:i1] += sign * burst
         other[i0:i1] += sign * CROSS_GAIN * burst
-    if noise_ms2 > 0:
-        upper += rng.normal(0.0, noise_ms2, upper.shape)
-        lower += rng.normal(0.0, noise_ms2, lower.shape)
+    if noise_mps2 > 0:
+        upper += rng.normal(0.0, noise_mps2, upper.shape)
+        lower += rng.normal(0.0, noise_mps2, lower.shape)
     return AccelSignals(t_daq, upper, lower)

@@ -68,8 +68,8 @@ class DriftingCOR(RestitutionLaw):
     def effect(self) -> str:  # type: ignore[override]
         return "cor_drift"
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
-        e = self.base.cor(plate, v_rel_ms, impact_index) + self.drift_per_impact * (impact_index - self.first_index)
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
+        e = self.base.cor(plate, v_rel_mps, impact_index) + self.drift_per_impact * (impact_index - self.first_index)
         return float(min(1.0, max(0.0, e)))
 
 
@@ -84,8 +84,8 @@ class IndexShifted(RestitutionLaw):
     def effect(self) -> str:  # type: ignore[override]
         return getattr(self.base, "effect", "none")
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
-        return self.base.cor(plate, v_rel_ms, impact_index + self.shift)
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
+        return self.base.cor(plate, v_rel_mps, impact_index + self.shift)
 
 
 def drift_per_impact(drift_per_s: float, frequency_hz: float) -> float:

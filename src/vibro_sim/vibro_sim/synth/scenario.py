@@ -114,7 +114,7 @@ class SynthConfig:
 
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     frequency_hz: float = 22.0
-    accel_ms2: float = DEFAULT_ACCEL_MS2
+    accel_mps2: float = DEFAULT_ACCEL_MS2
     phase_rad: float | None = None
     seed: int = 0
     frames: int = 1500
@@ -134,7 +134,7 @@ class SynthConfig:
     mm_per_px: float | None = None
     accel: bool = True
     accel_rate_hz: float = 50_000.0
-    accel_noise_ms2: float = 0.5
+    accel_noise_mps2: float = 0.5
     cor_scatter: float = 0.0
     spin_rad_s: float = 0.0
     spin_sigma_rad_s: float = 0.0
@@ -149,7 +149,7 @@ class SynthConfig:
     def __post_init__(self) -> None:
         self.effects = normalise_effects(self.effects)
         checks = [
-            ("frequency_hz", self.frequency_hz > 0, "> 0"), ("accel_ms2", self.accel_ms2 >= 0, ">= 0"),
+            ("frequency_hz", self.frequency_hz > 0, "> 0"), ("accel_mps2", self.accel_mps2 >= 0, ">= 0"),
             ("frames", isinstance(self.frames, int) and self.frames >= 2, "an integer >= 2"),
             ("fps", self.fps > 0, "> 0"), ("lead_in_s", self.lead_in_s >= 0, ">= 0"),
             ("noise_gray", self.noise_gray >= 0, ">= 0"), ("flicker", 0 <= self.flicker < 0.5, "in [0, 0.5)"),
@@ -157,7 +157,7 @@ class SynthConfig:
             ("drift_px", abs(self.drift_px) <= 20, "within +-20 px"),
             ("width_px", isinstance(self.width_px, int) and self.width_px >= 64, "an integer >= 64"),
             ("height_px", isinstance(self.height_px, int) and self.height_px >= 128, "an integer >= 128"),
-            ("accel_rate_hz", self.accel_rate_hz > 0, "> 0"), ("accel_noise_ms2", self.accel_noise_ms2 >= 0, ">= 0"),
+            ("accel_rate_hz", self.accel_rate_hz > 0, "> 0"), ("accel_noise_mps2", self.accel_noise_mps2 >= 0, ">= 0"),
             ("gap_mm", self.gap_mm > self.ball_diameter_mm, "larger than ball_diameter_mm"),
             ("cor_scatter", 0.0 <= self.cor_scatter <= 0.3, "in [0, 0.3]"),
             ("spin_rad_s", abs(self.spin_rad_s) <= 100.0, "within +-100 rad/s"),
@@ -282,7 +282,7 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
     eff = cfg.effects
     w = 2 * math.pi * cfg.frequency_hz
     h = eff.get("structure_harmonics", {})
-    amp = 0.0 if cfg.still else cfg.accel_ms2 / w ** 2
+    amp = 0.0 if cfg.still else cfg.accel_mps2 / w ** 2
     structure = StructureKinematics(amp, cfg.frequency_hz, phase_rad, 0.0,
                                 h.get("h2_ratio", 0.0), h.get("h3_ratio", 0.0),
                                 h.get("h2_phase_rad", 0.0), h.get("h3_phase_rad", 0.0))

@@ -43,8 +43,8 @@ class SpinCoupled(RestitutionLaw):
     def effect(self) -> str:  # type: ignore[override]
         return getattr(self.base, "effect", "none")
 
-    def cor(self, plate: str, v_rel_ms: float = 0.0, impact_index: int = 0) -> float:
-        e = self.base.cor(plate, v_rel_ms, impact_index)
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
+        e = self.base.cor(plate, v_rel_mps, impact_index)
         k = impact_index % (len(self.spins_rad_s) - 1)
         change = float(self.spins_rad_s[k + 1] - self.spins_rad_s[k])
         return float(min(1.0, max(0.0, e + self.coupling_s_per_rad * change)))

@@ -109,7 +109,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
                                   youngs_modulus_pa=models.cavity.plate_E_pa,
                                   poisson_ratio=models.cavity.plate_nu),
         excitation=ExcitationConfig(frequency_hz=cfg.frequency_hz,
-                                    acceleration_ms2=None if cfg.still or cfg.accel_ms2 <= 0 else cfg.accel_ms2),
+                                    acceleration_ms2=None if cfg.still or cfg.accel_mps2 <= 0 else cfg.accel_mps2),
         dic=DicConfig(subset_px=SUBSET_PX, mesh_step_px=MESH_STEP_PX,
                       ball_roi=Roi(*renderer.ball_roi(ball_mm[0] + drift[0], SUBSET_PX)),
                       structure_roi=Roi(*renderer.structure_roi(struct_mm[0] + drift[0]))),
@@ -123,7 +123,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
 
     if cfg.accel:
         sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, float(t[0]), float(t[-1]),
-                         cfg.accel_rate_hz, cfg.accel_noise_ms2, cfg.clock_offset_s, noise_rng)
+                         cfg.accel_rate_hz, cfg.accel_noise_mps2, cfg.clock_offset_s, noise_rng)
         with atomic_path(out_dir / "accel.csv") as tmp:
             write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
 
@@ -234,8 +234,8 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
         "flights": flights,
         "free_play_mm": m_to_mm(models.cavity.free_play_m),
         "ball_offset_mm": float(m_to_mm(traj.ball_m[0] - traj.structure_m[0])),
-        "gravity_ms2": models.cavity.gravity_ms2,
-        "g_eff_ms2": models.cavity.g_eff_ms2,
+        "gravity_ms2": models.cavity.gravity_mps2,
+        "g_eff_ms2": models.cavity.g_eff_mps2,
         "ball_mass_kg": models.cavity.mass_kg,
         "clock_offset_s": cfg.clock_offset_s,
         "clock_convention": "accel.csv time_s = camera time + clock_offset_s",
