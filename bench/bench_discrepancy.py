@@ -24,6 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 from side_by_side import print_side_by_side  # noqa: E402
+
 from vibro_eval.prove import GOALS, format_summary, prove  # noqa: E402
 
 

@@ -32,6 +32,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 from side_by_side import fmt, print_side_by_side, ratio  # noqa: E402
+
 from vibro_eval.prove import EVIDENCE, GOALS, format_family_table, format_summary, prove  # noqa: E402
 from vibro_model.errors import RecordingError  # noqa: E402
 

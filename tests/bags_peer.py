@@ -38,6 +38,7 @@ def main() -> int:
     deadline = time.monotonic() + args.seconds
     if args.mode == "pub":
         from sensor_msgs.msg import Image
+
         from vibro_msgs.msg import StreamStatus
 
         node = rclpy.create_node(args.node or f"peer_{args.tag}")
@@ -66,6 +67,7 @@ def main() -> int:
         print(json.dumps({"published": n + 1}), flush=True)
     else:
         from rclpy.task import Future
+
         from vibro_msgs.msg import StreamStatus
         from vibro_ros.adaptive_qos import results_subscription
         from vibro_ros.node_support import make_executor

@@ -24,9 +24,10 @@ def main() -> int:
     case = json.loads(open(args.case, encoding="utf-8").read())
 
     import rclpy
+
+    from vibro_msgs.msg import DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
     from vibro_ros import topics
     from vibro_ros.node_support import HISTORY_QOS, RESULTS_QOS
-    from vibro_msgs.msg import DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
     rclpy.init()
     node = rclpy.create_node("vibro_test_discrepancy_feeder")

@@ -26,6 +26,7 @@ def main() -> int:
     args = parser.parse_args()
 
     import rclpy
+
     from vibro_ros.node_support import QOS_BY_KIND
 
     pkg, _, name = args.msg_type.split("/")

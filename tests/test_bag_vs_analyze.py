@@ -171,9 +171,9 @@ def _rewrite_with_old_dicframe(bag: Path, out: Path) -> int:
     """Copy ``bag`` with rosbags' own writer, its vibro/dic messages re-encoded by the DicFrame definition of
     before the ball rotation (and that definition embedded); other topics as recorded, but the camera images
     (``vibro results`` does not read them). Returns the DicFrames written."""
+    from old_msgdefs import old_dicframe_typestore
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from old_msgdefs import old_dicframe_typestore
     from vibro_ros.bags import deserialize, make_typestore, read_messages
 
     store = make_typestore()

@@ -118,6 +118,7 @@ def test_truncated_bag_file_recovers_the_complete_chunks(tmp_path: Path) -> None
     writer = BagWriter(tmp_path / "b", chunk_size=2048)
     writer.add_topic("vibro/status", "vibro_msgs/msg/StreamStatus")
     from rclpy.serialization import serialize_message
+
     from vibro_msgs.msg import StreamStatus
     for i in range(400):
         writer.write("vibro/status", i, serialize_message(StreamStatus(stream="frames", items_sent=i)))
@@ -186,6 +187,7 @@ def test_missing_bag_is_named(tmp_path: Path) -> None:
 @pytest.mark.parametrize("compression", ["lz4", "zstd", "none"])
 def test_every_chunk_compression_reads_back_with_both_readers(tmp_path: Path, compression: str) -> None:
     from rclpy.serialization import deserialize_message, serialize_message
+
     from vibro_msgs.msg import StreamStatus
 
     writer = BagWriter(tmp_path / "b", chunk_size=2048, compression=compression)

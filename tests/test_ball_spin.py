@@ -211,10 +211,10 @@ def test_graph_path_spin_per_flight_matches_truth(independent):
 def test_dicframes_without_a_measured_rotation_give_no_spin(independent):
     """A DicFrame decoded from a bag recorded before the rotation fields, or one whose publisher left them at the
     ROS default 0, carries no rotation: NaN, never a zero angle with a zero sigma."""
-    from vibro_msgs.msg import DicFrame
-
     from old_msgdefs import old_dicframe_typestore
+
     from vibro_app.bag_results import ball_spin_from_frames
+    from vibro_msgs.msg import DicFrame
     from vibro_ros.convert import dic_track_from_messages
 
     old = old_dicframe_typestore()

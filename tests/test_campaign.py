@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from conftest import REPO
 
 from vibro_app.campaign.summary import Z_FLAG, flag_disagreeing
@@ -30,8 +29,8 @@ from vibro_app.cli import main
 from vibro_dic.quality import TrackQuality, dic_quality_section
 from vibro_dic.texture import TextureError
 from vibro_io.dictrack import read_dic_csv, write_dic_csv
-from vibro_model.errors import FrameError
 from vibro_io.recording import open_recording
+from vibro_model.errors import FrameError
 
 VIBRO = str(REPO / "vibro")
 FRAMES = 200  # two tracking segments (re-seed at frame 100): two chunks

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from vibro_app.cli import main
-from vibro_model.errors import RecordingError
 from vibro_io.outputs import TEMP_MARK, OutputError, atomic_open, atomic_write_text, prepare_output_dir
+from vibro_model.errors import RecordingError
 
 REPO = Path(__file__).resolve().parents[1]
 VIBRO = [sys.executable, "-m", "vibro_app.cli"]
@@ -265,9 +265,9 @@ def result_bag(tmp_path_factory) -> Path:
     stage's end-of-stream status and the rig (as vibro graph records them)."""
     from rclpy.serialization import serialize_message
 
+    from vibro_msgs.msg import StreamStatus, StructureMotion
     from vibro_ros import topics
     from vibro_ros.bags import BagWriter
-    from vibro_msgs.msg import StreamStatus, StructureMotion
 
     bag = tmp_path_factory.mktemp("bags") / "run1"
     writer = BagWriter(bag, custom_data={"vibro.rig_yaml": RIG_YAML.read_text()})
@@ -380,8 +380,8 @@ def test_a_bag_with_no_images_is_refused_before_an_earlier_replay_is_overwritten
 
 def test_replay_and_graph_outputs_are_recognised_as_their_own(result_bag, tmp_path):
     # what --overwrite removes for replay (and graph) matches what BagWriter and the node logs really write
-    from vibro_bringup.graph_runner import new_bag_path
     from vibro_app.cmd_replay import REPLAY_OUTPUTS
+    from vibro_bringup.graph_runner import new_bag_path
 
     out = tmp_path / "re"
     fake_replay_folder(out, result_bag)

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from ros_probe import Probe
+
 from vibro_bringup.graph_spec import BAG_SOURCE, NODES, NodeSpec, params_file_key
 
 SRC = Path(__file__).resolve().parents[1] / "src"

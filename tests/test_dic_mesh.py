@@ -10,8 +10,8 @@ from vibro_dic.icgn import IcgnBlocks
 from vibro_dic.interp import kernel_weights, kernel_weights_one, sample_blocks
 from vibro_dic.mesh import mesh_points
 from vibro_dic.speckle import speckle_pattern
-from vibro_model.errors import RecordingError
 from vibro_io.rig import Roi
+from vibro_model.errors import RecordingError
 
 
 @pytest.mark.parametrize("roi,subset,step", [(Roi(10, 20, 61, 61), 31, 10), (Roi(0, 0, 100, 45), 21, 7),

@@ -10,9 +10,9 @@ import pytest
 
 from vibro_dic.speckle import RigScene, scene_rig_mapping
 from vibro_dic.tracker import DicTracker
-from vibro_model.errors import FrameError, RecordingError
 from vibro_io.frames import Frame
 from vibro_io.rig import DicConfig, Roi, parse_rig
+from vibro_model.errors import FrameError, RecordingError
 
 MM_PER_PX = 0.05
 

@@ -17,10 +17,10 @@ import math
 
 import numpy as np
 import pytest
-
 from discrepancy_cases import NOISE_MM, make_case
-from vibro_sim.deviation import cor_variance_share, deviation
+
 from vibro_discrepancy import run_discrepancy
+from vibro_sim.deviation import cor_variance_share, deviation
 
 SCATTER = 0.015
 FRAMES = 500

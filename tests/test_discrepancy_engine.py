@@ -11,13 +11,18 @@ import math
 
 import numpy as np
 import pytest
-
 from discrepancy_cases import make_case
-from vibro_model.errors import RecordingError
+
 from vibro_discrepancy import EFFECTS, analyse_discrepancy, run_discrepancy
 from vibro_discrepancy.library import CoulombFriction, GravityTilt
-from vibro_eval.truth import (main_parameter, score_case, true_model_measured_run, true_model_restarted_run,
-                              true_model_run)
+from vibro_eval.truth import (
+    main_parameter,
+    score_case,
+    true_model_measured_run,
+    true_model_restarted_run,
+    true_model_run,
+)
+from vibro_model.errors import RecordingError
 
 # (effects, seed): every family once, parameters away from the synth defaults (concealed: the engine
 # is never told); controls with different seeds (phase) and noise levels.

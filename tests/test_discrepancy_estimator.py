@@ -13,13 +13,12 @@ import math
 from dataclasses import replace
 
 import pytest
-
 from discrepancy_cases import make_case
-from vibro_model.results import (Discrepancy, DiscrepancyFinding, Flight, Impact, ResultsDocument,
-                                 StructureMotion)
+
 from vibro_discrepancy import CandidateLibrary, DiscrepancyEstimator, run_discrepancy
 from vibro_discrepancy.data import measured_from_document
 from vibro_discrepancy.library import GravityTilt
+from vibro_model.results import Discrepancy, DiscrepancyFinding, Flight, Impact, ResultsDocument, StructureMotion
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,9 @@ from pathlib import Path
 
 from discrepancy_cases import make_case
 from discrepancy_dds import feed_case, run_discrepancy_node
-from vibro_io.rig import write_rig
+
 from vibro_discrepancy.from_messages import document_from_messages
+from vibro_io.rig import write_rig
 
 
 def test_document_from_messages_roundtrip():

@@ -20,8 +20,18 @@ import json
 import pytest
 
 from vibro_app.cli import main
-from vibro_eval.prove import (CONTROL, EFFECTS, EVIDENCE, FAMILIES, GOALS, INVENTED, Draws, draw_cases, draw_evidence,
-                              prove)
+from vibro_eval.prove import (
+    CONTROL,
+    EFFECTS,
+    EVIDENCE,
+    FAMILIES,
+    GOALS,
+    INVENTED,
+    Draws,
+    draw_cases,
+    draw_evidence,
+    prove,
+)
 
 SCATTER = 0.015
 LEFT_OUT = "coulomb_friction"

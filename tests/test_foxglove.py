@@ -17,7 +17,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from domains import private_domain
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

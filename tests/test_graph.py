@@ -10,10 +10,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from domains import private_domain
 import yaml
-
+from domains import private_domain
 
 VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 

@@ -274,6 +274,7 @@ def test_launch_without_a_bag_runs_to_the_end_without_a_recorder(short_recording
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from launch_like import run_as_launch
+
     from vibro_bringup.graph_spec import launch_nodes
 
     nodes = launch_nodes(short_recording, None, reference_dir=tmp_path)

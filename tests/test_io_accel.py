@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from vibro_io.accel import AccelData, load_accel, write_accel
-from vibro_model.errors import AccelError
 from vibro_io.rig import AccelConfig
+from vibro_model.errors import AccelError
 
 COLS = AccelConfig("accel.csv", "time_s", "upper_ms2", "lower_ms2")
 

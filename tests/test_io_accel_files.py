@@ -18,8 +18,8 @@ import yaml
 from vibro_app.cli import main
 from vibro_io.accel import load_accel
 from vibro_io.dictrack import FrameTrack, write_dic_csv
-from vibro_model.errors import AccelError, RecordingError
 from vibro_io.recording import open_recording
+from vibro_model.errors import AccelError, RecordingError
 
 N_FRAMES = 300
 

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from vibro_model.errors import FrameError, RecordingError
 from vibro_io.frames import FrameSequence, read_image
 from vibro_io.recording import open_recording
+from vibro_model.errors import FrameError, RecordingError
 
 
 def test_fixture_frames_count_dtype_and_times(tiny_recording: Path) -> None:

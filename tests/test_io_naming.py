@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from vibro_app.cli import main
-from vibro_model.errors import FrameError
 from vibro_io.recording import open_recording
+from vibro_model.errors import FrameError
 from vibro_sim.synth import SynthConfig, synthesize
 
 N_FRAMES = 300

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from vibro_model.errors import RigError
 from vibro_io.rig import _SCHEMA, check_rois_in_image, load_rig, load_yaml, parse_rig, write_rig
+from vibro_model.errors import RigError
 
 
 @pytest.fixture

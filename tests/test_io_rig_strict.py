@@ -13,9 +13,9 @@ import pytest
 import yaml
 
 from vibro_app.cli import main
-from vibro_model.errors import RigError
 from vibro_io.recording import open_recording
 from vibro_io.rig import load_rig
+from vibro_model.errors import RigError
 
 
 @pytest.fixture(scope="module")

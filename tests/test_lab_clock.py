@@ -8,10 +8,16 @@ from pathlib import Path
 import pytest
 from std_msgs.msg import Header
 
-from vibro_model.errors import RigError
 from vibro_io.rig import load_rig, parse_rig, write_rig
-from vibro_ros.lab_clock import (BAG_TIME_ORIGIN_KEY, data_time_from_stamp_ns, origin_from_custom_data,
-                                 run_time_origin_ns, stamp_ns_from_data_time, unix_s_to_ns)
+from vibro_model.errors import RigError
+from vibro_ros.lab_clock import (
+    BAG_TIME_ORIGIN_KEY,
+    data_time_from_stamp_ns,
+    origin_from_custom_data,
+    run_time_origin_ns,
+    stamp_ns_from_data_time,
+    unix_s_to_ns,
+)
 from vibro_ros.node_support import seconds_from_stamp, stamp_from_seconds, stamp_ns
 
 #: A wall-clock origin in 2027 (ns): a float Unix time this size only resolves 256 ns.

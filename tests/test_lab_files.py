@@ -233,8 +233,8 @@ def test_corrupt_or_truncated_files_give_one_clear_error(lab, tmp_path, capsys):
 
 
 def test_tdms_rate_and_clipping_are_checked(lab, tmp_path, caplog):
-    from vibro_model.errors import AccelError
     from vibro_io.tdms import load_tdms_accel
+    from vibro_model.errors import AccelError
 
     cfg = open_recording(lab["mraw"]).rig.accelerometers
     up, low = lab["csv"][:, 1].copy(), lab["csv"][:, 2]

@@ -13,9 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
-
 from domains import private_domain
-
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_like import console_scripts, run_as_launch  # noqa: E402

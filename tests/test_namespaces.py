@@ -12,12 +12,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-
 from ros_probe import Probe
+
 from vibro_bringup.graph_spec import BAG_SOURCE, NODES, node_parameters, write_params_file
 from vibro_ros import topics
-from vibro_ros.node_support import history_qos
 from vibro_ros.node_help import node_interface
+from vibro_ros.node_support import history_qos
 
 
 def _node_class(module: str) -> type:
@@ -64,6 +64,7 @@ def test_two_namespaced_graphs_on_one_domain_get_their_params_and_stay_apart(
         tiny_recording: Path, tmp_path: Path, ros_domain: str) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import Image
+
     from vibro_msgs.msg import DicFrame
     from vibro_ros.node_support import STREAM_QOS
 

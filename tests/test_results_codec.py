@@ -16,8 +16,18 @@ import pytest
 
 from vibro_io.results_file import read_results, write_results
 from vibro_model.codec import SCHEMA, ResultsError, json_value
-from vibro_model.results import (CorSummary, Discrepancy, DiscrepancyFinding, Flight, Impact, PlateCor,
-                                 ResultsDocument, Simulation, SimulationRun, StructureMotion)
+from vibro_model.results import (
+    CorSummary,
+    Discrepancy,
+    DiscrepancyFinding,
+    Flight,
+    Impact,
+    PlateCor,
+    ResultsDocument,
+    Simulation,
+    SimulationRun,
+    StructureMotion,
+)
 from vibro_ros import convert
 
 REPO = Path(__file__).resolve().parents[1]

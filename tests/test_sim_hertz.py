@@ -10,8 +10,7 @@ import pytest
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.forces import PerFlight
-from vibro_sim.hertz_model import (hertz_contact_time, hertz_single_impact, simulate_hertz,
-                                   undamped_max_penetration)
+from vibro_sim.hertz_model import hertz_contact_time, hertz_single_impact, simulate_hertz, undamped_max_penetration
 from vibro_sim.params import BallCavity
 from vibro_sim.replay import ReplayInputs, compare_models, simulate_measured
 from vibro_sim.restitution import PerPlate, Scattered

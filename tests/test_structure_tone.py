@@ -229,9 +229,9 @@ def test_a_control_gets_no_tone_modelled(analysed) -> None:
 def test_a_finding_read_from_its_message_still_corrects_the_impacts(analysed) -> None:
     """``vibro results <bag>`` knows the findings only from their messages: the tone's parameters travel
     in the finding's parameters, so the bag's document says the impacts were measured with the tone."""
+    from vibro_discrepancy.reidentify import measurement_effects
     from vibro_model.results import DiscrepancyFinding
     from vibro_ros.convert import finding_from_message, finding_to_message
-    from vibro_discrepancy.reidentify import measurement_effects
 
     f = _unexplained(analysed["tone"]["results"])
     back = finding_from_message(finding_to_message(DiscrepancyFinding.from_dict(f), 0, 0.1))

@@ -18,7 +18,7 @@ import pytest
 from vibro_app.cli import main as vibro
 from vibro_dic.quality import TrackQuality, TrackQualityError
 from vibro_dic.speckle import speckle_pattern
-from vibro_dic.texture import (TextureError, assess_texture, noise_from_frames, noise_from_image)
+from vibro_dic.texture import TextureError, assess_texture, noise_from_frames, noise_from_image
 from vibro_dic.tracker import MeshResult, track_recording
 from vibro_io.dictrack import read_dic_csv
 from vibro_io.recording import open_recording

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from discrepancy_cases import make_case
+
 from vibro_discrepancy import EFFECTS, run_discrepancy
 from vibro_sim.synth import SynthConfig, SynthError
 from vibro_sim.synth.invented import INVENTED_EFFECTS

@@ -19,13 +19,12 @@ import logging
 import sys
 from pathlib import Path
 
-
 from vibro_app.cmd_track import DIC_CSV
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
-from vibro_model.errors import RecordingError
 from vibro_io.outputs import atomic_path, prepare_output_dir
 from vibro_io.recording import load_recording_accel, open_recording
 from vibro_io.rig import RigConfig, load_rig
+from vibro_model.errors import RecordingError
 
 log = logging.getLogger(__name__)
 
@@ -137,13 +136,13 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     see :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically. Returns the results
     mapping. ``workers``/``scheduler``: DIC in chunks on Dask workers (:func:`load_inputs`)."""
     from vibro_dic.quality import TrackQuality, dic_quality_section
+    from vibro_discrepancy.engine import discrepancy_for_results
+    from vibro_discrepancy.reidentify import reidentify_document
     from vibro_fit.identify import identify
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_fit.spin import ball_spin_section
     from vibro_io.results_file import write_results
     from vibro_model.results import Simulation
-    from vibro_discrepancy.engine import discrepancy_for_results
-    from vibro_discrepancy.reidentify import reidentify_document
 
     out = Path(out_dir)
     bar = _bar(4, progress, "analyze")

@@ -24,14 +24,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from vibro_model.results import results_text
-from vibro_model.results import Discrepancy, ResultsDocument, Simulation
+from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
+from vibro_model.results import Discrepancy, ResultsDocument, Simulation, results_text
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
-from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
-from vibro_ros.convert import (carries_ball_rotation, dic_track_from_messages, finding_from_message,
-                               flight_from_message, impact_from_message, simulation_run_from_message,
-                               structure_from_message)
+from vibro_ros.convert import (
+    carries_ball_rotation,
+    dic_track_from_messages,
+    finding_from_message,
+    flight_from_message,
+    impact_from_message,
+    simulation_run_from_message,
+    structure_from_message,
+)
 
 #: end-of-stream statuses a complete graph run has, and the result topic each one counts
 EXPECTED_STREAMS = {"flights": topics.FLIGHTS.name, "impacts": topics.IMPACTS.name,
@@ -117,9 +122,8 @@ def ball_spin_from_frames(frames: list, flights: list, impacts: list) -> tuple[d
 
 def document_from_bag(bag: str | Path) -> ResultsDocument:
     """The results document of a recorded graph run (``complete`` False when the bag is not whole)."""
+    from vibro_discrepancy.reidentify import apply_reidentification, measurement_effects, reidentified_from_impacts
     from vibro_fit.results import cor_statistics_section
-    from vibro_discrepancy.reidentify import apply_reidentification, measurement_effects, \
-        reidentified_from_impacts
 
     r = BagResults(bag)
     missing = r.missing()

@@ -14,10 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vibro_model.errors import RecordingError
 from vibro_io.frames import CAMERA_FILE_SUFFIXES, FrameSequence, find_frames_source
 from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_file
 from vibro_io.rig import CameraConfig, check_rois_in_image, parse_rig
+from vibro_model.errors import RecordingError
 
 MAX_FRAMES_EXAMINED = 400
 # Not measurable from video: the paper's Test 1 rig (silicon nitride ball, aluminium plates); edit for yours.

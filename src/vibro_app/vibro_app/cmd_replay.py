@@ -12,16 +12,15 @@ import sys
 import time
 from pathlib import Path
 
-from vibro_ros import topics
-from vibro_ros.bags import read_custom_data
-from vibro_model.errors import RecordingError
-from vibro_io.outputs import atomic_write_text, prepare_output_dir
-from vibro_io.results_file import write_results
-
 from vibro_app.bag_results import document_from_bag
 from vibro_app.cmd_graph import add_run_options, foxglove_parameters, print_summary
 from vibro_bringup.graph_runner import bag_outputs, execute_graph, new_bag_path, prepare_environment
 from vibro_bringup.graph_spec import BAG_SOURCE, bag_time_origin_ns, frames_topic_of_bag, reference_from_bag
+from vibro_io.outputs import atomic_write_text, prepare_output_dir
+from vibro_io.results_file import write_results
+from vibro_model.errors import RecordingError
+from vibro_ros import topics
+from vibro_ros.bags import read_custom_data
 
 REPLAY_BAG = "bag"
 REPLAY_OUTPUTS = ("rig.yaml", "results.json", *bag_outputs(REPLAY_BAG))  # what --overwrite may replace

@@ -7,14 +7,13 @@ import json
 import logging
 import sys
 
-from vibro_io.dictrack import DicTrack, write_dic_csv
-from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
-from vibro_io.recording import open_recording
-
 from vibro_dic.chunked import track_rows
 from vibro_dic.cluster import add_cluster_args
 from vibro_dic.noise import DEFAULT_SPLIT_HZ, noise_study
 from vibro_dic.tracker import METHODS, track_recording
+from vibro_io.dictrack import DicTrack, write_dic_csv
+from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
+from vibro_io.recording import open_recording
 
 log = logging.getLogger(__name__)
 

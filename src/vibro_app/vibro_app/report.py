@@ -17,15 +17,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from vibro_app.report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
+from vibro_fit.identify import Identification  # noqa: E402
+from vibro_fit.statistics import normal_check  # noqa: E402
 from vibro_io.dictrack import DicTrack  # noqa: E402
 from vibro_io.outputs import atomic_path, atomic_write_text  # noqa: E402
-from vibro_model.results import as_document  # noqa: E402
-from vibro_model.results import ResultsDocument  # noqa: E402
+from vibro_model.results import (
+    ResultsDocument,  # noqa: E402
+    as_document,  # noqa: E402
+)
 from vibro_model.units import n_to_mn  # noqa: E402
-
-from vibro_fit.identify import Identification  # noqa: E402
-from vibro_app.report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
-from vibro_fit.statistics import normal_check  # noqa: E402
 
 PLATE_COLORS = {"top": "tab:red", "bottom": "tab:blue"}
 

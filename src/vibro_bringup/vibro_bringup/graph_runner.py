@@ -23,8 +23,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from vibro_bringup.graph_spec import (ALL_SPECS, MONITOR, NodeSpec, graph_nodes, node_parameters, run_time_origin,
-                                      write_params_file)
+from vibro_bringup.graph_spec import (
+    ALL_SPECS,
+    MONITOR,
+    NodeSpec,
+    graph_nodes,
+    node_parameters,
+    run_time_origin,
+    write_params_file,
+)
 from vibro_bringup.isolation import RunIdentity, new_run_identity
 from vibro_bringup.supervisor import Failure, Supervisor
 from vibro_model.errors import RecordingError
@@ -64,10 +71,17 @@ class Monitor:
     def __init__(self, summary: GraphSummary, recording: Path, identity: RunIdentity):
         import rclpy
 
+        from vibro_msgs.msg import (
+            AccelBlock,
+            AccelImpact,
+            DicFrame,
+            DiscrepancyFinding,
+            ImpactEstimate,
+            SimulationResult,
+            StreamStatus,
+        )
         from vibro_ros import topics
         from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, make_executor
-        from vibro_msgs.msg import (AccelBlock, AccelImpact, DicFrame, DiscrepancyFinding, ImpactEstimate,
-                                    SimulationResult, StreamStatus)
 
         s = self.summary = summary
         run_id = identity.run_id
@@ -180,8 +194,8 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         print(summary.identity, flush=True)
         print(f"stamps: {describe_origin(time_origin_ns)}", flush=True)
         if foxglove is not None and any(s.name == "foxglove_bridge" for s in nodes):
-            from vibro_foxglove.view import websocket_url
             from vibro_bringup.graph_spec import foxglove_layout_file
+            from vibro_foxglove.view import websocket_url
 
             summary.foxglove_url = websocket_url(foxglove["host"], foxglove["port"])
             print(f"foxglove: {summary.foxglove_url} (open it in the Foxglove app: Open connection > Foxglove "

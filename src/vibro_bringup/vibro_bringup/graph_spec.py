@@ -284,9 +284,9 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
     from sensor_msgs.msg import Image
 
     from vibro_dic.dic_tracker_node import image_array
+    from vibro_io.rig import load_rig
     from vibro_ros.bags import read_messages
     from vibro_ros.node_support import seconds_from_stamp
-    from vibro_io.rig import load_rig
 
     cam = load_rig(rig_yaml).camera
     origin_ns = bag_time_origin_ns(bag)

@@ -23,19 +23,28 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
-from vibro_ros import topics
 from vibro_io.dictrack import FrameTrack
+from vibro_io.frames import read_image
+from vibro_io.rig import check_rois_in_image, load_rig
 from vibro_model.errors import RecordingError
+from vibro_msgs.msg import DicFrame, StreamStatus
+from vibro_ros import topics
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import frame_track_to_message
 from vibro_ros.guard import InputGuard
-from vibro_ros.node_support import (SENSOR_QOS, STREAM_QOS, Health, StatusPublisher, declare,
-                                   history_depth_parameter, history_qos, run_node, seconds_from_stamp,
-                                   time_origin_parameter)
+from vibro_ros.node_support import (
+    SENSOR_QOS,
+    STREAM_QOS,
+    Health,
+    StatusPublisher,
+    declare,
+    history_depth_parameter,
+    history_qos,
+    run_node,
+    seconds_from_stamp,
+    time_origin_parameter,
+)
 from vibro_ros.readiness import ReaderGate
-from vibro_io.frames import read_image
-from vibro_io.rig import check_rois_in_image, load_rig
-from vibro_msgs.msg import DicFrame, StreamStatus
 
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture

@@ -16,14 +16,21 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
-from vibro_ros import topics
 from vibro_io.frames import Frame
-from vibro_ros.guard import InputGuard
-from vibro_ros.node_support import (STREAM_QOS, Health, StatusPublisher, declare, run_node, stamp_from_seconds,
-                                   time_origin_parameter)
-from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
 from vibro_msgs.msg import DicFrame
+from vibro_ros import topics
+from vibro_ros.guard import InputGuard
+from vibro_ros.node_support import (
+    STREAM_QOS,
+    Health,
+    StatusPublisher,
+    declare,
+    run_node,
+    stamp_from_seconds,
+    time_origin_parameter,
+)
+from vibro_ros.readiness import ReaderGate
 
 
 def image_message(frame: Frame, frame_id: str, origin_ns: int = 0) -> Image:

@@ -31,8 +31,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from vibro_model.errors import RecordingError
 from vibro_io.rig import Roi
+from vibro_model.errors import RecordingError
 
 from . import init_edges as edges
 from .mesh import mesh_points

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vibro_model.errors import RecordingError
 from vibro_io.rig import Roi
+from vibro_model.errors import RecordingError
 
 
 def _axis_centres(start: int, length: int, subset_px: int, step_px: int) -> np.ndarray:

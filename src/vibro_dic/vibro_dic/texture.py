@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_model.errors import RecordingError
 from vibro_io.rig import DicConfig, Roi
+from vibro_model.errors import RecordingError
 
 from .icgn import gradients
 from .mesh import mesh_points

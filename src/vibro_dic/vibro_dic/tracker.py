@@ -69,15 +69,15 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from vibro_io.dictrack import FrameTrack
-from vibro_model.errors import FrameError, RecordingError
 from vibro_io.frames import Frame
 from vibro_io.rig import DicConfig, Roi, check_rois_in_image
+from vibro_model.errors import FrameError, RecordingError
 
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
-from .rotation import fit_rotation, rotation_lever_arms
 from .quality import TrackQuality
+from .rotation import fit_rotation, rotation_lever_arms
 from .search import SearchResult, zncc_search
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
 

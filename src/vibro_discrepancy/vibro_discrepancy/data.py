@@ -18,10 +18,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from vibro_io.dictrack import DicTrack
-from vibro_model.errors import RecordingError
 from vibro_io.rig import RigConfig
 from vibro_model.codec import Fields
 from vibro_model.constants import G_MPS2
+from vibro_model.errors import RecordingError
 from vibro_model.results import Flight, Impact, ResultsDocument, StructureMotion
 from vibro_model.units import mm_to_m
 

@@ -18,18 +18,17 @@ import sys
 
 from rclpy.node import Node
 
-from vibro_ros import topics
-from vibro_model.errors import RecordingError
-from vibro_ros.fit_results import FinalFitResults
-from vibro_ros.convert import finding_to_message, impact_to_message
-from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
-from vibro_ros.readiness import ReaderGate
-from vibro_io.rig import load_rig
-from vibro_msgs.msg import DiscrepancyFinding, ImpactEstimate
-
 from vibro_discrepancy import run_discrepancy
 from vibro_discrepancy.from_messages import document_from_messages, track_from_messages
 from vibro_discrepancy.reidentify import PAPER, reidentify_document
+from vibro_io.rig import load_rig
+from vibro_model.errors import RecordingError
+from vibro_msgs.msg import DiscrepancyFinding, ImpactEstimate
+from vibro_ros import topics
+from vibro_ros.convert import finding_to_message, impact_to_message
+from vibro_ros.fit_results import FinalFitResults
+from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
+from vibro_ros.readiness import ReaderGate
 
 #: the stream (vibro/status) of the re-measured impacts on vibro/impacts_final_model
 FINAL_MODEL_STREAM = "impacts_final_model"

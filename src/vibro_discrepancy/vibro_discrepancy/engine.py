@@ -45,12 +45,6 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from vibro_io.dictrack import DicTrack
-from vibro_io.rig import RigConfig
-from vibro_model.codec import json_number, json_value
-from vibro_model.results import Discrepancy, DiscrepancyFinding, ResultsDocument
-from vibro_model.units import m_to_mm
-
 from vibro_discrepancy.data import Measured, difference_sigma, measurement_of
 from vibro_discrepancy.fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure_harmonics
 from vibro_discrepancy.library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm
@@ -61,6 +55,11 @@ from vibro_discrepancy.runs import FullRun, full_run, restarted_run
 from vibro_discrepancy.select import UNEXPLAINED_RATIO, StageResult, StagewiseSelector, law_variance_share
 from vibro_discrepancy.systematic import Mismatch, contact_scatter, systematic_mismatch
 from vibro_discrepancy.tone import TONE_EFFECT, ToneDecision, model_structure_tone
+from vibro_io.dictrack import DicTrack
+from vibro_io.rig import RigConfig
+from vibro_model.codec import json_number, json_value
+from vibro_model.results import Discrepancy, DiscrepancyFinding, ResultsDocument
+from vibro_model.units import m_to_mm
 
 log = logging.getLogger(__name__)
 

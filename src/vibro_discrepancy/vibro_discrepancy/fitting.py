@@ -27,11 +27,10 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar, nnls
 
-from vibro_model.constants import G_MPS2
-
-from vibro_sim.structure import StructureKinematics
 from vibro_discrepancy.data import FlightSamples, Measured
 from vibro_discrepancy.library import FlightTerm, ImpactTerm
+from vibro_model.constants import G_MPS2
+from vibro_sim.structure import StructureKinematics
 
 GRID_STEP_S = 2e-5
 FIXED_POINT_PASSES = 3
@@ -241,7 +240,7 @@ class StructureModelFit:
                    for j, k in enumerate(self.orders))
 
     def jacobian(self, t_s: np.ndarray) -> np.ndarray:
-        """d Y_s(t) / d parameters (N x P, as :meth:`parameters`) at the fitted values."""
+        """D Y_s(t) / d parameters (N x P, as :meth:`parameters`) at the fitted values."""
         t = np.asarray(t_s, dtype=float)
         c, f = np.asarray(self.coefs, dtype=float), float(self.frequency_hz)
         w = 2 * math.pi * f

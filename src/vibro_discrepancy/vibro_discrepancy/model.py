@@ -11,13 +11,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vibro_discrepancy.data import Measured
+from vibro_discrepancy.fitting import (
+    CorModelFit,
+    FlightModelFit,
+    ImpactSet,
+    StructureModelFit,
+    fit_cor,
+    fit_flights,
+    fit_structure_harmonics,
+    recompute_impacts,
+)
+from vibro_discrepancy.library import (
+    AsymmetricRestitution,
+    ConstantRestitution,
+    FlightTerm,
+    PlateAndSpeed,
+    VelocityDependentRestitution,
+    cor_values,
+    force_law,
+    restitution_law,
+)
 from vibro_sim.params import BallCavity
 from vibro_sim.structure import StructureKinematics
-from vibro_discrepancy.data import Measured
-from vibro_discrepancy.fitting import CorModelFit, FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, \
-    fit_structure_harmonics, recompute_impacts
-from vibro_discrepancy.library import (AsymmetricRestitution, ConstantRestitution, FlightTerm, PlateAndSpeed,
-                      VelocityDependentRestitution, cor_values, force_law, restitution_law)
 
 COR_TERMS = {"none": ConstantRestitution(), "asymmetric_restitution": AsymmetricRestitution(),
              "velocity_dependent_restitution": VelocityDependentRestitution(), "plate_and_speed": PlateAndSpeed()}

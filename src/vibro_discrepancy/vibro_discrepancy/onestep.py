@@ -14,10 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vibro_model.units import m_to_mm, s_to_ms
-
 from vibro_discrepancy.data import Measured, speed_mps
 from vibro_discrepancy.model import FittedModel, model_plate_levels
+from vibro_model.units import m_to_mm, s_to_ms
 
 STEP_S = 2e-5
 EXTRA_S = 0.012     # look for the closing impact up to this long after the measured one

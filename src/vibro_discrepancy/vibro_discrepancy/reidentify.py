@@ -38,13 +38,12 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from vibro_model.results import CorSummary, Impact, ResultsDocument, link_impacts
-
 from vibro_discrepancy.data import Measured
 from vibro_discrepancy.fitting import StructureModelFit
 from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
+from vibro_model.results import CorSummary, Impact, ResultsDocument, link_impacts
 
 #: findings whose model changes how an impact is measured (structure velocity, flight law); an
 #: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
@@ -88,7 +87,7 @@ def cor_method_name(effects: Sequence[str]) -> str:
 
 
 def _structure_velocity_gradient(fit: StructureModelFit, t_s: float) -> np.ndarray:
-    """d v_s(t) / d parameters of the structure fit (:meth:`StructureModelFit.parameters`; central
+    """D v_s(t) / d parameters of the structure fit (:meth:`StructureModelFit.parameters`; central
     differences), m/s per unit."""
     p = fit.parameters()
     grad = np.zeros(p.size)

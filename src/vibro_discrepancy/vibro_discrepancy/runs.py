@@ -8,10 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vibro_sim.cor_model import simulate_cor
-from vibro_sim.deviation import Restart, deviation, restarted_deviation
 from vibro_discrepancy.data import Measured
 from vibro_discrepancy.model import FittedModel, model_plate_levels
+from vibro_sim.cor_model import simulate_cor
+from vibro_sim.deviation import Restart, deviation, restarted_deviation
 
 log = logging.getLogger(__name__)
 

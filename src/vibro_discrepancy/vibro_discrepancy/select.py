@@ -25,13 +25,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_model.codec import json_number as _f
-from vibro_model.tail_probability import chi2_sf, f_sf
-
 from vibro_discrepancy.data import Measured
-from vibro_discrepancy.fitting import (FlightModelFit, ImpactSet, StructureModelFit, fit_cor, fit_flights, fit_structure_harmonics)
+from vibro_discrepancy.fitting import (
+    FlightModelFit,
+    ImpactSet,
+    StructureModelFit,
+    fit_cor,
+    fit_flights,
+    fit_structure_harmonics,
+)
 from vibro_discrepancy.library import FLIGHT_TERMS, CandidateLibrary, FlightTerm
 from vibro_discrepancy.model import COR_TERMS
+from vibro_model.codec import json_number as _f
+from vibro_model.tail_probability import chi2_sf, f_sf
 
 ALPHA = 1e-6                 # flights / structure: chi^2 tail probability for a term to count
 ALPHA_COR = 1e-3             # CORs: F-test (few impacts, scatter estimated from the data)

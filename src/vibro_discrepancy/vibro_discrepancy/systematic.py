@@ -29,11 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vibro_model.codec import json_number as _num
-from vibro_model.tail_probability import chi2_sf, f_sf
-
 from vibro_discrepancy.data import Measured
 from vibro_discrepancy.model import FittedModel
+from vibro_model.codec import json_number as _num
+from vibro_model.tail_probability import chi2_sf, f_sf
 
 ALPHA_FAMILY = 1e-3          # family-wise false-alarm probability over all tests of one recording
 N_SERIES = 4                 # structure, two contact levels, COR: ALPHA_FAMILY is split among them

@@ -31,13 +31,12 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from vibro_model.codec import json_number as _num
-from vibro_model.tail_probability import f_sf
-
-from vibro_sim.structure import StructureWithTone
 from vibro_discrepancy.data import Measured
 from vibro_discrepancy.fitting import StructureModelFit, _design
 from vibro_discrepancy.systematic import ALPHA_FAMILY, Mismatch
+from vibro_model.codec import json_number as _num
+from vibro_model.tail_probability import f_sf
+from vibro_sim.structure import StructureWithTone
 
 #: the name of the modelled tone (the synthetic rig's invented effect of the same physics), used as the
 #: impacts' ``cor_method`` part when it corrects them
@@ -279,7 +278,7 @@ class ToneDecision:
 
 
 def _amplitude_phase_stds(fit: StructureToneFit, cov: np.ndarray) -> dict[str, float]:
-    """sd of f_T, A and phi from the covariance of the parameters (first order in a_T, b_T)."""
+    """Sd of f_T, A and phi from the covariance of the parameters (first order in a_T, b_T)."""
     a, b = fit.tone_coefs
     A = max(fit.tone_amplitude_m, 1e-300)
     i = len(fit.coefs) - 2

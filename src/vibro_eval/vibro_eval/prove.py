@@ -77,9 +77,8 @@ from typing import Any
 
 import numpy as np
 
-from vibro_model.errors import RecordingError
-
 from vibro_discrepancy.library import EFFECTS
+from vibro_model.errors import RecordingError
 from vibro_sim.synth.invented import INVENTED_EFFECTS
 
 CONTROL = "none"
@@ -281,9 +280,9 @@ def paper_measured(track, rig):
     """What the discrepancy analysis saw: the identification's (paper Eq. 15-16) results of ``track``,
     before the re-identification with the final model replaced the impacts in results.json. PySINDy and
     the true model are given this, as the analysis was (not the analysis' own corrected impacts)."""
+    from vibro_discrepancy.data import measured_from_document
     from vibro_fit.identify import identify
     from vibro_fit.results import results_model
-    from vibro_discrepancy.data import measured_from_document
 
     return measured_from_document(results_model(identify(track, rig), "prove"), track, rig)
 
@@ -301,10 +300,17 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     """Synthesize, analyze (CLI, recording only), score. Returns one row of the proof."""
     from vibro_io.dictrack import read_dic_csv
     from vibro_io.rig import load_rig
-
     from vibro_sim.synth import SynthConfig, synthesize, truth_path
-    from .truth import (cor_errors, finding_deviations, relative, score_case, true_model_measured_run,
-                        true_model_restarted_run, true_model_run)
+
+    from .truth import (
+        cor_errors,
+        finding_deviations,
+        relative,
+        score_case,
+        true_model_measured_run,
+        true_model_restarted_run,
+        true_model_run,
+    )
 
     rec = work / f"case{spec.index:03d}"
     out = work / f"case{spec.index:03d}_out"

@@ -24,18 +24,18 @@ import warnings
 import numpy as np
 
 from vibro_discrepancy.data import Measured
-from vibro_model.codec import json_value as jsonable
-from vibro_discrepancy.runs import full_run
 from vibro_discrepancy.fitting import fit_flights, fit_structure_harmonics
 from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel, fit_model
+from vibro_discrepancy.runs import full_run
+from vibro_model.codec import json_value as jsonable
 
 THRESHOLDS = {"flight_ms2": 0.7, "cor": 0.11, "harmonic_m": 5e-8}  # calibrate() on 4 controls (2026-11-21)
 SAVGOL = {"window_length": 7, "polyorder": 3}
 
 
 def available() -> str | None:
-    """pysindy's version, or None when it is not installed."""
+    """Pysindy's version, or None when it is not installed."""
     try:
         import pysindy
     except ImportError:

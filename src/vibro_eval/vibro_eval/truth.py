@@ -11,13 +11,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from vibro_discrepancy.data import Measured
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.params import BallCavity
 from vibro_sim.structure import StructureKinematics
 from vibro_sim.synth.scenario import BASELINE_COR, effect_laws
-from vibro_discrepancy.data import Measured
-
 
 # effect -> its main parameter (scored against the 15 % goal)
 MAIN_PARAMETER = {"coulomb_friction": "force_n", "viscous_drag": "coefficient_ns_per_m",

@@ -16,13 +16,22 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from vibro_ros import topics
-from vibro_model.errors import RecordingError
-from vibro_ros.node_support import (Health, StatusPublisher, declare, history_depth_parameter, history_qos,
-                                   run_id_parameter, run_node, stamp_from_seconds, time_origin_parameter)
-from vibro_ros.readiness import ReaderGate
 from vibro_io.recording import open_recording
+from vibro_model.errors import RecordingError
 from vibro_msgs.msg import AccelBlock
+from vibro_ros import topics
+from vibro_ros.node_support import (
+    Health,
+    StatusPublisher,
+    declare,
+    history_depth_parameter,
+    history_qos,
+    run_id_parameter,
+    run_node,
+    stamp_from_seconds,
+    time_origin_parameter,
+)
+from vibro_ros.readiness import ReaderGate
 
 
 class AccelSource(Node):

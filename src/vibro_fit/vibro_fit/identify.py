@@ -14,8 +14,8 @@ import numpy as np
 
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
-from vibro_model.errors import RecordingError
 from vibro_io.rig import RigConfig
+from vibro_model.errors import RecordingError
 from vibro_model.results import StructureMotion
 
 from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
@@ -23,11 +23,11 @@ from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
 from .impacts import ImpactFit, joint_impact
 from .landings import Landing, find_landings
+from .methods import METHODS
 from .motion_state import MotionState, classify_motion, structure_moves
 from .regimes import Regime, classify_regime, y_rel_range
 from .rig_consistency import RigStatement, check_rig, excitation_on_daq_clock_hz
 from .segmentation import SegmentationConfig, noise_sigma_mm, plate_levels
-from .methods import METHODS
 from .statistics import cor_summary
 from .streaming import Cluster, StreamingFitter
 from .structure_fit import StructureFit, fit_structure

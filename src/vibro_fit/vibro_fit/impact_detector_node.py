@@ -15,15 +15,24 @@ import sys
 import numpy as np
 from rclpy.node import Node
 
-from vibro_ros import topics
+from vibro_io.rig import load_rig
 from vibro_model.errors import RecordingError
+from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
+from vibro_ros import topics
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.guard import InputGuard
-from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
-                                   run_node, stamp_from_seconds, time_origin_parameter)
+from vibro_ros.node_support import (
+    RESULTS_QOS,
+    Health,
+    StatusPublisher,
+    declare,
+    history_depth_parameter,
+    history_qos,
+    run_node,
+    stamp_from_seconds,
+    time_origin_parameter,
+)
 from vibro_ros.readiness import ReaderGate
-from vibro_io.rig import load_rig
-from vibro_msgs.msg import AccelBlock, AccelImpact, StreamStatus
 
 from .accel_impacts import AccelImpact as Impact
 from .accel_impacts import AccelImpactDetector

@@ -5,6 +5,7 @@ COR e = -(v_b+ - v_s) / (v_b- - v_s), all at the impact time t_i.
 The plate is "top" when the ball approaches it moving up relative to the structure (v_b- - v_s > 0).
 
 Methods
+-------
 - ``paper``: t_i is the root of Eq. 15 (difference of the two flight parabolas) inside the gap between
   the last frame of the flight before and the first frame of the flight after; roots outside the gap are
   never used (no root inside -> no impact). The COR std is propagated to first order from the covariances

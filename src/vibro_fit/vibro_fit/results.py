@@ -14,11 +14,10 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from vibro_io.outputs import atomic_open
 from vibro_io.results_file import write_results
 from vibro_model.codec import json_number, json_value
 from vibro_model.results import ResultsDocument, Simulation
-
-from vibro_io.outputs import atomic_open
 
 from .identify import Identification
 

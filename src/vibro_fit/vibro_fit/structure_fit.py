@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from vibro_model.errors import RecordingError
 from vibro_model.codec import none_if_nan
+from vibro_model.errors import RecordingError
 from vibro_model.results import StructureMotion
 from vibro_model.units import mm_to_m
 

@@ -15,7 +15,6 @@ import numpy as np
 from scipy.optimize import brentq
 
 from vibro_io.dictrack import DicTrack
-
 from vibro_model.constants import G_MPS2
 from vibro_model.results import Impact, StructureMotion
 from vibro_model.units import m_to_mm

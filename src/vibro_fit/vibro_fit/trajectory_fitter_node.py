@@ -25,18 +25,26 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from vibro_ros import topics
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
+from vibro_io.rig import load_rig
 from vibro_model.errors import RecordingError
+from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
+from vibro_ros import topics
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import flight_to_message, frame_track_from_message, impact_to_message, structure_to_message
 from vibro_ros.guard import InputGuard
-from vibro_ros.node_support import (RESULTS_QOS, Health, StatusPublisher, declare, history_depth_parameter,
-                                   history_qos, run_node, time_origin_parameter)
+from vibro_ros.node_support import (
+    RESULTS_QOS,
+    Health,
+    StatusPublisher,
+    declare,
+    history_depth_parameter,
+    history_qos,
+    run_node,
+    time_origin_parameter,
+)
 from vibro_ros.readiness import ReaderGate
-from vibro_io.rig import load_rig
-from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 
 from .flight_fit import FlightFit
 from .identify import METHODS, identify

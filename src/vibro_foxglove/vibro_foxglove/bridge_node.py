@@ -22,13 +22,12 @@ from rclpy.serialization import deserialize_message
 from rclpy.task import Future
 from sensor_msgs.msg import Image
 
+from vibro_foxglove import view as fv
 from vibro_model.errors import RecordingError
 from vibro_msgs.msg import DicFrame, DiscrepancyFinding, FreeFlight, ImpactEstimate, SimulationResult, StructureMotion
 from vibro_ros import topics
 from vibro_ros.lab_clock import data_time_from_stamp_ns
 from vibro_ros.node_support import Health, declare, run_node, time_origin_parameter
-
-from vibro_foxglove import view as fv
 
 #: Queue depths of the bridge's readers: frames 1 (only the newest matters), streams STREAM_DEPTH, results
 #: RESULTS_DEPTH. Best effort: a depth costs the publisher nothing, the reader only drops when it falls behind.

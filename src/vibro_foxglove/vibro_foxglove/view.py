@@ -252,8 +252,15 @@ def annotations_payload(dic: Any, stamp: int, geometry: ImageGeometry, last_impa
     stamp, so that a Foxglove Image panel draws it on that image): the ball and structure ROIs moved by their
     displacement (lost frame: the ROIs where they started, in red), the ball's outline, and one line of text
     (frame, displacements, the latest impact's COR)."""
-    from foxglove.messages import (CircleAnnotation, Color, ImageAnnotations, Point2, PointsAnnotation,
-                                   PointsAnnotationType, TextAnnotation)
+    from foxglove.messages import (
+        CircleAnnotation,
+        Color,
+        ImageAnnotations,
+        Point2,
+        PointsAnnotation,
+        PointsAnnotationType,
+        TextAnnotation,
+    )
 
     ts = _timestamp(stamp)
     lost = bool(dic.lost) or not (math.isfinite(dic.ball_mm) and math.isfinite(dic.structure_mm))

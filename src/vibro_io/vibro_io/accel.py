@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from vibro_model.errors import AccelError
+
 from .rig import AccelConfig
 
 log = logging.getLogger(__name__)

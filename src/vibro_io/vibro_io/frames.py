@@ -20,8 +20,9 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from .camera_files import CAMERA_FILE_SUFFIXES, open_camera_file
 from vibro_model.errors import FrameError
+
+from .camera_files import CAMERA_FILE_SUFFIXES, open_camera_file
 from .frame_names import NAMING_RULE, frame_numbers
 from .paths import inside_recording
 from .rig import CameraConfig

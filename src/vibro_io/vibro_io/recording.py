@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from .accel import AccelData, load_accel
 from vibro_model.errors import RecordingError
+
+from .accel import AccelData, load_accel
 from .frames import FrameSequence, find_frames_source
 from .paths import inside_recording
 from .rig import RigConfig, check_rois_in_image, load_rig

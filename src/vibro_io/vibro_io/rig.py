@@ -16,6 +16,7 @@ from typing import Any, Mapping
 import yaml
 
 from vibro_model.errors import RigError
+
 from .paths import relative_name_problem
 
 log = logging.getLogger(__name__)
@@ -230,8 +231,9 @@ def load_rig(path: str | Path) -> RigConfig:
     (:func:`vibro_io.camera_files.merge_camera_header`).
     """
     data = load_yaml(path)
-    from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
     from vibro_model.errors import FrameError
+
+    from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
     from .frames import find_frames_source
 
     try:

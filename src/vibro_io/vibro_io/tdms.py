@@ -27,8 +27,9 @@ from typing import Iterator
 
 import numpy as np
 
-from .accel import AccelData, check_sample_rate, warn_if_clipped
 from vibro_model.errors import AccelError
+
+from .accel import AccelData, check_sample_rate, warn_if_clipped
 from .rig import AccelConfig, CameraConfig
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,7 @@ log = logging.getLogger(__name__)
 
 @contextmanager
 def _quiet_nptdms() -> Iterator[None]:
-    """npTDMS logs its own warnings for a short last segment; this module reports truncation itself."""
+    """NpTDMS logs its own warnings for a short last segment; this module reports truncation itself."""
     loggers = [logging.getLogger(n) for n in ("nptdms", "nptdms.reader", "nptdms.tdms_segment")]
     levels = [lg.level for lg in loggers]
     for lg in loggers:

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import hashlib
 from collections import OrderedDict
-from weakref import WeakKeyDictionary
 from typing import Any, Callable
+from weakref import WeakKeyDictionary
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

@@ -20,16 +20,26 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 
+from vibro_io.rig import parse_rig
+from vibro_model.errors import RecordingError
+from vibro_msgs.msg import AccelBlock, DicFrame
 from vibro_ros import topics
 from vibro_ros.bags import read_custom_data, read_messages
-from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY, TIME_ORIGIN_PARAMETER, origin_from_custom_data
-from vibro_model.errors import RecordingError
 from vibro_ros.guard import InputGuard
-from vibro_ros.node_support import (STREAM_QOS, Health, StatusPublisher, declare, history_depth_parameter, history_qos,
-                                   run_id_parameter, run_node, seconds_from_stamp, time_origin_parameter)
+from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY, TIME_ORIGIN_PARAMETER, origin_from_custom_data
+from vibro_ros.node_support import (
+    STREAM_QOS,
+    Health,
+    StatusPublisher,
+    declare,
+    history_depth_parameter,
+    history_qos,
+    run_id_parameter,
+    run_node,
+    seconds_from_stamp,
+    time_origin_parameter,
+)
 from vibro_ros.readiness import ReaderGate
-from vibro_io.rig import parse_rig
-from vibro_msgs.msg import AccelBlock, DicFrame
 
 
 class BagSource(Node):

@@ -26,8 +26,8 @@ from typing import Iterator
 
 import yaml
 from mcap.exceptions import McapError
-from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from vibro_model.errors import RecordingError

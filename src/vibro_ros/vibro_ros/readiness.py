@@ -366,7 +366,7 @@ class WriterWatch:
                 if i.node_namespace == ns and i.node_name in self.writers}
 
     def missing_items(self) -> dict[str, tuple[int, int]]:
-        """stream -> (received, announced) for the ended streams with fewer items received than announced
+        """Stream -> (received, announced) for the ended streams with fewer items received than announced
         (empty without a ``received`` counter: nothing to compare)."""
         if self.received is None:
             return {}

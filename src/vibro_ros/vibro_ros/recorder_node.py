@@ -20,10 +20,10 @@ import time
 
 from rclpy.node import Node
 
+from vibro_model.errors import RecordingError
 from vibro_ros import topics
 from vibro_ros.adaptive_qos import ResultsSubscription, discovered_offers, publishers_identified
 from vibro_ros.bags import BagWriter
-from vibro_model.errors import RecordingError
 from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY
 from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node, time_origin_parameter
 from vibro_ros.qos_format import adapt_request_to_offers

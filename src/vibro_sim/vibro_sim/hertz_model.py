@@ -61,7 +61,7 @@ def hertz_contact_time(cavity: BallCavity, v_mps: float) -> float:
 
 
 def damping_coefficient(cavity: BallCavity, e: float, delta_a_m: float) -> float:
-    """c (N s/m) of Eq. 11 with K_lin of Eq. 12 at penetration delta_a_m."""
+    """C (N s/m) of Eq. 11 with K_lin of Eq. 12 at penetration delta_a_m."""
     e = min(max(e, E_MIN), 1.0)
     if e >= 1.0:
         return 0.0
@@ -129,7 +129,7 @@ class _HertzSimulator(_Simulator):
         side = 1.0 if plate == "top" else -1.0
 
         def rel_accel(t, delta, ddot):
-            """delta'' = ball acceleration - plate acceleration (delta = penetration coordinate)."""
+            """Delta'' = ball acceleration - plate acceleration (delta = penetration coordinate)."""
             a = -g + force.force_n(ddot + float(S.velocity(t)), fi) / m
             if side * delta > 0:
                 fc = -side * K * abs(delta) ** 1.5 - c * ddot

@@ -16,8 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from vibro_model.codec import nan_if_none
-from vibro_model.results import Flight, Impact, SimulationRun
-from vibro_model.results import StructureMotion
+from vibro_model.results import Flight, Impact, SimulationRun, StructureMotion
 
 from .deviation import deviation
 from .params import BallCavity

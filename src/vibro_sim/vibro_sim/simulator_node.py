@@ -15,17 +15,21 @@ import sys
 import numpy as np
 from rclpy.node import Node
 
-from vibro_ros import topics
-from vibro_model.errors import RecordingError
-from vibro_ros.fit_results import FinalFitResults
+from vibro_io.rig import load_rig
 from vibro_model.codec import nan_if_none
+from vibro_model.errors import RecordingError
 from vibro_model.units import mm_to_m
-from vibro_ros.convert import (flight_from_message, impact_from_message, simulation_run_to_message,
-                               structure_from_message)
+from vibro_msgs.msg import SimulationResult
+from vibro_ros import topics
+from vibro_ros.convert import (
+    flight_from_message,
+    impact_from_message,
+    simulation_run_to_message,
+    structure_from_message,
+)
+from vibro_ros.fit_results import FinalFitResults
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
-from vibro_io.rig import load_rig
-from vibro_msgs.msg import SimulationResult
 
 from .measured import decimated, replay_and_score, replay_inputs
 from .params import BallCavity

@@ -9,14 +9,20 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from vibro_io.outputs import OutputError
-
 from vibro_app.campaign.fingerprint import code_version, input_fingerprint, stored_run
-from vibro_app.campaign.report import (FIGURES, FLAG_RULE, SCHEMA, write_campaign_csv, write_campaign_json, write_figures,
-                     write_report_html)
+from vibro_app.campaign.report import (
+    FIGURES,
+    FLAG_RULE,
+    SCHEMA,
+    write_campaign_csv,
+    write_campaign_json,
+    write_figures,
+    write_report_html,
+)
 from vibro_app.campaign.runs import RunSpec, find_runs
 from vibro_app.campaign.summary import flag_disagreeing, run_summary
 from vibro_app.campaign.task import analyze_run
+from vibro_io.outputs import OutputError
 
 
 def _resumed_record(spec: RunSpec, run_dir: Path, fingerprint: str) -> dict | None:

@@ -29,7 +29,7 @@ CODE_PACKAGES = ("vibro_model", "vibro_io", "vibro_dic", "vibro_fit", "vibro_sim
 
 @lru_cache(maxsize=1)
 def code_version() -> str:
-    """vibro's version as ``<release>+src.<hash>``: the release number of vibro_app and the SHA-256
+    """Vibro's version as ``<release>+src.<hash>``: the release number of vibro_app and the SHA-256
     (16 hex) of every .py file of :data:`CODE_PACKAGES` (path and content), so that any code change counts."""
     digest = hashlib.sha256()
     for package in CODE_PACKAGES:

@@ -14,9 +14,8 @@ import io
 import json
 from pathlib import Path
 
-from vibro_io.outputs import atomic_open, atomic_write_text
-
 from vibro_app.campaign.summary import MIN_GROUP, PLATES, Z_FLAG, excitation_key, excitation_label
+from vibro_io.outputs import atomic_open, atomic_write_text
 
 CAMPAIGN_JSON = "campaign.json"
 CAMPAIGN_CSV = "campaign.csv"

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vibro_model.errors import RecordingError
 from vibro_io.rig import load_rig
+from vibro_model.errors import RecordingError
 
 PLATES = ("top", "bottom")
 MIN_GROUP = 3

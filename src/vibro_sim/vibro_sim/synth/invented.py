@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-
 from ..restitution import RestitutionLaw
 from ..structure import StructureKinematics, StructureWithTone  # noqa: F401 - StructureWithTone: its home was here
 

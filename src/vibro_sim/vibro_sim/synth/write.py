@@ -13,10 +13,19 @@ import cv2
 import numpy as np
 
 from vibro_io.accel import AccelData, write_accel
-from vibro_io.outputs import (OutputError, atomic_path, atomic_write_text, prepare_output_dir,
-                              prepare_output_file)
-from vibro_io.rig import (AccelConfig, BallConfig, CameraConfig, DicConfig, ExcitationConfig, RigConfig,
-                          Roi, StructureConfig, check_rois_in_image, write_rig)
+from vibro_io.outputs import OutputError, atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
+from vibro_io.rig import (
+    AccelConfig,
+    BallConfig,
+    CameraConfig,
+    DicConfig,
+    ExcitationConfig,
+    RigConfig,
+    Roi,
+    StructureConfig,
+    check_rois_in_image,
+    write_rig,
+)
 from vibro_model.units import m_to_mm, um_to_mm
 
 from .accel import make_accel
