@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 # worker fills it.
 TEST_WORKERS ?= 3
 
-.PHONY: setup demo test msgs clean bench FORCE
+.PHONY: setup demo test lint msgs clean bench FORCE
 
 setup: $(DEPS_STAMP) $(PTH) msgs
 
@@ -46,6 +46,10 @@ demo: setup
 
 test: setup
 	@. scripts/env.sh && $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 $(PYTEST_ARGS) tests
+
+# ruff (pyproject.toml): lint, import order, docstring convention; .ci/run runs it before the tests
+lint: $(DEPS_STAMP)
+	@$(VENV)/bin/ruff check .
 
 BENCH_STAMP := $(VENV)/.bench-$(shell cat requirements-bench.txt | sha256sum | cut -c1-16)
 

@@ -212,7 +212,8 @@ def bench_shifts(reps: int) -> dict:
                 tr = DicTracker(ref, cfg, 1.0, method=method)
             inner = tr.inner if method.startswith("skimage") else tr
             crb.append([cramer_rao_px(m.subsets.grad_sq[:, 1], sigma_eff) for m in (inner.ball, inner.structure)])
-            crb_box.append([float(cramer_rao_px(m.box.grad_sq[0, 1], sigma_eff)) for m in (inner.ball, inner.structure)])
+            crb_box.append([float(cramer_rao_px(m.box.grad_sq[0, 1], sigma_eff))
+                            for m in (inner.ball, inner.structure)])
             for i, d in enumerate(shifts):
                 img = add_noise(pat.render(0.0, -d), 2.0, rng)
                 for m in (inner.ball, inner.structure):
@@ -304,7 +305,8 @@ def bench_rig(n: int) -> dict:
                       "ball_rms_px": rms(eb), "ball_rms_mm": rms(eb) * MM_PER_PX,
                       "structure_rms_px": rms(es), "structure_rms_mm": rms(es) * MM_PER_PX,
                       "ball_max_px": float(np.abs(eb).max()), "structure_max_px": float(np.abs(es).max()),
-                      "ball_rms_vs_exposure_mean_px": rms(ebm), "ball_max_vs_exposure_mean_px": float(np.abs(ebm).max()),
+                      "ball_rms_vs_exposure_mean_px": rms(ebm),
+                      "ball_max_vs_exposure_mean_px": float(np.abs(ebm).max()),
                       "structure_rms_vs_exposure_mean_px": rms(esm)}
     return out
 
@@ -418,7 +420,8 @@ def main() -> int:
            "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     print("== speed (one core, in-memory frames, 40 points, 31 px subsets, 480x160 px) ==", flush=True)
     res["speed"] = sp = bench_speed(100 if q else 1000, 30 if q else 150)
-    print(f"{'method':<12} {'frames':>6} {'fps_cpu':>8} {'fps_wall':>8} {'lost':>4} {'ball_rms_px':>11} {'struct_rms_px':>13}")
+    print(f"{'method':<12} {'frames':>6} {'fps_cpu':>8} {'fps_wall':>8} {'lost':>4} "
+          f"{'ball_rms_px':>11} {'struct_rms_px':>13}")
     for m in sp["methods"]:
         print(f"{m['method']:<12} {m['frames']:>6} {m['fps_cpu']:8.0f} {m['fps_wall']:8.0f} {m['lost']:>4} "
               f"{m['ball_rms_px']:11.4f} {m['structure_rms_px']:13.4f}")
@@ -459,7 +462,8 @@ def main() -> int:
               f"{e['structure_rms_mm']:.2e} mm  (max ball speed {e['max_ball_speed_px_per_frame']:.1f} px/frame)")
         print(f"{'':<11} ball searches widened {e['ball_widened_searches']}, whole-image {e['ball_global_searches']}")
         print(f"{'':<11} vs exposure-averaged truth: ball rms {e['ball_rms_vs_exposure_mean_px']:.4f} px "
-              f"(max {e['ball_max_vs_exposure_mean_px']:.3f}), structure rms {e['structure_rms_vs_exposure_mean_px']:.4f} px")
+              f"(max {e['ball_max_vs_exposure_mean_px']:.3f}), structure rms "
+              f"{e['structure_rms_vs_exposure_mean_px']:.4f} px")
 
     print(f"\n== project synthetic rig (vibro_sim.synth), {n_rig} frames ==", flush=True)
     res["synth"] = sy = bench_synth(n_rig)
@@ -473,7 +477,8 @@ def main() -> int:
                   f"{e['structure_rms_mm']:.2e} mm (max {e['structure_max_px']:.3f} px)  {e['end_to_end_fps']:.0f} fps")
             if "impact_frames" in e:
                 print(f"{'':<12} without the {e['impact_frames']} frames whose exposure holds an impact: ball rms "
-                      f"{e['ball_rms_px_without_impact_frames']:.4f} px (max {e['ball_max_px_without_impact_frames']:.3f})")
+                      f"{e['ball_rms_px_without_impact_frames']:.4f} px "
+                      f"(max {e['ball_max_px_without_impact_frames']:.3f})")
             if "noise_study" in e:
                 ns = e["noise_study"]
                 print(f"{'':<12} noise split at {ns['split_hz']:g} Hz: " + "; ".join(

@@ -2,7 +2,7 @@
 
 Recordings of 1500 frames (1.5 s at 1000 fps) rendered by the synthetic rig with one effect (a quarter
 of the effect cases get a second, compatible one) or none (controls), drawn from the documented ranges
-of vibro_sim/discrepancy/prove.py; ``vibro analyze`` (DIC -> identification -> discrepancy) runs on each
+of vibro_eval/prove.py; ``vibro analyze`` (DIC -> identification -> discrepancy) runs on each
 recording directory alone; the truth is read only to score. The baseline measured in the same run is
 PySINDy given the same measured data (per-flight tracks, per-impact velocities, the structure track)
 with a library of the same terms, scored the same way, and the baseline model's D.

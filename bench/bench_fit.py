@@ -237,7 +237,8 @@ def main() -> int:
         for noise in NOISES:
             p = next(r for r in results if r["scenario"] == name and r["noise_mm"] == noise and r["method"] == "paper")
             j = next(r for r in results if r["scenario"] == name and r["noise_mm"] == noise and r["method"] == "joint")
-            print(f"joint vs paper, {name}, noise {noise}: COR MAE ratio paper/joint = {p['cor_mae'] / j['cor_mae']:.2f}")
+            print(f"joint vs paper, {name}, noise {noise}: COR MAE ratio paper/joint = "
+                  f"{p['cor_mae'] / j['cor_mae']:.2f}")
     # DIC-quality weighting: valid mesh points drawn in 2..20 per frame, noise std 0.005 mm x sqrt(16/valid)
     wres = {}
     for seed in SEEDS:

@@ -12,8 +12,9 @@ so that the machine's load drifts over all modes alike, each on its own private 
 Per run: the graph's own wall time (its summary's ``graph: N s``), the CPU time of vibro graph and all its nodes
 (getrusage of the waited-for children: less sensitive to other load on the machine than wall time), frames
 tracked and lost, and for the reading client the messages it received per channel and the bridge's own CPU
-time (its last ``cpu_s`` on /diagnostics, reported once a second, so up to 1 s short of the end). Nothing is asserted: stdout and bench/results/foxglove.json.
-The load average at the start and end of each run is recorded, since a loaded machine dominates the spread.
+time (its last ``cpu_s`` on /diagnostics, reported once a second, so up to 1 s short of the end). Nothing is
+asserted: stdout and bench/results/foxglove.json. The load average at the start and end of each run is recorded,
+since a loaded machine dominates the spread.
 """
 
 from __future__ import annotations

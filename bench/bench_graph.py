@@ -110,7 +110,7 @@ def run_graph(rec: Path, bag: Path, env: dict[str, str]) -> dict:
     return {"frames_per_s": frames / streaming, "streaming_s": streaming, "wall_s": wall,
             "cpu_ms_per_frame": per_frame, "cpu_ms_per_frame_total": sum(per_frame.values()),
             "cpu_utilisation_of_cores": sum(cpu.values()) / (streaming * (os.cpu_count() or 1)),
-            "frame_accounting": next(l for l in res.stdout.splitlines() if l.startswith("frames in"))}
+            "frame_accounting": next(line for line in res.stdout.splitlines() if line.startswith("frames in"))}
 
 
 def tiff_copy(rec: Path, out: Path) -> Path:
@@ -132,7 +132,8 @@ def tiff_copy(rec: Path, out: Path) -> Path:
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--frames", type=int, default=1500)
-    parser.add_argument("--repeats", type=int, default=2, help="graph runs per executor (the upper-median run is reported in detail, all runs listed)")
+    parser.add_argument("--repeats", type=int, default=2,
+                        help="graph runs per executor (the upper-median run is reported in detail, all runs listed)")
     args = parser.parse_args()
     from vibro_sim.synth import SynthConfig, synthesize
 

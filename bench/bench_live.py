@@ -249,9 +249,9 @@ def main() -> int:
         lag, lat, ex = r["dic_lag_ms"], r["impact_latency_ms"], r["latency_minus_flight_ms"]
         print(f"camera {r['target_rate_hz']:5.0f} Hz: published at {r['publish_rate_hz']:6.1f} Hz, tracked "
               f"{r['frames_per_s_tracked']:6.1f} frames/s ({r['tracked_vs_one_core_ceiling_ratio']:.2f}x the one-core "
-              f"ceiling), lost {r['frames_lost_total']} of {r['frames_published']} ({r['frames_lost_flagged']} flagged lost, of which "
-              f"{r['frames_lost_image_not_received']} images never reached the tracker; {r['frames_missing']} "
-              f"missing on vibro/dic)")
+              f"ceiling), lost {r['frames_lost_total']} of {r['frames_published']} ({r['frames_lost_flagged']} "
+              f"flagged lost, of which {r['frames_lost_image_not_received']} images never reached the tracker; "
+              f"{r['frames_missing']} missing on vibro/dic)")
         print(f"    DicFrame lag behind its image: median {lag.get('median', math.nan):.1f} ms, p99 "
               f"{lag.get('p99', math.nan):.1f}, max {lag.get('max', math.nan):.1f}, last 100 frames "
               f"{lag.get('last_100_median', math.nan):.1f}")

@@ -5,7 +5,7 @@ Prints tables and writes bench/results/sim.json. Baselines are measured in the s
   * COR model vs a fine-step ODE of the same system (DOP853, max_step 20 us, event location);
   * Hertz model vs the COR model;
   * synthesis: frames/s, and the Fourier sub-pixel renderer vs a naive integer-shift render.
-Goals (issue 3): COR 1.5 s <= 50 ms, Hertz 1.5 s <= 2 s, 1500-frame synthesis <= 30 s.
+Goals: COR 1.5 s <= 50 ms, Hertz 1.5 s <= 2 s, 1500-frame synthesis <= 30 s.
 --regime also rescans the shaker acceleration for the synth default (two impacts per cycle).
 """
 

@@ -3,9 +3,9 @@
     python tests/discrepancy_feeder.py case.json [--seconds 60]
 
 case.json holds {"sections": results sections, "track": {column: list}}. Publishes the DIC frames
-(latched history QoS, as dic_tracker, once the node listens), the structure fit, the final flights and impacts, the fitter's
-end-of-stream statuses and the simulator's "simulation" finished status, then lingers so that the
-transient-local results reach late joiners.
+(latched history QoS, as dic_tracker, once the node listens), the structure fit, the final flights and
+impacts, the fitter's end-of-stream statuses and the simulator's "simulation" finished status, then
+lingers so that the transient-local results reach late joiners.
 """
 
 from __future__ import annotations

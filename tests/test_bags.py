@@ -85,7 +85,8 @@ def test_recorded_graph_reads_back_with_rosbags_and_mcap(tiny_recording: Path, t
     assert counted == 5
     meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert meta["storage_identifier"] == "mcap" and meta["version"] == 9
-    assert {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]}["/vibro/dic"] == 5
+    assert {t["topic_metadata"]["name"]: t["message_count"]
+            for t in meta["topics_with_message_count"]}["/vibro/dic"] == 5
 
 
 def test_killed_recorder_leaves_a_readable_bag(tiny_recording: Path, tmp_path: Path, ros_domain: str,

@@ -212,7 +212,8 @@ def test_a_bag_written_by_rosbags_like_ros2_bag_record_gives_the_same_results(gr
             conns = {}
             for c in reader.connections:
                 # vibro graph runs in its own namespace (/vibro_<run id>/vibro/...): the copy keeps the vibro/ part
-                name = prefix + (c.topic[c.topic.index("/vibro/") + 1:] if "/vibro/" in c.topic else c.topic.lstrip("/"))
+                name = prefix + (c.topic[c.topic.index("/vibro/") + 1:] if "/vibro/" in c.topic
+                                 else c.topic.lstrip("/"))
                 conns[c.id] = writer.add_connection(name, c.msgtype, typestore=store,
                                                     offered_qos_profiles=c.ext.offered_qos_profiles)
             for c, t, raw in reader.messages():

@@ -4,9 +4,10 @@ Three 300-frame recordings of the synthetic rig (built once for the module): a b
 anew at each impact (N(0, 0.3 rad/s)) with a COR scatter independent of it; the same spin with the COR
 depending on the spin change (COR += 0.1 s/rad x change, std 0.1 x 0.3 sqrt(2) = 0.042, beside a 0.01
 independent scatter: a correlation of 0.042 / sqrt(0.042^2 + 0.01^2) = 0.97 expected, where n = 13
-impacts need |rho| > ~0.75 for p < 0.01 / 3); and a ball that does not spin. Tolerances come from the tracker's own noise figure: the angle's 1-sigma is
-the subsets' residual displacement noise over the root-sum-square of their lever arms
-(vibro_dic.rotation), and a flight's spin 1-sigma is that over sqrt(sum (t - mean t)^2).
+impacts need |rho| > ~0.75 for p < 0.01 / 3); and a ball that does not spin. Tolerances come from the
+tracker's own noise figure: the angle's 1-sigma is the subsets' residual displacement noise over the
+root-sum-square of their lever arms (vibro_dic.rotation), and a flight's spin 1-sigma is that over
+sqrt(sum (t - mean t)^2).
 """
 
 from __future__ import annotations
@@ -148,10 +149,12 @@ def _rows(track: DicTrack):
     from vibro_io.dictrack import FrameTrack
 
     for k in range(len(track)):
-        yield FrameTrack(int(track.frame[k]), float(track.t_s[k]), float(track.ball_mm[k]),
-                         float(track.structure_mm[k]), int(track.ball_valid[k]), int(track.structure_valid[k]),
-                         float(track.ball_zncc[k]), float(track.structure_zncc[k]), bool(track.lost[k]),
-                         float(track.ball_rot_rad[k]), float(track.ball_rot_std_rad[k]))
+        yield FrameTrack(frame=int(track.frame[k]), t_s=float(track.t_s[k]), ball_mm=float(track.ball_mm[k]),
+                         structure_mm=float(track.structure_mm[k]), ball_valid=int(track.ball_valid[k]),
+                         structure_valid=int(track.structure_valid[k]),
+                         ball_zncc=float(track.ball_zncc[k]), structure_zncc=float(track.structure_zncc[k]),
+                         lost=bool(track.lost[k]),
+                         ball_rot_rad=float(track.ball_rot_rad[k]), ball_rot_std_rad=float(track.ball_rot_std_rad[k]))
 
 
 def test_spinning_renderer_at_rest_draws_the_still_ball():

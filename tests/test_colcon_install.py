@@ -41,7 +41,8 @@ def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
     start = time.monotonic()
     res = subprocess.run(cmd, cwd=ws, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
     elapsed = time.monotonic() - start
-    assert res.returncode == 0, f"colcon build failed after {elapsed:.0f} s:\n{res.stdout[-4000:]}\n{res.stderr[-4000:]}"
+    assert res.returncode == 0, (f"colcon build failed after {elapsed:.0f} s:\n{res.stdout[-4000:]}\n"
+                                 f"{res.stderr[-4000:]}")
     print(f"\ncolcon build of {len(RUNTIME_PACKAGES)} packages: {elapsed:.1f} s", file=sys.stderr)
     return ws / "install"
 
@@ -65,7 +66,8 @@ def test_installed_console_scripts_print_usage(colcon_install: Path) -> None:
     where = subprocess.run(installed(colcon_install, sys.executable, "-c",
                                      "import vibro_dic.dic_tracker_node as m; print(m.__file__)"),
                            capture_output=True, text=True, timeout=60)
-    cli = subprocess.run(installed(colcon_install, colcon_install / "vibro_app" / "lib" / "vibro_app" / "vibro", "--help"), capture_output=True, text=True, timeout=60)
+    cli = subprocess.run(installed(colcon_install, colcon_install / "vibro_app" / "lib" / "vibro_app" / "vibro",
+                                   "--help"), capture_output=True, text=True, timeout=60)
     for spec, proc in procs.items():
         out, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, f"{spec.executable} --help: exit {proc.returncode}\n{err}"

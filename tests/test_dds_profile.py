@@ -52,7 +52,8 @@ def test_fast_dds_parses_the_profile_and_would_report_a_broken_one(tmp_path: Pat
 
 def test_run_node_points_fast_dds_at_the_profile_unless_the_lab_has_its_own() -> None:
     env: dict[str, str] = {}
-    assert use_vibro_dds_profile(env) == str(PROFILE_FILE) and env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(PROFILE_FILE)
+    assert (use_vibro_dds_profile(env) == str(PROFILE_FILE)
+            and env["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(PROFILE_FILE))
     assert Path(env["FASTRTPS_DEFAULT_PROFILES_FILE"]).is_file()
     for own in ({"FASTRTPS_DEFAULT_PROFILES_FILE": "/lab/dds.xml"}, {"FASTDDS_DEFAULT_PROFILES_FILE": "/lab/dds.xml"},
                 {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}):

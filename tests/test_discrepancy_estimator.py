@@ -97,12 +97,22 @@ def test_replay_inputs_from_domain_types():
 
     # structure Y_s = A sin(2 pi f t) (m), ball parabola Y_b = a t^2 + b t + c (m) from t0 = 0.01 s
     A, f_hz, b_mps, c_m, offset_m = 1e-3, 20.0, 0.3, 2e-4, -1e-4
-    s = StructureMotion(A, f_hz, 0.0, 0.0, ball_offset_m=offset_m)
-    flights = [Flight(0, 0.0, 0.009, -4.905, 0.0, 0.0, "up", None, None, None, 5, False),
-               Flight(1, 0.01, 0.05, -4.905, b_mps, c_m, "up", 1e-4, 1e-5, 1e-7, 40, True),
-               Flight(2, 0.051, 0.08, -4.0, 0.0, 0.0, "down", None, None, None, 5, False)]  # not free: no force
-    impacts = [Impact(0, 0.0095, "bottom", 0.7, 0.01, -0.3, 0.3, 0.0),
-               Impact(1, 0.05, "top", 0.6, 0.01, 0.2, -0.2, 0.0), Impact(2, None, "top", None, None, None, None, None)]
+    s = StructureMotion(amplitude_m=A, frequency_hz=f_hz, phase_rad=0.0, offset_m=0.0, ball_offset_m=offset_m)
+    flights = [Flight(index=0, t_first_frame_s=0.0, t_last_frame_s=0.009, a_mps2=-4.905, b_mps=0.0, c_m=0.0,
+                      direction="up", friction_n=None, friction_std_n=None, rms_residual_m=None, n_points=5,
+                      free=False),
+               Flight(index=1, t_first_frame_s=0.01, t_last_frame_s=0.05, a_mps2=-4.905, b_mps=b_mps, c_m=c_m,
+                      direction="up", friction_n=1e-4, friction_std_n=1e-5, rms_residual_m=1e-7, n_points=40,
+                      free=True),
+               Flight(index=2, t_first_frame_s=0.051, t_last_frame_s=0.08, a_mps2=-4.0, b_mps=0.0, c_m=0.0,
+                      direction="down", friction_n=None, friction_std_n=None, rms_residual_m=None, n_points=5,
+                      free=False)]  # not free: no force
+    impacts = [Impact(index=0, t_s=0.0095, plate="bottom", cor=0.7, cor_std=0.01, v_ball_before_mps=-0.3,
+                      v_ball_after_mps=0.3, v_structure_mps=0.0),
+               Impact(index=1, t_s=0.05, plate="top", cor=0.6, cor_std=0.01, v_ball_before_mps=0.2,
+                      v_ball_after_mps=-0.2, v_structure_mps=0.0), Impact(index=2, t_s=None, plate="top", cor=None,
+                                                                          cor_std=None, v_ball_before_mps=None,
+                                                                          v_ball_after_mps=None, v_structure_mps=None)]
     inputs = replay_inputs(s, flights, impacts, free_play_m=2e-3, t_end_s=0.1)
     t0 = 0.01
     w = 2 * math.pi * f_hz

@@ -85,13 +85,13 @@ def test_csv_tables_match_json(ident_and_truth, tmp_path):
 
 
 def test_cor_summary_and_normal_check():
-    class I:  # minimal impact stand-in
+    class StubImpact:  # minimal impact stand-in
         def __init__(self, plate, cor):
             self.plate, self.cor = plate, cor
 
     rng = np.random.default_rng(0)
     vals = 0.7 + 0.04 * rng.standard_normal(200)
-    summ = cor_summary([I("bottom", v) for v in vals] + [I("top", 0.6)])
+    summ = cor_summary([StubImpact("bottom", v) for v in vals] + [StubImpact("top", 0.6)])
     assert summ["bottom"]["n"] == 200
     assert summ["bottom"]["mean"] == pytest.approx(vals.mean())
     assert summ["bottom"]["std"] == pytest.approx(vals.std(ddof=1))

@@ -144,7 +144,9 @@ def test_accel_symlink_to_outside_is_refused(rec, capsys) -> None:
 def test_analyze_with_a_given_track_refuses_outside_accel(rec, tmp_path, capsys) -> None:
     # the --track path reads rig.yaml and accel.csv without opening the frames: same refusal
     dic = tmp_path / "dic.csv"
-    write_dic_csv(dic, [FrameTrack(k, k / 1000.0, 0.0, 0.0, 9, 9, 0.99, 0.99, False) for k in range(30)])
+    write_dic_csv(dic, [FrameTrack(frame=k, t_s=k / 1000.0, ball_mm=0.0, structure_mm=0.0, ball_valid=9,
+                                   structure_valid=9, ball_zncc=0.99, structure_zncc=0.99,
+                                   lost=False) for k in range(30)])
     _set_accel_file(rec, "/etc/passwd")
     assert main(["analyze", str(rec), "--out", str(tmp_path / "o"), "--track", str(dic), "--no-progress"]) == 2
     err = _one_line_error(capsys)

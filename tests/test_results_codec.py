@@ -37,18 +37,30 @@ ULP2 = 4.5e-16
 
 
 def _structure() -> StructureMotion:
-    return StructureMotion(3.017e-3, 22.0131, 0.3141, -1.2e-5, 4.1e-7, 2.2e-6, 1.3e-4, 7.7e-4, 3.1e-7, 399, 2.31e-4)
+    return StructureMotion(amplitude_m=3.017e-3, frequency_hz=22.0131, phase_rad=0.3141, offset_m=-1.2e-5,
+                           rms_residual_m=4.1e-7, amplitude_std_m=2.2e-6, frequency_std_hz=1.3e-4,
+                           phase_std_rad=7.7e-4, offset_std_m=3.1e-7, n_points=399, ball_offset_m=2.31e-4)
 
 
 def _flights() -> list[Flight]:
-    return [Flight(0, 0.01, 0.031, -4.9041, 0.7712, -0.0123, "up", -7.1e-5, 2.0e-6, 5.1e-7, 21, True, ""),
-            Flight(1, 0.034, 0.052, -4.8977, 1.1201, -0.0231, "down", 3.6e-5, 1.9e-6, 4.8e-7, 19, True, ""),
-            Flight(2, 0.055, 0.057, None, None, None, "down", None, None, None, 3, False, "too few points (3 < 6)")]
+    return [Flight(index=0, t_first_frame_s=0.01, t_last_frame_s=0.031, a_mps2=-4.9041, b_mps=0.7712, c_m=-0.0123,
+                   direction="up", friction_n=-7.1e-5, friction_std_n=2.0e-6, rms_residual_m=5.1e-7, n_points=21,
+                   free=True, reason=""),
+            Flight(index=1, t_first_frame_s=0.034, t_last_frame_s=0.052, a_mps2=-4.8977, b_mps=1.1201, c_m=-0.0231,
+                   direction="down", friction_n=3.6e-5, friction_std_n=1.9e-6, rms_residual_m=4.8e-7, n_points=19,
+                   free=True, reason=""),
+            Flight(index=2, t_first_frame_s=0.055, t_last_frame_s=0.057, a_mps2=None, b_mps=None, c_m=None,
+                   direction="down", friction_n=None, friction_std_n=None, rms_residual_m=None, n_points=3, free=False,
+                   reason="too few points (3 < 6)")]
 
 
 def _impacts() -> list[Impact]:
-    return [Impact(0, 0.0325, "top", 0.7013, 0.0041, 0.512, -0.359, 0.0012, 3.1e-6, 0, 1, "paper"),
-            Impact(1, 0.0531, "bottom", 0.6987, 0.0052, -0.488, 0.341, -0.0009, 2.7e-6, 1, 2, "paper")]
+    return [Impact(index=0, t_s=0.0325, plate="top", cor=0.7013, cor_std=0.0041, v_ball_before_mps=0.512,
+                   v_ball_after_mps=-0.359, v_structure_mps=0.0012, t_std_s=3.1e-6, flight_before=0, flight_after=1,
+                   method="paper"),
+            Impact(index=1, t_s=0.0531, plate="bottom", cor=0.6987, cor_std=0.0052, v_ball_before_mps=-0.488,
+                   v_ball_after_mps=0.341, v_structure_mps=-0.0009, t_std_s=2.7e-6, flight_before=1, flight_after=2,
+                   method="paper")]
 
 
 def _document() -> ResultsDocument:
@@ -107,7 +119,8 @@ def test_written_keys_follow_the_contract(tmp_path: Path) -> None:
     f0 = data["flights"][0]
     assert f0["a"] == pytest.approx(-4904.1, rel=1e-15) and f0["c"] == pytest.approx(-12.3, rel=1e-15)
     # a flight opened and closed by impacts starts/ends at them; its fitted frames stay beside
-    assert (f0["t_start"], f0["t_first_frame"]) == (0.01, 0.01) and f0["t_end"] == 0.0325 and f0["t_last_frame"] == 0.031
+    assert (f0["t_start"], f0["t_first_frame"]) == (0.01,
+                                                    0.01) and f0["t_end"] == 0.0325 and f0["t_last_frame"] == 0.031
     assert data["flights"][1]["t_start"] == 0.0325 and data["flights"][1]["free"] is True
     assert data["flights"][2]["friction_n"] is None and data["flights"][2]["free"] is False
     assert data["impacts"][0]["v_ball_before"] == 0.512  # m/s in and out
@@ -121,7 +134,8 @@ def test_written_keys_follow_the_contract(tmp_path: Path) -> None:
 def test_cor_summary_is_the_sample_statistics() -> None:
     rng = np.random.default_rng(3)
     cors = 0.7 + 0.03 * rng.standard_normal(50)
-    imps = [Impact(k, 0.01 * k, "bottom", float(c), 0.0, -1.0, 0.7, 0.0) for k, c in enumerate(cors)]
+    imps = [Impact(index=k, t_s=0.01 * k, plate="bottom", cor=float(c), cor_std=0.0, v_ball_before_mps=-1.0,
+                   v_ball_after_mps=0.7, v_structure_mps=0.0) for k, c in enumerate(cors)]
     s = CorSummary.of(imps)
     assert s.bottom.n == 50 and s.bottom.mean == pytest.approx(cors.mean(), rel=1e-14)
     assert s.bottom.std == pytest.approx(cors.std(ddof=1), rel=1e-12)

@@ -197,7 +197,8 @@ def test_the_impacts_are_corrected_with_the_tone(analysed) -> None:
     r = case["results"]
     assert r["impacts_model"]["cor_method"] == TONE_EFFECT and r["impacts_model"]["effects"] == [TONE_EFFECT]
     assert r["impacts_model"]["n_paper"] == 0
-    assert all(i["cor_method"] == TONE_EFFECT and i["cor_paper"] is not None for i in r["impacts"] if i["cor"] is not None)
+    assert all(i["cor_method"] == TONE_EFFECT and i["cor_paper"] is not None
+               for i in r["impacts"] if i["cor"] is not None)
     final, paper = _cor_errors(case, "cor"), _cor_errors(case, "cor_paper")
     assert final.size >= 8
     assert final.max() <= TOL_EFFECT, final

@@ -15,7 +15,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Sub-pixel digital image correlation (ZNCC + IC-GN) of ball and structure; frame source and tracker nodes.",
+    description=("Sub-pixel digital image correlation (ZNCC + IC-GN) of ball and structure; "
+                 "frame source and tracker nodes."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

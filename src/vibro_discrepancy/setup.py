@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Discrepancy analysis: locate where the models and a recording disagree, name the physics the model left out, model it and show the fit improve; discrepancy node.",
+    description=("Discrepancy analysis: locate where the models and a recording disagree, name the physics the model "
+                 "left out, model it and show the fit improve; discrepancy node."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Evaluation harness of vibro (not a runtime package): blind proof of the discrepancy analysis on synthetic recordings, scoring against the truth, and the PySINDy baseline.",
+    description=("Evaluation harness of vibro (not a runtime package): blind proof of the discrepancy analysis on "
+                 "synthetic recordings, scoring against the truth, and the PySINDy baseline."),
     license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

@@ -15,7 +15,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Motion identification: structure sine fit, free-flight parabolas, impact times, per-impact COR, friction, accelerometer impacts.",
+    description=("Motion identification: structure sine fit, free-flight parabolas, impact times, per-impact COR, "
+                 "friction, accelerometer impacts."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

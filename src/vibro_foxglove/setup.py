@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Foxglove bridge node: the vibro graph live in Foxglove (camera images, ROI annotations, track, impacts, fits).",
+    description=("Foxglove bridge node: the vibro graph live in Foxglove (camera images, ROI annotations, track, "
+                 "impacts, fits)."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -15,7 +15,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Recording I/O for vibro: rig.yaml validation, frame sequences, accelerometer CSV, DIC tracks and results files.",
+    description=("Recording I/O for vibro: rig.yaml validation, frame sequences, accelerometer CSV, DIC tracks and "
+                 "results files."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

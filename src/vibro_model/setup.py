@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="The domain model: physical constants, unit conversions, the results document types (SI inside) and the one results.json codec. Plain Python, no ROS.",
+    description=("The domain model: physical constants, unit conversions, the results document types (SI inside) and "
+                 "the one results.json codec. Plain Python, no ROS."),
     license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

@@ -15,7 +15,9 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="ROS 2 plumbing shared by the vibro nodes: topic table, QoS profiles, node support (parameters, diagnostics, shutdown), result collection, rosbag2/MCAP bag I/O and the recorder and bag_source nodes.",
+    description=("ROS 2 plumbing shared by the vibro nodes: topic table, QoS profiles, node support (parameters, "
+                 "diagnostics, shutdown), result collection, rosbag2/MCAP bag I/O "
+                 "and the recorder and bag_source nodes."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -15,7 +15,8 @@ setup(
     zip_safe=True,
     maintainer="vibro maintainers",
     maintainer_email="vibro@example.com",
-    description="Vibro-impact models (COR and Hertz-damped contact), simulator node and a synthetic rig that writes recordings with ground truth.",
+    description=("Vibro-impact models (COR and Hertz-damped contact), simulator node and a synthetic rig that writes "
+                 "recordings with ground truth."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -117,16 +117,23 @@ def rig_yaml_text(p, args: argparse.Namespace, fps: float, source: Path, frequen
     a = ASSUMED
     return f"""# rig.yaml proposed by `vibro init` from {source}
 # Measured on frame 0 ({p.width_px}x{p.height_px} px) and the motion over {p.motion.frames.size} frames:
-#   ball: centre ({b.x_px:.2f}, {b.y_px:.2f}) px, radius {b.radius_px:.2f} +- {b.radius_std_px:.2f} px (1 sigma from the
-#         scatter of {b.n_edge_points} sector edges, {b.edge_residual_px:.2f} px); moves {p.motion.ball_relative_range_px:.1f} px relative to the plates
-#   plates: cavity edges at rows {pl.top_row_px:.2f} +- {pl.top_std_px:.2f} and {pl.bottom_row_px:.2f} +- {pl.bottom_std_px:.2f} (1 sigma from column blocks;
-#         gap {pl.gap_px:.2f} +- {pl.gap_std_px:.2f} px); structure travel seen {p.motion.structure_range_px[0]:+.1f}..{p.motion.structure_range_px[1]:+.1f} px (rows, + down)
+#   ball: centre ({b.x_px:.2f}, {b.y_px:.2f}) px, radius {b.radius_px:.2f} +- {b.radius_std_px:.2f} px \
+(1 sigma from the
+#         scatter of {b.n_edge_points} sector edges, {b.edge_residual_px:.2f} px); moves \
+{p.motion.ball_relative_range_px:.1f} px relative to the plates
+#   plates: cavity edges at rows {pl.top_row_px:.2f} +- {pl.top_std_px:.2f} and \
+{pl.bottom_row_px:.2f} +- {pl.bottom_std_px:.2f} (1 sigma from column blocks;
+#         gap {pl.gap_px:.2f} +- {pl.gap_std_px:.2f} px); structure travel seen \
+{p.motion.structure_range_px[0]:+.1f}..{p.motion.structure_range_px[1]:+.1f} px (rows, + down)
 #   edges located on the texture along them, blur sigma {p.edge_sigma_px:.2f} px
 #   scale from the ball ({args.ball_diameter_mm:g} mm): {sc.from_ball:.6f} mm/px +- {100 * sc.ball_rel_std:.2f} %
 #   scale from the gap  ({args.gap_mm:g} mm): {sc.from_gap:.6f} mm/px +- {100 * sc.gap_rel_std:.2f} %
-#   they disagree by {100 * sc.disagreement_rel:+.2f} % (allowed {100 * sc.tolerance_rel:.2f} %: 3 sigma + 0.25 px per edge)
-#   scale written: their inverse-variance mean (ball weight {sc.ball_weight:.2f}), {sc.mm_per_px:.6f} mm/px +- {100 * sc.rel_std:.2f} %
-#   image noise {p.noise_gray:.2f} gray levels; worst subset displacement std (Cramer-Rao): ball {p.ball_cramer_rao_px:.4f} px,
+#   they disagree by {100 * sc.disagreement_rel:+.2f} % \
+(allowed {100 * sc.tolerance_rel:.2f} %: 3 sigma + 0.25 px per edge)
+#   scale written: their inverse-variance mean (ball weight {sc.ball_weight:.2f}), \
+{sc.mm_per_px:.6f} mm/px +- {100 * sc.rel_std:.2f} %
+#   image noise {p.noise_gray:.2f} gray levels; worst subset displacement std (Cramer-Rao): \
+ball {p.ball_cramer_rao_px:.4f} px,
 #         structure {p.structure_cramer_rao_px:.4f} px
 # Keys marked ASSUMED are not measurable from video: the paper's Test 1 rig; edit them for yours.
 camera:
@@ -211,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
     sc = p.scale
     print(f"wrote {out} and {preview}")
     print(f"scale {sc.mm_per_px:.6f} mm/px +- {100 * sc.rel_std:.2f} %: {sc.from_ball:.6f} from the ball (r "
-          f"{p.ball.radius_px:.2f} +- {p.ball.radius_std_px:.2f} px), {sc.from_gap:.6f} from the gap ({p.plates.gap_px:.2f} +- "
-          f"{p.plates.gap_std_px:.2f} px), {100 * sc.disagreement_rel:+.2f} % apart (allowed {100 * sc.tolerance_rel:.2f} %)")
+          f"{p.ball.radius_px:.2f} +- {p.ball.radius_std_px:.2f} px), {sc.from_gap:.6f} from the gap "
+          f"({p.plates.gap_px:.2f} +- {p.plates.gap_std_px:.2f} px), {100 * sc.disagreement_rel:+.2f} % apart "
+          f"(allowed {100 * sc.tolerance_rel:.2f} %)")
     print(f"ball_roi {p.ball_roi.as_list()}  structure_roi {p.structure_roi.as_list()}  frequency {freq:.4g} Hz")
     return 0

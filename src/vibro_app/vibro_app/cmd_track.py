@@ -93,7 +93,8 @@ def run_noise(args: argparse.Namespace) -> int:
     study = noise_study(track, rec.rig.camera.fps, rec.rig.camera.mm_per_px, args.split_hz)
     print(f"noise study of {rec.path}: {study['n_frames']} frames, {study['n_lost']} lost, "
           f"split at {study['split_hz']:g} Hz (low = Butterworth-4 zero-phase low-pass)")
-    print(f"{'body':<10} {'std_mm':>10} {'high_mm':>10} {'low_mm':>10} {'p2p_mm':>10} {'std_px':>8} {'high_px':>8} {'low_px':>8}")
+    print(f"{'body':<10} {'std_mm':>10} {'high_mm':>10} {'low_mm':>10} {'p2p_mm':>10} "
+          f"{'std_px':>8} {'high_px':>8} {'low_px':>8}")
     for body in ("ball", "structure"):
         s = study[body]
         print(f"{body:<10} {s['std_mm']:10.2e} {s['high_std_mm']:10.2e} {s['low_std_mm']:10.2e} "

@@ -277,8 +277,9 @@ def dic_quality_html(section: dict | None) -> str:
         f"<td>{f(c.get('noise_ratio'), '.2f')}</td><td>{f(c.get('sigma_px_from_zncc'))}</td></tr>"
         for name in sorted(set(tex) | set(corr)) for t, c in [(tex.get(name, {}), corr.get(name, {}))])
     return (f"<h2>DIC quality</h2><p>Image noise {f(noise, '.3g')} gray levels; a subset is usable when its "
-            f"predicted displacement sigma is at most {f((section.get('texture') or {}).get('max_subset_sigma_px'), 'g')}"
-            " px (README: 'Real footage').</p><table><tr><th>body</th><th>usable subsets</th>"
+            "predicted displacement sigma is at most "
+            f"{f((section.get('texture') or {}).get('max_subset_sigma_px'), 'g')}"
+            " px (docs/real-footage.md).</p><table><tr><th>body</th><th>usable subsets</th>"
             "<th>predicted sigma y (px)</th><th>median ZNCC</th><th>min ZNCC</th><th>frames below warn</th>"
             "<th>frames lost</th><th>subsets lost</th><th>correlation noise / image noise</th>"
             f"<th>sigma y from ZNCC (px)</th></tr>{rows}</table>")
@@ -321,7 +322,8 @@ td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
 <p>Regime: <b>{e(str(regime.get('name', '?')))}</b>; {len(results.get('flights', []))} flights,
 {len(results.get('impacts', []))} impacts; method {e(str(results.get('identification', {}).get('method', '')))}.</p>
 <h2>Structure (Eq. 2)</h2><table>{rows}</table>
-<h2>COR per plate (Table 2)</h2>{cor_model}<table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>{cor_rows}</table>
+<h2>COR per plate (Table 2)</h2>{cor_model}<table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>\
+{cor_rows}</table>
 <h2>Simulation deviation D (Eq. 18)</h2><table>{sim_rows}</table>
 {disc_html}
 {dic_html}

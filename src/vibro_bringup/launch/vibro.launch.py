@@ -11,9 +11,10 @@ the way launch does, in shuffled order, and compares with `vibro graph`. The nod
 their declared readers by name, so the start order does not matter. From a recording every
 node exits once the stream has ended (launch then exits); a processing node that dies is
 restarted after a delay. Live (camera-only: the recording gives the rig.yaml), processing nodes stay
-up and respawn=True restarts them; the simulator and the discrepancy node are left out (they act once a run has ended, which a live stream never does:
-simulate a live session once it has ended: vibro replay of its bag).
-foxglove:=true adds the Foxglove bridge (ws://<this PC>:<foxglove_port>, see README "Watching it live"):
+up and respawn=True restarts them; the simulator and the discrepancy node are left out (they act once a
+run has ended, which a live stream never does: simulate a live session once it has ended: vibro replay of
+its bag).
+foxglove:=true adds the Foxglove bridge (ws://<this PC>:<foxglove_port>, see docs/live.md):
 from a recording it exits once the other nodes have gone; live it stays up with them.
 """
 

@@ -1,12 +1,12 @@
 """The process supervisor of ``vibro graph``: start, watch, restart and stop the node processes.
 
-Driven by the node table (:class:`vibro_bringup.graph_spec.NodeSpec` roles): processes start in
-the order viewer (the Foxglove bridge: up before anything streams), sink, processing, sources (not needed for correctness -- the nodes wait for their
-declared readers by name -- but the sources then find their readers at once). A node that exits
-with code 0 has finished by itself (its stream ended). A processing node that exits otherwise is
-restarted, like launch's ``respawn``, at most ``respawn`` times, its log appended; any other
-non-zero exit (a source, the recorder, restarts used up) is a failure reported at once with the
-last lines of the node's log. :meth:`Supervisor.stop` stops what still runs in the order
+Driven by the node table (:class:`vibro_bringup.graph_spec.NodeSpec` roles): processes start in the
+order viewer (the Foxglove bridge: up before anything streams), sink, processing, sources (not needed
+for correctness -- the nodes wait for their declared readers by name -- but the sources then find their
+readers at once). A node that exits with code 0 has finished by itself (its stream ended). A processing
+node that exits otherwise is restarted, like launch's ``respawn``, at most ``respawn`` times, its log
+appended; any other non-zero exit (a source, the recorder, restarts used up) is a failure reported at
+once with the last lines of the node's log. :meth:`Supervisor.stop` stops what still runs in the order
 sources, processing, (drain) sinks, viewer, so the recorder takes the last messages before it closes.
 """
 

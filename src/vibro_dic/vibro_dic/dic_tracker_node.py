@@ -200,12 +200,15 @@ class DicTrackerNode(Node):
         except RecordingError as exc:
             self.health.error(str(exc))
             self.get_logger().error(f"frame {k}: {exc}")
-            self._publish(FrameTrack(k, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True), str(exc))
+            self._publish(FrameTrack(frame=k, t_s=t, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
+                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
+                                     str(exc))
             self.next_index = k + 1
             return
         for gap in range(self.next_index, k):  # frames that never arrived
             gt = self.rig.camera.frame_time_s(gap)
-            self._publish(FrameTrack(gap, gt, math.nan, math.nan, 0, 0, math.nan, math.nan, True),
+            self._publish(FrameTrack(frame=gap, t_s=gt, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
+                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
                           "no image received (dropped or unreadable upstream)")
         row = self.tracker.track_image(k, t, image)
         self.quality.add(k, self.tracker.last_results)

@@ -105,7 +105,8 @@ class IcgnBlocks:
         self._proj = np.stack([np.ones_like(ft0), ft0, ixx * fx0 + ixy * fy0, ixy * fx0 + iyy * fy0], axis=1)
         bx0 = np.einsum("ij,ij->i", self.fx, self.f_tilde, dtype=np.float64)
         by0 = np.einsum("ij,ij->i", self.fy, self.f_tilde, dtype=np.float64)
-        self._du_f = np.column_stack([self.ixx * bx0 + self.ixy * by0, self.ixy * bx0 + self.iyy * by0])  # H^-1 [fx.f~, fy.f~]
+        # H^-1 [fx.f~, fy.f~]
+        self._du_f = np.column_stack([self.ixx * bx0 + self.ixy * by0, self.ixy * bx0 + self.iyy * by0])
         # block 0's constants as Python floats, for :meth:`step_one`
         self._one = (float(self.df[0]), float(self._du_f[0, 0]), float(self._du_f[0, 1]))
 

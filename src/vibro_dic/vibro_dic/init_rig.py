@@ -378,8 +378,8 @@ def _plate_side(gx: np.ndarray, mask: np.ndarray, guess: float, side: float, sig
     tilt_px = float(coef[0]) * (w - 1)
     tilt_std_px = scatter / math.sqrt(np.sum((centres - centres.mean()) ** 2)) * (w - 1)
     if abs(tilt_px) > MAX_PLATE_TILT_PX + 3.0 * tilt_std_px:
-        raise InitError(f"plates not found in frame 0: the {name} edge rises {tilt_px:+.1f} +- {tilt_std_px:.1f} px across "
-                        f"the image (a line through {n} column blocks; a plate edge is horizontal, <= "
+        raise InitError(f"plates not found in frame 0: the {name} edge rises {tilt_px:+.1f} +- {tilt_std_px:.1f} px "
+                        f"across the image (a line through {n} column blocks; a plate edge is horizontal, <= "
                         f"{MAX_PLATE_TILT_PX} px): camera tilted, or not a plate")
     std = float(np.std(rows, ddof=1)) / math.sqrt(n)
     return whole.edge_px, max(std, EDGE_STD_FLOOR_PX)
@@ -395,7 +395,8 @@ def find_plates(gx: np.ndarray, ball: Ball, sigma_px: float | None) -> tuple[Pla
     t0, b0, strength = plate_guesses(gx, ball)
     if not strength >= MIN_PLATE_STRENGTH:
         raise InitError(f"plates not found in frame 0: the strongest texture steps above/below the ball stand only "
-                        f"{strength:.1f} x the row profile's noise (need >= {MIN_PLATE_STRENGTH:g}): no textured plates framing the cavity")
+                        f"{strength:.1f} x the row profile's noise (need >= {MIN_PLATE_STRENGTH:g}): no textured "
+                        "plates framing the cavity")
     mask = _outside_ball(gx.shape, ball)
     if sigma_px is None:
         sig = [edges.fit_plate_edge(gx, mask, t0, +1.0, None).sigma_px,
@@ -605,7 +606,8 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
     frame0 = frames[0][1]
     h, w = frame0.shape
     ball, plates, edge_sigma = measure_frame0(frame0)
-    if not plates.top_row_px < ball.y_px - ball.radius_px + 1 or not ball.y_px + ball.radius_px - 1 < plates.bottom_row_px:
+    if (not plates.top_row_px < ball.y_px - ball.radius_px + 1
+            or not ball.y_px + ball.radius_px - 1 < plates.bottom_row_px):
         raise InitError(f"the ball (rows {ball.y_px - ball.radius_px:.1f}..{ball.y_px + ball.radius_px:.1f}) is not "
                         f"between the plates found (rows {plates.top_row_px:.1f}, {plates.bottom_row_px:.1f})")
     # follow the plate with more room in the image (the ROI goes there too)
@@ -619,16 +621,17 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
     rel = motion.ball_relative_range_px
     if rel < MIN_BALL_RELATIVE_MOTION_PX:
         raise InitError(f"the circle at ({ball.x_px:.1f}, {ball.y_px:.1f}) px, r {ball.radius_px:.1f} px, moves only "
-                        f"{rel:.2f} px relative to the plates over the frames followed (< {MIN_BALL_RELATIVE_MOTION_PX} "
-                        "px): not a free ball (a mark on the structure?)")
+                        f"{rel:.2f} px relative to the plates over the frames followed "
+                        f"(< {MIN_BALL_RELATIVE_MOTION_PX} px): not a free ball (a mark on the structure?)")
     ball_rel, gap_rel, tol = scale_tolerance(ball, plates)
     scale = Scale(ball_diameter_mm / (2 * ball.radius_px), gap_mm / plates.gap_px, ball_rel, gap_rel, tol)
     if abs(scale.disagreement_rel) > tol:
         raise InitError(
-            f"scale from the ball ({ball_diameter_mm:g} mm over {2 * ball.radius_px:.2f} +- {2 * ball.radius_std_px:.2f} "
-            f"px = {scale.from_ball:.5f} mm/px) and from the gap ({gap_mm:g} mm over {plates.gap_px:.2f} +- "
-            f"{plates.gap_std_px:.2f} px = {scale.from_gap:.5f} mm/px) disagree by {100 * scale.disagreement_rel:+.2f} % "
-            f"(localisation allows {100 * tol:.2f} %): check --ball-diameter-mm and --gap-mm")
+            f"scale from the ball ({ball_diameter_mm:g} mm over {2 * ball.radius_px:.2f} +- "
+            f"{2 * ball.radius_std_px:.2f} px = {scale.from_ball:.5f} mm/px) and from the gap ({gap_mm:g} mm over "
+            f"{plates.gap_px:.2f} +- {plates.gap_std_px:.2f} px = {scale.from_gap:.5f} mm/px) disagree by "
+            f"{100 * scale.disagreement_rel:+.2f} % (localisation allows {100 * tol:.2f} %): check --ball-diameter-mm "
+            "and --gap-mm")
     ball_roi = propose_ball_roi(ball, subset_px, w, h)
     structure_roi, which = propose_structure_roi(plates, motion, subset_px, mesh_step_px, w, h)
     cavity = np.zeros(frame0.shape, bool)

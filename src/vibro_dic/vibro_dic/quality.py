@@ -174,10 +174,11 @@ class TrackQuality:
         s = self.summary()
         bad = [f"{name} lost in {b['frames_lost']} of {b['frames']} frames ({b['frames_lost'] / b['frames']:.0%} > "
                f"{self.max_lost_fraction:.0%}; first: {', '.join(map(str, b['first_lost']))})"
-               for name, b in s["bodies"].items() if b["frames"] and b["frames_lost"] > self.max_lost_fraction * b["frames"]]
+               for name, b in s["bodies"].items()
+               if b["frames"] and b["frames_lost"] > self.max_lost_fraction * b["frames"]]
         if bad:
             raise TrackQualityError("tracking refused: " + "; ".join(bad) + ": check the ROIs, the texture and "
-                                    "the lighting (README: 'Real footage')")
+                                    "the lighting (docs/real-footage.md)")
         return self.warnings()
 
 

@@ -155,8 +155,9 @@ class BodyTexture:
         parts = []
         for i in idx[:limit]:
             a = int(np.argmax(self.sigma_px[i]))  # the worse axis
-            parts.append(f"({self.points[i, 0]:.0f}, {self.points[i, 1]:.0f}): SSSIG_{'xy'[a]} {self.sssig[i, a]:.3g} "
-                         f"gray^2 ({self.sssig_signal[i, a]:.3g} above the noise), sigma {_fmt_px(self.sigma_px[i, a])}")
+            parts.append(f"({self.points[i, 0]:.0f}, {self.points[i, 1]:.0f}): SSSIG_{'xy'[a]} "
+                         f"{self.sssig[i, a]:.3g} gray^2 ({self.sssig_signal[i, a]:.3g} above the noise), "
+                         f"sigma {_fmt_px(self.sigma_px[i, a])}")
         more = f", and {len(idx) - limit} more" if len(idx) > limit else ""
         return "; ".join(parts) + more
 
@@ -172,7 +173,7 @@ class BodyTexture:
                 f"{self.sssig_noise:.3g} gray^2 (worse axis; subset centre x, y px): ")
         tail = (f" -> {self.n_usable} usable, the tracker needs {self.min_usable}"
                 + ("" if not self.refused else ": speckle the ball (or the structure), light it without "
-                   "specular highlights, or use a larger subset (README: 'Real footage')"))
+                   "specular highlights, or use a larger subset (docs/real-footage.md)"))
         return head + self._listing(bad) + tail
 
     def min_sssig(self, noise_sigma: float) -> float:

@@ -491,7 +491,8 @@ class DicTracker:
             self._segment = segment
         if image is None:
             self.last_results = {}
-            return FrameTrack(index, t_s, float("nan"), float("nan"), 0, 0, float("nan"), float("nan"), True)
+            return FrameTrack(frame=index, t_s=t_s, ball_mm=float("nan"), structure_mm=float("nan"), ball_valid=0,
+                              structure_valid=0, ball_zncc=float("nan"), structure_zncc=float("nan"), lost=True)
         if image.shape != self.shape:
             raise FrameError(f"frame {index}: size {image.shape[1]}x{image.shape[0]} differs from the "
                              f"reference ({self.shape[1]}x{self.shape[0]})")

@@ -1,4 +1,4 @@
-"""Discrepancy analysis (issue 6): locate where the baseline model and a recording disagree, name the
+"""Discrepancy analysis: locate where the baseline model and a recording disagree, name the
 physics it left out from a library of candidate terms, fit it and show the improvement.
 
 An estimator split like PySINDy's: :mod:`.library` (candidate terms, :class:`CandidateLibrary`) x
@@ -6,8 +6,8 @@ An estimator split like PySINDy's: :mod:`.library` (candidate terms, :class:`Can
 ``run_discrepancy``) -> a fitted model (:mod:`.model`, :class:`DiscrepancyRun` with typed findings). Around
 them: :mod:`.data` (the measurement from the domain model), :mod:`.fitting` (least squares), :mod:`.runs`
 (D and D_r), :mod:`.onestep` (one-step-ahead errors), :mod:`.locate` (where), :mod:`.systematic`
-(out-of-catalogue mismatches), :mod:`.tone` (a located structure tone, modelled), :mod:`.reidentify` (impacts re-measured under the final model),
-:mod:`.figures`. No rclpy, no vibro_fit.
+(out-of-catalogue mismatches), :mod:`.tone` (a located structure tone, modelled), :mod:`.reidentify`
+(impacts re-measured under the final model), :mod:`.figures`. No rclpy, no vibro_fit.
 """
 
 from vibro_discrepancy.engine import DiscrepancyEstimator, DiscrepancyRun, analyse_discrepancy, run_discrepancy

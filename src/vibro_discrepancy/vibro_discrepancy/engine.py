@@ -1,4 +1,4 @@
-"""The discrepancy estimator: baseline -> locate -> explain -> model and show -> what is left (issue 6).
+"""The discrepancy estimator: baseline -> locate -> explain -> model and show -> what is left.
 
 Shaped like PySINDy: a candidate library (:class:`~.library.CandidateLibrary`) x a selection
 (:class:`~.select.StagewiseSelector`) -> a fitted model. ``DiscrepancyEstimator(library, selector)

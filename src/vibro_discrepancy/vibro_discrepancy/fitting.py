@@ -268,7 +268,8 @@ def _design(t: np.ndarray, f: float, orders: Sequence[int]) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def fit_structure_harmonics(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float, orders: Sequence[int] = (1,)) -> StructureModelFit:
+def fit_structure_harmonics(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float,
+                            orders: Sequence[int] = (1,)) -> StructureModelFit:
     """Least squares of the structure track with the given harmonic orders (1 = the fundamental);
     the frequency is refined within +-0.2 % of ``f0_hz``."""
     t = np.asarray(t_s, dtype=float)

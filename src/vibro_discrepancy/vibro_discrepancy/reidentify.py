@@ -1,4 +1,4 @@
-"""Re-identification of the impacts with the discrepancy analysis' final model (issue 13, item 2).
+"""Re-identification of the impacts with the discrepancy analysis' final model.
 
 The paper's identification (Eq. 15, 16) measures every impact with a pure-sine structure and free
 parabolas. Once the discrepancy engine has found that the structure holds harmonics or that a force
@@ -190,9 +190,10 @@ def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
     """``doc`` with its impacts measured under the final model: ``cor``, ``cor_std``, ``t``, ``t_std``,
     ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
     ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact; ``cor_summary`` from the new CORs; the
-    flights' opening/closing impact times from the new times; the top-level ``impacts_model`` section saying which model produced ``cor``. With no ``effects`` every
-    impact keeps the identification's values (``cor_method`` "paper"). The caller recomputes whatever
-    else is derived from the CORs (``cor_statistics``, figures)."""
+    flights' opening/closing impact times from the new times; the top-level ``impacts_model`` section
+    saying which model produced ``cor``. With no ``effects`` every impact keeps the identification's
+    values (``cor_method`` "paper"). The caller recomputes whatever else is derived from the CORs
+    (``cor_statistics``, figures)."""
     method = cor_method_name(effects)
     by_time = {round(r.t_identified_s / SAME_IMPACT_S): r for r in measured} if effects else {}
     impacts, n_done = [], 0

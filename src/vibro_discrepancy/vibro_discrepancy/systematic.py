@@ -1,4 +1,4 @@
-"""Systematic mismatch the final model leaves, separated from random scatter (issue 13.3).
+"""Systematic mismatch the final model leaves, separated from random scatter.
 
 Three series of the final model's residuals are tested for a pattern, each with its own noise:
 

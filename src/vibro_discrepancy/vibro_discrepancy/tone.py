@@ -1,4 +1,4 @@
-"""A located structure tone, modelled (issue 13: close the loop for an out-of-catalogue mismatch).
+"""A located structure tone, modelled (closing the loop for an out-of-catalogue mismatch).
 
 When the systematic-mismatch analysis (:mod:`.systematic`) locates a periodic structure residual at a
 frequency that is not a drive harmonic (another mode, a beat: no catalogue term), the tone is not a

@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--pairs", type=float, default=0.0, metavar="P",
                    help="probability that an effect case gets a second, compatible effect (default 0)")
     p.add_argument("--evidence", action="store_true",
-                   help="issue 13's evidence set: --magnitudes 2 --controls 3 --invented --cor-scatter 0.01,0.02 "
+                   help="the evidence set: --magnitudes 2 --controls 3 --invented --cor-scatter 0.01,0.02 "
                         "--noise 1,3 --blur-share 0.5 (each can still be given)")
     p.add_argument("--magnitudes", type=int, default=None, metavar="M",
                    help="each catalogue effect at M magnitudes (its range cut in M parts) plus --controls "

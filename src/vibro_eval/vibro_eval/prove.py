@@ -39,7 +39,7 @@ Two ways to draw (``Draws``):
 
 * ``magnitudes = 0`` (default, ``vibro prove --cases N``): cases cycle through the seven effects and the
   control in a shuffled order, so N >= 8 covers all; every parameter drawn from its full range.
-* ``magnitudes = M`` (``--magnitudes M``; ``--evidence`` is issue 13's set): each catalogue family (and
+* ``magnitudes = M`` (``--magnitudes M``; ``--evidence`` is the ``EVIDENCE`` set): each catalogue family (and
   each invented one with ``--invented``) at M magnitudes (the main parameter's range cut in M equal
   parts, log for the forces, drawn within part k; part M-1 the strongest), plus ``controls`` controls, in
   a shuffled order.
@@ -121,7 +121,7 @@ class Draws:
             raise RecordingError(f"unknown effect families {bad}: catalogue {list(EFFECTS)}, invented {list(INVENTED)}")
 
 
-#: issue 13's evidence set: COR scatter 0.01-0.02, noise 1-3 gray levels, blur on half the cases, every
+#: The evidence set of ``--evidence``: COR scatter 0.01-0.02, noise 1-3 gray levels, blur on half the cases, every
 #: catalogue effect at two magnitudes, three controls, the three invented effects at two magnitudes
 EVIDENCE = Draws(cor_scatter=(0.01, 0.02), noise_gray=(1.0, 3.0), blur_share=0.5, magnitudes=2, controls=3,
                  invented=INVENTED)
@@ -546,7 +546,8 @@ def format_summary(s: dict, title: str) -> str:
                   f"{_g(s['cor_error_max_effects_paper'])}), controls max {_g(s['cor_error_max_controls'])} "
                   f"(paper {_g(s['cor_error_max_controls_paper'])}); unmatched impacts {s['unmatched_impacts']}",
                   f"   findings improving   {s['correct_findings_improving']}/{s['correct_findings']} (correct "
-                  "catalogue findings and modelled unexplained ones: D_r lower; COR laws: COR variance share above chance)"]
+                  "catalogue findings and modelled unexplained ones: D_r lower; COR laws: COR variance share "
+                  "above chance)"]
     lines.append("   confusion (rows: truth, columns: found)")
     truths = list(FAMILIES) + list(INVENTED)
     cols = [c for c in list(FAMILIES) + [UNEXPLAINED] if any(s["confusion"][t][c] for t in truths)]

@@ -30,7 +30,7 @@ from vibro_discrepancy.model import FittedModel, fit_model
 from vibro_discrepancy.runs import full_run
 from vibro_model.codec import json_value as jsonable
 
-THRESHOLDS = {"flight_ms2": 0.7, "cor": 0.11, "harmonic_m": 5e-8}  # calibrate() on 4 controls (2026-11-21)
+THRESHOLDS = {"flight_ms2": 0.7, "cor": 0.11, "harmonic_m": 5e-8}  # calibrate() on 4 controls
 SAVGOL = {"window_length": 7, "polyorder": 3}
 
 

@@ -227,7 +227,7 @@ def cor_errors(impacts: list[Mapping[str, Any]], truth: Mapping[str, Any], match
 
 
 #: COR laws: the restarted run restarts from the measured state after every impact, so a COR law cannot
-#: move D_r; its evidence is the share of the per-impact COR variance it explains (issue 13.1)
+#: move D_r; its evidence is the share of the per-impact COR variance it explains
 COR_LAWS = {"asymmetric_restitution": 2, "velocity_dependent_restitution": 2}   # parameters of the law
 
 

@@ -1,4 +1,5 @@
-"""Motion identification: structure sine fit, free-flight parabolas, impact times, per-impact COR, friction, accelerometer impacts.
+"""Motion identification: structure sine fit, free-flight parabolas, impact times, per-impact COR, friction,
+accelerometer impacts.
 
 Entry points (plain Python, no rclpy):
 - :func:`vibro_fit.identify.identify` (whole track -> :class:`~vibro_fit.identify.Identification`)

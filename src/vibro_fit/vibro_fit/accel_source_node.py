@@ -5,7 +5,8 @@ paced at ``speed`` x real time or (``speed = 0``) as fast as DDS takes them. The
 is a latched history (reliable, transient local, ``history_depth`` blocks) and blocks are numbered, so
 a receiver detects a gap and a node restarted mid-run receives every block again: with
 ``keep_history_until`` (the node table sets it: its stateful readers' final streams) the source stays
-up once done until those readers have ended, because the history lives in the publisher. Each block carries the run id (parameter ``run_id``).
+up once done until those readers have ended, because the history lives in the publisher. Each block
+carries the run id (parameter ``run_id``).
 """
 
 from __future__ import annotations

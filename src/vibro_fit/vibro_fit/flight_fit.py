@@ -72,10 +72,12 @@ class FlightFit:
         ``mass_kg``, only for a free flight."""
         a, b, c = (mm_to_m(none_if_nan(v)) for v in self.abs_coefficients())
         f_n, f_std = self.friction_n(mass_kg)
-        return Flight(int(self.index), none_if_nan(self.t_start_s), none_if_nan(self.t_end_s), a, b, c,
-                      self.direction or "", none_if_nan(f_n) if self.is_free else None,
-                      none_if_nan(f_std) if self.is_free else None, mm_to_m(none_if_nan(self.rms_residual_mm)),
-                      int(self.n_points), bool(self.is_free), self.reason or "")
+        return Flight(index=int(self.index), t_first_frame_s=none_if_nan(self.t_start_s),
+                      t_last_frame_s=none_if_nan(self.t_end_s), a_mps2=a, b_mps=b, c_m=c,
+                      direction=self.direction or "", friction_n=none_if_nan(f_n) if self.is_free else None,
+                      friction_std_n=none_if_nan(f_std) if self.is_free else None,
+                      rms_residual_m=mm_to_m(none_if_nan(self.rms_residual_mm)),
+                      n_points=int(self.n_points), free=bool(self.is_free), reason=self.reason or "")
 
 
 def fit_parabola(t_s: np.ndarray, y_mm: np.ndarray, weights: np.ndarray | None = None

@@ -35,7 +35,7 @@ from .structure_fit import StructureFit, fit_structure
 log = logging.getLogger(__name__)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Identification:
     """Everything identified from one recording (positions mm, velocities m/s, forces N, times s)."""
 
@@ -76,9 +76,11 @@ class Identification:
 def track_rows(track: DicTrack):
     """The FrameTrack rows of a DicTrack, in order."""
     for k in range(len(track)):
-        yield FrameTrack(int(track.frame[k]), float(track.t_s[k]), float(track.ball_mm[k]),
-                         float(track.structure_mm[k]), int(track.ball_valid[k]), int(track.structure_valid[k]),
-                         float(track.ball_zncc[k]), float(track.structure_zncc[k]), bool(track.lost[k]))
+        yield FrameTrack(frame=int(track.frame[k]), t_s=float(track.t_s[k]), ball_mm=float(track.ball_mm[k]),
+                         structure_mm=float(track.structure_mm[k]), ball_valid=int(track.ball_valid[k]),
+                         structure_valid=int(track.structure_valid[k]),
+                         ball_zncc=float(track.ball_zncc[k]), structure_zncc=float(track.structure_zncc[k]),
+                         lost=bool(track.lost[k]))
 
 
 def run_streaming(track: DicTrack, frequency_hz: float, noise_mm: float | None, method: str = "paper",
@@ -259,10 +261,13 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     rig_state = check_rig(rig, structure, moving, impacts, sf.flights, float(noise), cfg.g_mps2, daq_f)
     for r in rig_state:
         warnings.append(f"rig description inconsistent with the measurement: {r.message}")
-    return Identification(structure, list(sf.flights), impacts, friction, cor_summary(impacts), regime, levels,
-                          float(noise), method, rig.ball.mass_kg, list(sf.short_flights), list(sf.clusters),
-                          accel_res, offset, warnings, weights or "none", coverage, motion, landings, unseen,
-                          rig_state)
+    return Identification(structure=structure, flights=list(sf.flights), impacts=impacts, friction=friction,
+                          cor_summary=cor_summary(impacts), regime=regime, plate_levels=levels,
+                          noise_mm=float(noise), method=method, mass_kg=rig.ball.mass_kg,
+                          short_flights=list(sf.short_flights), clusters=list(sf.clusters),
+                          accel=accel_res, clock_offset=offset, warnings=warnings, weights=weights or "none",
+                          coverage=coverage, motion=motion, landings=landings, accel_unseen_s=unseen,
+                          rig_consistency=rig_state)
 
 
 def _clock_offset(acc_t: list[float], sf: StreamingFitter, structure: StructureFit, rig: RigConfig,

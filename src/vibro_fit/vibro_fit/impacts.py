@@ -45,10 +45,12 @@ class ImpactFit(Impact):
 
     def model(self) -> Impact:
         """The plain model Impact (NaN -> None: unknown)."""
-        return Impact(int(self.index), none_if_nan(self.t_s), self.plate, none_if_nan(self.cor),
-                      none_if_nan(self.cor_std), none_if_nan(self.v_ball_before_mps),
-                      none_if_nan(self.v_ball_after_mps), none_if_nan(self.v_structure_mps),
-                      none_if_nan(self.t_std_s), int(self.flight_before), int(self.flight_after), self.method)
+        return Impact(index=int(self.index), t_s=none_if_nan(self.t_s), plate=self.plate, cor=none_if_nan(self.cor),
+                      cor_std=none_if_nan(self.cor_std), v_ball_before_mps=none_if_nan(self.v_ball_before_mps),
+                      v_ball_after_mps=none_if_nan(self.v_ball_after_mps),
+                      v_structure_mps=none_if_nan(self.v_structure_mps),
+                      t_std_s=none_if_nan(self.t_std_s), flight_before=int(self.flight_before),
+                      flight_after=int(self.flight_after), method=self.method)
 
 
 def _shift(coef: np.ndarray, t_ref: float, t_new: float) -> tuple[float, float, float]:

@@ -84,8 +84,8 @@ def results_model(ident: Identification, recording: str, simulation: Simulation 
     """The results document of an identification (discrepancy left empty: the caller adds it)."""
     impacts = [i.model() for i in ident.impacts]
     sections = {"cor_statistics": cor_statistics_section(impacts), **identification_extras(ident)}
-    return ResultsDocument.build(recording, ident.structure_motion(), [f.model(ident.mass_kg) for f in ident.flights], impacts,
-                                 simulation=simulation, warnings=ident.warnings, sections=sections)
+    return ResultsDocument.build(recording, ident.structure_motion(), [f.model(ident.mass_kg) for f in ident.flights],
+                                 impacts, simulation=simulation, warnings=ident.warnings, sections=sections)
 
 
 def results_document(ident: Identification, recording: str, simulation: dict | None = None,

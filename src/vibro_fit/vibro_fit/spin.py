@@ -172,7 +172,8 @@ def _correlation(used: list) -> dict[str, Any]:
         return out
     r = _cor_residuals([u[0] for u in used])
     change = np.array([u[1]["spin_change_rad_s"] for u in used])
-    spin = 0.5 * (np.abs([u[1]["omega_before_rad_s"] for u in used]) + np.abs([u[1]["omega_after_rad_s"] for u in used]))
+    spin = 0.5 * (np.abs([u[1]["omega_before_rad_s"] for u in used])
+                  + np.abs([u[1]["omega_after_rad_s"] for u in used]))
     for name, x in zip(TESTS, (change, np.abs(change), spin)):
         rho, p = _spearman(r, x)
         out["tests"][name] = {"rho": rho, "p": p}

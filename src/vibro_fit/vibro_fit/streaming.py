@@ -226,7 +226,8 @@ class StreamingFitter:
             # ball may have struck several times unseen; pairing these parabolas would invent one impact
             self.rejected.append(
                 f"no impact between flights {prev.index} and {fl.index} (t {prev.t_end_s:.4f}..{fl.t_start_s:.4f} s): "
-                f"{self._lost_between(prev, fl)} frames in between have no DIC result; impacts there are not identified")
+                f"{self._lost_between(prev, fl)} frames in between have no DIC result; impacts there are not "
+                "identified")
             prev = None
         if (prev is not None and prev.is_free and fl.is_free and cluster_before is not None
                 and cluster_before.n <= self.cfg.max_impact_frames):

@@ -70,10 +70,12 @@ class StructureFit:
         if not moving:
             freq = phase = sd[1] = sd[2] = None
             note = "the structure does not move beyond DIC noise: no frequency or phase"
-        return StructureMotion(mm_to_m(none_if_nan(self.amplitude_mm)), freq, phase,
-                               mm_to_m(none_if_nan(self.offset_mm)), mm_to_m(none_if_nan(self.rms_residual_mm)),
-                               mm_to_m(sd[0]), sd[1], sd[2], mm_to_m(sd[3]), int(self.n_points),
-                               mm_to_m(none_if_nan(ball_offset_mm)), bool(moving), note)
+        return StructureMotion(amplitude_m=mm_to_m(none_if_nan(self.amplitude_mm)), frequency_hz=freq, phase_rad=phase,
+                               offset_m=mm_to_m(none_if_nan(self.offset_mm)),
+                               rms_residual_m=mm_to_m(none_if_nan(self.rms_residual_mm)),
+                               amplitude_std_m=mm_to_m(sd[0]), frequency_std_hz=sd[1], phase_std_rad=sd[2],
+                               offset_std_m=mm_to_m(sd[3]), n_points=int(self.n_points),
+                               ball_offset_m=mm_to_m(none_if_nan(ball_offset_mm)), moving=bool(moving), note=note)
 
 
 def _model(p: np.ndarray, tc: np.ndarray) -> np.ndarray:

@@ -94,7 +94,8 @@ def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: f
         t0, y0, v0 = ti, ys(ti) + target, vb_after
         if abs(vb_after - vst) < 1e-3:
             break
-    return Truth(StructureMotion(A, frequency_hz, ph, 0.0), b, pieces, impacts, accs)
+    return Truth(StructureMotion(amplitude_m=A, frequency_hz=frequency_hz, phase_rad=ph, offset_m=0.0), b, pieces,
+                 impacts, accs)
 
 
 def sample_track(truth: Truth, fps: float = 1000.0, n_frames: int = 1500, t0_s: float = 0.0,

@@ -125,7 +125,8 @@ class TrajectoryFitter(Node):
             self.get_logger().warning(f"no DIC result for frames {expected}..{k - 1}; treated as lost")
             for gap in range(expected, k):
                 t = self.rig.camera.frame_time_s(gap)
-                self._push(FrameTrack(gap, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True))
+                self._push(FrameTrack(frame=gap, t_s=t, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
+                                      structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True))
         self._push(frame_track_from_message(msg))  # the tracker's row as published, ball rotation included
         self.health.observe(msg.t_s)
         self._maybe_finish()
@@ -191,7 +192,8 @@ class TrajectoryFitter(Node):
         self.get_logger().warning(msg)
         for gap in range(len(self.rows), self.dic_announced):  # the missing tail, as lost rows
             t = self.rig.camera.frame_time_s(gap)
-            self._push(FrameTrack(gap, t, math.nan, math.nan, 0, 0, math.nan, math.nan, True))
+            self._push(FrameTrack(frame=gap, t_s=t, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
+                                  structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True))
         return True
 
     def _accel(self) -> AccelData | None:

@@ -522,6 +522,7 @@ if __name__ == "__main__":  # python -m vibro_foxglove.view PATH: (re)write the 
     import sys
     from pathlib import Path
 
-    target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "config" / LAYOUT_FILE_NAME
+    target = (Path(sys.argv[1]) if len(sys.argv) > 1
+              else Path(__file__).resolve().parents[1] / "config" / LAYOUT_FILE_NAME)
     target.write_text(layout_text(), encoding="utf-8")
     print(f"wrote {target}")

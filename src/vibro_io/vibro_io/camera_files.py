@@ -115,7 +115,8 @@ class MrawFile(_CameraFile):
         try:
             cih = pyMRAW.get_cih(str(self.header_path))
         except Exception as exc:  # pyMRAW raises bare Exception, KeyError, xml errors for a bad header
-            raise FrameError(f"{self.header_path}: not a readable Photron header ({type(exc).__name__}: {exc})") from None
+            raise FrameError(f"{self.header_path}: not a readable Photron header "
+                             f"({type(exc).__name__}: {exc})") from None
         for key in self._REQUIRED:
             if key not in cih:
                 raise FrameError(f"{self.header_path}: header key '{key}' missing")

@@ -27,7 +27,7 @@ DIC_COLUMNS = (
 LEGACY_DIC_COLUMNS = DIC_COLUMNS[:9]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FrameTrack:
     """DIC result of one frame. ``*_valid`` count mesh points kept; ``lost`` flags an unusable frame."""
 
@@ -122,8 +122,10 @@ def read_dic_csv(path: str | Path) -> DicTrack:
                         raise ValueError
                     rot = (float(row[9]), float(row[10])) if width == len(DIC_COLUMNS) else (math.nan, math.nan)
                     rows.append(FrameTrack(
-                        int(row[0]), float(row[1]), float(row[2]), float(row[3]), int(row[4]),
-                        int(row[5]), float(row[6]), float(row[7]), bool(int(row[8])), *rot,
+                        frame=int(row[0]), t_s=float(row[1]), ball_mm=float(row[2]), structure_mm=float(row[3]),
+                        ball_valid=int(row[4]), structure_valid=int(row[5]), ball_zncc=float(row[6]),
+                        structure_zncc=float(row[7]), lost=bool(int(row[8])), ball_rot_rad=rot[0],
+                        ball_rot_std_rad=rot[1],
                     ))
                 except (ValueError, IndexError):
                     raise RecordingError(f"{path}: line {line_no}: bad row {row!r}") from None

@@ -2,8 +2,9 @@
 
 The types of :mod:`vibro_model.results` turn themselves into the contract's keys
 (docs/recording-format.md) with the helpers here; :mod:`vibro_io.results_file` writes and reads the
-file (every results.json vibro writes or reads goes through it). A document read back is validated: a missing key, a wrong type or an unknown plate or
-direction raises :class:`ResultsError` naming the file and the key (``flights[3].t_start``).
+file (every results.json vibro writes or reads goes through it). A document read back is validated: a
+missing key, a wrong type or an unknown plate or direction raises :class:`ResultsError` naming the file
+and the key (``flights[3].t_start``).
 """
 
 from __future__ import annotations

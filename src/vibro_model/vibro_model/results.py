@@ -27,7 +27,7 @@ REQUIRED_KEYS = ("schema", "recording", "structure", "flights", "impacts", "cor_
                  "discrepancy")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class StructureMotion:
     """Y_s(t) = A sin(2 pi f t + phi) + B, t camera time (s); 1-sigma stds from the fit covariance.
 
@@ -63,15 +63,19 @@ class StructureMotion:
     @classmethod
     def from_dict(cls, data: Any, where: str = "structure") -> "StructureMotion":
         f = Fields(data, where)
-        return cls(mm_to_m(f.number("amplitude_mm")), f.number("frequency_hz"), f.number("phase_rad"),
-                   mm_to_m(f.number("offset_mm")), mm_to_m(f.number("rms_residual_mm")),
-                   mm_to_m(f.number("amplitude_std_mm", False)), f.number("frequency_std_hz", False),
-                   f.number("phase_std_rad", False), mm_to_m(f.number("offset_std_mm", False)),
-                   f.integer("n_points", False, nullable=True), mm_to_m(f.number("ball_offset_mm", False)),
-                   f.boolean("moving", True), f.string("note", False, default=""))
+        return cls(amplitude_m=mm_to_m(f.number("amplitude_mm")), frequency_hz=f.number("frequency_hz"),
+                   phase_rad=f.number("phase_rad"),
+                   offset_m=mm_to_m(f.number("offset_mm")), rms_residual_m=mm_to_m(f.number("rms_residual_mm")),
+                   amplitude_std_m=mm_to_m(f.number("amplitude_std_mm", False)),
+                   frequency_std_hz=f.number("frequency_std_hz", False),
+                   phase_std_rad=f.number("phase_std_rad", False), offset_std_m=mm_to_m(f.number("offset_std_mm",
+                                                                                                 False)),
+                   n_points=f.integer("n_points", False, nullable=True),
+                   ball_offset_m=mm_to_m(f.number("ball_offset_mm", False)),
+                   moving=f.boolean("moving", True), note=f.string("note", False, default=""))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Flight:
     """One fitted flight: Y_b[m] = a t^2 + b t + c, t absolute camera time (s); friction (Eq. 17, N, + up)
     only for a free flight. ``t_start_s``/``t_end_s`` are the impacts that open/close it when known,
@@ -117,15 +121,18 @@ class Flight:
         first = f.number("t_first_frame", False) if "t_first_frame" in f.data else t_start
         last = f.number("t_last_frame", False) if "t_last_frame" in f.data else t_end
         friction = f.number("friction_n")
-        return cls(f.integer("index"), first, last, mm_to_m(f.number("a")), mm_to_m(f.number("b")),
-                   mm_to_m(f.number("c")), f.string("direction", choices=DIRECTIONS), friction,
-                   f.number("friction_std_n", False), mm_to_m(f.number("rms_residual_mm")),
-                   f.integer("n_points", False, nullable=True), f.boolean("free", friction is not None),
-                   f.string("reason", False, default=""),
-                   t_start if t_start != first else None, t_end if t_end != last else None)
+        return cls(index=f.integer("index"), t_first_frame_s=first, t_last_frame_s=last, a_mps2=mm_to_m(f.number("a")),
+                   b_mps=mm_to_m(f.number("b")),
+                   c_m=mm_to_m(f.number("c")), direction=f.string("direction", choices=DIRECTIONS), friction_n=friction,
+                   friction_std_n=f.number("friction_std_n", False),
+                   rms_residual_m=mm_to_m(f.number("rms_residual_mm")),
+                   n_points=f.integer("n_points", False, nullable=True), free=f.boolean("free", friction is not None),
+                   reason=f.string("reason", False, default=""),
+                   t_opening_impact_s=t_start if t_start != first else None,
+                   t_closing_impact_s=t_end if t_end != last else None)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Impact:
     """One impact (Eq. 15, 16): time (s), plate, COR e = -(v_after - v_s) / (v_before - v_s), velocities
     (m/s, + up) and the indices of the flights that end / start there.
@@ -183,12 +190,16 @@ class Impact:
     @classmethod
     def from_dict(cls, data: Any, where: str = "impacts[]") -> "Impact":
         f = Fields(data, where)
-        return cls(f.integer("index"), f.number("t"), f.string("plate", choices=PLATES), f.number("cor"),
-                   f.number("cor_std"), f.number("v_ball_before"), f.number("v_ball_after"),
-                   f.number("v_structure"), f.number("t_std", False), f.integer("flight_before", False, True),
-                   f.integer("flight_after", False, True), f.string("method", False),
-                   f.string("cor_method", False), f.number("cor_paper", False), f.number("cor_std_paper", False),
-                   f.number("t_paper", False))
+        return cls(index=f.integer("index"), t_s=f.number("t"), plate=f.string("plate", choices=PLATES),
+                   cor=f.number("cor"),
+                   cor_std=f.number("cor_std"), v_ball_before_mps=f.number("v_ball_before"),
+                   v_ball_after_mps=f.number("v_ball_after"),
+                   v_structure_mps=f.number("v_structure"), t_std_s=f.number("t_std", False),
+                   flight_before=f.integer("flight_before", False, True),
+                   flight_after=f.integer("flight_after", False, True), method=f.string("method", False),
+                   cor_method=f.string("cor_method", False), cor_paper=f.number("cor_paper", False),
+                   cor_std_paper=f.number("cor_std_paper", False),
+                   t_paper_s=f.number("t_paper", False))
 
 
 @dataclass

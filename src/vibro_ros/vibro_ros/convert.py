@@ -77,9 +77,12 @@ def ball_rotation_from_message(msg: Any) -> tuple[float, float]:
 def frame_track_from_message(msg: Any) -> FrameTrack:
     """The tracked frame of a DicFrame, numbers as the tracker published them (a lost frame's too: ``lost`` says
     not to use them); rotation as :func:`ball_rotation_from_message`."""
-    return FrameTrack(int(msg.frame_index), float(msg.t_s), float(msg.ball_mm), float(msg.structure_mm),
-                      int(msg.ball_valid_points), int(msg.structure_valid_points), float(msg.ball_mean_zncc),
-                      float(msg.structure_mean_zncc), bool(msg.lost), *ball_rotation_from_message(msg))
+    rot_rad, rot_std_rad = ball_rotation_from_message(msg)
+    return FrameTrack(frame=int(msg.frame_index), t_s=float(msg.t_s), ball_mm=float(msg.ball_mm),
+                      structure_mm=float(msg.structure_mm), ball_valid=int(msg.ball_valid_points),
+                      structure_valid=int(msg.structure_valid_points), ball_zncc=float(msg.ball_mean_zncc),
+                      structure_zncc=float(msg.structure_mean_zncc), lost=bool(msg.lost), ball_rot_rad=rot_rad,
+                      ball_rot_std_rad=rot_std_rad)
 
 
 def dic_track_from_messages(frames: Iterable[Any]) -> DicTrack:
@@ -104,12 +107,15 @@ def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origi
 
 
 def structure_from_message(msg: Any) -> StructureMotion:
-    return StructureMotion(mm_to_m(none_if_nan(msg.amplitude_mm)), none_if_nan(msg.frequency_hz),
-                           none_if_nan(msg.phase_rad), mm_to_m(none_if_nan(msg.offset_mm)),
-                           mm_to_m(none_if_nan(msg.rms_residual_mm)), mm_to_m(none_if_nan(msg.amplitude_std_mm)),
-                           none_if_nan(msg.frequency_std_hz), none_if_nan(msg.phase_std_rad),
-                           mm_to_m(none_if_nan(msg.offset_std_mm)), int(msg.frames_used),
-                           mm_to_m(none_if_nan(msg.ball_offset_mm)))
+    return StructureMotion(amplitude_m=mm_to_m(none_if_nan(msg.amplitude_mm)),
+                           frequency_hz=none_if_nan(msg.frequency_hz),
+                           phase_rad=none_if_nan(msg.phase_rad), offset_m=mm_to_m(none_if_nan(msg.offset_mm)),
+                           rms_residual_m=mm_to_m(none_if_nan(msg.rms_residual_mm)),
+                           amplitude_std_m=mm_to_m(none_if_nan(msg.amplitude_std_mm)),
+                           frequency_std_hz=none_if_nan(msg.frequency_std_hz),
+                           phase_std_rad=none_if_nan(msg.phase_std_rad),
+                           offset_std_m=mm_to_m(none_if_nan(msg.offset_std_mm)), n_points=int(msg.frames_used),
+                           ball_offset_m=mm_to_m(none_if_nan(msg.ball_offset_mm)))
 
 
 # ---------------------------------------------------------------- flights
@@ -128,11 +134,14 @@ def flight_to_message(f: Flight, final: bool = False, origin_ns: int = 0):
 
 
 def flight_from_message(msg: Any) -> Flight:
-    return Flight(int(msg.index), none_if_nan(msg.t_start_s), none_if_nan(msg.t_end_s),
-                  mm_to_m(none_if_nan(msg.a_mm_per_s2)), mm_to_m(none_if_nan(msg.b_mm_per_s)),
-                  mm_to_m(none_if_nan(msg.c_mm)), str(msg.direction), none_if_nan(msg.friction_n),
-                  none_if_nan(msg.friction_std_n), mm_to_m(none_if_nan(msg.rms_residual_mm)), int(msg.points_used),
-                  bool(msg.fitted), str(msg.note))
+    return Flight(index=int(msg.index), t_first_frame_s=none_if_nan(msg.t_start_s),
+                  t_last_frame_s=none_if_nan(msg.t_end_s),
+                  a_mps2=mm_to_m(none_if_nan(msg.a_mm_per_s2)), b_mps=mm_to_m(none_if_nan(msg.b_mm_per_s)),
+                  c_m=mm_to_m(none_if_nan(msg.c_mm)), direction=str(msg.direction),
+                  friction_n=none_if_nan(msg.friction_n),
+                  friction_std_n=none_if_nan(msg.friction_std_n),
+                  rms_residual_m=mm_to_m(none_if_nan(msg.rms_residual_mm)), n_points=int(msg.points_used),
+                  free=bool(msg.fitted), reason=str(msg.note))
 
 
 # ---------------------------------------------------------------- impacts
@@ -150,10 +159,13 @@ def impact_to_message(i: Impact, final: bool = False, origin_ns: int = 0):
 
 
 def impact_from_message(msg: Any) -> Impact:
-    return Impact(int(msg.index), none_if_nan(msg.t_s), str(msg.plate), none_if_nan(msg.cor), none_if_nan(msg.cor_std),
-                  none_if_nan(msg.v_ball_before_m_per_s), none_if_nan(msg.v_ball_after_m_per_s),
-                  none_if_nan(msg.v_structure_m_per_s), none_if_nan(msg.t_std_s), int(msg.flight_before),
-                  int(msg.flight_after))
+    return Impact(index=int(msg.index), t_s=none_if_nan(msg.t_s), plate=str(msg.plate), cor=none_if_nan(msg.cor),
+                  cor_std=none_if_nan(msg.cor_std),
+                  v_ball_before_mps=none_if_nan(msg.v_ball_before_m_per_s),
+                  v_ball_after_mps=none_if_nan(msg.v_ball_after_m_per_s),
+                  v_structure_mps=none_if_nan(msg.v_structure_m_per_s), t_std_s=none_if_nan(msg.t_std_s),
+                  flight_before=int(msg.flight_before),
+                  flight_after=int(msg.flight_after))
 
 
 # ---------------------------------------------------------------- simulation

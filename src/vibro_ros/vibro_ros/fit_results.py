@@ -55,7 +55,8 @@ class FinalFitResults:
         self._on_update()
 
     def _on_flight(self, msg: FreeFlight) -> None:
-        if self.guard.accept(topics.FLIGHTS.name) and msg.final:  # streamed flights are previews; the final fit is what counts
+        # streamed flights are previews; the final fit is what counts
+        if self.guard.accept(topics.FLIGHTS.name) and msg.final:
             self.flights[msg.index] = msg
             self._on_update()
 

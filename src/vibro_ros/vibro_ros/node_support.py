@@ -447,8 +447,8 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         if rclpy.ok():
             rclpy.shutdown(uninstall_handlers=False)  # uninstalling what was never installed: SIGINT -> SIG_DFL
         if name:  # when it left the ROS graph, for a reader of the logs (its peers' view of it may lag)
-            print(f"[{time.time():.6f}] {name}: left the ROS graph with exit code {code} (cleanup {time.monotonic() - cleanup_from:.2f} s)",
-                  file=sys.stderr, flush=True)
+            print(f"[{time.time():.6f}] {name}: left the ROS graph with exit code {code} "
+                  f"(cleanup {time.monotonic() - cleanup_from:.2f} s)", file=sys.stderr, flush=True)
     for sig in (signal.SIGINT, signal.SIGTERM):
         # the node has stopped; the interpreter's finalisation resets Python handlers to SIG_DFL (not SIG_IGN),
         # so a second Ctrl-C arriving now would still kill the process with -2

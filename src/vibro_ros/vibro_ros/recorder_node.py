@@ -27,12 +27,12 @@ from vibro_ros.bags import BagWriter
 from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY
 from vibro_ros.node_support import QOS_BY_KIND, Health, declare, run_node, time_origin_parameter
 from vibro_ros.qos_format import adapt_request_to_offers
+from vibro_ros.readiness import WriterWatch
 
 #: How often the recorder looks for publishers of the topics it does not record yet (s), as rosbag2.
 DISCOVERY_S = 0.1
 #: How long to wait for a discovered publisher's node name (to recognise vibro's own publishers) (s).
 NAME_WAIT_S = 2.0
-from vibro_ros.readiness import WriterWatch
 
 
 def message_class(ros_type: str):
@@ -88,7 +88,8 @@ class Recorder(Node):
         # file mode: ends once every declared writer has come and gone (they wait for this recorder)
         self.received: dict[str, int] = {}  # fully qualified topic -> messages received
         stream_topic = {t.name.rsplit("/", 1)[-1]: self.resolve_topic_name(t.name) for t in topics.ALL_TOPICS}
-        self.inputs = WriterWatch(self, list(self.pending), received=lambda stream: self._received(stream_topic, stream))
+        self.inputs = WriterWatch(self, list(self.pending),
+                                  received=lambda stream: self._received(stream_topic, stream))
         self.done = self.inputs.done
 
     def _received(self, stream_topic: dict[str, str], stream: str) -> int | None:

@@ -33,7 +33,8 @@ DIC = Topic("vibro/dic", "vibro_msgs/msg/DicFrame", "history", "dic_tracker",
 ACCEL = Topic("vibro/accel", "vibro_msgs/msg/AccelBlock", "history", "accel_source",
               "blocks of upper/lower plate accelerations (m/s^2)", ("accel_source", "bag_source"))
 ACCEL_IMPACTS = Topic("vibro/accel_impacts", "vibro_msgs/msg/AccelImpact", "results", "impact_detector",
-                      "impacts detected in the accelerometers (time, plate, peak, spectrum peaks)", ("impact_detector",))
+                      "impacts detected in the accelerometers (time, plate, peak, spectrum peaks)",
+                      ("impact_detector",))
 STRUCTURE = Topic("vibro/structure", "vibro_msgs/msg/StructureMotion", "results", "trajectory_fitter",
                   "fitted structure sine (Eq. 2, 13)", ("trajectory_fitter",))
 FLIGHTS = Topic("vibro/flights", "vibro_msgs/msg/FreeFlight", "results", "trajectory_fitter",

@@ -1,4 +1,5 @@
-"""Vibro-impact models (COR and Hertz-damped contact), simulator node and a synthetic rig that writes recordings with ground truth.
+"""Vibro-impact models (COR and Hertz-damped contact), simulator node and a synthetic rig that writes recordings
+with ground truth.
 
 Core API (SI units, lab frame, positive up; no rclpy needed):
 

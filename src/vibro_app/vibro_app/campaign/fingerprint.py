@@ -6,8 +6,8 @@ vibro's code version (:func:`code_version`); and the analysis options. After a r
 it is written to ``OUT/<run>/campaign-run.json`` (atomically, last); a run whose stored fingerprint equals
 the current one is not redone. A run whose recording was refused as bad input (a RecordingError: its
 reason is stored with the fingerprint) is not retried either while nothing changed; a run that failed
-otherwise (an internal error, a worker that died) stores nothing and is retried. Any change (a file touched, rig.yaml edited, vibro's code changed, other
-options) redoes the run.
+otherwise (an internal error, a worker that died) stores nothing and is retried. Any change (a file
+touched, rig.yaml edited, vibro's code changed, other options) redoes the run.
 """
 
 from __future__ import annotations

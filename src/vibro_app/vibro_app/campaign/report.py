@@ -145,8 +145,8 @@ def write_report_html(out: Path, document: dict, figures: dict[str, Path]) -> Pa
               "tr.flagged{background:#ffe9c7}</style></head><body>")
     s = document["summary"]
     buf.write(f"<h1>vibro campaign</h1><p>{s['n_runs']} runs: {s['n_ok']} analysed ({s['n_resumed']} resumed from "
-              f"earlier outputs), {s['n_failed']} failed, {s['n_flagged']} flagged. vibro {e(document['vibro_version'])}."
-              f"</p><p>Flag rule: {e(FLAG_RULE)}.</p>")
+              f"earlier outputs), {s['n_failed']} failed, {s['n_flagged']} flagged. "
+              f"vibro {e(document['vibro_version'])}.</p><p>Flag rule: {e(FLAG_RULE)}.</p>")
     buf.write("<table><tr><th>run</th><th>excitation</th><th>structure</th><th>impacts</th><th>COR top</th>"
               "<th>COR bottom</th><th>findings (parameter ± σ; where)</th><th>flags / reason</th></tr>")
     for r in rows:

@@ -71,7 +71,8 @@ def run_summary(record: dict, run_dir: Path) -> dict:
         std = f.get("parameters_std") or {}
         row["findings"].append({
             "effect": f.get("effect"),
-            "parameters": {k: {"value": _num(v), "std": _num(std.get(k))} for k, v in (f.get("parameters") or {}).items()},
+            "parameters": {k: {"value": _num(v), "std": _num(std.get(k))}
+                           for k, v in (f.get("parameters") or {}).items()},
             "where": " ".join(str(f.get("where", "")).split()),
         })
     row["outputs"] = str(run_dir)

@@ -3,9 +3,9 @@
 :func:`analyze_run` calls :func:`vibro_app.analyze.analyze_recording` (the same call as ``vibro
 analyze RECORDING --out OUT/<run> --overwrite``; DIC in this worker process), then stores the run's
 fingerprint (:mod:`.fingerprint`). It returns a plain record: ``status`` "ok" or "failed", ``reason`` (one
-line: a bad recording's :class:`RecordingError` message (remembered with the fingerprint), or the type and message of an unexpected error,
-whose traceback is kept in ``traceback``), the warnings vibro logged while analysing it, and the task's
-own wall time (s) and worker.
+line: a bad recording's :class:`RecordingError` message (remembered with the fingerprint), or the type
+and message of an unexpected error, whose traceback is kept in ``traceback``), the warnings vibro logged
+while analysing it, and the task's own wall time (s) and worker.
 """
 
 from __future__ import annotations

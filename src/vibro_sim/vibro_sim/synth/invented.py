@@ -1,4 +1,4 @@
-"""Out-of-catalogue effects of the synthetic rig (issue 13.3): physics that no term of the discrepancy
+"""Out-of-catalogue effects of the synthetic rig: physics that no term of the discrepancy
 library (vibro_discrepancy.library) models, so the analysis must report them as ``unexplained``
 with where and what. They exist to test that; a lab recording may show any of them.
 

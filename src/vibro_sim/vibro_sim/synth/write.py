@@ -169,7 +169,8 @@ def _spin_truth(cfg: SynthConfig, models, traj, truth: dict[str, Any]) -> dict[s
                 "omega_rad_s": float(spin_rate(0.5 * (f["t_start"] + f["t_end"]), times, index, spins))}
                for f in truth["flights"]]
     impacts = [{"index": j["index"], "t": j["t"], "plate": j["plate"],
-                "omega_before_rad_s": float(spins[j["sim_index"]]), "omega_after_rad_s": float(spins[j["sim_index"] + 1]),
+                "omega_before_rad_s": float(spins[j["sim_index"]]),
+                "omega_after_rad_s": float(spins[j["sim_index"] + 1]),
                 "spin_change_rad_s": float(spins[j["sim_index"] + 1] - spins[j["sim_index"]])}
                for j in truth["impacts"]]
     return {"convention": "in-plane rotation of the ball's texture about its centre, rad, + counter-clockwise as "
@@ -187,7 +188,8 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
     t = traj.frame_t_s
     S = traj.result.structure
     ext = ".tif" if cfg.tiff16 else ".png"
-    params: list[int] = []  # OpenCV's PNG default (level 1, RLE): 1.6 ms a frame, against 2.7 ms with an explicit level 1
+    # OpenCV's PNG default (level 1, RLE): 1.6 ms a frame, against 2.7 ms with an explicit level 1
+    params: list[int] = []
     show = sys.stderr.isatty() if progress is None else progress
     flick_phase = float(rng.uniform(0, 2 * math.pi))
     if cfg.blur:
