@@ -32,9 +32,9 @@ $(DEPS_STAMP): requirements.txt requirements-nodeps.txt | $(PY)
 
 # Development install of the ament_python packages: their source folders on sys.path
 # (a lab PC uses `colcon build` instead; see README). Rewritten whenever the list differs.
+PTH_LINES := $(foreach p,$(PACKAGES),$(CURDIR)/src/$(p))
 $(PTH): FORCE | $(PY)
-	@for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done | cmp -s - $@ 2>/dev/null \
-	  || for p in $(PACKAGES); do echo "$(CURDIR)/src/$$p"; done > $@
+	@printf '%s\n' $(PTH_LINES) | cmp -s - $@ 2>/dev/null || printf '%s\n' $(PTH_LINES) > $@
 
 FORCE:
 
