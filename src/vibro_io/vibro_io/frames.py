@@ -117,6 +117,12 @@ class FrameSequence:
             raise FrameError(f"{self.source}: no such frames folder or video file")
         self.shape: tuple[int, int] = first.shape  # (rows, cols)
         self.dtype = first.dtype
+        #: Significant bits per pixel: 8 for uint8; a camera file's effective depth (its pixels sit at the top
+        #: of 16 bits, so the brightest code is 65535 - (2**(16 - effective_bits) - 1)); 16 for other 16-bit images.
+        self.effective_bits: int = 8 if first.dtype == np.uint8 else (
+            self._camera_file.effective_bits if self._camera_file is not None else 16)
+        #: A video file's codec (FourCC, e.g. "FFV1", "H264", "mp4v"), "" for image folders and camera files.
+        self.codec: str = self._video_codec() if not self._slots and self._camera_file is None else ""
         self.max_unreadable = max(1, int(MAX_UNREADABLE_FRACTION * self._count))
 
     @staticmethod
@@ -152,6 +158,14 @@ class FrameSequence:
             log.warning("%s: %d frame file(s) missing (dropped frames), first at index %d",
                         folder, len(missing), missing[0])
         return slots
+
+    def _video_codec(self) -> str:
+        cap = self._open_video()
+        try:
+            code = int(cap.get(cv2.CAP_PROP_FOURCC))
+        finally:
+            cap.release()
+        return "".join(chr((code >> (8 * i)) & 0xFF) for i in range(4)).strip("\x00 ")
 
     def _open_video(self) -> cv2.VideoCapture:
         cap = cv2.VideoCapture(str(self.source))
