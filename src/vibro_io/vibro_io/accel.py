@@ -1,43 +1,39 @@
-"""Read ``accel.csv``: accelerometer samples of the upper and lower plates (m/s^2)."""
+"""Read ``accel.csv``: accelerometer samples of the upper and lower plates, delivered in m/s^2.
+
+The CSV's values are in rig.yaml's ``accelerometers.unit`` (m/s^2 when left out; g, V or mV
+are converted, V and mV with ``accelerometers.sensitivity_mv_per_g``). :class:`AccelData`,
+:func:`check_sample_rate` and :func:`warn_if_clipped` live in :mod:`vibro_io.accel_checks`
+(shared with the TDMS reader) and are importable from here.
+"""
 
 from __future__ import annotations
 
 import csv
 import logging
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from vibro_model.errors import AccelError
 
+from .accel_checks import (
+    CLIP_RUN_SAMPLES,
+    MAX_SAMPLE_RATE_HZ,
+    MIN_SAMPLE_RATE_HZ,
+    MS2,
+    AccelData,
+    check_sample_rate,
+    ms2_per_unit,
+    warn_if_clipped,
+)
 from .rig import AccelConfig
+from .tdms import load_tdms_accel
+
+__all__ = ["AccelData", "CLIP_RUN_SAMPLES", "MAX_SAMPLE_RATE_HZ", "MIN_SAMPLE_RATE_HZ", "check_sample_rate",
+           "load_accel", "warn_if_clipped", "write_accel"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class AccelData:
-    """Samples on one clock: t_s (s, increasing), upper_ms2 and lower_ms2 (m/s^2)."""
-
-    t_s: np.ndarray
-    upper_ms2: np.ndarray
-    lower_ms2: np.ndarray
-
-    @property
-    def sample_rate_hz(self) -> float:
-        """Median sample rate (Hz)."""
-        return float(1.0 / np.median(np.diff(self.t_s)))
-
-    def __len__(self) -> int:
-        return int(self.t_s.size)
-
-
-# Impacts are located in the accelerometer signal to a fraction of a camera frame: the DAQ must
-# sample at several kHz and faster than the camera. Below this floor the time column is misread.
-MIN_SAMPLE_RATE_HZ = 2_000.0
-MAX_SAMPLE_RATE_HZ = 10e6  # beyond any DAQ for accelerometers
 
 
 def _ends_with_newline(path: Path) -> bool:
@@ -72,8 +68,6 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
     """
     path = Path(path)
     if columns.is_tdms:  # rig.yaml maps TDMS channels (vibro_io.tdms); without the camera's wall-clock start
-        from .tdms import load_tdms_accel
-
         return load_tdms_accel(path, columns, camera_fps=camera_fps)
     try:
         handle = path.open(newline="", encoding="utf-8-sig")
@@ -116,64 +110,35 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
     if len(rows) < 2:
         raise AccelError(f"{path}: fewer than 2 samples")
     data = np.asarray(rows, dtype=float)
-    accel = AccelData(t_s=data[:, 0], upper_ms2=data[:, 1], lower_ms2=data[:, 2])
-    check_sample_rate(accel.sample_rate_hz, f"{path}: column '{columns.time_column}'", camera_fps)
-    for column, values in ((columns.upper_column, accel.upper_ms2), (columns.lower_column, accel.lower_ms2)):
+    check_sample_rate(float(1.0 / np.median(np.diff(data[:, 0]))), f"{path}: column '{columns.time_column}'",
+                      camera_fps)
+    for column, values in ((columns.upper_column, data[:, 1]), (columns.lower_column, data[:, 2])):
         warn_if_clipped(values, f"{path}: column '{column}'")
-    return accel
+    scales = (csv_ms2_per_unit(columns, "upper", path), csv_ms2_per_unit(columns, "lower", path))
+    unit = columns.unit or MS2
+    return AccelData(t_s=data[:, 0], upper_ms2=data[:, 1] * scales[0], lower_ms2=data[:, 2] * scales[1],
+                     source_units=(unit, unit), ms2_per_source_unit=scales,
+                     unit_source="accelerometers.unit" if columns.unit else "default")
 
 
-def check_sample_rate(rate_hz: float, where: str, camera_fps: float | None = None) -> None:
-    """Refuse a sample rate (Hz, from a time column read as seconds) no accelerometer DAQ has.
+def csv_ms2_per_unit(columns: AccelConfig, role: str, path: Path | str) -> float:
+    """M/s^2 per unit of the CSV's ``upper`` or ``lower`` column (``columns.unit``, m/s^2 when None).
 
-    The plausible range is [max(MIN_SAMPLE_RATE_HZ, camera_fps), MAX_SAMPLE_RATE_HZ]: impacts
-    need several kHz, and more than the camera's frame rate. A rate that becomes plausible
-    when multiplied by 1000 or 1e6 means the column holds milliseconds or microseconds.
+    A voltage unit without ``sensitivity_mv_per_g`` is refused (:class:`AccelError` naming the
+    file and the rig.yaml key); rig.yaml's parser already refuses it, this guards a config built in code.
     """
-    low = max(MIN_SAMPLE_RATE_HZ, camera_fps or 0.0)
-    if low <= rate_hz <= MAX_SAMPLE_RATE_HZ:
-        return
-    need = (f"an accelerometer for impacts samples at several kHz (at least {low:g} Hz"
-            + (f", faster than the camera's {camera_fps:g} fps" if camera_fps else "") + ")")
-    hint = ""
-    if rate_hz == 1.0:
-        hint = "; samples are 1 apart: is the column a sample number instead of seconds?"
-    elif rate_hz < low:
-        for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds")):
-            if low <= rate_hz * factor <= MAX_SAMPLE_RATE_HZ:
-                hint = (f"; read as {unit} it would be {rate_hz * factor:g} Hz: "
-                        f"is the time in {unit} instead of seconds?")
-                break
-    raise AccelError(f"{where}: the time column (seconds) implies {rate_hz:g} samples/s, but {need}{hint}")
-
-
-#: This many consecutive samples or more at a channel's extreme value look like a saturated ADC/amplifier.
-CLIP_RUN_SAMPLES = 3
-
-
-def warn_if_clipped(values: np.ndarray, where: str) -> int:
-    """Warn (naming ``where`` and the first sample) when the signal sits at its maximum or minimum for
-    CLIP_RUN_SAMPLES samples or more in a row: a saturated sensor, amplifier or DAQ range flattens
-    the impact peaks. Returns the number of such flat runs."""
-    runs = 0
-    first = None
-    for extreme in (values.max(initial=-np.inf), values.min(initial=np.inf)):
-        at = np.concatenate(([0], (values == extreme).astype(np.int8), [0]))
-        edges = np.diff(at)
-        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-        long = starts[(ends - starts) >= CLIP_RUN_SAMPLES]
-        runs += long.size
-        if long.size and (first is None or long[0] < first[0]):
-            first = (int(long[0]), float(extreme))
-    if first is not None:
-        log.warning("%s: clipped? %d stretch(es) of >= %d samples sit at the signal's extreme value, first at "
-                    "sample %d (value %g): a saturated sensor or DAQ range flattens impact peaks; check the range",
-                    where, runs, CLIP_RUN_SAMPLES, first[0], first[1])
-    return runs
+    unit = columns.unit or MS2
+    sensitivity = columns.sensitivity_mv_per_g.of(role) if columns.sensitivity_mv_per_g else None
+    try:
+        return ms2_per_unit(unit, sensitivity)
+    except ValueError as exc:
+        raise AccelError(f"{path}: accelerometers.unit {unit}: {exc} (accelerometers.sensitivity_mv_per_g "
+                         "in rig.yaml)") from None
 
 
 def write_accel(path: str | Path, data: AccelData, columns: AccelConfig) -> None:
-    """Write samples as CSV with the column names of ``columns``."""
-    table = np.column_stack([data.t_s, data.upper_ms2, data.lower_ms2])
+    """Write samples as CSV with the column names of ``columns``, in its unit (m/s^2 when ``columns.unit`` is None)."""
+    table = np.column_stack([data.t_s, data.upper_ms2 / csv_ms2_per_unit(columns, "upper", path),
+                             data.lower_ms2 / csv_ms2_per_unit(columns, "lower", path)])
     header = f"{columns.time_column},{columns.upper_column},{columns.lower_column}"
     np.savetxt(path, table, delimiter=",", header=header, comments="", fmt=["%.7f", "%.6g", "%.6g"])

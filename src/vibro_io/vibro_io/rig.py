@@ -17,6 +17,7 @@ import yaml
 
 from vibro_model.errors import RigError
 
+from .accel_checks import VOLTAGE_UNITS, canonical_unit
 from .paths import relative_name_problem
 
 log = logging.getLogger(__name__)
@@ -82,8 +83,32 @@ class DicConfig:
 
 
 @dataclass(frozen=True)
+class AccelSensitivity:
+    """Sensitivity (mV per g, g = 9.80665 m/s^2) of the upper and of the lower plate's accelerometer."""
+
+    upper_mv_per_g: float
+    lower_mv_per_g: float
+
+    def of(self, role: str) -> float:
+        """The sensitivity (mV per g) of the ``upper`` or ``lower`` sensor."""
+        return self.upper_mv_per_g if role == "upper" else self.lower_mv_per_g
+
+    def to_yaml(self) -> float | dict[str, float]:
+        """One number when both sensors have it, else ``{upper: .., lower: ..}`` (mV per g), as rig.yaml writes it."""
+        if self.upper_mv_per_g == self.lower_mv_per_g:
+            return self.upper_mv_per_g
+        return {"upper": self.upper_mv_per_g, "lower": self.lower_mv_per_g}
+
+
+@dataclass(frozen=True)
 class AccelConfig:
-    """Where the accelerometer samples are: CSV columns, or (``file`` ending .tdms) TDMS group and channels."""
+    """Where the accelerometer samples are: CSV columns, or (``file`` ending .tdms) TDMS group and channels.
+
+    ``unit`` (canonical: ``m/s^2``, ``g``, ``V``, ``mV``; None when rig.yaml leaves it out) is
+    what accel.csv's values are (None: m/s^2); for a TDMS, the channels' own unit string rules
+    and ``unit`` only fills in for a channel without one. ``sensitivity_mv_per_g`` (mV per g)
+    converts a voltage (V or mV) into m/s^2.
+    """
 
     file: str
     time_column: str | None = None
@@ -92,10 +117,19 @@ class AccelConfig:
     group: str | None = None  # TDMS only: the group holding the two channels
     upper_channel: str | None = None  # TDMS only
     lower_channel: str | None = None  # TDMS only
+    unit: str | None = None
+    sensitivity_mv_per_g: AccelSensitivity | None = None
 
     @property
     def is_tdms(self) -> bool:
         return self.file.lower().endswith(".tdms")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML mapping of this block (keys left out of rig.yaml omitted)."""
+        out = {k: v for k, v in asdict(self).items() if v is not None}
+        if self.sensitivity_mv_per_g is not None:
+            out["sensitivity_mv_per_g"] = self.sensitivity_mv_per_g.to_yaml()
+        return out
 
 
 @dataclass(frozen=True)
@@ -124,7 +158,7 @@ class RigConfig:
         if self.accelerometers is None:
             out.pop("accelerometers")
         else:
-            out["accelerometers"] = {k: v for k, v in out["accelerometers"].items() if v is not None}
+            out["accelerometers"] = self.accelerometers.to_dict()
         if self.camera.start_time_unix_s is None:
             out["camera"].pop("start_time_unix_s")
         if self.excitation.acceleration_ms2 is None:
@@ -322,17 +356,74 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
     return out
 
 
+#: Optional keys of the accelerometers block: the unit of the samples and the sensors' sensitivity.
+_ACCEL_UNIT_KEYS = ("unit", "sensitivity_mv_per_g")
+
+
+def _accel_unit(value: Any, src: str) -> str | None:
+    """``accelerometers.unit`` as a canonical unit (m/s^2, g, V, mV); None when absent."""
+    if value is None:
+        return None
+    unit = canonical_unit(value) if isinstance(value, str) else None
+    if unit is None:
+        raise RigError(f"{src}: key 'accelerometers.unit': expected one of m/s^2, g, V, mV (the unit of the "
+                       f"samples), got {value!r}")
+    return unit
+
+
+def _accel_sensitivity(value: Any, src: str) -> AccelSensitivity | None:
+    """``accelerometers.sensitivity_mv_per_g``: one number (mV per g) or ``{upper: .., lower: ..}``."""
+    key = "accelerometers.sensitivity_mv_per_g"
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        one = _check(value, "pos", f"{src}: key '{key}'")
+        return AccelSensitivity(one, one)
+    for name in value:
+        if name not in ("upper", "lower"):
+            raise RigError(f"{src}: key '{key}.{name}': unknown, expected 'upper' and 'lower' (mV per g of each "
+                           "sensor) or one number for both")
+    for name in ("upper", "lower"):
+        if name not in value:
+            raise RigError(f"{src}: missing required key '{key}.{name}' (mV per g)")
+    return AccelSensitivity(*(_check(value[n], "pos", f"{src}: key '{key}.{n}'") for n in ("upper", "lower")))
+
+
+def _check_accel_units(cfg: AccelConfig, src: str) -> None:
+    """Accel.csv in volts needs the sensitivity; a sensitivity accel.csv in m/s^2 or g never uses is warned about."""
+    if cfg.is_tdms:
+        return  # the channels' unit strings decide, when the file is read
+    if cfg.unit in VOLTAGE_UNITS and cfg.sensitivity_mv_per_g is None:
+        raise RigError(f"{src}: key 'accelerometers.unit' is {cfg.unit}: add 'accelerometers.sensitivity_mv_per_g' "
+                       "(the sensors' sensitivity, mV per g) to convert the samples to m/s^2")
+    if cfg.unit not in VOLTAGE_UNITS and cfg.sensitivity_mv_per_g is not None:
+        log.warning("%s: key 'accelerometers.sensitivity_mv_per_g' not used: the samples are in %s "
+                    "(accelerometers.unit); write 'unit: V' or 'unit: mV' if %s holds voltages",
+                    src, cfg.unit or "m/s^2", cfg.file)
+
+
+def _parse_accel(data: Mapping[str, Any], src: str) -> AccelConfig | None:
+    """The accelerometers block (None when absent): CSV columns or TDMS channels, unit and sensitivity."""
+    block = data.get("accelerometers")
+    if block is None:
+        return None
+    tdms = isinstance(block, Mapping) and isinstance(block.get("file"), str) and \
+        block["file"].lower().endswith(".tdms")
+    core = {k: v for k, v in block.items() if k not in _ACCEL_UNIT_KEYS} if isinstance(block, Mapping) else block
+    fields = _section({"accelerometers": core}, "accelerometers", _TDMS_SCHEMA if tdms else _ACCEL_SCHEMA, src)
+    extra = block if isinstance(block, Mapping) else {}
+    cfg = AccelConfig(**fields, unit=_accel_unit(extra.get("unit"), src),
+                      sensitivity_mv_per_g=_accel_sensitivity(extra.get("sensitivity_mv_per_g"), src))
+    _check_accel_units(cfg, src)
+    return cfg
+
+
 def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
     """Validate a rig mapping (as parsed from YAML) into a :class:`RigConfig`."""
     if not isinstance(data, Mapping):
         raise RigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
     sections = {name: _section(data, name, schema, source) for name, schema in _SCHEMA.items()}
-    accel = None
-    if "accelerometers" in data and data["accelerometers"] is not None:
-        block = data["accelerometers"]
-        tdms = isinstance(block, Mapping) and isinstance(block.get("file"), str) and \
-            block["file"].lower().endswith(".tdms")
-        accel = AccelConfig(**_section(data, "accelerometers", _TDMS_SCHEMA if tdms else _ACCEL_SCHEMA, source))
+    accel = _parse_accel(data, source)
     for key in data:
         if key not in _SCHEMA and key != "accelerometers":
             log.warning("%s: unknown key '%s' ignored", source, key)

@@ -1,12 +1,18 @@
-"""Read NI TDMS accelerometer files (npTDMS): two waveform channels of one group, in m/s^2.
+"""Read NI TDMS accelerometer files (npTDMS): two waveform channels of one group, delivered in m/s^2.
 
 rig.yaml names them (docs/recording-format.md)::
 
     accelerometers:
       file: accel.tdms
       group: accel            # the TDMS group holding both channels
-      upper_channel: upper    # m/s^2, upper plate
-      lower_channel: lower    # m/s^2, lower plate
+      upper_channel: upper    # upper plate
+      lower_channel: lower    # lower plate
+      sensitivity_mv_per_g: 100   # only for channels recorded in V or mV
+
+Each channel's unit is its own ``unit_string`` property (or ``NI_UnitDescription``, ``unit``):
+m/s^2 is taken as is, g is multiplied by 9.80665 m/s^2, a voltage (V, mV) is converted with the
+sensor's sensitivity (mV per g); anything else is refused. A channel without a unit is taken as
+rig.yaml's ``accelerometers.unit``, else as m/s^2 with a warning.
 
 Time comes from the DAQ itself, never from a column: sample i of a channel is at
 ``wf_start_offset + i * wf_increment`` seconds after ``wf_start_time``. When the camera's
@@ -29,7 +35,15 @@ import numpy as np
 
 from vibro_model.errors import AccelError
 
-from .accel import AccelData, check_sample_rate, warn_if_clipped
+from .accel_checks import (
+    MS2,
+    VOLTAGE_UNITS,
+    AccelData,
+    canonical_unit,
+    check_sample_rate,
+    ms2_per_unit,
+    warn_if_clipped,
+)
 from .rig import AccelConfig, CameraConfig
 
 log = logging.getLogger(__name__)
@@ -65,17 +79,89 @@ def _channel(path: Path, group: object, group_name: str, name: str):
                          f"'{group_name}': {names})") from None
 
 
+#: Channel properties that may hold the unit of the samples, in order of precedence.
+UNIT_PROPERTIES = ("unit_string", "NI_UnitDescription", "unit")
+
+
+def recorded_unit(props: dict, where: str) -> tuple[str, str] | None:
+    """(unit as recorded, property holding it) of a channel; None when it records no unit.
+
+    Two unit properties that mean different units are refused (:class:`AccelError` naming ``where``).
+    """
+    found = [(name, props[name].strip()) for name in UNIT_PROPERTIES
+             if isinstance(props.get(name), str) and props[name].strip()]
+    if not found:
+        return None
+    if len({canonical_unit(text) or text for _, text in found}) > 1:
+        shown = ", ".join(f"{name} {text!r}" for name, text in found)
+        raise AccelError(f"{where}: the unit properties disagree ({shown}): which unit the samples are in is unknown")
+    name, text = found[0]
+    return text, name
+
+
+def channel_scale(recorded: tuple[str, str] | None, cfg: AccelConfig, role: str, where: str
+                  ) -> tuple[str, float, str]:
+    """(unit as recorded, m/s^2 per unit, where the unit was read) for the ``upper`` or ``lower`` channel.
+
+    Refused (:class:`AccelError` naming ``where`` and the unit): a unit that is no acceleration
+    or voltage, a voltage without ``accelerometers.sensitivity_mv_per_g``, and a unit that
+    contradicts rig.yaml's ``accelerometers.unit``.
+    """
+    if recorded is None:
+        unit = cfg.unit or MS2
+        source = "accelerometers.unit" if cfg.unit else "assumed"
+        return unit, _factor(unit, cfg, role, where, unit), source
+    text, prop = recorded
+    unit = canonical_unit(text)
+    if unit is None:
+        raise AccelError(f"{where}: unit {text!r} ({prop}) is not one vibro reads: expected an acceleration "
+                         "(m/s^2 or g) or the sensor's voltage (V or mV, with accelerometers.sensitivity_mv_per_g "
+                         "in rig.yaml)")
+    if cfg.unit is not None and cfg.unit != unit:
+        raise AccelError(f"{where}: the file records unit {text!r} ({prop}) but rig.yaml's accelerometers.unit "
+                         f"says {cfg.unit}: correct or remove that key")
+    return text, _factor(unit, cfg, role, where, f"{text!r} ({prop})"), prop
+
+
+def _factor(unit: str, cfg: AccelConfig, role: str, where: str, shown: str) -> float:
+    """M/s^2 per ``unit`` for the ``role`` sensor; a voltage without a sensitivity is refused naming the key."""
+    if unit in VOLTAGE_UNITS and cfg.sensitivity_mv_per_g is None:
+        raise AccelError(f"{where}: unit {shown} is the sensor's voltage: add the sensor's sensitivity "
+                         "(mV per g) to rig.yaml as accelerometers.sensitivity_mv_per_g (one number, or "
+                         "{upper: .., lower: ..}) to convert it to m/s^2")
+    sensitivity = cfg.sensitivity_mv_per_g.of(role) if unit in VOLTAGE_UNITS else None
+    return ms2_per_unit(unit, sensitivity)
+
+
+def _unit_source(sources: list[str]) -> str:
+    """One unit source for both channels, or ``upper: S1, lower: S2`` when they differ."""
+    return sources[0] if sources[0] == sources[1] else f"upper: {sources[0]}, lower: {sources[1]}"
+
+
+def _warn_assumed(path: Path, cfg: AccelConfig, sources: list[str]) -> None:
+    """One warning naming the channels without a unit that were taken as m/s^2."""
+    names = [f"'{cfg.group}/{n}'" for n, s in zip((cfg.upper_channel, cfg.lower_channel), sources) if s == "assumed"]
+    if names:
+        log.warning("%s: channel%s %s record%s no unit (unit_string): taken as m/s^2; if the samples are in g or "
+                    "volts, write accelerometers.unit (and sensitivity_mv_per_g) in rig.yaml",
+                    path, "s" if len(names) > 1 else "", " and ".join(names), "" if len(names) > 1 else "s")
+
+
 def load_tdms_accel(path: str | Path, cfg: AccelConfig, camera: CameraConfig | None = None,
                     camera_fps: float | None = None) -> AccelData:
     """The samples of ``cfg.group``/``cfg.upper_channel`` and ``cfg.lower_channel`` (m/s^2) on the camera clock (s).
+
+    Each channel's unit (:func:`recorded_unit`) is converted to m/s^2 (:func:`channel_scale`);
+    the returned :class:`AccelData` says which unit was read and the factor applied.
 
     ``camera`` (rig.yaml's) places them by wall-clock time and gives the fps the rate must exceed;
     ``camera_fps`` alone only the latter.
 
     Refused (:class:`AccelError` naming file, channel and sample): an unreadable file, a missing
-    group or channel, no ``wf_increment`` (not waveform data: the rate is unknown), channels with
-    different rates, start times or lengths, fewer samples than the channel's ``wf_samples``
-    (truncated file), a non-finite sample, or an implausible rate (:func:`check_sample_rate`).
+    group or channel, a unit that is not m/s^2, g, or a voltage with a sensitivity, no
+    ``wf_increment`` (not waveform data: the rate is unknown), channels with different rates,
+    start times or lengths, fewer samples than the channel's ``wf_samples`` (truncated file),
+    a non-finite sample, or an implausible rate (:func:`check_sample_rate`, naming wf_increment).
     Clipped stretches are warned about (:func:`warn_if_clipped`).
     """
     from nptdms import TdmsFile
@@ -130,11 +216,16 @@ def load_tdms_accel(path: str | Path, cfg: AccelConfig, camera: CameraConfig | N
                          f"{short.size}")
     if upper.size < 2:
         raise AccelError(f"{path}: fewer than 2 samples in group '{cfg.group}'")
-    check_sample_rate(1.0 / dt["upper"], f"{where['upper']} (wf_increment {dt['upper']:g} s)",
-                      camera.fps if camera else camera_fps)
+    scales = [channel_scale(recorded_unit(props, where[role]), cfg, role, where[role])
+              for role, props in (("upper", up_props), ("lower", low_props))]
+    check_sample_rate(1.0 / dt["upper"], where["upper"], camera.fps if camera else camera_fps,
+                      wf_increment_s=dt["upper"])
     for role, values in (("upper", upper), ("lower", lower)):
         warn_if_clipped(values, where[role])
+    _warn_assumed(path, cfg, [s[2] for s in scales])
     t_s = offsets[0] + np.arange(upper.size) * dt["upper"]
     if camera is not None and camera.start_time_unix_s is not None and starts[0] is not None:
         t_s = t_s + camera.t0_s + (starts[0] - camera.start_time_unix_s)
-    return AccelData(t_s=t_s, upper_ms2=upper, lower_ms2=lower)
+    return AccelData(t_s=t_s, upper_ms2=upper * scales[0][1], lower_ms2=lower * scales[1][1],
+                     source_units=(scales[0][0], scales[1][0]), ms2_per_source_unit=(scales[0][1], scales[1][1]),
+                     unit_source=_unit_source([s[2] for s in scales]))
