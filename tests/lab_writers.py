@@ -44,31 +44,49 @@ def write_mraw12(images: np.ndarray, header_path: Path, fps: float) -> Path:
 
 
 def write_cine(images: np.ndarray, path: Path, fps: float, real_bpp: int, first_image_no: int = 0,
-               trigger_unix_s: float = 0.0) -> Path:
-    """``images`` (n, h, w) uint8 (8 bit) or uint16 (16-bit storage, ``real_bpp`` significant bits) as CINE."""
+               trigger_unix_s: float = 0.0, *, time_stamps_s: np.ndarray | None = None,
+               black_white: tuple[int, int] | None = None, cfa: int = 0) -> Path:
+    """``images`` (n, h, w) uint8 (8 bit) or uint16 (16-bit storage, ``real_bpp`` significant bits) as CINE.
+
+    ``time_stamps_s``: one per image, seconds after ``trigger_unix_s``, written as the tagged "time only"
+    block (type 1002: a block
+    header of size, type, reserved, then TIME64 = uint32 fractions of 2**-32 s, uint32 seconds) between
+    the setup (whose ``Length`` says where it ends) and the frame offset table. ``black_white``: the
+    setup's BlackLevel/WhiteLevel (display levels; default 0 and full scale). ``cfa``: the setup's colour
+    filter array code (0: grayscale).
+    """
     from pycine import cine
 
     n, h, w = images.shape
     bits = 8 if images.dtype == np.uint8 else 16
     cfh, bih, setup = cine.CINEFILEHEADER(), cine.BITMAPINFOHEADER(), cine.SETUP()
+    tagged = b""
+    if time_stamps_s is not None:  # ticks of 2**-32 s in integers: a Unix time in float64 resolves 0.24 us only
+        trigger_ticks = int(trigger_unix_s) * 2 ** 32 + int(round((trigger_unix_s - int(trigger_unix_s)) * 2 ** 32))
+        ticks = trigger_ticks + np.round(np.asarray(time_stamps_s, dtype=np.float64) * 2 ** 32).astype(np.int64)
+        pairs = np.stack([ticks % 2 ** 32, ticks // 2 ** 32], axis=1).astype("<u4")
+        tagged = struct.pack("<IHH", 8 + pairs.nbytes, 1002, 0) + pairs.tobytes()
     cfh.Type, cfh.Headersize, cfh.Version = 0x4943, ctypes.sizeof(cfh), 1
     cfh.FirstImageNo, cfh.ImageCount, cfh.TotalImageCount, cfh.FirstMovieImage = first_image_no, n, n, first_image_no
     cfh.OffImageHeader = ctypes.sizeof(cfh)
     cfh.OffSetup = cfh.OffImageHeader + ctypes.sizeof(bih)
-    cfh.OffImageOffsets = cfh.OffSetup + ctypes.sizeof(setup)
+    cfh.OffImageOffsets = cfh.OffSetup + ctypes.sizeof(setup) + len(tagged)
     cfh.TriggerTime.seconds = int(trigger_unix_s)
     cfh.TriggerTime.fractions = int(round((trigger_unix_s - int(trigger_unix_s)) * 2 ** 32))
     bih.biSize, bih.biWidth, bih.biHeight, bih.biPlanes = ctypes.sizeof(bih), w, h, 1
     bih.biBitCount, bih.biCompression, bih.biSizeImage = bits, 0, w * h * bits // 8
     setup.FrameRate, setup.FrameRate16 = int(fps), int(fps) & 0xFFFF
-    setup.RealBPP, setup.BlackLevel, setup.WhiteLevel = real_bpp, 0, 2 ** real_bpp - 1
-    setup.ImWidth, setup.ImHeight = w, h
+    black, white = black_white if black_white is not None else (0, 2 ** real_bpp - 1)
+    setup.RealBPP, setup.BlackLevel, setup.WhiteLevel = real_bpp, black, white
+    setup.ImWidth, setup.ImHeight, setup.CFA = w, h, cfa
+    setup.Length = ctypes.sizeof(setup)
     first = cfh.OffImageOffsets + 8 * n
     block = 8 + bih.biSizeImage
     with path.open("wb") as f:
         f.write(bytes(cfh))
         f.write(bytes(bih))
         f.write(bytes(setup))
+        f.write(tagged)
         f.write(struct.pack(f"<{n}q", *(first + k * block for k in range(n))))
         for image in images:
             f.write(struct.pack("<II", 8, bih.biSizeImage))

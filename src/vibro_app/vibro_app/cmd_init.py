@@ -66,20 +66,28 @@ def _frames_source(source: Path) -> Path:
 
 
 def _fps(args: argparse.Namespace, src: Path) -> float:
-    header_fps = None
-    if src.is_file() and src.suffix.lower() in CAMERA_FILE_SUFFIXES:
-        from vibro_io.camera_files import open_camera_file
-
-        header_fps = open_camera_file(src).header.fps
-    if args.fps is not None:
-        if not (math.isfinite(args.fps) and args.fps > 0):
-            raise RecordingError(f"--fps must be a positive number, got {args.fps}")
-        if header_fps is not None and abs(args.fps - header_fps) > 1e-6 * header_fps:
-            raise RecordingError(f"--fps {args.fps:g} but {src.name}'s header records {header_fps:g} frames/s")
+    """--fps, checked against a camera file's time base (its stamps or header), else the file's rate."""
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise RecordingError(f"--fps must be a positive number, got {args.fps}")
+    if not (src.is_file() and src.suffix.lower() in CAMERA_FILE_SUFFIXES):
+        if args.fps is None:
+            raise RecordingError(f"{src}: the frame rate is not recorded in these files: give --fps")
         return args.fps
-    if header_fps is None:
-        raise RecordingError(f"{src}: the frame rate is not recorded in these files: give --fps")
-    return header_fps
+    from vibro_io.camera_files import open_camera_file
+    from vibro_io.camera_time import fps_tolerance
+
+    header = open_camera_file(src).header
+    base = header.time_base
+    readings = base.candidates_fps if base.fps is None else (base.fps,)
+    if args.fps is None:
+        if base.fps is None:
+            raise RecordingError(f"{src}: give --fps: {base.notes[0]}")
+        return base.fps
+    tolerance = fps_tolerance(base, header.n_frames)
+    if not any(abs(args.fps - r) <= tolerance * r for r in readings):
+        raise RecordingError(f"--fps {args.fps:g} but {src.name}'s saved frames come at "
+                             f"{' or '.join(f'{r:.8g}' for r in readings)} frames/s (its {base.source})")
+    return args.fps
 
 
 def _check_args(args: argparse.Namespace) -> None:

@@ -1,7 +1,7 @@
 """High-speed camera files: Photron MRAW (+ .cih/.cihx header) and Phantom CINE, one frame at a time.
 
 Readers: pyMRAW (header parsing and checks, and its 12-bit unpacker applied to one frame at a
-time) and pycine (header structures, frame offsets, 16-bit and packed frames). Memory stays
+time) and pycine (CINE header structures and frame offsets; its 10-bit unpacker). Memory stays
 constant whatever the length: each frame is mapped or read from the file on its own
 (pyMRAW's ``load_video`` maps the whole file and decodes a 12-bit file whole; it is not used).
 
@@ -32,31 +32,44 @@ import numpy as np
 
 from vibro_model.errors import FrameError, RigError
 
+from .camera_time import TimeBase, fps_tolerance, from_header_step, from_stamps
+
 log = logging.getLogger(__name__)
 
 MRAW_HEADER_SUFFIXES = (".cihx", ".cih")
 CINE_SUFFIXES = (".cine",)
 CAMERA_FILE_SUFFIXES = MRAW_HEADER_SUFFIXES + CINE_SUFFIXES
 
-#: Relative difference of rig.yaml's camera.fps from the header's beyond which the recording is refused.
-FPS_RELATIVE_TOLERANCE = 1e-6
 #: rig.yaml's camera.start_time_unix_s further than this from the header's draws a warning (s).
 START_TIME_TOLERANCE_S = 1e-3
 
 
 @dataclass(frozen=True)
 class CameraHeader:
-    """What a camera file's header says: fps (frames/s), t0_s (s, frame 0 relative to the trigger, or None),
-    start_time_unix_s (wall time of frame 0, Unix s, or None), frame count and size, bits per pixel."""
+    """What a camera file says about its frames.
+
+    ``time_base`` (:class:`~vibro_io.camera_time.TimeBase`): where the saved frames lie in time, from the
+    file's own clock where it has one; ``fps`` is its rate of the saved frames (frames/s; None when the
+    header contradicts itself), ``t0_s`` the time of frame slot 0 relative to the trigger (s, or None),
+    ``start_time_unix_s`` its wall-clock time (Unix s, or None). ``n_frames``: images in the file;
+    ``bits``: significant bits per pixel.
+    """
 
     path: Path
-    fps: float
-    t0_s: float | None
+    time_base: TimeBase
     start_time_unix_s: float | None
     n_frames: int
     height_px: int
     width_px: int
     bits: int
+
+    @property
+    def fps(self) -> float | None:
+        return self.time_base.fps
+
+    @property
+    def t0_s(self) -> float | None:
+        return self.time_base.t0_s
 
 
 def _shifted(image: np.ndarray, effective_bits: int, where: str) -> np.ndarray:
@@ -66,6 +79,15 @@ def _shifted(image: np.ndarray, effective_bits: int, where: str) -> np.ndarray:
     if int(image.max(initial=0)) >> effective_bits:
         raise FrameError(f"{where}: pixel value {int(image.max())} exceeds the header's {effective_bits}-bit depth")
     return image << np.uint16(16 - effective_bits)
+
+
+def _sibling(path: Path, suffix: str) -> Path:
+    """``path`` with ``suffix``, in whatever case the file on disk has it (video.CIHX + video.MRAW)."""
+    for candidate in (path.with_suffix(suffix), path.with_suffix(suffix.upper())):
+        if candidate.is_file():
+            return candidate
+    matches = [p for p in path.parent.glob(path.stem + ".*") if p.suffix.lower() == suffix]
+    return matches[0] if matches else path.with_suffix(suffix)
 
 
 class _CameraFile:
@@ -94,7 +116,7 @@ class MrawFile(_CameraFile):
 
         self._unpack12 = pyMRAW.nb_read_uint12
         self.header_path = Path(header_path)
-        self.path = self.header_path.with_suffix(".mraw")
+        self.path = _sibling(self.header_path, ".mraw")
         cih = self._read_cih(pyMRAW)
         n, h, w = cih["Total Frame"], cih["Image Height"], cih["Image Width"]
         self.bits = cih["Color Bit"]
@@ -104,16 +126,23 @@ class MrawFile(_CameraFile):
             raise FrameError(f"{self.header_path}: a 12-bit MRAW needs an even pixel count per frame, got {w}x{h}")
         self.frame_bytes = h * w * self.bits // 8
         fps = float(cih["Record Rate(fps)"])
-        start = cih.get("Start Frame", self._cihx_start_frame())
-        self.header = CameraHeader(self.header_path, fps, int(start) / fps if isinstance(start, int) else None,
-                                   None, n, h, w, self.bits)
+        frame_info = self._cihx_frame_info()
+        start = cih.get("Start Frame", frame_info.get("startFrame"))
+        step = cih.get("Save Step", frame_info.get("skipFrame", 1))
+        recorded = cih.get("Original Total Frame", frame_info.get("recordedFrame"))
+        if isinstance(step, bool) or not isinstance(step, int) or step < 1:
+            raise FrameError(f"{self.header_path}: header saved-frame step (Save Step / skipFrame) must be a "
+                             f"positive integer, got {step!r}")
+        base = from_header_step(fps, step, n, recorded if isinstance(recorded, int) else None,
+                                start if isinstance(start, int) else None, self.header_path.name)
+        self.header = CameraHeader(self.header_path, base, None, n, h, w, self.effective_bits)
         self._check_size()
 
     def _read_cih(self, pyMRAW: Any) -> dict:
         if not self.path.is_file():
             raise FrameError(f"{self.header_path}: its image file {self.path.name} is missing")
         try:
-            cih = pyMRAW.get_cih(str(self.header_path))
+            cih = self._parse_header(pyMRAW)
         except Exception as exc:  # pyMRAW raises bare Exception, KeyError, xml errors for a bad header
             raise FrameError(f"{self.header_path}: not a readable Photron header "
                              f"({type(exc).__name__}: {exc})") from None
@@ -139,19 +168,40 @@ class MrawFile(_CameraFile):
             raise FrameError(f"{self.header_path}: header 'File Format' is {cih['File Format']}, not MRAW")
         return cih
 
-    def _cihx_start_frame(self) -> int | None:
-        """frameInfo/startFrame of a .cihx (pyMRAW's dict leaves it out); None if absent or a .cih."""
+    def _parse_header(self, pyMRAW: Any) -> dict:
+        """The header dict pyMRAW reads; a header whose extension is not lower case (video.CIHX) is parsed from a copy
+        named in lower case (pyMRAW dispatches on the exact extension)."""
+        suffix = self.header_path.suffix
+        if suffix == suffix.lower():
+            return pyMRAW.get_cih(str(self.header_path))
+        import shutil
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            copy = Path(tmp) / ("header" + suffix.lower())
+            shutil.copyfile(self.header_path, copy)
+            return pyMRAW.get_cih(str(copy))
+
+    def _cihx_frame_info(self) -> dict[str, int]:
+        """The integers under frameInfo of a .cihx (startFrame, skipFrame, recordedFrame, ...: pyMRAW's dict
+        leaves them out); empty for a .cih or an unreadable block."""
         if self.header_path.suffix.lower() != ".cihx":
-            return None
+            return {}
         import xml.etree.ElementTree as ET
 
         text = self.header_path.read_text(encoding="utf-8", errors="ignore")
         start, end = text.find("<cih>"), text.rfind("</cih>")
         try:
-            value = ET.fromstring(text[start:end + 6]).findtext("frameInfo/startFrame")
-            return None if value is None else int(value)
-        except (ET.ParseError, ValueError):
-            return None
+            info = ET.fromstring(text[start:end + 6]).find("frameInfo")
+        except ET.ParseError:
+            return {}
+        out = {}
+        for child in [] if info is None else list(info):
+            try:
+                out[child.tag] = int((child.text or "").strip())
+            except ValueError:
+                continue
+        return out
 
     def _check_size(self) -> None:
         size = self.path.stat().st_size
@@ -184,13 +234,27 @@ class MrawFile(_CameraFile):
         return image if self.higher else _shifted(image, self.effective_bits, where)
 
 
-class CineFile(_CameraFile):
-    """A Phantom CINE file: pycine reads the header, the frame offsets and 16-bit/packed frames.
+#: CINE biCompression codes: uncompressed, packed 10-bit (pycine decodes it), packed 12-bit.
+CINE_UNCOMPRESSED, CINE_PACKED_10BIT, CINE_PACKED_12BIT = 0, 256, 1024
+#: CINE tagged-block types holding one TIME64 per image: "time only" (1002) and its older form (1001).
+CINE_TIME_BLOCKS = (1002, 1001)
 
-    pycine cannot decode 8-bit frames (it reads every uncompressed frame as 16-bit); for those a
-    minimal reader does what the format defines: at the frame's offset, a 32-bit annotation size
-    (annotation skipped), a 32-bit image size, then the rows bottom-up (flipped to top-down, as
-    pycine does for 16 bits).
+
+class CineFile(_CameraFile):
+    """A Phantom CINE file: pycine reads the header and the frame offsets; frames are decoded here.
+
+    Uncompressed frames (8 or 16 bits per pixel) are read as the camera wrote them: at the frame's
+    offset a 32-bit annotation size (annotation skipped), a 32-bit image size, then the rows
+    bottom-up (flipped to top-down). The raw values are delivered (MSB-aligned to 16 bits for
+    ``RealBPP`` < 16): pycine's rescaling from the setup's BlackLevel/WhiteLevel is a display
+    mapping, and an old file with meaningless levels decodes through it to all-zero frames. Packed
+    10-bit frames (compression 256) go through pycine's unpacker and its 10-to-12-bit linearising
+    table (delivered as 12-bit). Colour files (a colour filter array or RGB pixels) are refused by name.
+    Each frame is checked after decoding: values beyond the declared depth, or a constant frame whose
+    raw bytes vary, raise :class:`FrameError` naming the cause.
+
+    The time base is the images' own time stamps (tagged block 1002) where the file has them
+    (:mod:`.camera_time`), else the setup's frame rate and ``FirstImageNo``.
     """
 
     def __init__(self, path: str | Path):
@@ -208,23 +272,75 @@ class CineFile(_CameraFile):
         w, h = int(bih.biWidth), abs(int(bih.biHeight))
         if w <= 0 or h <= 0:
             raise FrameError(f"{self.path}: header image size {w}x{h} px is not positive")
-        if bih.biBitCount not in (8, 16) or bih.biCompression not in (0, 1):
-            raise FrameError(f"{self.path}: {bih.biBitCount}-bit frames with compression {bih.biCompression} are "
-                             "not supported (grayscale 8/16-bit or packed 10-bit CINE only; pycine reads those)")
+        self._check_pixel_format(int(bih.biBitCount), int(bih.biCompression), int(setup.CFA))
+        self.compression = int(bih.biCompression)
         self.bits = 8 if bih.biBitCount == 8 else 16
-        self.effective_bits = 8 if self.bits == 8 else (12 if bih.biCompression else int(setup.RealBPP))
+        packed = self.compression == CINE_PACKED_10BIT
+        self.effective_bits = 8 if self.bits == 8 else (12 if packed else int(setup.RealBPP))
         if not 8 <= self.effective_bits <= 16:
             raise FrameError(f"{self.path}: header RealBPP {setup.RealBPP} is not between 8 and 16 bits")
         fps = float(setup.FrameRate or setup.FrameRate16)
         if not fps > 0:
             raise FrameError(f"{self.path}: header frame rate (setup.FrameRate) is 0")
-        t0_s = int(cfh.FirstImageNo) / fps
         trigger = cfh.TriggerTime.seconds + cfh.TriggerTime.fractions / 2.0 ** 32
         plausible = 946684800.0 <= trigger <= time.time() + 86400.0
-        self.frame_bytes = (w * h * 10 // 8) if bih.biCompression else w * h * self.bits // 8
-        self.header = CameraHeader(self.path, fps, t0_s, trigger + t0_s if plausible else None,
-                                   int(cfh.ImageCount), h, w, self.effective_bits)
+        self.frame_bytes = (w * h * 10 // 8) if packed else w * h * self.bits // 8
+        n = int(cfh.ImageCount)
+        base = self._time_base(n, fps, (int(cfh.TriggerTime.seconds), int(cfh.TriggerTime.fractions))
+                               if plausible else None)
+        start = base.start_unix_s if base.source == "time stamps" else (
+            trigger + base.t0_s if plausible and base.t0_s is not None else None)
+        if start is not None and not 946684800.0 <= start <= time.time() + 86400.0:
+            start = None
+        self.header = CameraHeader(self.path, base, start, n, h, w, self.effective_bits)
         self._check_size()
+
+    def _check_pixel_format(self, bit_count: int, compression: int, cfa: int) -> None:
+        if bit_count in (24, 48) or (cfa & 0xFF) != 0:
+            what = f"{bit_count}-bit RGB pixels" if bit_count in (24, 48) else f"a colour filter array (CFA code {cfa})"
+            raise FrameError(f"{self.path}: a colour CINE ({what}): vibro tracks grayscale frames; save the cine "
+                             "as grayscale (Phantom PCC: File > Save As, or a monochrome camera) and try again")
+        if bit_count not in (8, 16) or compression not in (CINE_UNCOMPRESSED, CINE_PACKED_10BIT):
+            kind = {CINE_PACKED_12BIT: "packed 12-bit"}.get(compression, f"compression code {compression}")
+            raise FrameError(f"{self.path}: {bit_count}-bit frames with {kind} are not supported (grayscale "
+                             "uncompressed 8/16-bit and packed 10-bit CINE are)")
+
+    def _time_stamps(self, n: int) -> np.ndarray | None:
+        """The images' TIME64 stamps from the tagged blocks after the setup, as (seconds, fractions of 2**-32 s)
+        integer pairs (n, 2); None without them."""
+        cfh, setup = self._hdr["cinefileheader"], self._hdr["setup"]
+        if int(setup.Length) < 8:
+            return None  # a writer that leaves the setup's length out: no way to find the tagged blocks
+        start, end = int(cfh.OffSetup) + int(setup.Length), int(cfh.OffImageOffsets)
+        with self.path.open("rb") as f:
+            f.seek(start)
+            blocks = f.read(max(0, end - start))
+        offset = 0
+        while offset + 8 <= len(blocks):
+            size, kind, _ = struct.unpack_from("<IHH", blocks, offset)
+            if size < 8:
+                break
+            if kind in CINE_TIME_BLOCKS and size >= 8 + 8 * n and offset + 8 + 8 * n <= len(blocks):
+                pairs = np.frombuffer(blocks, dtype="<u4", count=2 * n, offset=offset + 8).reshape(n, 2)
+                return np.stack([pairs[:, 1], pairs[:, 0]], axis=1).astype(np.int64)
+            offset += size
+        return None
+
+    def _time_base(self, n: int, fps: float, trigger: tuple[int, int] | None) -> TimeBase:
+        """From the stamps where the file has them (seconds counted from the trigger's whole second, in
+        integers first: a Unix time in float64 resolves only 0.24 us), else the header."""
+        stamps = self._time_stamps(n) if n >= 2 else None
+        if stamps is not None:
+            origin = trigger[0] if trigger is not None else int(stamps[:, 0].min())
+            rel = (stamps[:, 0] - origin).astype(np.float64) + stamps[:, 1] / 2.0 ** 32
+            trigger_rel = None if trigger is None else trigger[1] / 2.0 ** 32
+            try:
+                return from_stamps(rel, float(origin), fps, trigger_rel, self.path.name)
+            except ValueError as exc:
+                raise FrameError(f"{self.path}: the images' time stamps (tagged block 1002) are not a clock: "
+                                 f"{exc}") from None
+        first = int(self._hdr["cinefileheader"].FirstImageNo)
+        return TimeBase(fps=fps, source="header", record_fps=fps, t0_s=first / fps)
 
     def _check_size(self) -> None:
         size = self.path.stat().st_size
@@ -238,17 +354,27 @@ class CineFile(_CameraFile):
         """Frame ``k`` (0-based, file order) as a top-down image; FrameError naming file and frame."""
         where = f"{self.path} frame {k}"
         try:
-            if self.bits == 8:
-                return self._read_8bit(k)
-            from pycine.raw import frame_reader
-
-            image = next(frame_reader(str(self.path), self._hdr, start_frame=k + 1, count=1))
-        except (OSError, ValueError, struct.error, StopIteration) as exc:
+            raw = self._raw_bytes(k)
+        except (OSError, ValueError, struct.error) as exc:
             raise FrameError(f"{where}: cannot decode ({type(exc).__name__}: {exc})") from None
-        return _shifted(np.ascontiguousarray(image, dtype=np.uint16), self.effective_bits, where)
-
-    def _read_8bit(self, k: int) -> np.ndarray:
         h, w = self.header.height_px, self.header.width_px
+        if self.bits == 8:
+            values = image = np.flipud(np.frombuffer(raw, dtype=np.uint8).reshape(h, w)).copy()
+        elif self.compression == CINE_PACKED_10BIT:
+            from pycine.linLUT import linLUT
+            from pycine.raw import unpack_10bit
+
+            values = unpack_10bit(raw, w, h)  # rows as pycine orders them
+            image = np.asarray(linLUT, dtype=np.uint16)[values]
+        else:
+            values = image = np.flipud(np.frombuffer(raw, dtype="<u2").reshape(h, w)).astype(np.uint16)
+        if image.size > 1 and image.min() == image.max() and values.min() != values.max():
+            raise FrameError(f"{where}: decodes to a constant frame ({int(image.min())}) although its raw values span "
+                             f"{int(values.min())}..{int(values.max())}: the decoder does not understand this file")
+        return image if self.bits == 8 else _shifted(np.ascontiguousarray(image), self.effective_bits, where)
+
+    def _raw_bytes(self, k: int) -> bytes:
+        """The image bytes of frame ``k``: past its annotation block, as many as the frame holds."""
         with self.path.open("rb") as f:
             f.seek(self._hdr["pImage"][k])
             (annotation_size,) = struct.unpack("<I", f.read(4))
@@ -256,10 +382,11 @@ class CineFile(_CameraFile):
                 raise ValueError(f"annotation size {annotation_size} < 8")
             f.seek(annotation_size - 8, 1)
             (image_size,) = struct.unpack("<I", f.read(4))
-            data = f.read(w * h)
-        if image_size < w * h or len(data) < w * h:
-            raise ValueError(f"image holds {min(image_size, len(data))} bytes, {w}x{h} px need {w * h}")
-        return np.flipud(np.frombuffer(data, dtype=np.uint8).reshape(h, w)).copy()
+            data = f.read(self.frame_bytes)
+        if image_size < self.frame_bytes or len(data) < self.frame_bytes:
+            raise ValueError(f"image holds {min(image_size, len(data))} bytes, {self.header.width_px}x"
+                             f"{self.header.height_px} px need {self.frame_bytes}")
+        return data
 
 
 def open_camera_file(path: str | Path) -> MrawFile | CineFile:
@@ -276,31 +403,50 @@ def open_camera_file(path: str | Path) -> MrawFile | CineFile:
 def merge_camera_header(data: Any, header: CameraHeader, rig_src: str) -> Any:
     """rig.yaml's mapping with the camera keys the header gives filled in where rig.yaml leaves them out.
 
-    ``camera.fps`` given in both and differing (relatively) by more than FPS_RELATIVE_TOLERANCE:
-    refused (RigError): every time, velocity and the accelerometer alignment scale with it, so a
-    wrong rate gives wrong numbers silently. ``camera.t0_s`` / ``camera.start_time_unix_s`` given in
-    both and differing: rig.yaml's value is kept with a warning (they only set the time origin,
-    which a lab may deliberately put on its DAQ's clock; CORs do not depend on it).
+    ``camera.fps`` is the spacing of the *saved* frames (:attr:`CameraHeader.fps`, from the file's
+    own time stamps, or the header's rate and saved-frame step). Given in rig.yaml, it must name the
+    same spacing (within :func:`~vibro_io.camera_time.fps_tolerance`), else it is refused
+    (RigError naming both): every time, velocity and the accelerometer alignment scale with it.
+    Where the header contradicts itself (``fps`` None) rig.yaml must give camera.fps, one of the
+    header's readings. ``camera.t0_s`` / ``camera.start_time_unix_s`` given in both and differing:
+    rig.yaml's value is kept with a warning (they only set the time origin, which a lab may
+    deliberately put on its DAQ's clock; CORs do not depend on it).
     """
     if not isinstance(data, Mapping) or not isinstance(data.get("camera"), Mapping):
         return data  # parse_rig reports it
     cam = dict(data["camera"])
     name = header.path.name
+    base = header.time_base
+    for note in base.notes:
+        log.warning("%s", note)
 
     def number(value: Any) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
-    if cam.get("fps") is None:
-        cam["fps"] = header.fps
-        log.info("%s: camera.fps %g taken from %s", rig_src, header.fps, name)
-    elif number(cam["fps"]) and abs(cam["fps"] - header.fps) > FPS_RELATIVE_TOLERANCE * header.fps:
-        raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s header records {header.fps:g} "
-                       "frames/s: every time and velocity would be off by their ratio; fix camera.fps or remove it "
-                       "to use the camera's")
+    def same(a: float, b: float) -> bool:
+        return abs(a - b) <= fps_tolerance(base, header.n_frames) * b
+
+    if base.fps is None:
+        options = " or ".join(f"{c:g}" for c in base.candidates_fps)
+        if cam.get("fps") is None:
+            raise RigError(f"{rig_src}: key 'camera.fps' is needed: {name}'s header does not fix the spacing of the "
+                           f"saved frames ({options} frames/s); {base.notes[0] if base.notes else ''}")
+        if number(cam["fps"]) and not any(same(cam["fps"], c) for c in base.candidates_fps):
+            raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s header allows {options} "
+                           "frames/s only")
+    elif cam.get("fps") is None:
+        cam["fps"] = base.fps
+        log.info("%s: camera.fps %.8g taken from %s (%s)", rig_src, base.fps, name, base.source)
+    elif number(cam["fps"]) and not same(cam["fps"], base.fps):
+        header_said = (f"; its header says {base.record_fps:g} frames/s" if base.source != "header" else "")
+        raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s saved frames are "
+                       f"{1.0 / base.fps:.6g} s apart ({base.fps:.8g} frames/s, from its {base.source}"
+                       f"{header_said}): every time and velocity would be off by their ratio "
+                       f"{cam['fps'] / base.fps:.4g}; fix camera.fps or remove it to use the file's")
     if header.t0_s is not None:
         if cam.get("t0_s") is None:
             cam["t0_s"] = header.t0_s
-        elif number(cam["t0_s"]) and abs(cam["t0_s"] - header.t0_s) > 0.5 / header.fps:
+        elif number(cam["t0_s"]) and number(cam.get("fps")) and abs(cam["t0_s"] - header.t0_s) > 0.5 / cam["fps"]:
             log.warning("%s: key 'camera.t0_s' is %g s but %s's header puts frame 0 at %g s from the trigger; "
                         "rig.yaml's value is used", rig_src, cam["t0_s"], name, header.t0_s)
     if header.start_time_unix_s is not None:

@@ -102,8 +102,9 @@ class FrameSequence:
         elif self.source.is_file() and self.source.suffix.lower() in CAMERA_FILE_SUFFIXES:
             self._files, self._slots = [], []
             self._camera_file = open_camera_file(self.source)
-            self._count = len(self._camera_file)
-            first = self._camera_file.read(0)
+            self._camera_slots = self._slots_of(self._camera_file.header.time_base.slots, len(self._camera_file))
+            self._count = len(self._camera_slots)
+            first = self._camera_file.read(next(i for i in self._camera_slots if i is not None))
         elif self.source.is_file():
             self._files, self._slots = [], []
             cap = self._open_video()
@@ -124,6 +125,20 @@ class FrameSequence:
         #: A video file's codec (FourCC, e.g. "FFV1", "H264", "mp4v"), "" for image folders and camera files.
         self.codec: str = self._video_codec() if not self._slots and self._camera_file is None else ""
         self.max_unreadable = max(1, int(MAX_UNREADABLE_FRACTION * self._count))
+
+    def _slots_of(self, slots: np.ndarray | None, n_images: int) -> list[int | None]:
+        """Image index of each frame slot of a camera file (None: a slot its clock leaves empty)."""
+        if slots is None:
+            return list(range(n_images))
+        out: list[int | None] = [None] * (int(slots.max()) + 1)
+        for image, slot in enumerate(slots):
+            if slot >= 0:
+                out[int(slot)] = image
+        empty = [k for k, image in enumerate(out) if image is None]
+        if empty:
+            log.warning("%s: %d frame slot(s) empty by the images' time stamps (dropped frames), first at index %d",
+                        self.source, len(empty), empty[0])
+        return out
 
     @staticmethod
     def _list_files(folder: Path, root: str | Path | None) -> list[Path]:
@@ -235,8 +250,13 @@ class FrameSequence:
         for k in range(start, self._count if stop is None else min(stop, self._count)):
             where = f"{self.source} frame {k}"
             t = self.camera.frame_time_s(k)
+            image_index = self._camera_slots[k]
+            if image_index is None:
+                yield Frame(k, t, None, where, f"frame {k}: no image in this slot by the camera's time stamps "
+                            "(dropped frame)", dropped=True)
+                continue
             try:
-                image = self._camera_file.read(k)
+                image = self._camera_file.read(image_index)
             except FrameError as exc:
                 yield Frame(k, t, None, where, f"frame {k}: {exc}")
                 continue
@@ -289,18 +309,32 @@ class UnreadableGuard:
 def find_frames_source(recording: str | Path) -> Path:
     """The frames/ folder of a recording, else its video file; :class:`FrameError` if neither.
 
-    Either must resolve inside the recording directory (a symlink leading out is refused).
+    The video is ``video.*`` (any case: ``video.CIHX`` + ``video.MRAW`` too); without one, a single
+    camera file under its own name (``ball_12bit.cihx`` + ``ball_12bit.mraw``, ``take3.cine``) is used,
+    and several are refused with one message saying what to rename. Either must resolve inside the
+    recording directory (a symlink leading out is refused).
     """
     recording = Path(recording)
     if (recording / "frames").is_dir():
         return inside_recording(recording, "frames", "frames folder")
-    videos = sorted(p for p in recording.glob("video.*") if p.suffix.lower() in VIDEO_SUFFIXES + CAMERA_FILE_SUFFIXES)
+    files = sorted(p for p in recording.iterdir() if p.is_file()) if recording.is_dir() else []
+    known = VIDEO_SUFFIXES + CAMERA_FILE_SUFFIXES
+    videos = [p for p in files if p.stem.lower() == "video" and p.suffix.lower() in known]
     if any(p.suffix.lower() in CAMERA_FILE_SUFFIXES for p in videos) and len(videos) > 1:
         raise FrameError(f"{recording}: {len(videos)} video files ({', '.join(p.name for p in videos)}): "
                          "keep one (a Photron MRAW with one header, .cihx or .cih)")
     if videos:
         return inside_recording(recording, videos[0].name, "video file")
-    if (recording / "video.mraw").exists():
+    cameras = [p for p in files if p.suffix.lower() in CAMERA_FILE_SUFFIXES]
+    if len(cameras) == 1:
+        log.info("%s: frames from the camera file %s", recording, cameras[0].name)
+        return inside_recording(recording, cameras[0].name, "camera file")
+    if cameras:
+        raise FrameError(f"{recording}: {len(cameras)} camera files ({', '.join(p.name for p in cameras)}) and no "
+                         "video.*: rename the one to analyse to video.<its extension> (a Photron header's .mraw to "
+                         "video.mraw beside it) or move the others out")
+    if any(p.stem.lower() == "video" and p.suffix.lower() == ".mraw" for p in files):
         raise FrameError(f"{recording}: video.mraw has no header beside it (video.cihx or video.cih)")
-    raise FrameError(f"{recording}: no frames/ folder and no video.avi "
-                     "(nor video.cine, nor video.mraw with video.cihx or video.cih)")
+    raise FrameError(f"{recording}: no frames/ folder and no video.avi (nor another video.* of "
+                     f"{', '.join(VIDEO_SUFFIXES)}, nor a camera file {', '.join(CAMERA_FILE_SUFFIXES)}: a Photron "
+                     "header with its .mraw, a Phantom .cine)")

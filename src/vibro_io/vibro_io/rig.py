@@ -273,6 +273,9 @@ def load_rig(path: str | Path) -> RigConfig:
     try:
         source = find_frames_source(Path(path).parent)
     except FrameError:
+        camera = data.get("camera") if isinstance(data, Mapping) else None
+        if isinstance(camera, Mapping) and camera.get("fps") is None:
+            raise  # no frames and no rate: the missing video is the first thing to say
         source = None  # open_recording reports a missing or ambiguous video
     if source is not None and source.suffix.lower() in CAMERA_FILE_SUFFIXES:
         data = merge_camera_header(data, open_camera_file(source).header, str(path))
