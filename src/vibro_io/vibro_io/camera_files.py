@@ -417,8 +417,9 @@ def merge_camera_header(data: Any, header: CameraHeader, rig_src: str) -> Any:
     cam = dict(data["camera"])
     name = header.path.name
     base = header.time_base
-    for note in base.notes:
-        log.warning("%s", note)
+    if base.fps is not None:  # a contradictory header's note goes into the refusal or is settled by rig.yaml
+        for note in base.notes:
+            log.warning("%s", note)
 
     def number(value: Any) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
@@ -429,8 +430,8 @@ def merge_camera_header(data: Any, header: CameraHeader, rig_src: str) -> Any:
     if base.fps is None:
         options = " or ".join(f"{c:g}" for c in base.candidates_fps)
         if cam.get("fps") is None:
-            raise RigError(f"{rig_src}: key 'camera.fps' is needed: {name}'s header does not fix the spacing of the "
-                           f"saved frames ({options} frames/s); {base.notes[0] if base.notes else ''}")
+            why = base.notes[0] if base.notes else f"{name}'s header allows {options} frames/s"
+            raise RigError(f"{rig_src}: key 'camera.fps' is needed: {why}")
         if number(cam["fps"]) and not any(same(cam["fps"], c) for c in base.candidates_fps):
             raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s header allows {options} "
                            "frames/s only")
