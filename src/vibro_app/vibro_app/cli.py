@@ -14,6 +14,8 @@ import sys
 
 from vibro_model.errors import RecordingError
 
+from .version import version_text
+
 SUBCOMMAND_MODULES = (
     "vibro_app.cmd_info",
     "vibro_app.cmd_init",
@@ -30,12 +32,25 @@ SUBCOMMAND_MODULES = (
 )
 
 
+class _VersionAction(argparse.Action):
+    """--version, worked out only when asked for (it runs git)."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object) -> None:
+        print(version_text())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vibro",
         description="Characterise vibro-impact absorbers from high-speed video and accelerometers.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action=_VersionAction,
+                        help="print the package version (and the git commit of a checkout) and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMAND_MODULES:
         try:
