@@ -59,7 +59,13 @@ def test_analyze_writes_contract_results_and_report(recording, tmp_path, capsys)
         assert (out / name).is_file(), name
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html   # self-contained
-    assert "regime" in capsys.readouterr().out
+    out_text = capsys.readouterr().out
+    assert "regime" in out_text
+    # the finding printed as vibro graph prints it: effect, main parameter +- its sigma, D before -> after (%)
+    cor_top, sigma = asym[0]["parameters"]["cor_top"], asym[0]["parameters_std"]["cor_top"]
+    line = next(x for x in out_text.splitlines() if x.startswith("finding: asymmetric_restitution"))
+    assert f"cor_top = {cor_top:.4g} +- {sigma:.2g}" in line
+    assert line.endswith(f"D {100 * asym[0]['deviation_before']:.3g} % -> {100 * asym[0]['deviation_after']:.3g} %")
 
 
 def test_analyze_bad_track_is_one_line_error(recording, tmp_path, capsys):

@@ -21,6 +21,7 @@ the document keeps what there is (streamed estimates where no final one arrived)
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -191,8 +192,14 @@ def run(args: argparse.Namespace) -> int:
         out = prepare_results_path(args.out, args.overwrite, [bag, bag.parent / f"{bag.name}.logs"])
         atomic_write_text(out, text)
         print(f"wrote {out}")
+        stream = sys.stdout
     else:
         print(text, end="")
+        stream = sys.stderr  # stdout holds the JSON document
+    from vibro_app.findings_text import findings_lines
+
+    for line in findings_lines(json.loads(text).get("discrepancy")):
+        print(line, file=stream)
     if not doc.complete:
         print(f"vibro results: error: {args.bag}: the run in this bag is incomplete ({doc.warnings[0]}); "
               "the document is marked \"complete\": false", file=sys.stderr)

@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from vibro_app.analyze import analyze_recording
+    from vibro_app.findings_text import findings_lines
 
     progress = not args.no_progress and sys.stderr.isatty()
     doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,
@@ -59,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"COR {plate:<7}    mean {f(d['mean'], '.4f')}  std {f(d['std'], '.4f')}  n {d['n']}")
     print(f"deviation D    COR model {f(sim['cor_model']['deviation'], '.4f')}, "
           f"Hertz model {f(sim['hertz_model']['deviation'], '.4f')}")
+    for line in findings_lines(doc.get("discrepancy")):
+        print(line)
     for w in doc.get("warnings", []):
         print(f"warning: {w}", file=sys.stderr)
     return 0

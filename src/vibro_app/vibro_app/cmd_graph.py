@@ -155,10 +155,12 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     for model, d in sorted(s.deviations.items()):
         print(f"D {model:12s} {100 * d:6.2f} %")
     if s.findings:
+        from vibro_app.findings_text import finding_line
+
         for f in s.findings:
-            params = ", ".join(f"{n}={v:.4g}" for n, v in zip(f.parameter_names, f.parameter_values))
-            print(f"finding: {f.effect} ({params}) D {100 * f.deviation_before:.2f} % -> "
-                  f"{100 * f.deviation_after:.2f} %; {f.where}")
+            sigmas = dict(zip(f.parameter_names, f.parameter_std))
+            print(finding_line(f.effect, dict(zip(f.parameter_names, f.parameter_values)), sigmas,
+                               f.deviation_before, f.deviation_after) + f"; {f.where}")
     else:
         print("findings: none published")
     if s.recorded:

@@ -159,9 +159,9 @@ def flight_term_where(meas: Measured, steps: OneStep, model_after: FittedModel, 
         c = model_after.flights.coef_of(term.effect)
         a = c * term.basis(v, meas.mass_kg)
         extra.setdefault(fl.direction, []).append(float(np.mean(a)))
-    parts = [f"{'towards the top plate' if d == 'up' else 'towards the bottom plate'} {np.mean(v):+.3f} m/s^2"
+    parts = [f"{np.mean(v):+.3f} m/s^2 on flights towards the {'top' if d == 'up' else 'bottom'} plate"
              for d, v in sorted(extra.items(), reverse=True)]
-    return f"{words}; {term.effect} adds a mean acceleration of " + ", ".join(parts)
+    return f"{words}; {term.effect} adds a mean acceleration of " + " and ".join(parts)
 
 
 def cor_law_where(meas: Measured, steps: OneStep, model_after: FittedModel, cor_noise: float) -> str:
