@@ -521,13 +521,41 @@ def estimate_frequency_hz(motion: Motion, fps: float) -> tuple[float | None, str
 
 # ------------------------------------------------------------------------------------- noise, texture
 
-def noise_sigma_gray(image: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Read-noise sigma (gray levels) by Immerkaer's Laplacian-difference estimator over ``mask``
-    (texture inflates it: an upper bound, hence a conservative texture check)."""
+def gray255_code(effective_bits: int | None = None) -> tuple[float, float]:
+    """(one code, the brightest code) of frames with ``effective_bits`` significant bits in the 0..255 scale
+    of :func:`to_gray255` (8 bits: uint8 as is; more: MSB-aligned in uint16, divided by 257). None: 8 bits."""
+    n = 8 if effective_bits is None else int(effective_bits)
+    container = 8 if n == 8 else 16
+    scale = 255.0 / (2 ** container - 1)
+    step = 2 ** (container - n)
+    return step * scale, (2 ** container - step) * scale
+
+
+def clipped_gray255(image: np.ndarray, effective_bits: int | None = None) -> np.ndarray:
+    """Mask of the saturated (within half a code of the brightest) or black pixels of a :func:`to_gray255`
+    frame. With ``effective_bits`` None the threshold, 254.5, also catches the brightest code of any 16-bit
+    source of 9 or more effective bits (a 12-bit camera's 4095 is 254.94)."""
+    code, top = gray255_code(effective_bits)
+    return (image >= top - 0.5 * code) | (image <= 0.5 * code)
+
+
+def noise_sigma_gray(image: np.ndarray, mask: np.ndarray | None = None, *, effective_bits: int | None = None) -> float:
+    """Read-noise sigma (gray levels, 0..255 scale) by Immerkaer's Laplacian-difference estimator over ``mask``
+    less the pixels next to a clipped one (:func:`clipped_gray255`: a saturated backlight has no noise to
+    see), never below the quantization noise of the depth, one code / sqrt(12) (texture inflates it: an
+    upper bound, hence a conservative texture check). Raises :class:`InitError` when no unclipped pixel
+    is left."""
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
     conv = np.abs(cv2.filter2D(image.astype(np.float32), cv2.CV_32F, kernel))[1:-1, 1:-1]
-    sel = conv if mask is None else conv[mask[1:-1, 1:-1]]
-    return float(math.sqrt(math.pi / 2.0) * sel.mean() / 6.0) if sel.size else math.nan
+    near_clip = cv2.dilate(clipped_gray255(image, effective_bits).astype(np.uint8), np.ones((3, 3), np.uint8))
+    keep = near_clip[1:-1, 1:-1] == 0
+    if mask is not None:
+        keep &= mask[1:-1, 1:-1]
+    if not keep.any():
+        raise InitError(f"no unclipped pixel to measure the image noise on ({np.mean(near_clip > 0):.0%} of frame 0 "
+                        "is saturated or black, or next to such a pixel): reduce the exposure or the backlight")
+    code, _ = gray255_code(effective_bits)
+    return max(float(math.sqrt(math.pi / 2.0) * conv[keep].mean() / 6.0), code / math.sqrt(12.0))
 
 
 def worst_cramer_rao_px(image: np.ndarray, roi: Roi, subset_px: int, step_px: int, noise_gray: float) -> float:
@@ -600,9 +628,12 @@ def propose_structure_roi(plates: Plates, motion: Motion, subset_px: int, step_p
 
 
 def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, gap_mm: float, fps: float,
-            subset_px: int = 31, mesh_step_px: int = 10) -> Proposal:
-    """Measure frame 0 and the motion over ``frames`` ((index, gray image) pairs, frame 0 first) and
-    propose ROIs and the scale. Raises :class:`InitError` naming what cannot be found, with numbers."""
+            subset_px: int = 31, mesh_step_px: int = 10, effective_bits: int | None = None) -> Proposal:
+    """Measure frame 0 and the motion over ``frames`` ((index, gray image) pairs, frame 0 first, in the 0..255
+    scale of :func:`to_gray255`) and propose ROIs and the scale. ``effective_bits``: the frames' significant
+    bits (:attr:`vibro_io.frames.FrameSequence.effective_bits`; None: 8), for the saturation and the
+    quantization floor of the noise (:func:`noise_sigma_gray`). Raises :class:`InitError` naming what
+    cannot be found, with numbers."""
     frame0 = frames[0][1]
     h, w = frame0.shape
     ball, plates, edge_sigma = measure_frame0(frame0)
@@ -638,11 +669,12 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
     cavity[int(plates.top_row_px) + 4:int(plates.bottom_row_px) - 3] = True
     yy, xx = np.mgrid[:h, :w]
     cavity &= np.hypot(xx - ball.x_px, yy - ball.y_px) > ball.radius_px + 4
-    noise = noise_sigma_gray(frame0, cavity if cavity.sum() > 500 else None)
+    cavity &= ~clipped_gray255(frame0, effective_bits)
+    noise = noise_sigma_gray(frame0, cavity if cavity.sum() > 500 else None, effective_bits=effective_bits)
     cr_ball = worst_cramer_rao_px(frame0, ball_roi, subset_px, mesh_step_px, noise)
     cr_struct = worst_cramer_rao_px(frame0, structure_roi, subset_px, mesh_step_px, noise)
     for name, cr in (("ball", cr_ball), ("structure", cr_struct)):
-        if cr > MAX_SUBSET_CRAMER_RAO_PX:
+        if not cr <= MAX_SUBSET_CRAMER_RAO_PX:  # NaN (no measurement) fails too
             raise InitError(f"the {name} ROI has too little texture for DIC: its worst {subset_px} px subset's "
                             f"displacement std would be {cr:.3f} px (sum of squared gradients against the noise, "
                             f"{noise:.2f} gray levels; need <= {MAX_SUBSET_CRAMER_RAO_PX} px): speckle the {name}, "

@@ -545,8 +545,11 @@ def reference_texture(recording, *, max_subset_sigma_px: float = DEFAULT_MAX_SUB
         raise FrameError(f"frame {first.index} (reference): {first.error or 'cannot be read'}")
     second = head[1].image if len(head) > 1 else None
     check_rois_in_image(rig, *np.asarray(first.image).shape[:2])  # before the texture check reads the ROIs
+    frames = recording.frames  # the pixels' effective depth and the video's codec judge the noise estimate
     texture, warnings = check_texture(first.image, second, rig.dic, max_subset_sigma_px=max_subset_sigma_px,
-                                      min_valid_fraction=min_valid_fraction)
+                                      min_valid_fraction=min_valid_fraction,
+                                      effective_bits=getattr(frames, "effective_bits", None),
+                                      codec=getattr(frames, "codec", None))
     for w in warnings:
         log.warning("texture: %s", w)
     if quality is not None:
