@@ -222,6 +222,10 @@ def test_info_json_of_each_shared_file_gives_its_readme_values(capsys):
     cine = _info(LAB / "cine_781.cine", capsys)
     assert (cine["frames"], cine["width_px"], cine["height_px"]) == (15, 256, 256)
     assert cine["bit_depth"]["effective"] == 12  # RealBPP 12 in a 16-bit container
+    for info in (ball, beam, show, small, cine):  # real sensors: never noise-free, never below quantization
+        assert info["noise_gray"]["sigma"] >= 1 / np.sqrt(12)
+    # ball_12bit: the backlight is left out as saturated, so the noise comes from the rest of the image
+    assert "clipped pixel left out" in ball["noise_gray"]["method"]
 
 
 def test_human_info_shows_the_time_origin_and_enough_digits(capsys):

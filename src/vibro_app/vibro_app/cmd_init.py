@@ -103,8 +103,9 @@ def _check_args(args: argparse.Namespace) -> None:
         raise RecordingError(f"--mesh-step-px must be a positive integer, got {args.mesh_step_px}")
 
 
-def read_first_frames(src: Path, fps: float, n: int = MAX_FRAMES_EXAMINED) -> list[tuple[int, np.ndarray]]:
-    """(index, gray-level float image) of the first ``n`` readable frames; frame 0 must be readable."""
+def read_first_frames(src: Path, fps: float, n: int = MAX_FRAMES_EXAMINED) -> tuple[list[tuple[int, np.ndarray]], int]:
+    """(index, gray-level float image) of the first ``n`` readable frames, and the source's significant bits per
+    pixel (what saturation is judged against); frame 0 must be readable."""
     from vibro_dic.init_rig import to_gray255
 
     seq = FrameSequence(src, CameraConfig(fps=fps, t0_s=0.0, mm_per_px=1.0))
@@ -116,7 +117,7 @@ def read_first_frames(src: Path, fps: float, n: int = MAX_FRAMES_EXAMINED) -> li
             raise RecordingError(f"{src}: the first frame is unreadable ({frame.error})")
         if len(out) >= n:
             break
-    return out
+    return out, seq.effective_bits
 
 
 def rig_yaml_text(p, args: argparse.Namespace, fps: float, source: Path, frequency_hz: float, freq_note: str) -> str:
@@ -205,9 +206,9 @@ def run(args: argparse.Namespace) -> int:
     prepare_output_file(out, overwrite=args.overwrite)
     prepare_output_file(preview, overwrite=args.overwrite)
     fps = _fps(args, src)
-    frames = read_first_frames(src, fps)
+    frames, effective_bits = read_first_frames(src, fps)
     p = propose(frames, ball_diameter_mm=args.ball_diameter_mm, gap_mm=args.gap_mm, fps=fps,
-                subset_px=args.subset_px, mesh_step_px=args.mesh_step_px)
+                subset_px=args.subset_px, mesh_step_px=args.mesh_step_px, effective_bits=effective_bits)
     if args.frequency_hz is not None:
         freq, note = args.frequency_hz, "given by --frequency-hz"
     elif p.frequency_hz is not None:

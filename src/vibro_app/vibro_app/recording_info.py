@@ -90,7 +90,7 @@ def _describe_recording(path: Path) -> dict[str, Any]:
     out["fps"] = rig.camera.fps
     out["t0_s"] = rig.camera.t0_s
     out["duration_s"] = len(frames) / rig.camera.fps
-    out.update(_pixels_part(frames))
+    out.update(_pixels_part(frames, rig.dic))
     out["dic_sigma_px"] = _dic_sigma(frames, rig, out["noise_gray"])
     out["rig"] = {"mm_per_px": rig.camera.mm_per_px, "ball_diameter_mm": rig.ball.diameter_mm,
                   "ball_mass_kg": rig.ball.mass_kg, "gap_mm": rig.structure.gap_mm,
@@ -119,9 +119,11 @@ def _first_images(frames: FrameSequence, count: int) -> list[np.ndarray]:
     return images
 
 
-def _pixels_part(frames: FrameSequence) -> dict[str, Any]:
-    """Bit depths, frame 0's gray levels and the noise, in gray levels of the effective depth."""
-    from vibro_dic.texture import noise_from_frames, noise_from_image
+def _pixels_part(frames: FrameSequence, dic: Any = None) -> dict[str, Any]:
+    """Bit depths, frame 0's gray levels and the noise (the texture check's estimate: frame difference, or the
+    subsets' correlation for a lossy codec; never below quantization), in gray levels of the effective depth.
+    ``dic`` (rig.yaml's DicConfig, or None): the subsets the correlation estimate uses."""
+    from vibro_dic.texture import estimate_noise, mesh_corners
 
     images = _first_images(frames, 2)
     bits = frames.effective_bits
@@ -129,7 +131,8 @@ def _pixels_part(frames: FrameSequence) -> dict[str, Any]:
     native = [np.right_shift(im, shift) if shift else im for im in images]
     top = 2 ** bits - 1
     first = native[0]
-    noise = noise_from_frames(images[0], images[1]) if len(images) == 2 else noise_from_image(images[0])
+    noise = estimate_noise(images[0], images[1] if len(images) == 2 else None, effective_bits=bits,
+                           codec=frames.codec, corners=None if dic is None else mesh_corners(dic))
     return {
         "bit_depth": {"container": 8 * frames.dtype.itemsize, "effective": bits},
         "frame0_gray": {"min": int(first.min()), "max": int(first.max()), "mean": float(first.mean()),
