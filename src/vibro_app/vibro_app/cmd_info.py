@@ -40,7 +40,8 @@ def human_lines(info: dict[str, Any]) -> list[str]:
         frames += f", {info['dropped_frames']} dropped by the camera's clock"
     lines.append(frames)
     rate = f"time base      {_num(info['fps'], 8)} frames/s from {info['fps_source']}"
-    if info.get("record_fps") is not None and info["record_fps"] != info["fps"]:
+    record, fps = info.get("record_fps"), info.get("fps")
+    if record is not None and (fps is None or abs(record - fps) > 1e-3 * record):
         rate += f" (header: {info['record_fps']:g} frames/s, save step {info.get('save_step', 1)})"
     if info.get("fps_candidates"):
         rate += f"; candidates {' or '.join(f'{c:g}' for c in info['fps_candidates'])}: set camera.fps"
