@@ -21,6 +21,7 @@ fitted flight models and structure motion, then linear COR laws by least squares
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -110,10 +111,20 @@ def _cumtrapz(y: np.ndarray, dx: float) -> np.ndarray:
     return out
 
 
+#: the integration grids alive (one per flight, read-only), shared by every fit of the same flights: the
+#: candidate fits of a long recording then hold only their velocity histories (~400 B per frame each)
+_GRIDS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
 def _grid(fl: FlightSamples, extend_s: float = 0.0) -> np.ndarray:
     tau_max = max(float(fl.tau_s[-1]), fl.t_end_s - fl.t_ref_s) + extend_s
     n = max(int(math.ceil(tau_max / GRID_STEP_S)), 4)
-    return np.linspace(0.0, tau_max, n + 1)
+    u = _GRIDS.get((tau_max, n))
+    if u is None:
+        u = np.linspace(0.0, tau_max, n + 1)
+        u.flags.writeable = False
+        _GRIDS[(tau_max, n)] = u
+    return u
 
 
 def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = FIXED_POINT_PASSES,

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -112,6 +112,12 @@ def _explained_rms(sse_before: float, sse_after: float, n: int) -> float:
     return math.sqrt(max(sse_before - sse_after, 0.0) / max(n, 1))
 
 
+def _summary(fit: FlightModelFit) -> FlightModelFit:
+    """``fit`` without its per-flight arrays (residuals, integration grids: ~1 kB per frame of the
+    recording), for a candidate that is only compared (sse, coefficients), never used as the model."""
+    return replace(fit, residuals=[], grids=[])
+
+
 def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...] = FLIGHT_TERMS
                    ) -> tuple[FlightModelFit, StageResult]:
     """Flight terms: the best single by chi^2; then the best pair if it beats that single significantly
@@ -124,7 +130,17 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         stage.notes.append("fewer than 3 free flights: flight terms not tested")
         stage.residual_ratio = math.sqrt(base.sse / max(n, 1)) / sigma_m
         return base, stage
-    singles = {(t.effect,): fit_flights(meas, (t,)) for t in terms}
+    singles: dict[tuple[str, ...], FlightModelFit] = {}
+    lead = None    # the best single so far: the only one kept whole
+    for t in terms:
+        key, f = (t.effect,), fit_flights(meas, (t,))
+        if lead is None or f.sse < singles[lead].sse:
+            if lead is not None:
+                singles[lead] = _summary(singles[lead])
+            lead = key
+        else:
+            f = _summary(f)
+        singles[key] = f
     for key, f in singles.items():
         chi = (base.sse - f.sse) / sig2
         p = chi2_sf(chi, 1)
@@ -142,12 +158,13 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
             rk, rf = ranked[1]
             ratio = math.sqrt(rf.sse / max(best.sse, 1e-300))
             stage.notes.append(f"{best_key[0]} fits {ratio:.2f}x better (RMS) than the next candidate {rk[0]}")
-    # pairs when one is not enough
-    pairs = {}
+    # pairs when one is not enough (only the best is kept whole)
+    pk, pf = None, None
     for a, b in itertools.combinations(terms, 2):
-        pairs[(a.effect, b.effect)] = fit_flights(meas, (a, b))
-    if pairs:
-        pk, pf = min(pairs.items(), key=lambda kv: kv[1].sse)
+        f = fit_flights(meas, (a, b))
+        if pf is None or f.sse < pf.sse:
+            pk, pf = (a.effect, b.effect), f
+    if pf is not None:
         ref = current
         dp = 2 - len(chosen)
         chi = (ref.sse - pf.sse) / sig2

@@ -44,6 +44,9 @@ DRIVE_HARMONICS = 5
 MIN_SPLIT = 3                # a step leaves at least this many samples (levels, CORs) on each side
 MIN_SPLIT_FRAMES = 10        # ... frames (structure)
 OVERSAMPLE = 4               # periodogram grid: 1 / (OVERSAMPLE T)
+PERIODOGRAM_BLOCK = 1 << 20  # direct tone sums: frequencies x samples computed at a time (8 MiB a float64 array)
+TAYLOR_TOL = 1e-15           # FFT periodogram: the off-clock series stops below this (relative to sum |w|)
+MAX_TAYLOR_PHASE = 2 * math.pi   # ... used while 2 pi f (time - clock) stays below this (rad; at most ~45 terms)
 
 
 @dataclass
@@ -145,38 +148,141 @@ def _step(t: np.ndarray, r: np.ndarray, min_side: int):
                                  "step_between_s": (float(t[kk - 1]), float(t[kk]))}, k.size
 
 
+def _centred_columns(t: np.ndarray, freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cosine and sine of 2 pi f t, one row per frequency, each row centred (its mean removed)."""
+    ph = 2 * np.pi * np.outer(freqs, t)
+    C, S = np.cos(ph), np.sin(ph)
+    C -= C.mean(axis=1, keepdims=True)
+    S -= S.mean(axis=1, keepdims=True)
+    return C, S
+
+
+def _fit_drop(cc, ss, cs, cr, sr):
+    """Least squares of r on a centred cosine and sine from their Gram sums: (drop of the sum of squares, a, b)."""
+    det = cc * ss - cs ** 2
+    a = (ss * cr - cs * sr) / det
+    b = (cc * sr - cs * cr) / det
+    return a * cr + b * sr, a, b
+
+
+def tone_drops_direct(t: np.ndarray, r: np.ndarray, freqs: np.ndarray, block: int = PERIODOGRAM_BLOCK
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(drop, a, b) of the least-squares tone fit ``a C + b S`` (centred cos and sin columns) at each of
+    ``freqs``, by the direct sums over the samples, ``block`` (frequencies x samples) values at a time:
+    the memory is O(block + samples) whatever the number of frequencies (each row is computed alone, so
+    the blocks give the numbers of one whole matrix). O(frequencies x samples) time: for a short list."""
+    t = np.asarray(t, dtype=float)
+    r = np.asarray(r, dtype=float)
+    freqs = np.asarray(freqs, dtype=float)
+    out = np.empty((3, freqs.size))
+    rows = max(1, int(block) // max(t.size, 1))
+    for i in range(0, freqs.size, rows):
+        C, S = _centred_columns(t, freqs[i:i + rows])
+        out[:, i:i + rows] = _fit_drop((C * C).sum(1), (S * S).sum(1), (C * S).sum(1), C @ r, S @ r)
+    return out[0], out[1], out[2]
+
+
+def _fourier_sums(tau: np.ndarray, w: np.ndarray, f0: float, n_grid: int, h: float, m_fft: int, n_freqs: int,
+                  tol: float = TAYLOR_TOL) -> np.ndarray | None:
+    """sum_k w_k exp(-2 pi i f_j tau_k) at f_j = f0 + j / (m_fft h), j < ``n_freqs``, for each row of the
+    weights ``w`` (rows x samples): exact to ``tol`` relative to sum |w|, in O(m_fft log m_fft) per term.
+
+    Each time is a point of the grid n h plus an offset: tau_k = n_k h + d_k (``n_grid`` = n_k, |d_k| <= h/2).
+    Then exp(-2 pi i f_j tau_k) = exp(-2 pi i f0 n_k h) exp(-2 pi i j n_k / m_fft) exp(-2 pi i f_j d_k): the
+    middle factor is a DFT of length ``m_fft`` over n (exact for any n, the exponential being periodic in
+    n and j), the first a weight, the last a Taylor series sum_p (-2 pi i f_j)^p d_k^p / p!, one FFT per
+    power of d (Anderson and Dahleh 1996); the series stops when its next term is below ``tol``. On an
+    exact frame clock d = 0 and one FFT is all. None when 2 pi f d exceeds ``MAX_TAYLOR_PHASE`` (times
+    that are not near a clock of step h)."""
+    d = tau - n_grid * h
+    f_max = max(abs(f0), abs(f0 + (n_freqs - 1) / (m_fft * h)))
+    x = 2 * np.pi * f_max * float(np.max(np.abs(d), initial=0.0))
+    if not x <= MAX_TAYLOR_PHASE:
+        return None
+    base = w * np.exp(-2j * np.pi * f0 * h * n_grid)
+    bins = np.mod(n_grid, m_fft)
+    j = np.arange(n_freqs)
+    fj = f0 + j / (m_fft * h)
+    total = np.zeros((w.shape[0], n_freqs), dtype=complex)
+    coef = np.ones(n_freqs, dtype=complex)
+    term_bound, p = 1.0, 0
+    dp = np.ones_like(d)
+    while True:
+        for row in range(w.shape[0]):
+            grid = (np.bincount(bins, (base[row] * dp).real, minlength=m_fft)
+                    + 1j * np.bincount(bins, (base[row] * dp).imag, minlength=m_fft))
+            total[row] += coef * np.fft.fft(grid)[np.mod(j, m_fft)]
+        p += 1
+        term_bound *= x / p
+        if term_bound < tol:
+            return total
+        dp = dp * d
+        coef = coef * (-2j * np.pi * fj) / p
+
+
+def tone_drops_grid(t: np.ndarray, r: np.ndarray, f_lo: float, step: float, n_freqs: int) -> np.ndarray:
+    """The drop of :func:`tone_drops_direct` at the grid f_lo + j ``step`` (j < ``n_freqs``, ``step`` = 1 /
+    (OVERSAMPLE T) for the search) from Fourier sums by FFT (:func:`_fourier_sums`): the same numbers to
+    float rounding, in O(samples) memory and O(samples log samples) time (the direct sums are frequencies
+    x samples: quadratic in the recording's length). Any sampling: the times are put on the nearest
+    frame of a clock whose span is a whole number of median frame intervals; the offsets enter exactly
+    through their Taylor series."""
+    t = np.asarray(t, dtype=float)
+    r = np.asarray(r, dtype=float)
+    n = t.size
+    tau = t - t.min()
+    T = float(tau.max())
+    dt = float(np.median(np.diff(np.sort(t))))
+    n_span = max(1, int(round(T / dt))) if dt > 0 else 1
+    h = T / n_span
+    grid_n = np.rint(tau / h).astype(np.int64)
+    m1 = max(1, int(round(1.0 / (step * h))))
+    if abs(m1 * step * h - 1.0) > 1e-9:   # a step that is not a whole fraction of the clock: direct sums
+        return tone_drops_direct(t, r, f_lo + step * np.arange(n_freqs))[0]
+    one = np.ones((1, n))
+    first = _fourier_sums(tau, np.vstack([one[0], r]), f_lo, grid_n, h, m1, n_freqs)
+    if m1 % 2 == 0:
+        second = _fourier_sums(tau, one, 2 * f_lo, grid_n, h, m1 // 2, n_freqs)
+    else:
+        second = _fourier_sums(tau, one, 2 * f_lo, grid_n, h, m1, 2 * n_freqs)
+        second = None if second is None else second[:, ::2]
+    if first is None or second is None:   # times far from any clock: the direct sums
+        return tone_drops_direct(t, r, f_lo + step * np.arange(n_freqs))[0]
+    second = second[0]
+    cs1, ss1 = first[0].real, -first[0].imag          # sum cos, sum sin
+    rc, rs = first[1].real, -first[1].imag            # sum r cos, sum r sin
+    c2, s2 = second.real, -second.imag                # sum cos 2w t, sum sin 2w t
+    r_sum = float(r.sum())
+    cc = 0.5 * (n + c2) - cs1 * cs1 / n
+    ss = 0.5 * (n - c2) - ss1 * ss1 / n
+    cs = 0.5 * s2 - cs1 * ss1 / n
+    drop, _, _ = _fit_drop(cc, ss, cs, rc - cs1 * r_sum / n, rs - ss1 * r_sum / n)
+    return drop
+
+
 def _periodogram(t: np.ndarray, r: np.ndarray, f_lo: float, f_hi: float, exclude_hz: list[float], width_hz: float):
-    """Best tone by least squares over a grid (centred sin and cos columns): (drop, fit, info, trials)."""
+    """Best tone by least squares over a grid (centred sin and cos columns): (drop, fit, info, trials).
+
+    The grid (step 1 / (OVERSAMPLE T)) by FFT (:func:`tone_drops_grid`), then 41 frequencies within one
+    step of its best by the direct sums (:func:`tone_drops_direct`): memory linear in the samples."""
     T = float(t.max() - t.min())
     if T <= 0 or f_hi <= f_lo:
         return None
-    grid = np.arange(f_lo, f_hi, 1.0 / (OVERSAMPLE * T))
+    step = 1.0 / (OVERSAMPLE * T)
+    grid = np.arange(f_lo, f_hi, step)
     keep = np.ones(grid.size, bool)
     for f in exclude_hz:
         keep &= np.abs(grid - f) > width_hz
-    grid = grid[keep]
-    if grid.size == 0:
+    if not keep.any():
         return None
-
-    def drops(freqs):
-        ph = 2 * np.pi * np.outer(freqs, t)
-        C, S = np.cos(ph), np.sin(ph)
-        C -= C.mean(axis=1, keepdims=True)
-        S -= S.mean(axis=1, keepdims=True)
-        cc, ss, cs = (C * C).sum(1), (S * S).sum(1), (C * S).sum(1)
-        cr, sr = C @ r, S @ r
-        det = cc * ss - cs ** 2
-        a = (ss * cr - cs * sr) / det
-        b = (cc * sr - cs * cr) / det
-        return a * cr + b * sr, a, b, C, S
-
-    d, *_ = drops(grid)
+    d = tone_drops_grid(t, r, f_lo, step, grid.size)
+    d[~keep] = np.nan
     j = int(np.nanargmax(d))
-    step = 1.0 / (OVERSAMPLE * T)
     fine = np.linspace(grid[j] - step, grid[j] + step, 41)
-    d2, a, b, C, S = drops(fine)
+    d2, a, b = tone_drops_direct(t, r, fine)
     m = int(np.nanargmax(d2))
-    fit = a[m] * C[m] + b[m] * S[m]
+    C, S = _centred_columns(t, fine[m:m + 1])
+    fit = a[m] * C[0] + b[m] * S[0]
     trials = max(1, int(round((f_hi - f_lo) * T)))   # independent frequencies in the band
     return float(d2[m]), fit, {"size": float(math.hypot(a[m], b[m])), "frequency_hz": float(fine[m])}, trials
 

@@ -257,6 +257,20 @@ def _refine(a: np.ndarray, d: np.ndarray, off: float, tol_s: float) -> tuple[flo
     return off, int(sel.sum()), float(np.std(r[sel])) if sel.sum() > 1 else 0.0
 
 
+def _differences_within(a: np.ndarray, d: np.ndarray, max_offset_s: float, rows: int = 256) -> np.ndarray:
+    """Every difference a_i - d_j (a, d sorted) within +-``max_offset_s``: the pairs of the whole matrix
+    that pass, taken block by block (``rows`` of a against the d that can lie within reach of them), so
+    memory and time grow with the pairs that pass (linear in the record's length), not with a.size x d.size."""
+    reach = max_offset_s * (1.0 + 1e-9) + 1e-12      # a window a little wider than the test below
+    out = []
+    for i in range(0, a.size, rows):
+        blk = a[i:i + rows]
+        lo, hi = np.searchsorted(d, blk[0] - reach, "left"), np.searchsorted(d, blk[-1] + reach, "right")
+        diffs = (blk[:, None] - d[None, lo:hi]).ravel()
+        out.append(diffs[np.abs(diffs) <= max_offset_s])
+    return np.concatenate(out) if out else np.empty(0)
+
+
 def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = None, tol_s: float = 0.0005,
                           max_offset_s: float = 1.0, min_matched: int = MIN_MATCHED_IMPACTS,
                           accel_span_s: tuple[float, float] | None = None,
@@ -284,8 +298,7 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
     d = np.sort(np.asarray(dic_times_s, float))
     if a.size == 0 or d.size == 0:
         return None
-    diffs = (a[:, None] - d[None, :]).ravel()
-    diffs = diffs[np.abs(diffs) <= max_offset_s]
+    diffs = _differences_within(a, d, max_offset_s)
     if diffs.size == 0:
         return None
     edges = np.arange(-max_offset_s, max_offset_s + tol_s, tol_s)
