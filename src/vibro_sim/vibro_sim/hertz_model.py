@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import OdeSolution, solve_ivp
 
 from .cor_model import SimResult, _Simulator, sim_impact
 from .flight import Segment
@@ -71,16 +71,28 @@ def damping_coefficient(cavity: BallCavity, e: float, delta_a_m: float) -> float
 
 
 class ContactSegment(Segment):
-    """Dense solution of the contact phase in the plate's frame: delta(t), delta'(t)."""
+    """Dense solution of the contact phase in the plate's frame: delta(t), delta'(t).
+
+    ``sol`` is the dense solution, or a function that computes it: the simulator passes the contact's
+    own integration, run again (the same solver on the same inputs: the same numbers) the first time the
+    segment is sampled. A long replay samples few contacts (a contact lasts tens of microseconds, the
+    frames come every millisecond); keeping every contact's dense solution cost ~100 kB per impact."""
 
     label = "contact"
 
     def __init__(self, t0: float, sol, structure, surface_offset_m: float, accel_fn):
         self.t0 = t0
-        self.sol = sol
+        self._sol = sol
         self.S = structure
         self.offset = surface_offset_m
         self.accel_fn = accel_fn
+
+    @property
+    def sol(self):
+        """The dense solution delta, delta' (computed on first use when the segment was given its integration)."""
+        if not isinstance(self._sol, OdeSolution):
+            self._sol = self._sol()
+        return self._sol
 
     def pos(self, t):
         t = np.asarray(t, dtype=float)
@@ -148,16 +160,20 @@ class _HertzSimulator(_Simulator):
         leave.direction = -1
 
         tc = hertz_contact_time(self.cav, max(abs(vrel), 1e-6))
-        sol = solve_ivp(rhs, (tr, t_end), (0.0, vrel), method="LSODA", rtol=self.rtol,
-                        atol=(1e-16, 1e-12), first_step=tc / 500.0, max_step=max(tc / 4, 1e-6),
-                        events=leave, dense_output=True)
+
+        def integrate():
+            return solve_ivp(rhs, (tr, t_end), (0.0, vrel), method="LSODA", rtol=self.rtol,
+                             atol=(1e-16, 1e-12), first_step=tc / 500.0, max_step=max(tc / 4, 1e-6),
+                             events=leave, dense_output=True)
+
+        sol = integrate()
         if not sol.success:  # pragma: no cover
             raise RuntimeError(f"Hertz contact integration failed at t = {tr}: {sol.message}")
         t_out = float(sol.t_events[0][0]) if sol.t_events[0].size else float(sol.t[-1])
         _, v_rel_out = sol.sol(t_out)
         v_rel_out = float(v_rel_out)
         vs_out = float(S.velocity(t_out))
-        res.segments.append(ContactSegment(tr, sol.sol, S, side * b, rel_accel))
+        res.segments.append(ContactSegment(tr, lambda: integrate().sol, S, side * b, rel_accel))
         if abs(v_rel_out) < self.stick_speed:
             v_rel_out = 0.0
         v_out = vs_out + v_rel_out
