@@ -201,3 +201,35 @@ def test_analysis_memory_grows_linearly_with_the_length(long_case, tmp_path, mon
     assert ratio < MAX_PEAK_RATIO, (f"peak {short_peak / 1e6:.1f} MB at {SHORT} frames, {long_peak / 1e6:.1f} MB "
                                     f"at {LONG}: x{ratio:.2f} for x{LONG / SHORT:.0f} the frames")
     assert long_peak / LONG < 20e3, f"{long_peak / LONG / 1e3:.1f} kB per frame"
+
+
+# ------------------------------------------------------------------ the Hertz replay's contacts
+def test_hertz_replay_keeps_no_dense_contact_solutions() -> None:
+    """A Hertz replay keeps each contact's integration, not its dense solution (which cost ~100 kB per
+    impact, 83 MB of a 20,000-frame replay): the result of a 1 s replay holds < 15 kB per impact
+    (~5 kB: the closures, impacts and flight segments; was 95 kB), after a first run (imports, caches); a
+    contact sampled later gives its dense solution then (the ball at the plate at contact entry, inside
+    the plate during it)."""
+    from vibro_sim.forces import NoForce
+    from vibro_sim.hertz_model import ContactSegment, simulate_hertz
+    from vibro_sim.params import BallCavity
+    from vibro_sim.restitution import Constant
+    from vibro_sim.structure import StructureKinematics
+
+    S, cav = StructureKinematics(1.4e-3, 22.0, 0.3, 0.0), BallCavity()
+    simulate_hertz(S, cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 0.1, delta_a="calibrated")
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        res = simulate_hertz(S, cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 1.0, delta_a="calibrated")
+        kept = tracemalloc.get_traced_memory()[0] - base
+    finally:
+        tracemalloc.stop()
+    contacts = [s for s in res.segments if isinstance(s, ContactSegment)]
+    assert len(res.impacts) > 30 and len(contacts) == len(res.impacts)
+    assert kept / len(res.impacts) < 15e3, f"{kept / len(res.impacts) / 1e3:.1f} kB per impact"
+    seg = contacts[5]
+    side = 1.0 if seg.offset > 0 else -1.0
+    plate = float(S.position(seg.t0)) + seg.offset
+    assert seg.pos(seg.t0) == pytest.approx(plate, abs=1e-12)
+    assert side * (seg.pos(seg.t0 + 5e-6) - float(S.position(seg.t0 + 5e-6)) - seg.offset) > 0   # penetrates
