@@ -74,19 +74,16 @@ def _fps(args: argparse.Namespace, src: Path) -> float:
             raise RecordingError(f"{src}: the frame rate is not recorded in these files: give --fps")
         return args.fps
     from vibro_io.camera_files import open_camera_file
-    from vibro_io.camera_time import fps_tolerance
 
     header = open_camera_file(src).header
     base = header.time_base
-    readings = base.candidates_fps if base.fps is None else (base.fps,)
     if args.fps is None:
         if base.fps is None:
             raise RecordingError(f"{src}: give --fps: {base.notes[0]}")
         return base.fps
-    tolerance = fps_tolerance(base, header.n_frames)
-    if not any(abs(args.fps - r) <= tolerance * r for r in readings):
+    if not base.names_same_spacing(args.fps, header.n_frames):
         raise RecordingError(f"--fps {args.fps:g} but {src.name}'s saved frames come at "
-                             f"{' or '.join(f'{r:.8g}' for r in readings)} frames/s (its {base.source})")
+                             f"{' or '.join(f'{r:.8g}' for r in base.readings_fps)} frames/s (its {base.source})")
     return args.fps
 
 

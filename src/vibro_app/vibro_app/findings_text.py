@@ -29,9 +29,9 @@ def finding_line(effect: str, parameters: Mapping[str, float], sigmas: Mapping[s
 
 def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
     """The lines of results.json's ``discrepancy`` section (``findings: none`` when there are none)."""
-    findings: Iterable[Mapping[str, Any]] = (discrepancy or {}).get("findings") or []
-    lines = [finding_line(f["effect"], f.get("parameters") or {}, f.get("parameters_std"),
-                          f["deviation_before"], f["deviation_after"]) for f in findings]
     if not discrepancy:
         return ["findings: no discrepancy analysis in these results"]
+    findings: Iterable[Mapping[str, Any]] = discrepancy.get("findings") or []
+    lines = [finding_line(f["effect"], f.get("parameters") or {}, f.get("parameters_std"),
+                          f["deviation_before"], f["deviation_after"]) for f in findings]
     return lines or ["findings: none (the model explains the recording within its noise)"]

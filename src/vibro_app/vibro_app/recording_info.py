@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from vibro_io.camera_files import CAMERA_FILE_SUFFIXES, open_camera_file
+from vibro_io.camera_files import CAMERA_FILE_SUFFIXES
 from vibro_io.frames import FrameSequence
 from vibro_io.recording import open_recording
 from vibro_io.rig import CameraConfig, load_yaml
@@ -42,24 +42,21 @@ def describe(path: str | Path) -> dict[str, Any]:
 
 
 def _describe_camera_file(path: Path) -> dict[str, Any]:
-    camera = open_camera_file(path)
-    base = camera.header.time_base
-    fps = base.fps
-    clock = CameraConfig(fps=fps or 1.0, t0_s=base.t0_s or 0.0, mm_per_px=1.0)
-    frames = FrameSequence(path, clock)
-    out = _header_part(camera, frames)
-    out.update(fps=fps, fps_source=base.source)
-    out["duration_s"] = None if fps is None else len(frames) / fps
-    out.update(_pixels_part(frames))
+    # no rig.yaml: the clock below only lets the frames be read (pixels); the times reported are the header's
+    frames = FrameSequence(path, CameraConfig(fps=1.0, t0_s=0.0, mm_per_px=1.0))
+    base = frames.camera_file.header.time_base
+    out = _header_part(frames)
+    out.update(fps=base.fps, fps_source=base.source)
+    out["duration_s"] = None if base.fps is None else len(frames) / base.fps
+    out.update(_pixels_part(frames, _first_images(frames, 2)))
     return out
 
 
-def _header_part(camera: Any, frames: FrameSequence) -> dict[str, Any]:
-    header, base = camera.header, camera.header.time_base
-    start = header.start_time_unix_s
+def _header_part(frames: FrameSequence) -> dict[str, Any]:
+    header = frames.camera_file.header
+    base, start = header.time_base, header.start_time_unix_s
     return {
-        "source": str(getattr(camera, "header_path", camera.path)),
-        "kind": "Photron MRAW" if hasattr(camera, "header_path") else "Phantom CINE",
+        "source": str(frames.source), "kind": _kind(frames),
         "frames": len(frames), "images": header.n_frames, "dropped_frames": base.dropped_slots,
         "unreadable_images": list(base.corrupt),
         "width_px": header.width_px, "height_px": header.height_px,
@@ -78,10 +75,9 @@ def _describe_recording(path: Path) -> dict[str, Any]:
     camera_keys = raw.get("camera") if isinstance(raw, dict) else None
     rig_gave_fps = isinstance(camera_keys, dict) and camera_keys.get("fps") is not None
     out: dict[str, Any] = {"source": str(frames.source), "kind": _kind(frames)}
-    if frames.source.suffix.lower() in CAMERA_FILE_SUFFIXES:
-        camera = open_camera_file(frames.source)
-        out.update(_header_part(camera, frames))
-        out["fps_source"] = "rig.yaml" if rig_gave_fps else camera.header.time_base.source
+    if frames.camera_file is not None:
+        out.update(_header_part(frames))
+        out["fps_source"] = "rig.yaml" if rig_gave_fps else frames.camera_file.header.time_base.source
     else:
         out.update(frames=len(frames), images=None, dropped_frames=None, width_px=frames.shape[1],
                    height_px=frames.shape[0], fps_source="rig.yaml")
@@ -90,8 +86,9 @@ def _describe_recording(path: Path) -> dict[str, Any]:
     out["fps"] = rig.camera.fps
     out["t0_s"] = rig.camera.t0_s
     out["duration_s"] = len(frames) / rig.camera.fps
-    out.update(_pixels_part(frames, rig.dic))
-    out["dic_sigma_px"] = _dic_sigma(frames, rig, out["noise_gray"])
+    images = _first_images(frames, 2)
+    out.update(_pixels_part(frames, images, rig.dic))
+    out["dic_sigma_px"] = _dic_sigma(frames, images[0], rig, out["noise_gray"])
     out["rig"] = {"mm_per_px": rig.camera.mm_per_px, "ball_diameter_mm": rig.ball.diameter_mm,
                   "ball_mass_kg": rig.ball.mass_kg, "gap_mm": rig.structure.gap_mm,
                   "free_play_mm": rig.free_play_mm, "excitation_hz": rig.excitation.frequency_hz}
@@ -119,18 +116,17 @@ def _first_images(frames: FrameSequence, count: int) -> list[np.ndarray]:
     return images
 
 
-def _pixels_part(frames: FrameSequence, dic: Any = None) -> dict[str, Any]:
+def _pixels_part(frames: FrameSequence, images: list[np.ndarray], dic: Any = None) -> dict[str, Any]:
     """Bit depths, frame 0's gray levels and the noise (the texture check's estimate: frame difference, or the
     subsets' correlation for a lossy codec; never below quantization), in gray levels of the effective depth.
-    ``dic`` (rig.yaml's DicConfig, or None): the subsets the correlation estimate uses."""
+    ``images``: the first one or two readable frames; ``dic`` (rig.yaml's DicConfig, or None): the subsets the
+    correlation estimate uses."""
     from vibro_dic.texture import estimate_noise, mesh_corners
 
-    images = _first_images(frames, 2)
     bits = frames.effective_bits
     shift = 0 if frames.dtype == np.uint8 else 16 - bits
-    native = [np.right_shift(im, shift) if shift else im for im in images]
     top = 2 ** bits - 1
-    first = native[0]
+    first = np.right_shift(images[0], shift)
     noise = estimate_noise(images[0], images[1] if len(images) == 2 else None, effective_bits=bits,
                            codec=frames.codec, corners=None if dic is None else mesh_corners(dic))
     return {
@@ -141,11 +137,10 @@ def _pixels_part(frames: FrameSequence, dic: Any = None) -> dict[str, Any]:
     }
 
 
-def _dic_sigma(frames: FrameSequence, rig: Any, noise: dict[str, Any]) -> dict[str, float] | None:
-    """Predicted DIC std (px) of the worst subset of each body's mesh in frame 0 (Cramer-Rao bound)."""
+def _dic_sigma(frames: FrameSequence, image: np.ndarray, rig: Any, noise: dict[str, Any]) -> dict[str, float]:
+    """Predicted DIC std (px) of the worst subset of each body's mesh in ``image`` (frame 0; Cramer-Rao bound)."""
     from vibro_dic.init_rig import worst_cramer_rao_px
 
-    image = _first_images(frames, 1)[0]
     scale = 1 if frames.dtype == np.uint8 else 2 ** (16 - frames.effective_bits)
     sigma = noise["sigma"] * scale
     out = {}

@@ -32,7 +32,7 @@ import numpy as np
 
 from vibro_model.errors import FrameError, RigError
 
-from .camera_time import TimeBase, fps_tolerance, from_header_step, from_stamps
+from .camera_time import TimeBase, from_header_step, from_stamps
 
 log = logging.getLogger(__name__)
 
@@ -234,6 +234,11 @@ class MrawFile(_CameraFile):
         return image if self.higher else _shifted(image, self.effective_bits, where)
 
 
+def _plausible_wall_time(unix_s: float) -> bool:
+    """A camera clock reading (Unix s) that can be a date: from 2000-01-01 to a day after now."""
+    return 946684800.0 <= unix_s <= time.time() + 86400.0
+
+
 #: CINE biCompression codes: uncompressed, packed 10-bit (pycine decodes it), packed 12-bit.
 CINE_UNCOMPRESSED, CINE_PACKED_10BIT, CINE_PACKED_12BIT = 0, 256, 1024
 #: CINE tagged-block types holding one TIME64 per image: "time only" (1002) and its older form (1001).
@@ -283,14 +288,14 @@ class CineFile(_CameraFile):
         if not fps > 0:
             raise FrameError(f"{self.path}: header frame rate (setup.FrameRate) is 0")
         trigger = cfh.TriggerTime.seconds + cfh.TriggerTime.fractions / 2.0 ** 32
-        plausible = 946684800.0 <= trigger <= time.time() + 86400.0
+        plausible = _plausible_wall_time(trigger)
         self.frame_bytes = (w * h * 10 // 8) if packed else w * h * self.bits // 8
         n = int(cfh.ImageCount)
         base = self._time_base(n, fps, (int(cfh.TriggerTime.seconds), int(cfh.TriggerTime.fractions))
                                if plausible else None)
         start = base.start_unix_s if base.source == "time stamps" else (
             trigger + base.t0_s if plausible and base.t0_s is not None else None)
-        if start is not None and not 946684800.0 <= start <= time.time() + 86400.0:
+        if start is not None and not _plausible_wall_time(start):
             start = None
         self.header = CameraHeader(self.path, base, start, n, h, w, self.effective_bits)
         self._check_size()
@@ -424,21 +429,18 @@ def merge_camera_header(data: Any, header: CameraHeader, rig_src: str) -> Any:
     def number(value: Any) -> bool:
         return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
-    def same(a: float, b: float) -> bool:
-        return abs(a - b) <= fps_tolerance(base, header.n_frames) * b
-
     if base.fps is None:
         options = " or ".join(f"{c:g}" for c in base.candidates_fps)
         if cam.get("fps") is None:
             why = base.notes[0] if base.notes else f"{name}'s header allows {options} frames/s"
             raise RigError(f"{rig_src}: key 'camera.fps' is needed: {why}")
-        if number(cam["fps"]) and not any(same(cam["fps"], c) for c in base.candidates_fps):
+        if number(cam["fps"]) and not base.names_same_spacing(cam["fps"], header.n_frames):
             raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s header allows {options} "
                            "frames/s only")
     elif cam.get("fps") is None:
         cam["fps"] = base.fps
         log.info("%s: camera.fps %.8g taken from %s (%s)", rig_src, base.fps, name, base.source)
-    elif number(cam["fps"]) and not same(cam["fps"], base.fps):
+    elif number(cam["fps"]) and not base.names_same_spacing(cam["fps"], header.n_frames):
         header_said = (f"; its header says {base.record_fps:g} frames/s" if base.source != "header" else "")
         raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s saved frames are "
                        f"{1.0 / base.fps:.6g} s apart ({base.fps:.8g} frames/s, from its {base.source}"

@@ -24,7 +24,7 @@ Times are seconds; rates frames per second of the *saved* frames unless named ``
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -60,7 +60,17 @@ class TimeBase:
     notes: tuple[str, ...] = ()
     candidates_fps: tuple[float, ...] = ()
     jitter_s: float | None = None
-    corrupt: tuple[int, ...] = field(default=())
+    corrupt: tuple[int, ...] = ()
+
+    @property
+    def readings_fps(self) -> tuple[float, ...]:
+        """The rates the file allows: its one rate, or the candidates of a contradictory header."""
+        return self.candidates_fps if self.fps is None else (self.fps,)
+
+    def names_same_spacing(self, fps: float, n_frames: int) -> bool:
+        """Whether a user's rate ``fps`` names one of :attr:`readings_fps` (within :func:`fps_tolerance`)."""
+        tolerance = fps_tolerance(self, n_frames)
+        return any(abs(fps - r) <= tolerance * r for r in self.readings_fps)
 
     @property
     def n_slots(self) -> int | None:

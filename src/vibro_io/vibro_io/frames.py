@@ -191,6 +191,11 @@ class FrameSequence:
     def __len__(self) -> int:
         return self._count
 
+    @property
+    def camera_file(self):
+        """The Photron MRAW / Phantom CINE reader of a camera-file source (its ``header``), else None."""
+        return self._camera_file
+
     def __getstate__(self) -> dict:
         """Pickled for another process (a Dask worker tracking a chunk): a camera file's reader is opened
         again there (by its path); the file list, sizes and numbering are carried over, not re-checked."""
