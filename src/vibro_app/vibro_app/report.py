@@ -17,7 +17,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from vibro_app.findings_text import effect_label, parameter_text, percent  # noqa: E402
 from vibro_app.report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
+from vibro_app.report_summary import simulation_rows, structure_rows, summary_html  # noqa: E402
 from vibro_fit.identify import Identification  # noqa: E402
 from vibro_fit.statistics import normal_check  # noqa: E402
 from vibro_io.dictrack import DicTrack  # noqa: E402
@@ -231,32 +233,53 @@ def _img(path: Path) -> str:
     return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
 
 
+def clauses(text: str) -> list[str]:
+    """``text`` split at its top-level ';' (not inside parentheses), each clause stripped."""
+    out, depth, start = [], 0, 0
+    for k, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if ch == ";" and depth == 0:
+            out.append(text[start:k].strip())
+            start = k + 1
+    out.append(text[start:].strip())
+    return [c for c in out if c]
+
+
+def _where(finding: dict, said: str) -> str:
+    """A finding's 'where' without the clauses ``said`` already states (the baseline's location), its effect's
+    name in words."""
+    effect = str(finding.get("effect", ""))
+    parts = [c for c in clauses(str(finding.get("where") or "")) if c not in said]
+    return "; ".join(effect_label(effect)[:1].upper() + effect_label(effect)[1:] + c[len(effect):]
+                     if effect and c.startswith(effect + " ") else c for c in parts)
+
+
 def discrepancy_html(disc: dict) -> str:
-    """The discrepancy section: D before/after, where the baseline disagrees, findings with parameters."""
+    """The discrepancy section: D before/after, where the baseline disagrees (once), findings with parameters
+    in words and units (results.json's names as tooltips)."""
     e = html.escape
-
-    def pct(v):
-        return "n/a" if v is None else f"{100.0 * v:.3f} %"
-
+    loc = (disc.get("location") or {}).get("text", "")
     rows = []
     for f in disc.get("findings", []):
         stds = f.get("parameters_std") or {}
-        params = ", ".join(f"{k} = {v:.4g}" + (f" &plusmn; {stds[k]:.2g}" if stds.get(k) is not None else "")
-                           for k, v in f.get("parameters", {}).items()) or "&ndash;"
-        alt = f"<br><i>indistinguishable here from: {e(', '.join(f['alternatives']))}</i>" if f.get("alternatives") \
-            else ""
-        rows.append(f"<tr><td><b>{e(f.get('effect', ''))}</b>{alt}</td><td>{params}</td>"
-                    f"<td>{pct(f.get('deviation_before'))} &rarr; {pct(f.get('deviation_after'))}</td>"
-                    f"<td>{e(str(f.get('where', '')))}</td></tr>")
-    table = ("<table><tr><th>effect</th><th>parameters (SI)</th><th>D before &rarr; after</th><th>where</th></tr>"
-             + "".join(rows) + "</table>") if rows else "<p>No finding: the baseline model explains the recording " \
-        "to within the measurement noise.</p>"
-    loc = (disc.get("location") or {}).get("text", "")
+        params = "<br>".join(f'<span title="{e(k)}">{e(parameter_text(k, v, stds.get(k)))}</span>'
+                             for k, v in f.get("parameters", {}).items()) or "&ndash;"
+        alt = (f"<br><i>indistinguishable here from: {e(', '.join(effect_label(a) for a in f['alternatives']))}</i>"
+               if f.get("alternatives") else "")
+        rows.append(f'<tr><td><b title="{e(str(f.get("effect", "")))}">{e(effect_label(f.get("effect", "")))}</b>'
+                    f"{alt}</td><td>{params}</td>"
+                    f"<td>{percent(f.get('deviation_before'))} &rarr; {percent(f.get('deviation_after'))}</td>"
+                    f"<td>{e(_where(f, loc))}</td></tr>")
+    table = ("<table><tr><th>left out</th><th>parameters</th><th>D before &rarr; after</th><th>where else it shows"
+             "</th></tr>" + "".join(rows) + "</table>") if rows else "<p>No finding: the baseline model explains the " \
+        "recording to within the measurement noise.</p>"
     err = f"<p><b>{e(disc['error'])}</b></p>" if disc.get("error") else ""
+    model = disc.get("model")
     return (f"<h2>Discrepancy analysis (baseline: constant COR, gravity only, pure sine, vertical)</h2>{err}"
-            f"<p>D baseline {pct(disc.get('baseline_deviation'))}, final {pct(disc.get('final_deviation'))}"
-            f" (model: {e(str(disc.get('model', 'baseline')))}).</p>"
+            f"<p>D baseline {percent(disc.get('baseline_deviation'))}, final {percent(disc.get('final_deviation'))}"
+            f" (final model: {e(effect_label(model)) if model and model != 'baseline' else 'the baseline'}).</p>"
             + (f"<p>Where the baseline disagrees: {e(loc)}</p>" if loc else "") + table)
+
 
 def dic_quality_html(section: dict | None) -> str:
     """An HTML table of results.json's ``dic_quality`` section (:mod:`vibro_dic.quality`; empty when none)."""
@@ -286,48 +309,52 @@ def dic_quality_html(section: dict | None) -> str:
 
 
 
+def impacts_model_text(section: dict | None) -> str:
+    """Under which model the impacts' CORs were measured (results.json's ``impacts_model``), in words."""
+    m = section or {}
+    if not m.get("cor_method") or m.get("cor_method") == "paper":
+        return "The CORs are the identification's (Eq. 15-16)."
+    kept = f"; {m['n_paper']} keep the identification's (Eq. 15-16)" if m.get("n_paper") else ""
+    return (f"The CORs of {m.get('n_reidentified', '?')} impacts are measured under the final model "
+            f"({effect_label(m['cor_method'])}): impact times where its flights meet, ball velocities from its "
+            f"force law{kept}. The COR figures show the identification's (Eq. 16) beside them.")
+
+
+#: results.json's identification.method (vibro_fit.methods) in words
+METHOD_WORDS = {"paper": "Identified as in the paper: each flight's parabola fitted alone, impacts where "
+                         "consecutive parabolas meet (Eq. 3, 15).",
+                "joint": "Identified jointly: the two flights around each impact refitted together, constrained "
+                         "to meet on the plate."}
+
+
+def _rows(rows: list[tuple[str, str]]) -> str:
+    return "".join(f"<tr><th>{html.escape(label)}</th><td>{html.escape(value)}</td></tr>" for label, value in rows)
+
+
 def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: str | Path) -> Path:
-    """One self-contained HTML page: summary tables, warnings, figures (inlined). ``results``: the document,
-    or a results.json mapping (validated by the codec)."""
+    """One self-contained HTML page: the summary (:mod:`vibro_app.report_summary`), then the details (structure,
+    COR, simulation, discrepancy, DIC quality) and the figures (inlined). ``results``: the document, or a
+    results.json mapping (validated by the codec)."""
     e = html.escape
     results = as_document(results).to_dict()
-    s = results.get("structure", {})
-    rows = "".join(f"<tr><td>{e(k)}</td><td>{v:.6g}</td></tr>" for k, v in s.items()
-                   if isinstance(v, (int, float)))
-    cor = results.get("cor_summary", {})
-    def fmt(v, scale=1.0, spec=".4f", unit=""):
-        return "" if v is None else format(scale * v, spec) + unit
-
-    cor_rows = "".join(
-        f"<tr><td>{p}</td><td>{fmt(d.get('mean'))}</td><td>{fmt(d.get('std'))}</td><td>{d.get('n', 0)}</td></tr>"
-        for p, d in cor.items())
-    imodel = results.get("impacts_model") or {}
-    cor_model = f"<p>{e(str(imodel['description']))}.</p>" if imodel.get("description") else ""
-    sim = results.get("simulation", {})
-    sim_rows = "".join(f"<tr><td>{e(k)}</td><td>{fmt(v.get('deviation'), 100.0, '.2f', ' %')}</td></tr>"
-                       for k, v in sim.items() if isinstance(v, dict))
-    warns = "".join(f"<li>{e(w)}</li>" for w in results.get("warnings", [])) or "<li>none</li>"
-    regime = results.get("regime", {})
     titles = {"displacements": "Displacements with fits and impact instants", "cor": "COR per impact",
               "friction": "Friction per flight", "accelerometer_spectrum": "Accelerometer spectrum",
-              "histogram_qq": "Histogram and normal Q-Q", "simulated_vs_measured": "Simulated vs measured"}
-    titles["discrepancy"] = "Discrepancy: residual before/after and where the mismatch was"
+              "histogram_qq": "Histogram and normal Q-Q", "simulated_vs_measured": "Simulated vs measured",
+              "discrepancy": "Discrepancy: residual before/after and where the mismatch was"}
     figs = "".join(f"<h2>{e(titles.get(k, k))}</h2>{_img(p)}" for k, p in figures.items())
-    disc_html = discrepancy_html(results.get("discrepancy") or {})
-    dic_html = dic_quality_html(results.get("dic_quality"))
+    method = (results.get("identification") or {}).get("method")
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>vibro report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
-td,th{{border:1px solid #ccc;padding:2px 8px}}</style></head><body>
+td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left;vertical-align:top}}
+#summary table{{font-size:1.1em}}</style></head><body>
 <h1>vibro analysis: {e(str(results.get('recording', '')))}</h1>
-<p>Regime: <b>{e(str(regime.get('name', '?')))}</b>; {len(results.get('flights', []))} flights,
-{len(results.get('impacts', []))} impacts; method {e(str(results.get('identification', {}).get('method', '')))}.</p>
-<h2>Structure (Eq. 2)</h2><table>{rows}</table>
-<h2>COR per plate (Table 2)</h2>{cor_model}<table><tr><th>plate</th><th>mean</th><th>std</th><th>n</th></tr>\
-{cor_rows}</table>
-<h2>Simulation deviation D (Eq. 18)</h2><table>{sim_rows}</table>
-{disc_html}
-{dic_html}
-<h2>Warnings</h2><ul>{warns}</ul>
+{summary_html(results)}
+<h2>Structure (Eq. 2)</h2><p>{e(METHOD_WORDS.get(method, ""))}</p>
+<table>{_rows(structure_rows(results.get("structure")))}</table>
+<h2>COR per plate (Table 2)</h2><p>{e(impacts_model_text(results.get("impacts_model")))}</p>
+<h2>Simulation deviation D (Eq. 18)</h2><table>{_rows(simulation_rows(results.get("simulation")))}</table>
+{discrepancy_html(results.get("discrepancy") or {})}
+{dic_quality_html(results.get("dic_quality"))}
 {figs}
 </body></html>"""
     return atomic_write_text(path, page)
