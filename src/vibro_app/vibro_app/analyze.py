@@ -111,6 +111,48 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
     return rec.rig, DicTrack.from_frames(rows), accel
 
 
+def _frames_source_name(recording_dir: str | Path, track_csv: str | Path | None) -> str:
+    """How the time-base finding names the frames: the video's file name, or 'the frames'."""
+    from vibro_io.frames import find_frames_source
+
+    if track_csv is not None:
+        return "the frames"
+    try:
+        return find_frames_source(recording_dir).name
+    except Exception:  # noqa: BLE001 - only a name for a message; the frames were read already
+        return "the frames"
+
+
+#: rig.yaml keys whose statement rests on the impacts' local structure fits (the free play)
+_GEOMETRY_KEYS = {"structure.gap_mm", "ball.diameter_mm", "camera.mm_per_px"}
+
+
+def withhold_results(document, findings) -> None:
+    """A refused run's document: the COR table withheld (no impacts, an empty COR summary and statistics),
+    friction withheld when it is implausible, and rig.yaml statements that the refusal shows to be
+    consequences (the free play measured against structure fits seeded at a wrong frequency) dropped
+    from ``rig_consistency`` and the warnings, the refusal having named the key that is wrong."""
+    from dataclasses import replace
+
+    from vibro_model.results import CorSummary
+
+    document.impacts = []
+    document.cor_summary = CorSummary.of([])
+    document.sections.pop("cor_statistics", None)
+    if any(f.check == "negative_friction" and f.refuses for f in findings):
+        document.flights = [replace(f, friction_n=None, friction_std_n=None) for f in document.flights]
+    frequency_cause = any(f.refuses and {"excitation.frequency_hz", "camera.fps"} & set(f.keys)
+                          and "cor_against_recording_sine_range" in f.evidence for f in findings)
+    if not frequency_cause:
+        return
+    statements = document.sections.get("rig_consistency") or []
+    dropped = [r for r in statements if set(r.get("keys", ())) <= _GEOMETRY_KEYS]
+    document.sections["rig_consistency"] = [r for r in statements if r not in dropped]
+    texts = [r["message"] for r in dropped]
+    document.warnings = [w for w in document.warnings if not w.startswith("measured free play")
+                         and not any(t in w for t in texts)]
+
+
 class _NoFigure(Exception):
     """The discrepancy run had nothing to plot (its temporary file is discarded)."""
 
@@ -138,6 +180,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     from vibro_dic.quality import TrackQuality, dic_quality_section
     from vibro_discrepancy.engine import discrepancy_for_results
     from vibro_discrepancy.reidentify import reidentify_document
+    from vibro_fit.cross_checks import consistency_checks, consistency_section
     from vibro_fit.identify import identify
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_fit.spin import ball_spin_section
@@ -156,12 +199,23 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         bar.update(1)
         bar.set_description("identify")
         ident = identify(track, rig, accel=accel, method=method, weights=weights)
+        findings, evidence = consistency_checks(ident, track, rig, accel, _frames_source_name(recording_dir,
+                                                                                             track_csv))
         bar.update(1)
         bar.set_description("simulate")
         document = results_model(ident, str(recording_dir))
         if quality is not None:
             document.sections["dic_quality"] = dic_quality_section(quality.texture, quality)
             document.warnings += [f"DIC: {w}" for w in quality.texture.warnings() + dic_warnings]
+        document.sections["consistency"] = consistency_section(findings, evidence)
+        document.warnings += [f"consistency: {f.message}" for f in findings]
+        refusal = next((f for f in findings if f.refuses), None)
+        if refusal is not None:
+            withhold_results(document, findings)
+            write_results(out / RESULTS_JSON, document)
+            write_csv_tables(document, out)
+            raise RecordingError(f"{refusal.message} (results withheld: {out / RESULTS_JSON} has no COR table, "
+                                 "see its 'consistency' section)")
         sim = replay_models(document, track, rig)
         bar.update(1)
         dev = sim["deviations"]

@@ -55,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"accelerometers {acc['n_impacts']} impacts; {acc['clock_offset']['message']}")
     for r in doc.get("rig_consistency", []):
         print(f"rig.yaml       inconsistent: {r['message']}")
+    for finding in (doc.get("consistency") or {}).get("findings", []):
+        print(f"consistency    {finding['message']}")
     for plate in ("bottom", "top"):
         d = summ[plate]
         print(f"COR {plate:<7}    mean {f(d['mean'], '.4f')}  std {f(d['std'], '.4f')}  n {d['n']}")

@@ -100,9 +100,13 @@ def excitation_on_daq_clock_hz(accel, nominal_hz: float) -> float | None:
     if t.size < 64 or t[-1] - t[0] < 3.0 / nominal_hz:
         return None
     fs = accel.sample_rate_hz
-    x = np.asarray(accel.upper_ms2, float) + np.asarray(accel.lower_ms2, float)
     cut = min(4.0 * nominal_hz, 0.4 * fs)
-    x = sosfiltfilt(butter(4, cut, btype="lowpass", fs=fs, output="sos"), x - x.mean())
+    sos = butter(4, cut, btype="lowpass", fs=fs, output="sos")
+    up, lo = (sosfiltfilt(sos, c - c.mean()) for c in (np.asarray(accel.upper_ms2, float),
+                                                         np.asarray(accel.lower_ms2, float)))
+    # both plates carry the drive tone in phase; an inverted channel (its own finding, vibro_fit.cross_checks)
+    # must not cancel it from the sum
+    x = up + lo if float(up @ lo) >= 0.0 else up - lo
     step = max(int(fs / (10.0 * cut)), 1)
     return spectral_peak_hz(t[::step], x[::step])
 

@@ -1,0 +1,285 @@
+"""Physical plausibility of an identification: what no passive impact or friction can give.
+
+A ball bouncing passively in a cavity cannot come off a plate faster (relative to it) than it arrived:
+its coefficient of restitution (Eq. 16) lies in [0, 1]. Friction in flight opposes the motion: averaged
+over the up and down flights (so that a gravity tilt, which adds the same force to both, cancels) it
+takes energy away, never adds it. And the plate under an impact moves as the drive moves it: its speed
+never exceeds the drive's velocity amplitude A (2 pi f) (the fitted sine, Eq. 2/13).
+
+A value outside these bounds by more than its uncertainty is not a result but an inconsistency of the
+measurement chain. :func:`physical_plausibility` states each as a :class:`Finding` (severity
+``"refuse"``: the COR table must not be published) and names the likely cause where the data say it:
+
+- the impacts' structure velocities (each impact's local sine fit, seeded from rig.yaml
+  ``excitation.frequency_hz``) disagree with the whole recording's sine while the CORs recomputed
+  against that sine lie in [0, 1]: the local fits are wrong; when rig.yaml's frequency disagrees with
+  the measured one, that key is named (not the gap or diameter, whose free-play check rests on the
+  same local fits);
+- a rig.yaml statement (:mod:`vibro_fit.rig_consistency`) about the time base (``camera.fps``).
+
+Thresholds: a one-sided normal test at a family-wise false-alarm probability ``FALSE_ALARM`` (1e-3)
+over the n impacts tested (z = Phi^-1(1 - 1e-3 / n): 4.0 for 13 impacts), per impact, per plate
+(inverse-variance weighted mean) and over all impacts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+#: family-wise probability of a false alarm of one test family (impacts, plates, all)
+FALSE_ALARM = 1e-3
+#: a local structure velocity differs from the whole recording's sine by more than this fraction of the
+#: drive's velocity amplitude A w: the local fits do not follow the structure (harmonics of a few % stay below)
+STRUCTURE_VELOCITY_TOL = 0.2
+#: an impact's structure speed above (1 + this) x the drive's velocity amplitude A w is impossible
+DRIVE_SPEED_TOL = 0.1
+
+
+@dataclass
+class Finding:
+    """One cross-check that failed: ``check`` (an identifier), ``message`` (one line: what, the numbers,
+    the likely cause), ``keys`` (the rig.yaml keys that are likely wrong; empty when none is), ``evidence``
+    (numbers, SI units in the names), ``severity`` ``"refuse"`` (no result may be published) or ``"warn"``,
+    ``frame`` (the frame index it locates, for a time-base step)."""
+
+    check: str
+    message: str
+    keys: list[str] = field(default_factory=list)
+    evidence: dict[str, Any] = field(default_factory=dict)
+    severity: str = "warn"
+    frame: int | None = None
+
+    @property
+    def refuses(self) -> bool:
+        """True when this finding withholds the results."""
+        return self.severity == "refuse"
+
+    def to_dict(self) -> dict:
+        """Plain JSON (results.json ``consistency.findings[]``)."""
+        out = {"check": self.check, "severity": self.severity, "keys": list(self.keys), "message": self.message,
+               "evidence": {k: _plain(v) for k, v in self.evidence.items()}}
+        if self.frame is not None:
+            out["frame"] = int(self.frame)
+        return out
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, (np.floating, float)):
+        return float(v) if math.isfinite(float(v)) else None
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    return v
+
+
+def z_threshold(n_tests: int, false_alarm: float = FALSE_ALARM) -> float:
+    """One-sided normal quantile for ``n_tests`` tests at family-wise probability ``false_alarm``."""
+    from scipy.stats import norm
+
+    return float(norm.isf(false_alarm / max(int(n_tests), 1)))
+
+
+def _weighted_mean(values: np.ndarray, sigmas: np.ndarray) -> tuple[float, float]:
+    """Inverse-variance weighted mean and its standard deviation."""
+    w = 1.0 / np.maximum(sigmas, 1e-12) ** 2
+    return float(np.sum(w * values) / np.sum(w)), float(1.0 / math.sqrt(np.sum(w)))
+
+
+def cor_outside_bounds(impacts: Sequence) -> dict | None:
+    """Where the CORs leave [0, 1] beyond their sigma: per impact, per plate (weighted mean), all together.
+
+    ``impacts``: anything with ``index``, ``plate``, ``cor``, ``cor_std``. Returns None when none does, else
+    {"impacts": [(index, plate, cor, cor_std, z)], "plates": {plate: (mean, std, z)}, "all": (mean, std, z),
+    "z_limit": {...}} listing only the tests that fail (z: distance beyond the bound in sigmas)."""
+    rows = [(int(i.index), i.plate, float(i.cor), float(i.cor_std or 0.0)) for i in impacts
+            if i.cor is not None and np.isfinite(i.cor)]
+    if not rows:
+        return None
+    cor = np.array([r[2] for r in rows])
+    sd = np.array([max(r[3], 1e-9) for r in rows])
+
+    def beyond(x: float, s: float) -> float:
+        return max(x - 1.0, -x, 0.0) / s
+
+    z_one = z_threshold(len(rows))
+    bad_impacts = [(r[0], r[1], r[2], r[3], beyond(r[2], max(r[3], 1e-9))) for r in rows
+                   if beyond(r[2], max(r[3], 1e-9)) > z_one]
+    z_plate = z_threshold(2)
+    plates = {}
+    for plate in ("bottom", "top"):
+        sel = np.array([r[1] == plate for r in rows])
+        if sel.sum() >= 2:
+            m, s = _weighted_mean(cor[sel], sd[sel])
+            if beyond(m, s) > z_plate:
+                plates[plate] = (m, s, beyond(m, s))
+    m, s = _weighted_mean(cor, sd)
+    z_all = z_threshold(1)
+    together = (m, s, beyond(m, s)) if len(rows) >= 2 and beyond(m, s) > z_all else None
+    if not bad_impacts and not plates and together is None:
+        return None
+    return {"impacts": bad_impacts, "plates": plates, "all": together,
+            "z_limit": {"impact": z_one, "plate": z_plate, "all": z_all}}
+
+
+def cor_against_sine(impacts: Sequence, structure) -> list[float]:
+    """Each impact's COR (Eq. 16) with the structure velocity of the whole recording's sine (``structure``:
+    a :class:`~vibro_fit.structure_fit.StructureFit`) instead of its local fit; NaN where undefined."""
+    out = []
+    for i in impacts:
+        if i.t_s is None or i.v_ball_before_mps is None or i.v_ball_after_mps is None:
+            out.append(math.nan)
+            continue
+        vs = float(structure.velocity_mps(float(i.t_s)))
+        den = float(i.v_ball_before_mps) - vs
+        out.append(-(float(i.v_ball_after_mps) - vs) / den if den != 0.0 else math.nan)
+    return out
+
+
+def drive_velocity_amplitude_mps(structure) -> tuple[float, float]:
+    """The drive's velocity amplitude A (2 pi f) (m/s) of a structure sine fit, and its standard deviation."""
+    a_mm, f = float(structure.amplitude_mm), float(structure.frequency_hz)
+    sa, sf = (float(x) if np.isfinite(x) else 0.0 for x in structure.std[:2])
+    v = 2.0 * math.pi * a_mm * f * 1e-3
+    return v, v * math.hypot(sa / a_mm if a_mm else 0.0, sf / f if f else 0.0)
+
+
+def structure_at_impacts(impacts: Sequence, structure) -> dict | None:
+    """The impacts' structure velocities (their local fits) against the whole recording's sine: the largest
+    difference as a fraction of A w, and the impacts above :data:`DRIVE_SPEED_TOL` beyond A w (faster than the
+    drive can move the plate). None without impacts."""
+    vw, _ = drive_velocity_amplitude_mps(structure)
+    rows = [(int(i.index), float(i.t_s), float(i.v_structure_mps)) for i in impacts
+            if i.t_s is not None and i.v_structure_mps is not None and np.isfinite(i.v_structure_mps)]
+    if not rows or vw <= 0:
+        return None
+    diff = np.array([abs(v - float(structure.velocity_mps(t))) for _, t, v in rows]) / vw
+    too_fast = [(k, v) for k, _, v in rows if abs(v) > (1.0 + DRIVE_SPEED_TOL) * vw]
+    return {"max_difference_of_aw": float(diff.max()), "median_difference_of_aw": float(np.median(diff)),
+            "drive_velocity_amplitude_mps": vw, "too_fast": too_fast}
+
+
+def _frequency_statement(rig_statements: Iterable):
+    for r in rig_statements or ():
+        if "excitation.frequency_hz" in r.keys or "camera.fps" in r.keys:
+            return r
+    return None
+
+
+def negative_friction(flights: Sequence, mass_kg: float) -> dict | None:
+    """The dissipative part of the flights' friction (Eq. 17), averaged over the up and down flights so that a
+    constant force (a gravity tilt) cancels: D = (median(-F_up) + median(F_down)) / 2 (N, > 0 opposes the
+    motion). Returns {"dissipative_n", "std_n", "z"} when D < 0 beyond its sigma (z > z_threshold(1)), else
+    None. ``flights``: model Flights (``free``, ``direction``, ``friction_n``, ``friction_std_n``)."""
+    parts, var = [], 0.0
+    for d, sign in (("up", -1.0), ("down", 1.0)):
+        rows = [(f.friction_n, f.friction_std_n or 0.0) for f in flights
+                if f.free and f.direction == d and f.friction_n is not None]
+        if len(rows) < 2:
+            return None
+        vals = np.array([r[0] for r in rows])
+        sd_fit = float(np.median([r[1] for r in rows]))
+        spread = 1.4826 * float(np.median(np.abs(vals - np.median(vals))))
+        parts.append(sign * float(np.median(vals)))
+        var += max(spread, sd_fit) ** 2 * (math.pi / 2.0) / vals.size
+    d_n = 0.5 * sum(parts)
+    sd = 0.5 * math.sqrt(var)
+    z = -d_n / sd if sd > 0 else math.inf
+    if d_n < 0 and z > z_threshold(1):
+        return {"dissipative_n": d_n, "std_n": sd, "z": z, "weight_fraction": d_n / (mass_kg * 9.81)}
+    return None
+
+
+def physical_plausibility(impacts: Sequence, flights: Sequence, structure, rig, rig_statements: Iterable = (),
+                          structure_moves: bool = True) -> list[Finding]:
+    """Findings (severity ``"refuse"``) for CORs outside [0, 1], a friction that feeds energy into the flights
+    and plate speeds above the drive's, each naming its likely cause (see the module rules).
+
+    ``impacts``: model Impacts (SI); ``flights``: model Flights; ``structure``: the whole recording's sine
+    (:class:`~vibro_fit.structure_fit.StructureFit`); ``rig``: the RigConfig; ``rig_statements``: the
+    identification's :class:`~vibro_fit.rig_consistency.RigStatement` list."""
+    out: list[Finding] = []
+    rig_statements = list(rig_statements or ())
+    bounds = cor_outside_bounds(impacts)
+    local = structure_at_impacts(impacts, structure) if structure_moves else None
+    freq = _frequency_statement(rig_statements)
+    cause, keys, ev_cause = _structure_cause(impacts, structure, rig, local, freq, structure_moves)
+    if bounds is not None:
+        ev = {"z_limits": bounds["z_limit"], **ev_cause}
+        what = []
+        if bounds["all"] is not None:
+            m, s, z = bounds["all"]
+            what.append(f"mean COR {m:.3f} +- {s:.3f} over all impacts")
+            ev["all_mean"], ev["all_std"] = m, s
+        for plate, (m, s, z) in bounds["plates"].items():
+            what.append(f"{plate} {m:.3f} +- {s:.3f}")
+            ev[f"{plate}_mean"], ev[f"{plate}_std"] = m, s
+        if bounds["impacts"]:
+            worst = max(bounds["impacts"], key=lambda r: r[4])
+            what.append(f"{len(bounds['impacts'])} impact(s) alone, e.g. #{worst[0]} ({worst[1]}) "
+                        f"{worst[2]:.3f} +- {worst[3]:.3f}")
+            ev["impacts_outside"] = [{"index": r[0], "plate": r[1], "cor": r[2], "cor_std": r[3]}
+                                     for r in bounds["impacts"]]
+        out.append(Finding("cor_outside_0_1",
+                           f"COR outside [0, 1] beyond its uncertainty ({'; '.join(what)}): a passive impact "
+                           f"cannot return more speed than it received; {cause}", keys, ev, "refuse"))
+    if local is not None and local["too_fast"]:
+        k, v = max(local["too_fast"], key=lambda r: abs(r[1]))
+        out.append(Finding("impact_speed_above_drive",
+                           f"plate speed at {len(local['too_fast'])} impact(s) above what the drive gives (impact "
+                           f"#{k}: {abs(v):.3f} m/s, drive A 2 pi f = {local['drive_velocity_amplitude_mps']:.3f} "
+                           f"m/s); {cause}", keys,
+                           {"too_fast": [{"index": a, "v_structure_mps": b} for a, b in local["too_fast"]],
+                            **ev_cause}, "refuse"))
+    neg = negative_friction(flights, float(rig.ball.mass_kg))
+    if neg is not None:
+        fr_cause = cause if keys else ("the flights' parabolas or their up/down labels do not describe the ball "
+                                       "(check dic.ball_roi and the ball track)")
+        out.append(Finding("negative_friction",
+                           f"friction feeds energy into the flights: dissipative part {neg['dissipative_n']:.3g} N "
+                           f"+- {neg['std_n']:.2g} N (mean of the up and down flights; friction opposes motion); "
+                           f"{fr_cause}", keys, {**neg, **ev_cause}, "refuse"))
+    return out
+
+
+def _structure_cause(impacts, structure, rig, local, freq, structure_moves: bool) -> tuple[str, list[str], dict]:
+    """(words, rig.yaml keys, evidence) of the likely cause of an implausible identification."""
+    ev: dict[str, Any] = {}
+    if local is not None:
+        ev["structure_velocity_difference_of_aw"] = local["max_difference_of_aw"]
+    resolved = [c for c in cor_against_sine(impacts, structure) if np.isfinite(c)] if structure_moves else []
+    if resolved:
+        ev["cor_against_recording_sine_range"] = [float(min(resolved)), float(max(resolved))]
+    local_broken = local is not None and local["median_difference_of_aw"] > STRUCTURE_VELOCITY_TOL
+    sine_ok = bool(resolved) and min(resolved) >= -0.05 and max(resolved) <= 1.05
+    if freq is not None:
+        f_nom = float(rig.excitation.frequency_hz)
+        f_meas = float(structure.frequency_hz)
+        ev.update({"rig_frequency_hz": f_nom, "structure_frequency_hz": f_meas})
+        daq = freq.measured.get("daq_excitation_frequency_hz")
+        if daq is not None:
+            ev["daq_excitation_frequency_hz"] = float(daq)
+        key = freq.keys[0] if len(freq.keys) == 1 else " or ".join(freq.keys)
+        words = (f"likely cause: rig.yaml {key} disagrees with the measurement (rig.yaml {f_nom:g} Hz, the "
+                 f"structure moves at {f_meas:.3f} Hz" + (f", the accelerometers agree at {daq:.3f} Hz" if daq else "")
+                 + ")")
+        if local_broken:
+            words += (f"; the impacts were measured against local structure fits seeded at {f_nom:g} Hz, which miss "
+                      f"the structure's velocity by up to {local['max_difference_of_aw']:.0%} of A 2 pi f")
+        if sine_ok:
+            words += (f" (against the recording's {f_meas:.3f} Hz sine the CORs are {min(resolved):.3f}.."
+                      f"{max(resolved):.3f}); the free play measured at the impacts rests on the same fits, so "
+                      "structure.gap_mm and ball.diameter_mm are not in question")
+        return words + f": correct {key} and run again", list(freq.keys), ev
+    if local_broken:
+        return (f"likely cause: the local structure fits at the impacts miss the structure's velocity by up to "
+                f"{local['max_difference_of_aw']:.0%} of A 2 pi f (check dic.structure_roi and "
+                "excitation.frequency_hz)"), [], ev
+    return ("no rig.yaml key explains it (check the ball track, dic.ball_roi, and the camera's time base)",
+            [], ev)
