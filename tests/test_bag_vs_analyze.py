@@ -28,6 +28,8 @@ NOT_CARRIED = {
     "impacts[].method": "ImpactEstimate has no method field",
     "discrepancy.*": "the engine's extras (model, noise floors, location, stages, notes): no message",
     "discrepancy.findings[].*": "the engine's per-finding extras (one-step errors, alternatives): no message",
+    "consistency": "vibro analyze's cross-checks of the instruments (vibro_fit.cross_checks): no node runs them "
+                   "yet, no message carries them",
     "dic_quality": "the tracker's texture and correlation checks: the node logs them and reports them on "
                    "/diagnostics (ZNCC medians, frames below the threshold); no message carries the summary",
 }
