@@ -1,6 +1,6 @@
 """Benchmark of vibro's Dask paths: speed-up against workers of a campaign and of chunked DIC.
 
-Run: .venv/bin/python bench/bench_campaign.py [--workers 1,2] [--runs 6] [--frames 300] [--long-frames 1500]
+Run: scripts/py bench/bench_campaign.py [--workers 1,2] [--runs 6] [--frames 300] [--long-frames 1500]
 On a bigger machine (no ROS needed): --workers 1,2,4,8,16 --runs 32.
 Prints tables and writes bench/results/campaign.json. Everything is measured in this run, each worker count
 against the 1-worker run of the same kind in the same run:

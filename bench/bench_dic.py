@@ -1,6 +1,6 @@
 """Benchmark of the DIC tracker (vibro_dic): speed, accuracy, memory.
 
-Run: .venv/bin/python bench/bench_dic.py [--quick]
+Run: scripts/py bench/bench_dic.py [--quick]
 Prints tables and writes bench/results/dic.json. Everything is measured in this run:
 - speed on one core (BLAS/OpenCV threads pinned to 1) for a paper-like configuration
   (ball mesh 16 + structure mesh 24 = 40 points, 31 px subsets, 480 rows x 160 columns),

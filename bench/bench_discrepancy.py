@@ -7,7 +7,7 @@ recording directory alone; the truth is read only to score. The baseline measure
 PySINDy given the same measured data (per-flight tracks, per-impact velocities, the structure track)
 with a library of the same terms, scored the same way, and the baseline model's D.
 
-Run: .venv/bin/python bench/bench_discrepancy.py [--cases 40] [--frames 1500] [--seed 2026]
+Run: scripts/py bench/bench_discrepancy.py [--cases 40] [--frames 1500] [--seed 2026]
      -> table + bench/results/discrepancy.json
 """
 

@@ -12,11 +12,12 @@ Then end to end through DIC: a rendered speckle recording of an exact motion (vi
 vibro_sim.synth recordings (baseline, asymmetric COR, Coulomb friction, quadratic drag, asymmetric COR
 with 0.5 ms motion blur), scored against their truth files.
 
-Run: .venv/bin/python bench/bench_fit.py  -> table + bench/results/fit.json
+Run: scripts/py bench/bench_fit.py  -> table + bench/results/fit.json
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -211,7 +212,9 @@ def synth_recordings() -> list[dict]:
     return rows
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    argparse.ArgumentParser(description=__doc__.strip().splitlines()[0],
+                            epilog="Writes bench/results/fit.json; no options.").parse_args(argv)
     results = []
     print(f"{'scenario':<20} {'noise mm':>8} {'method':<6} {'COR MAE':>9} {'COR max':>9} {'FD MAE':>8} "
           f"{'FD/fit':>7} {'t MAE ms':>9} {'t max ms':>9} {'F mean%':>8} {'F max%':>7} {'A err%':>7} "

@@ -1,6 +1,6 @@
 """Does watching the graph in Foxglove slow it? `vibro graph` wall time without and with the Foxglove bridge.
 
-    .venv/bin/python bench/bench_foxglove.py [--frames 300] [--repeats 2]
+    scripts/py bench/bench_foxglove.py [--frames 300] [--repeats 2]
 
 One synthetic recording (``vibro synth``), run through ``vibro graph`` in three modes, interleaved per repeat
 so that the machine's load drifts over all modes alike, each on its own private ROS domain:

@@ -1,6 +1,6 @@
 """Throughput of the node graph, and where its time goes, on one 1500-frame synthetic recording.
 
-    .venv/bin/python bench/bench_graph.py [--frames 1500] [--repeats 2]
+    scripts/py bench/bench_graph.py [--frames 1500] [--repeats 2]
 
 Measured in one run, so ratios are comparable on a noisy machine:
 

@@ -1,6 +1,6 @@
 """CPU cost of one whole `vibro graph` run, per process, against `vibro analyze` on the same recording.
 
-    .venv/bin/python bench/bench_graph_cpu.py [--frames 300] [--repeats 2]
+    scripts/py bench/bench_graph_cpu.py [--frames 300] [--repeats 2]
 
 The test suite runs `vibro graph` on 300-frame recordings a dozen times, so a run's total CPU (start-up,
 discovery, streaming, wind-down of 9 processes) is what sets the suite's time on 2 cores, more than

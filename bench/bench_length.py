@@ -16,7 +16,7 @@ skips the first two runs (the long sweep in less time). The recordings are delet
 frames take 3.2 GB) unless ``--keep``; ``--reuse`` takes an existing recording of the same length in
 ``--dir`` instead of writing it again (its synth time is then not measured).
 
-Run: .venv/bin/python bench/bench_length.py [--lengths 1500,5000,20000,60000] [--only-analyze]
+Run: scripts/py bench/bench_length.py [--lengths 1500,5000,20000,60000] [--only-analyze]
      [--dir /tmp/vibro_bench_length] [--keep] [--reuse] -> table + bench/results/length.json
 """
 

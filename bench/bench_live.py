@@ -1,6 +1,6 @@
 """Live at the camera's rate: the processing graph fed by a camera-like source, on this machine's cores.
 
-    .venv/bin/python bench/bench_live.py [--frames 1500] [--rates 250,500,1000]
+    scripts/py bench/bench_live.py [--frames 1500] [--rates 250,500,1000]
 
 A camera process (bench/camera_peer.py) pre-loads a synthetic recording's frames (``vibro synth
 --no-accel``, made once and cached in the temp folder) as raw mono8 sensor_msgs/Image messages and

@@ -14,7 +14,7 @@ Baselines measured in the same run: PySINDy given the same measured data (the id
 impacts and structure track; a library of the same terms) scored the same way (ratio PySINDy / vibro),
 and the paper's Eq. 16 CORs against the final model's (ratio paper / final model).
 
-Run: .venv/bin/python bench/bench_prove.py [--frames 1000] [--seed 2026] [--magnitudes 2] [--controls 3]
+Run: scripts/py bench/bench_prove.py [--frames 1000] [--seed 2026] [--magnitudes 2] [--controls 3]
      [--only 12,13,6] -> table + bench/results/prove.json
 (``--only``: just those case numbers of the drawn set, each drawn exactly as in the whole run, e.g. to rerun
 some cases on a loaded machine; settings.only in the JSON says so)

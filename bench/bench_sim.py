@@ -1,6 +1,6 @@
 """Benchmark vibro_sim: COR model, Hertz model, synthetic recording; Hertz effective COR.
 
-Run: .venv/bin/python bench/bench_sim.py [--quick] [--regime]
+Run: scripts/py bench/bench_sim.py [--quick] [--regime]
 Prints tables and writes bench/results/sim.json. Baselines are measured in the same run:
   * COR model vs a fine-step ODE of the same system (DOP853, max_step 20 us, event location);
   * Hertz model vs the COR model;
