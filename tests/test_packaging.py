@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from vibro_bringup.graph_spec import NODES
+from vibro_bringup.graph_spec import BAG_SOURCE, NODES
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 PYTHON_PACKAGES = ["vibro_model", "vibro_io", "vibro_ros", "vibro_eval", "vibro_dic", "vibro_fit", "vibro_sim",
@@ -49,9 +49,15 @@ def test_ament_python_layout_and_entry_points(pkg: str) -> None:
 
 
 def test_every_graph_node_is_a_ros2_run_entry_point() -> None:
-    for spec in NODES:
+    """Every node of the table is a console script of its package, through the light entry module
+    (vibro_ros.entry: early Ctrl-C handling) that starts the table's node module."""
+    from vibro_ros.entry import NODE_MODULES
+
+    for spec in (*NODES, BAG_SOURCE):
         scripts = console_scripts(spec.package)
-        assert scripts.get(spec.executable) == f"{spec.module}:main", spec
+        assert scripts.get(spec.executable) == f"vibro_ros.entry:{spec.executable}", spec
+        assert NODE_MODULES[spec.executable] == spec.module, spec
+        assert callable(getattr(importlib.import_module(spec.module), "main")), spec
 
 
 def test_launch_file_uses_the_shared_graph_definition() -> None:

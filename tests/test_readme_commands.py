@@ -169,10 +169,28 @@ def check_command(command: str) -> str:
         for w in words[4:]:
             assert w.split(":=")[0] in declared, f"{w}: not an argument of {words[3]} ({sorted(declared)})"
         return "launch arguments declared"
+    if head == "ros2" and words[1:3] == ["topic", "echo"]:
+        check_topic_echo(words[3], words[4:])
+        return "topic and QoS = topics.py"
     if head == "scripts/py":
         check_bench(words)
         return "bench --help"
     raise AssertionError(f"a README command this test does not know how to check: {command!r}")
+
+
+def check_topic_echo(topic: str, options: list[str]) -> None:
+    """A vibro topic, echoed with QoS its publishers' profile serves whole: same reliability and durability,
+    at least its depth (a shallower or volatile echo drops messages, issue #25)."""
+    from vibro_ros import topics as T
+    from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, history_qos
+
+    spec = next((t for t in T.ALL_TOPICS if topic == t.name or topic.endswith("/" + t.name)), None)
+    assert spec is not None, f"{topic}: not a vibro topic"
+    profile = {"results": RESULTS_QOS, "stream": STREAM_QOS, "history": history_qos()}[spec.qos]
+    given = dict(zip(options[::2], options[1::2]))
+    assert given.get("--qos-reliability") == profile.reliability.name.lower(), (topic, given)
+    assert given.get("--qos-durability") == profile.durability.name.lower(), (topic, given)
+    assert int(given.get("--qos-depth", 0)) >= profile.depth, (topic, given)
 
 
 def check_bench(words: list[str]) -> None:

@@ -20,8 +20,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "frame_source = vibro_dic.frame_source_node:main",
-            "dic_tracker = vibro_dic.dic_tracker_node:main"
+            "frame_source = vibro_ros.entry:frame_source",
+            "dic_tracker = vibro_ros.entry:dic_tracker"
         ],
     },
 )

@@ -19,7 +19,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "discrepancy = vibro_discrepancy.discrepancy_node:main",
+            "discrepancy = vibro_ros.entry:discrepancy",
         ],
     },
 )

@@ -20,9 +20,9 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "accel_source = vibro_fit.accel_source_node:main",
-            "impact_detector = vibro_fit.impact_detector_node:main",
-            "trajectory_fitter = vibro_fit.trajectory_fitter_node:main"
+            "accel_source = vibro_ros.entry:accel_source",
+            "impact_detector = vibro_ros.entry:impact_detector",
+            "trajectory_fitter = vibro_ros.entry:trajectory_fitter"
         ],
     },
 )

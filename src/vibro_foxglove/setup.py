@@ -19,7 +19,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "foxglove_bridge = vibro_foxglove.bridge_node:main",
+            "foxglove_bridge = vibro_ros.entry:foxglove_bridge",
         ],
     },
 )

@@ -21,8 +21,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "recorder = vibro_ros.recorder_node:main",
-            "bag_source = vibro_ros.bag_source_node:main",
+            "recorder = vibro_ros.entry:recorder",
+            "bag_source = vibro_ros.entry:bag_source",
         ],
     },
 )

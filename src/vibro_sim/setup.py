@@ -20,7 +20,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "simulator = vibro_sim.simulator_node:main",
+            "simulator = vibro_ros.entry:simulator",
         ],
     },
 )

@@ -25,6 +25,7 @@ import json
 import sys
 from pathlib import Path
 
+from vibro_app.run_completeness import RunCompleteness, restarts_from_pids, run_completeness
 from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_model.results import Discrepancy, ResultsDocument, Simulation, results_text
 from vibro_ros import topics
@@ -58,13 +59,21 @@ class BagResults:
         self.findings: dict[int, object] = {}
         self.final_model: dict[int, object] = {}  # vibro/impacts_final_model by index
         self.finished: dict[str, int] = {}  # stream -> items the node announced at its end
+        self.finished_lost: dict[str, int] = {}  # stream -> items it announced lost at its end
         self.frames: list = []  # vibro/dic, as recorded
+        self.pids: dict[str, set[str]] = {}  # node name -> process ids its /diagnostics carried (restarts)
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
-                  topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name}
+                  topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name,
+                  topics.DIAGNOSTICS.name}
         for m in read_messages(bag, wanted):
             msg = deserialize(m, store)
-            if m.topic == topics.DIC.name:
+            if m.topic == topics.DIAGNOSTICS.name:
+                for status in msg.status:
+                    pid = next((kv.value for kv in status.values if kv.key == "pid"), None)
+                    if pid is not None:
+                        self.pids.setdefault(str(status.name).rsplit("/", 1)[-1], set()).add(str(pid))
+            elif m.topic == topics.DIC.name:
                 self.frames.append(msg)
             elif m.topic == topics.STRUCTURE.name:
                 self.structure = msg
@@ -78,6 +87,7 @@ class BagResults:
                 self.final_model[int(msg.index)] = msg
             elif msg.finished:
                 self.finished[str(msg.stream)] = int(msg.items_sent)
+                self.finished_lost[str(msg.stream)] = int(msg.items_lost)
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]
@@ -101,6 +111,16 @@ class BagResults:
             out.append(f"{len(self.final_model)} of the {announced} announced {topics.IMPACTS_FINAL_MODEL.name} "
                        "messages")
         return out
+
+    def completeness(self, impacts: int) -> RunCompleteness:
+        """Frame slots without a DicFrame, the impacts they may hide, and restarts (:mod:`vibro_app.run_completeness`);
+        the slots expected are those the frame source announced at its end (sent + unreadable)."""
+        answered = {int(m.frame_index): float(m.t_s) for m in self.frames}
+        first = min((int(m.reference_frame_index) for m in self.frames), default=0)
+        expected = (self.finished["frames"] + self.finished_lost.get("frames", 0)) if "frames" in self.finished \
+            else None
+        return run_completeness(answered, expected, first, impacts=impacts, restarts=restarts_from_pids(self.pids),
+                                source_lost=self.finished_lost.get("frames", 0))
 
     def merged(self, topic: str) -> list:
         """Final messages, and the streamed preview of every index without a final one."""
@@ -131,10 +151,12 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
     impacts = [impact_from_message(m) for m in r.merged(topics.IMPACTS.name)]
     flights = [flight_from_message(m) for m in r.merged(topics.FLIGHTS.name)]
     findings = [finding_from_message(r.findings[k]) for k in sorted(r.findings)]
+    completeness = r.completeness(len(impacts))
     warnings = []
     if missing:
         warnings.append(f"bag cut short: {'; '.join(missing)}; flights and impacts without a final estimate are "
                         "the streamed ones")
+    warnings += completeness.warnings()
     if "discrepancy" in r.finished and not findings:
         # the discrepancy node publishes findings only: with none, the baseline D is not in the bag
         warnings.append("discrepancy: no finding published; the baseline D is not recorded in a bag "
@@ -144,7 +166,8 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
     simulation = Simulation({name: simulation_run_from_message(m) for name, m in r.simulation.items()})
     doc = ResultsDocument.build(
         str(bag), None if r.structure is None else structure_from_message(r.structure), flights, impacts,
-        simulation=simulation, discrepancy=discrepancy, warnings=warnings, complete=not missing)
+        simulation=simulation, discrepancy=discrepancy, warnings=warnings,
+        complete=not missing and not completeness.lost_anything, sections={"completeness": completeness.to_dict()})
     remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
     effects = measurement_effects(findings)
     doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))

@@ -24,7 +24,10 @@ def main() -> None:
             sys.exit(0)
     except OSError:
         pass
+    from vibro_ros.entry import install_early_stop
+
     module = sys.argv[1]
+    install_early_stop(module.rsplit(".", 1)[-1])  # a stop while the node module imports: exit 0, no traceback
     sys.argv = [module, *sys.argv[2:]]
     runpy.run_module(module, run_name="__main__", alter_sys=True)
 

@@ -365,22 +365,27 @@ class LaunchNode:
     spec: NodeSpec
     parameters: dict[str, Any]
     remappings: tuple[tuple[str, str], ...]
-    respawn: bool            # launch's respawn=True (live graph: processing nodes never end by themselves)
-    respawn_on_failure: bool  # restart only after a non-zero exit (file mode: a node that finished exits 0)
+    respawn: bool            # live graph: processing nodes never end by themselves (exit_policy restarts them)
+    respawn_on_failure: bool  # file mode: restart only after a crash (a node that finished exits 0)
     respawn_delay_s: float
 
 
 def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = False,
                  camera_topic: str = T.FRAMES.name, base: str | Path | None = None,
                  reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0,
-                 foxglove: dict[str, Any] | None = None) -> list[LaunchNode]:
+                 foxglove: dict[str, Any] | None = None, reference_image: str | Path | None = None,
+                 time_origin_ns: int | None = None) -> list[LaunchNode]:
     """What launch/vibro.launch.py starts: the same nodes, parameters and declared readers as ``vibro graph``
     (without its monitor). File mode: dic_tracker's reference is frame 0 written to ``reference_dir``
     (default: a new temporary folder), every node exits once its stream has ended, and a processing
     node that dies (non-zero exit) is restarted after ``respawn_delay_s``; launch's own ``respawn=True``
     would also restart a node that finished, so it is used live only, where nodes never finish.
     ``foxglove``: the Foxglove bridge's parameters (e.g. ``{"port": 8765}``) to start it too (None: not started);
-    from a recording it exits once the other nodes have gone, live it stays up and respawns."""
+    from a recording it exits once the other nodes have gone, live it stays up and respawns.
+    ``reference_image``: dic_tracker's reference (an image of frame 0) instead of the one written from the
+    recording (live: instead of the first image received); ``time_origin_ns``: the lab-clock origin of the
+    stamps (wall time of data time 0, ns; live: the camera's frame 0 minus t0_s) instead of
+    :func:`run_time_origin`."""
     from vibro_io.recording import open_recording
 
     rec = open_recording(recording)
@@ -389,13 +394,14 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
     # camera would put that run's impacts into this one's flights; a live graph is camera-only
     with_accel = rec.has_accel and not live
     nodes = graph_nodes(bag=bag is not None, with_accel=with_accel, live=live, foxglove=foxglove is not None)
-    reference = None
-    if not live:
+    reference = Path(reference_image) if reference_image is not None else None
+    if reference is None and not live:
         import tempfile
 
         folder = Path(reference_dir) if reference_dir is not None else Path(tempfile.mkdtemp(prefix="vibro-launch-"))
         reference = write_reference_frame(rec.path, folder / "reference_frame0.png")
-    params = node_parameters(rec.path, bag, base, with_accel, reference, nodes=nodes, live=live, foxglove=foxglove)
+    params = node_parameters(rec.path, bag, base, with_accel, reference, nodes=nodes, live=live, foxglove=foxglove,
+                             time_origin_ns=time_origin_ns)
     params["dic_tracker"]["live_camera"] = live
     remap = ((T.FRAMES.name, camera_topic),) if camera_topic != T.FRAMES.name else ()
     restarted = ("processing", VIEWER)

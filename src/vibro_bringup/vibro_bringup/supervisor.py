@@ -4,9 +4,10 @@ Driven by the node table (:class:`vibro_bringup.graph_spec.NodeSpec` roles): pro
 order viewer (the Foxglove bridge: up before anything streams), sink, processing, sources (not needed
 for correctness -- the nodes wait for their declared readers by name -- but the sources then find their
 readers at once). A node that exits with code 0 has finished by itself (its stream ended). A processing
-node that exits otherwise is restarted, like launch's ``respawn``, at most ``respawn`` times, its log
-appended; any other non-zero exit (a source, the recorder, restarts used up) is a failure reported at
-once with the last lines of the node's log. :meth:`Supervisor.stop` stops what still runs in the order
+node that crashes is restarted, like launch's ``respawn``, at most ``respawn`` times, its log
+appended; any other non-zero exit (a source, the recorder, restarts used up, a refusal: exit code 2) is a
+failure reported at once with the last lines of the node's log (:func:`vibro_bringup.exit_policy.exit_verdict`,
+the rule the launch file follows too). :meth:`Supervisor.stop` stops what still runs in the order
 sources, processing, (drain) sinks, viewer, so the recorder takes the last messages before it closes.
 """
 
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
+from .exit_policy import FINISHED, RESTART, exit_verdict
 from .graph_spec import VIEWER, NodeSpec
 
 START_ORDER = (VIEWER, "sink", "processing", "source")
@@ -91,13 +93,13 @@ class Supervisor:
             code = proc.poll()
             if code is None or name in self.finished or any(f.name == name for f in self.failures):
                 continue
-            if code == 0:
-                self.finished.add(name)
-                continue
             spec = self.specs[name]
             done = self.restarts.get(name, 0)
-            # exit code 2: the node refused its input or parameters (e.g. another run's data): a restart would too
-            if spec.role in ("processing", VIEWER) and done < self.respawn and code != 2:
+            verdict = exit_verdict(name, spec.role, code, restarts_done=done, respawn_max=self.respawn)
+            if verdict.action == FINISHED:
+                self.finished.add(name)
+                continue
+            if verdict.action == RESTART:
                 self.restarts[name] = done + 1
                 with self.logs[name].open("a") as out:
                     out.write(f"\n--- vibro graph: {name} exited with {code}; "

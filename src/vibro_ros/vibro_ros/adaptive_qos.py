@@ -116,12 +116,22 @@ class ResultsSubscription:
         self._raw = raw
         self._seen: OrderedDict[bytes, None] = OrderedDict()
         self._keep = max(2 * int(profile.depth), 1000)
-        self.subscriptions = [node.create_subscription(msg_type, topic, self._on_message, profile, raw=True)]
+        self.subscriptions = [self._subscribe(profile)]
         self.companion_profile: QoSProfile | None = None
         if node not in _POLLED:
             _POLLED[node] = []
             node.create_timer(POLL_S, lambda: _poll_publishers_of(node))
         _POLLED[node].append(self)
+
+    def _subscribe(self, profile: QoSProfile):
+        """A reader with ``profile``. A publisher it cannot match is what the companion reader is for: rmw's
+        default warning ("offering incompatible QoS. No messages will be received from it") would tell a lab
+        the opposite of what happens, so the event adapts at once instead (the companion logs what it hears)."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        events = SubscriptionEventCallbacks(incompatible_qos=lambda _info: self._check_publishers())
+        return self._node.create_subscription(self._msg_type, self._topic, self._on_message, profile, raw=True,
+                                              event_callbacks=events)
 
     @property
     def topic_name(self) -> str:
@@ -152,8 +162,7 @@ class ResultsSubscription:
             f"{self.topic_name}: {len(strangers)} publisher(s) offer "
             f"{', '.join(sorted({o['reliability'] + '/' + o['durability'] for o in strangers}))}; "
             f"also subscribing {companion.reliability.name.lower()}/volatile")
-        self.subscriptions.append(self._node.create_subscription(
-            self._msg_type, self._topic, self._on_message, companion, raw=True))
+        self.subscriptions.append(self._subscribe(companion))
         if self.companion_profile is not None:  # upgrade reliable -> best effort: the old companion goes
             self._node.destroy_subscription(self.subscriptions.pop(1))
         self.companion_profile = companion

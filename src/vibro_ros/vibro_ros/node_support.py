@@ -194,13 +194,14 @@ def seconds_from_stamp(header: Any, origin_ns: int = 0) -> float:
 
 class Health:
     """Counts and rates a node reports on /diagnostics once a second, and once more when it stops
-    (:func:`run_node`). /diagnostics is absolute: it stays at the root under a namespace."""
+    (:func:`run_node`). /diagnostics is absolute: it stays at the root under a namespace. Its ``pid`` value
+    (the process id) tells a bag's reader that a node was restarted (two pids under one node name)."""
 
     def __init__(self, node: Node, hardware_id: str = "vibro"):
         self._node = node
         self._hardware_id = hardware_id
         self.counters: dict[str, int] = {}
-        self.values: dict[str, float | str] = {}
+        self.values: dict[str, float | str] = {"pid": str(os.getpid())}
         self.level = DiagnosticStatus.OK
         self.message = "ok"
         self._start = time.monotonic()

@@ -1,0 +1,94 @@
+"""Console-script entry points of the nodes (``ros2 run <package> <executable>``), light enough to catch Ctrl-C.
+
+A node module imports numpy, scipy, OpenCV and rclpy: one to three seconds before its ``main`` can install the
+node's signal handling (:func:`vibro_ros.node_support.run_node`). A SIGINT or SIGTERM in that time (Ctrl-C right
+after ``ros2 launch``, or launch shutting a run down) would raise KeyboardInterrupt in the middle of an import:
+a traceback and exit code -2 ("process has died"). These entry points install :func:`stop_while_starting` first,
+then import the node module and run its ``main``, which replaces the handler: a stop before the node exists is a
+clean exit 0 with one line. This module imports nothing heavy (``vibro_ros/__init__`` imports nothing).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+import sys
+
+#: executable (``ros2 run`` name) -> node module with ``main()``; each package's setup.py points its console
+#: scripts at the functions below
+NODE_MODULES = {
+    "frame_source": "vibro_dic.frame_source_node",
+    "dic_tracker": "vibro_dic.dic_tracker_node",
+    "accel_source": "vibro_fit.accel_source_node",
+    "impact_detector": "vibro_fit.impact_detector_node",
+    "trajectory_fitter": "vibro_fit.trajectory_fitter_node",
+    "simulator": "vibro_sim.simulator_node",
+    "discrepancy": "vibro_discrepancy.discrepancy_node",
+    "recorder": "vibro_ros.recorder_node",
+    "bag_source": "vibro_ros.bag_source_node",
+    "foxglove_bridge": "vibro_foxglove.bridge_node",
+}
+
+
+_starting = ["vibro node"]  # the name the early-stop line gives (the node being started)
+
+
+def stop_while_starting(signum: int, _frame) -> None:
+    """Signal handler while a node starts: one line on stderr, exit code 0 at once (nothing to clean up yet)."""
+    sys.stderr.write(f"{_starting[0]}: stopped by {signal.Signals(signum).name} while starting; exit code 0\n")
+    sys.stderr.flush()
+    os._exit(0)
+
+
+def install_early_stop(name: str = "vibro node") -> None:
+    """SIGINT and SIGTERM end the process cleanly (exit 0) until the node installs its own handlers."""
+    _starting[0] = name
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, stop_while_starting)
+
+
+def run(executable: str) -> int:
+    """Start node ``executable``: early stop handling, then its module's ``main()``; its exit code."""
+    install_early_stop(executable)
+    return importlib.import_module(NODE_MODULES[executable]).main()
+
+
+def frame_source() -> int:
+    return run("frame_source")
+
+
+def dic_tracker() -> int:
+    return run("dic_tracker")
+
+
+def accel_source() -> int:
+    return run("accel_source")
+
+
+def impact_detector() -> int:
+    return run("impact_detector")
+
+
+def trajectory_fitter() -> int:
+    return run("trajectory_fitter")
+
+
+def simulator() -> int:
+    return run("simulator")
+
+
+def discrepancy() -> int:
+    return run("discrepancy")
+
+
+def recorder() -> int:
+    return run("recorder")
+
+
+def bag_source() -> int:
+    return run("bag_source")
+
+
+def foxglove_bridge() -> int:
+    return run("foxglove_bridge")
