@@ -201,3 +201,18 @@ def test_ctrl_c_while_a_node_imports_is_a_clean_exit(executable: str, tiny_recor
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0 and "Traceback" not in err, (proc.returncode, err[-2000:])
     assert "stopped by SIGINT while starting" in err or "left the ROS graph" in err, err[-2000:]
+
+
+def test_a_live_camera_started_before_the_graph_is_told_its_origin() -> None:
+    """A driver stamping with its own clock, started 4.246 s before the graph: its first image is frame 4246 on
+    the run's clock. The hint gives the origin that makes that image frame 0 (stamp minus t0_s), in integer ns,
+    and applying it does give frame 0 (the tracker's k = round((t - t0_s) * fps), t = stamp - origin)."""
+    from vibro_ros.lab_clock import data_time_from_stamp_ns, live_origin_hint
+
+    stamp = 1_764_000_004_246_000_123
+    fps, t0_s = 1000.0, 0.0125
+    hint = live_origin_hint(4246, stamp, t0_s)
+    origin = int(re.search(r"time_origin_unix_ns:=(\d+)", hint)[1])
+    assert round((data_time_from_stamp_ns(origin, stamp) - t0_s) * fps) == 0
+    assert origin == stamp - 12_500_000 and "frame 4246" in hint
+    assert A.time_origin_ns(str(origin)) == origin  # the launch argument takes it as printed

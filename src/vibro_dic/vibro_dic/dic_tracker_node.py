@@ -32,6 +32,7 @@ from vibro_ros import topics
 from vibro_ros.adaptive_qos import results_subscription
 from vibro_ros.convert import frame_track_to_message
 from vibro_ros.guard import InputGuard
+from vibro_ros.lab_clock import live_origin_hint
 from vibro_ros.node_support import (
     SENSOR_QOS,
     STREAM_QOS,
@@ -42,6 +43,7 @@ from vibro_ros.node_support import (
     history_qos,
     run_node,
     seconds_from_stamp,
+    stamp_ns,
     time_origin_parameter,
 )
 from vibro_ros.readiness import ReaderGate
@@ -85,6 +87,7 @@ class DicTrackerNode(Node):
         self.zncc_min = float(declare(self, "zncc_min", 0.6, "a mesh point below this ZNCC is rejected"))
         live = bool(declare(self, "live_camera", False,
                             "true: best-effort sensor QoS for a camera driver's image_raw"))
+        self.live_camera = live
         self.end_wait_s = float(declare(
             self, "end_wait_s", 5.0, "once the frame source has ended, finish after this long without an image (s): "
             "a tracker restarted after the last frame gets none; the slots it never answered count as lost downstream"))
@@ -196,6 +199,10 @@ class DicTrackerNode(Node):
         try:
             image = image_array(msg)
             if self.tracker is None:
+                if k > 0 and self.live_camera:
+                    hint = live_origin_hint(k, stamp_ns(msg.header), self.rig.camera.t0_s)
+                    self.get_logger().warning(hint)
+                    self.health.warn(hint)
                 self._start_tracker(k, image)
         except RecordingError as exc:
             self.health.error(str(exc))

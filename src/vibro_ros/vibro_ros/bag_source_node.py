@@ -8,7 +8,10 @@ the bag's (metadata ``vibro.time_origin_unix_ns``, 0 for an older bag), which ``
 every node as ``time_origin_unix_ns``; another nonzero value is refused. Frames are flow-controlled
 like ``frame_source`` (never more than ``window`` ahead of the tracker's DicFrames), so a
 replay loses nothing; accelerometer blocks go out in order. End-of-stream statuses
-"frames" and "accel" carry the counts, as the live sources' do.
+"frames" and "accel" carry the counts, as the live sources' do. A bag that holds fewer messages than its
+metadata.yaml lists (a file cut short or damaged) is replayed as far as it reads; the messages missing are
+announced lost in those statuses (``items_lost``) and logged as an error, so the replay's results say
+``complete: false`` with the frames that are missing (:mod:`vibro_app.run_completeness`).
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from vibro_io.rig import parse_rig
 from vibro_model.errors import RecordingError
 from vibro_msgs.msg import AccelBlock, DicFrame
 from vibro_ros import topics
-from vibro_ros.bags import read_custom_data, read_messages
+from vibro_ros.bags import matching_name, read_custom_data, read_messages, recorded_message_counts
 from vibro_ros.guard import InputGuard
 from vibro_ros.lab_clock import BAG_TIME_ORIGIN_KEY, TIME_ORIGIN_PARAMETER, origin_from_custom_data
 from vibro_ros.node_support import (
@@ -75,6 +78,8 @@ class BagSource(Node):
         self.accel = [self._restamped_block(m.data, bag) for m in raw if m.topic == topics.ACCEL.name]
         if not self.frames:
             raise RecordingError(f"{bag}: no {self.frames_topic} messages to replay")
+        self.frames_lost = self._unreadable(bag, self.frames_topic, len(self.frames))
+        self.accel_lost = self._unreadable(bag, topics.ACCEL.name, len(self.accel))
         self.sent = 0
         self.last_index_acked = -1
         self.guard = InputGuard(self)  # the acknowledgements must be this run's tracker's
@@ -97,6 +102,16 @@ class BagSource(Node):
         self.done = self.gate.done
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")
+
+    def _unreadable(self, bag: str, topic: str, read: int) -> int:
+        """Messages of ``topic`` that metadata.yaml lists and the bag's files no longer hold (logged as an error)."""
+        listed = sum(n for name, n in recorded_message_counts(bag).items() if matching_name(name, {topic}))
+        lost = max(0, listed - read)
+        if lost:
+            self.get_logger().error(f"{bag}: {read} of the {listed} {topic} messages its metadata.yaml lists are "
+                                    f"readable (the bag is cut short or damaged); replaying those, the other {lost} "
+                                    "are announced lost and the results will say so")
+        return lost
 
     def _restamped_block(self, data: bytes, bag: str) -> AccelBlock:
         """A recorded AccelBlock with this run's id (the recorded run's id would be refused as another run's)."""
@@ -122,7 +137,7 @@ class BagSource(Node):
             self.sent += 1
             self.health.count("published")
         if self.sent == len(self.frames):
-            self.frames_status.publish(self.sent, 0, True)
+            self.frames_status.publish(self.sent, self.frames_lost, True)
 
     def _tick(self) -> None:
         if self.done.done() or self._ended:
@@ -137,7 +152,7 @@ class BagSource(Node):
                                         - self.camera.t0_s) * self.camera.fps)) for d in self.frames]
             for data in self.accel:
                 self.pub_accel.publish(data)
-            self.accel_status.publish(len(self.accel), 0, True)
+            self.accel_status.publish(len(self.accel), self.accel_lost, True)
             self._send_until_index(self.window - 1)
             return
         if self.sent < len(self.frames):
@@ -146,7 +161,7 @@ class BagSource(Node):
                 self._last_progress = time.monotonic()
             return
         if self.last_index_acked >= self._indices[-1] or time.monotonic() - self._last_progress > self.linger_s:
-            self.frames_status.publish(self.sent, 0, True)
+            self.frames_status.publish(self.sent, self.frames_lost, True)
             self.get_logger().info(f"done: {self.sent} frames, {len(self.accel)} accelerometer blocks replayed")
             self._ended = True
             self.gate.finish(always=True)

@@ -272,6 +272,16 @@ def recorded_topics(bag: str | Path) -> dict[str, str]:
         raise BagError(f"{bag}/metadata.yaml: malformed topic list ({exc})") from None
 
 
+def recorded_message_counts(bag: str | Path) -> dict[str, int]:
+    """{topic name as recorded: message count} from a bag's metadata.yaml: what the recorder wrote, which a
+    truncated or damaged file may no longer hold whole (compare with what :func:`read_messages` yields)."""
+    try:
+        return {t["topic_metadata"]["name"]: int(t.get("message_count", 0))
+                for t in _bag_information(bag).get("topics_with_message_count") or []}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BagError(f"{bag}/metadata.yaml: malformed topic list ({exc})") from None
+
+
 @dataclass
 class BagMessage:
     topic: str           # the name asked for (vibro's topic table) when read with a filter, else as recorded

@@ -54,6 +54,17 @@ def run_time_origin_ns(t0_s: float, frame0_unix_s: float | None = None, now_ns: 
     return frame0_ns - int(round(float(t0_s) * 1e9))
 
 
+def live_origin_hint(first_index: int, stamp_ns: int, t0_s: float) -> str:
+    """What a live tracker says when the first camera image maps to frame ``first_index`` > 0 of the run's clock:
+    the origin that would make it frame 0 (its stamp minus ``t0_s``, integer ns), to pass as the launch argument
+    and parameter ``time_origin_unix_ns``. A camera that started before the graph gives a large index; the
+    frames before it are not lost, they precede the session."""
+    origin = int(stamp_ns) - stamp_ns_from_data_time(0, t0_s)
+    return (f"the first camera image is frame {first_index} on this run's clock (time_origin_unix_ns); if it is the "
+            f"camera's frame 0, start the graph with time_origin_unix_ns:={origin} (ros2 launch argument, or the "
+            "nodes' parameter) so that frame numbers and times count from it")
+
+
 def origin_from_custom_data(custom: dict[str, str], source: str) -> int:
     """The time origin a bag's metadata records (0 for a bag recorded before vibro stored it: its stamps
     are data time); ValueError naming ``source`` for a value that is not an integer >= 0."""
