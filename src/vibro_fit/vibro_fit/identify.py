@@ -21,6 +21,7 @@ from vibro_model.results import StructureMotion
 from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
 from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
+from .gaps import GapVerdict
 from .impacts import ImpactFit, joint_impact
 from .landings import Landing, find_landings
 from .methods import METHODS
@@ -60,6 +61,7 @@ class Identification:
     landings: list[Landing] = field(default_factory=list)   # impacts without a COR (short rebound, chatter)
     accel_unseen_s: list[float] | None = None  # accelerometer impacts (camera clock) the camera does not see
     rig_consistency: list[RigStatement] = field(default_factory=list)
+    gaps: list[GapVerdict] = field(default_factory=list)   # runs of lost frames: impact found, or what they may hide
 
     def structure_motion(self) -> StructureMotion:
         """The identified structure as the model type, with the ball offset from the plate levels; no
@@ -84,11 +86,12 @@ def track_rows(track: DicTrack):
 
 
 def run_streaming(track: DicTrack, frequency_hz: float, noise_mm: float | None, method: str = "paper",
-                  config: SegmentationConfig | None = None, accel_times_s=(), weights: str | None = None
-                  ) -> StreamingFitter:
-    """Run the streaming fitter over a whole track (accelerometer impact times on the camera clock)."""
+                  config: SegmentationConfig | None = None, accel_times_s=(), weights: str | None = None,
+                  free_play_mm: float | None = None) -> StreamingFitter:
+    """Run the streaming fitter over a whole track (accelerometer impact times on the camera clock;
+    ``free_play_mm``: the rig's, for impacts inside lost frames, :mod:`vibro_fit.gaps`)."""
     sf = StreamingFitter(frequency_hz, noise_mm=noise_mm, method="paper" if method == "joint" else method,
-                         config=config, weights=weights)
+                         config=config, weights=weights, free_play_mm=free_play_mm)
     for tx in accel_times_s:
         sf.push_accel_impact(tx)
     for row in track_rows(track):
@@ -175,7 +178,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     noise = noise_sigma_mm(t[good], ball[good])
     if not np.isfinite(noise):
         noise = 0.0
-    sf = run_streaming(track, f_nom, noise, method, cfg, weights=weights)
+    sf = run_streaming(track, f_nom, noise, method, cfg, weights=weights, free_play_mm=rig.free_play_mm)
     accel_res = None
     offset = None
     coverage = None
@@ -187,7 +190,8 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         offset = _clock_offset(acc_t, sf, structure, rig, track, cfg, f_motion, accel)
         if offset is not None and offset.determined:
             accel_cam_s = [x - offset.offset_s for x in acc_t]
-            sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=accel_cam_s, weights=weights)
+            sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=accel_cam_s, weights=weights,
+                               free_play_mm=rig.free_play_mm)
         elif acc_t:
             why = offset.reason if offset is not None else "no accelerometer impact lies within 1 s of a DIC impact"
             durations = (f"; the accelerometer record lasts {float(accel.t_s[-1] - accel.t_s[0]):.3f} s, "
@@ -267,7 +271,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
                           short_flights=list(sf.short_flights), clusters=list(sf.clusters),
                           accel=accel_res, clock_offset=offset, warnings=warnings, weights=weights or "none",
                           coverage=coverage, motion=motion, landings=landings, accel_unseen_s=unseen,
-                          rig_consistency=rig_state)
+                          rig_consistency=rig_state, gaps=list(sf.gaps))
 
 
 def _clock_offset(acc_t: list[float], sf: StreamingFitter, structure: StructureFit, rig: RigConfig,

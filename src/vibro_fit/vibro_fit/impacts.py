@@ -50,7 +50,8 @@ class ImpactFit(Impact):
                       v_ball_after_mps=none_if_nan(self.v_ball_after_mps),
                       v_structure_mps=none_if_nan(self.v_structure_mps),
                       t_std_s=none_if_nan(self.t_std_s), flight_before=int(self.flight_before),
-                      flight_after=int(self.flight_after), method=self.method)
+                      flight_after=int(self.flight_after), method=self.method, in_gap=self.in_gap,
+                      gap_lost_frames=self.gap_lost_frames)
 
 
 def _shift(coef: np.ndarray, t_ref: float, t_new: float) -> tuple[float, float, float]:
@@ -217,7 +218,8 @@ def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_
     return ImpactFit(index=est.index, t_s=float(t_i), t_std_s=float(np.sqrt(max(cov_th[0, 0], 0))), plate=est.plate,
                      cor=float(e), cor_std=float(np.sqrt(max(var, 0))), v_ball_before_mps=float(vm),
                      v_ball_after_mps=float(vp), v_structure_mps=vs, y_rel_mm=float(y_plate_mm),
-                     flight_before=est.flight_before, flight_after=est.flight_after, method="joint", structure=s_fit)
+                     flight_before=est.flight_before, flight_after=est.flight_after, method="joint", structure=s_fit,
+                     in_gap=est.in_gap, gap_lost_frames=est.gap_lost_frames)
 
 
 def finite_difference_cor(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np.ndarray,

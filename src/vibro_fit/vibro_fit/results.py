@@ -53,7 +53,8 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
                                              for f in ident.short_flights],
                            "contact_phases": [{"t_start": c.t_start_s, "t_end": c.t_end_s, "n_frames": c.n}
                                               for c in ident.clusters if c.n > 4],
-                           "impacts_without_cor": [ld.to_dict() for ld in ident.landings]},
+                           "impacts_without_cor": [ld.to_dict() for ld in ident.landings],
+                           "gaps": [g.to_dict() for g in ident.gaps]},
         "rig_consistency": [r.to_dict() for r in ident.rig_consistency],
     }
     if ident.motion is not None:
@@ -113,7 +114,8 @@ def write_csv_tables(source: Identification | ResultsDocument, out_dir: str | Pa
         path = out_dir / name
         with atomic_open(path, "w", newline="") as fh:
             if rows:
-                w = csv.DictWriter(fh, fieldnames=list(rows[0].keys()))
+                names = list(dict.fromkeys(k for r in rows for k in r))   # optional keys of later rows too
+                w = csv.DictWriter(fh, fieldnames=names)
                 w.writeheader()
                 w.writerows(rows)
             else:

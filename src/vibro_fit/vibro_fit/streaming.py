@@ -21,6 +21,7 @@ import numpy as np
 from vibro_io.dictrack import FrameTrack
 
 from .flight_fit import FlightFit, fit_flight
+from .gaps import GapVerdict, gap_impact
 from .impacts import ImpactFit, joint_impact, paper_impact
 from .segmentation import SegmentationConfig, accel_estimate, noise_sigma_mm
 from .structure_fit import fit_structure
@@ -58,7 +59,8 @@ class StreamingFitter:
 
     def __init__(self, frequency_hz: float, *, noise_mm: float | None = None, method: str = "paper",
                  config: SegmentationConfig | None = None, warmup_frames: int = 100,
-                 history_s: float | None = None, weights: str | None = None) -> None:
+                 history_s: float | None = None, weights: str | None = None,
+                 free_play_mm: float | None = None) -> None:
         if method not in ("paper", "joint"):
             raise ValueError(f"unknown method {method!r} (paper, joint)")
         if weights not in (None, "none", "dic_valid"):
@@ -90,6 +92,9 @@ class StreamingFitter:
         self._n_flight = 0
         self._n_impact = 0
         self._finished = False
+        self._short_gap = 0                      # lost frames inside the impact gap being closed
+        self.gaps: list[GapVerdict] = []         # runs of lost frames longer than an impact's contact frames
+        self.free_play_mm = free_play_mm
 
     # ------------------------------------------------------------------ input
     def push_accel_impact(self, t_s: float) -> None:
@@ -220,15 +225,24 @@ class StreamingFitter:
             return out
         self._check_free(fl)
         prev = self._last_flight
-        if prev is not None and self._lost_between(prev, fl) > 0 and \
+        lost = self._lost_between(prev, fl) if prev is not None else 0
+        if prev is not None and lost > 0 and \
                 int(fl.frames[0]) - int(prev.frames[-1]) - 1 > self.cfg.max_impact_frames:
-            # frames without DIC between the two flights, more than one impact's contact frames: the
-            # ball may have struck several times unseen; pairing these parabolas would invent one impact
-            self.rejected.append(
-                f"no impact between flights {prev.index} and {fl.index} (t {prev.t_end_s:.4f}..{fl.t_start_s:.4f} s): "
-                f"{self._lost_between(prev, fl)} frames in between have no DIC result; impacts there are not "
-                "identified")
+            # frames without DIC between the two flights, more than one impact's contact frames: the ball
+            # may have struck several times unseen. One impact is reported only where the flights, the
+            # plate and the energy determine it (vibro_fit.gaps); else the gap and what it may hide are said
+            est = self._gap_impact(prev, fl, lost) if prev.is_free and fl.is_free else None
+            if est is not None:
+                self.impacts.append(est)
+                out.append(est)
+                self._n_impact += 1
+            elif not (prev.is_free and fl.is_free):
+                self.rejected.append(
+                    f"no impact between flights {prev.index} and {fl.index} (t {prev.t_end_s:.4f}..{fl.t_start_s:.4f} "
+                    f"s): {lost} frames in between have no DIC result; impacts there are not identified")
             prev = None
+        elif prev is not None and lost > 0:
+            self._short_gap = lost
         if (prev is not None and prev.is_free and fl.is_free and cluster_before is not None
                 and cluster_before.n <= self.cfg.max_impact_frames):
             est = self._impact(prev, fl)
@@ -241,9 +255,12 @@ class StreamingFitter:
                     f"no impact between flights {prev.index} and {fl.index} "
                     f"(t {prev.t_end_s:.4f}..{fl.t_start_s:.4f} s): parabolas do not meet in the gap")
             else:
+                if self._short_gap:   # found by the plain path, but inside lost frames: said so
+                    est.in_gap, est.gap_lost_frames = True, self._short_gap
                 self.impacts.append(est)
                 out.append(est)
                 self._n_impact += 1
+        self._short_gap = 0
         self.flights.append(fl)
         self._flight_queue.append(fl)
         self._n_flight += 1
@@ -294,6 +311,22 @@ class StreamingFitter:
         sel.reverse()
         return fit_structure(np.array([self.t[i] for i in sel]), np.array([self.struct[i] for i in sel]),
                              f0_hz=self.frequency_hz)
+
+    def _gap_impact(self, p: FlightFit, q: FlightFit, lost: int) -> ImpactFit | None:
+        """The impact inside the lost frames between ``p`` and ``q`` when determined (:mod:`.gaps`); the
+        verdict is kept in :attr:`gaps`, an undetermined one also as a rejection (warning)."""
+        s_fit = self._structure_window(p, q)
+        lo = bisect.bisect_right(self.ext_times, p.t_end_s)
+        hi = bisect.bisect_left(self.ext_times, q.t_start_s)
+        dt = float(np.median(np.diff(self.t[-50:]))) if len(self.t) > 2 else 0.0
+        est, verdict = gap_impact(self._n_impact, p, q, s_fit, lost, self.impacts, self.ext_times[lo:hi], dt,
+                                  self.free_play_mm)
+        self.gaps.append(verdict)
+        if est is None:
+            self.rejected.append(verdict.warning())
+            return None
+        self._set_directions(p, q, est)
+        return est
 
     def _impact(self, p: FlightFit, q: FlightFit) -> ImpactFit | None:
         s_fit = self._structure_window(p, q)

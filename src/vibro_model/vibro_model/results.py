@@ -145,7 +145,11 @@ class Impact:
 
     The one impact type: the identification's estimates (:class:`vibro_fit.impacts.ImpactFit` adds the fit
     context), the simulators' impact events (:mod:`vibro_sim.cor_model`, ``cor_std`` None) and the synthetic
-    truth (:mod:`vibro_fit.synthetic`) are all Impacts."""
+    truth (:mod:`vibro_fit.synthetic`) are all Impacts.
+
+    ``in_gap`` is true for an impact found inside a run of lost frames from the flights on both sides
+    (:mod:`vibro_fit.gaps`), ``gap_lost_frames`` the frames lost between those flights; its sigmas are
+    ``t_std``/``cor_std``. Both None (not written) for an impact the camera saw."""
 
     index: int
     t_s: float | None
@@ -163,6 +167,8 @@ class Impact:
     cor_paper: float | None = None
     cor_std_paper: float | None = None
     t_paper_s: float | None = None
+    in_gap: bool | None = None
+    gap_lost_frames: int | None = None
 
     @property
     def v_rel_before_mps(self) -> float:
@@ -185,6 +191,9 @@ class Impact:
         if self.cor_method is not None:
             out.update({"cor_method": self.cor_method, "cor_paper": json_number(self.cor_paper),
                         "cor_std_paper": json_number(self.cor_std_paper), "t_paper": json_number(self.t_paper_s)})
+        if self.in_gap is not None:
+            out["in_gap"] = bool(self.in_gap)
+            out["gap_lost_frames"] = None if self.gap_lost_frames is None else int(self.gap_lost_frames)
         return out
 
     @classmethod
@@ -199,7 +208,8 @@ class Impact:
                    flight_after=f.integer("flight_after", False, True), method=f.string("method", False),
                    cor_method=f.string("cor_method", False), cor_paper=f.number("cor_paper", False),
                    cor_std_paper=f.number("cor_std_paper", False),
-                   t_paper_s=f.number("t_paper", False))
+                   t_paper_s=f.number("t_paper", False), in_gap=f.boolean("in_gap", None),  # type: ignore[arg-type]
+                   gap_lost_frames=f.integer("gap_lost_frames", False, True))
 
 
 @dataclass
