@@ -51,9 +51,10 @@ def register(sub) -> None:
                    help="each impact sets a new spin N(--spin-rad-s, SIGMA) (default 0)")
     p.add_argument("--spin-cor-coupling", type=float, default=0.0, metavar="K",
                    help="COR change per rad/s of spin change at an impact (s/rad; default 0)")
-    p.add_argument("--ball-surface", choices=("speckle", "shiny"), default="speckle",
-                   help="speckle (default) or shiny: a dark glossy sphere without texture whose specular "
-                        "highlight stays fixed relative to the light (real footage)")
+    p.add_argument("--ball-surface", choices=("speckle", "shiny", "plain"), default="speckle",
+                   help="speckle (default); shiny: a dark glossy sphere without texture whose specular "
+                        "highlight stays fixed relative to the light (real footage); plain: a backlit dark disc "
+                        "with a sharp outline, tracked by its outline (rig.yaml dic.ball_method: outline)")
     p.add_argument("--light-deg", type=float, default=30.0, metavar="DEG",
                    help="shiny ball: the light's angle from the camera axis, towards the image top (default 30; "
                         "the highlight sits R sin(DEG/2) above the ball's centre)")
@@ -64,6 +65,8 @@ def register(sub) -> None:
     p.add_argument("--still", action="store_true", help="nothing moves (noise study)")
     p.add_argument("--drift", action="store_true", help="with --still: slow camera drift")
     p.add_argument("--tiff16", action="store_true", help="16-bit TIFF frames instead of 8-bit PNG")
+    p.add_argument("--bits12", action="store_true",
+                   help="16-bit TIFF frames holding a 12-bit camera's codes (at the top of the word, as Photron)")
     p.add_argument("--no-accel", action="store_true", help="video-only recording")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an earlier synthetic recording in --out and its truth file (refused if --out "
@@ -83,6 +86,7 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,
+                       bits12=args.bits12,
                        accel=not args.no_accel, cor_scatter=args.cor_scatter, spin_rad_s=args.spin_rad_s,
                        spin_sigma_rad_s=args.spin_sigma_rad_s,
                        spin_cor_coupling_s_per_rad=args.spin_cor_coupling, ball_surface=args.ball_surface,

@@ -74,12 +74,19 @@ class ExcitationConfig:
     acceleration_ms2: float | None = None
 
 
+#: how the ball is tracked (rig.yaml ``dic.ball_method``): ``mesh``, the DIC mesh of subsets on a speckled
+#: ball (``ball_roi`` inside the disc); ``outline``, a plain ball by its outline (``ball_roi`` a box around the
+#: whole ball in frame 0, with a margin; :mod:`vibro_dic.outline`)
+BALL_METHODS = ("mesh", "outline")
+
+
 @dataclass(frozen=True)
 class DicConfig:
     subset_px: int
     mesh_step_px: int
     ball_roi: Roi
     structure_roi: Roi
+    ball_method: str = "mesh"
 
 
 @dataclass(frozen=True)
@@ -155,6 +162,8 @@ class RigConfig:
         out.pop("path")
         out["dic"]["ball_roi"] = self.dic.ball_roi.as_list()
         out["dic"]["structure_roi"] = self.dic.structure_roi.as_list()
+        if self.dic.ball_method == "mesh":  # the default: rig.yaml files stay as they were
+            out["dic"].pop("ball_method")
         if self.accelerometers is None:
             out.pop("accelerometers")
         else:
@@ -286,6 +295,11 @@ def _check(value: Any, kind: str, where: str) -> Any:
     def fail(expect: str) -> RigError:
         return RigError(f"{where}: expected {expect}, got {value!r}")
 
+    if kind == "ball_method":
+        if value not in BALL_METHODS:
+            raise fail(f"one of {', '.join(BALL_METHODS)} (mesh: DIC subsets on a speckled ball; outline: a plain "
+                       "ball tracked by its outline, dic.ball_roi a box around the whole ball)")
+        return value
     if kind in ("str", "relpath"):
         if not isinstance(value, str) or not value.strip():
             raise fail("a non-empty string")
@@ -321,7 +335,8 @@ def _check(value: Any, kind: str, where: str) -> Any:
 
 #: Optional keys per section (kind, as in _SCHEMA): absent = None.
 _OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time"},
-                                        "excitation": {"acceleration_ms2": "pos"}}
+                                        "excitation": {"acceleration_ms2": "pos"},
+                                        "dic": {"ball_method": "ball_method"}}
 #: 2000-01-01T00:00:00Z: an earlier recording start is a wrong unit or a camera clock, not a date.
 _EARLIEST_UNIX_S = 946684800.0
 
@@ -459,6 +474,8 @@ def check_rois_in_image(rig: RigConfig, height_px: int, width_px: int) -> None:
                 f"{rig.path}: key 'dic.{name}' {roi.as_list()} (x, y, w, h in pixels) "
                 f"goes outside the {width_px}x{height_px} px image"
             )
+        if name == "ball_roi" and rig.dic.ball_method == "outline":
+            continue  # a box around the whole ball, not a mesh of subsets
         if roi.w < rig.dic.subset_px or roi.h < rig.dic.subset_px:
             raise RigError(
                 f"{rig.path}: key 'dic.{name}' {roi.as_list()} is smaller than one "

@@ -26,6 +26,13 @@ tilted towards the top of the image. Its highlight sits where the sphere's norma
 view directions, ``R sin(light_deg / 2)`` above the centre: fixed relative to the light, so it moves with
 the ball's centre but never with a texture (a spinning shiny ball looks the same). The highlight's core
 saturates (clipped at 255), as it does on film.
+
+A plain ball (``Renderer(..., ball_surface="plain")``: no speckle, backlit, the way drop and bounce tests are
+filmed) is a uniformly dark disc (:data:`PLAIN_BALL_GRAY`) in front of a bright background
+(:data:`PLAIN_BACKLIGHT_GRAY`), drawn analytically every frame about its sub-pixel centre. Its outline is
+sharp and anti-aliased: an erf edge of :data:`PLAIN_EDGE_SIGMA_PX` (a 0.5 px lens blur and the pixel's area,
+sqrt(0.5^2 + 1/12) px), symmetric about the true radius, so the outline's 50 % level lies on the true circle.
+Only DIC's structure ROI needs texture: the plates keep their speckle.
 """
 
 from __future__ import annotations
@@ -66,6 +73,7 @@ class Layout:
         return self.row_mid - np.asarray(z_mm, dtype=float) / self.mm_per_px
 
 
+OUTLINE_ROI_MARGIN_PX = 6  # a plain ball's ROI reaches this far beyond its outline
 ROI_MARGIN_PX = 6      # structure ROI starts this far inside the plate (> 3 edge sigmas)
 STRUCT_ROI_H_PX = 45   # structure ROI height
 DEFAULT_MM_PER_PX = 0.06
@@ -190,7 +198,28 @@ class _ShinyBall:
         return value * alpha, alpha
 
 
-BALL_SURFACES = ("speckle", "shiny")
+PLAIN_BALL_GRAY = 30.0         # the backlit ball's silhouette (gray levels of 255)
+PLAIN_BACKLIGHT_GRAY = 200.0   # the backlight behind it (+ a 20 gray-level vertical gradient, faint blotches)
+PLAIN_EDGE_SIGMA_PX = math.sqrt(0.5 ** 2 + 1.0 / 12.0)  # lens blur 0.5 px and the pixel's area: 0.58 px
+
+
+class _PlainBall:
+    """A uniformly dark disc with a sharp anti-aliased outline (see module doc)."""
+
+    def __init__(self, patch_px: int, radius_px: float, centre_row: float, centre_col: float):
+        self.pr = np.arange(patch_px) - centre_row
+        self.pc = np.arange(patch_px) - centre_col
+        self.radius_px = radius_px
+
+    def patch(self, down_px: float, angle_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(premultiplied value, alpha) with the ball moved down by ``down_px`` (fractional); ``angle_rad`` is
+        ignored: a plain disc looks the same at any spin."""
+        r = np.sqrt((self.pr[:, None] - down_px) ** 2 + self.pc[None, :] ** 2)
+        alpha = 0.5 * (1.0 + erf((self.radius_px - r) / (math.sqrt(2.0) * PLAIN_EDGE_SIGMA_PX)))
+        return PLAIN_BALL_GRAY * alpha, alpha
+
+
+BALL_SURFACES = ("speckle", "shiny", "plain")
 
 
 def _smooth_step(x):
@@ -235,8 +264,10 @@ class Renderer:
         H, W, M = layout.height_px, layout.width_px, layout.margin_px
         rows = np.arange(H)[:, None]
         cols = np.arange(W)[None, :]
-        # static background: dim gradient with faint blurred blotches
+        # static background: dim gradient with faint blurred blotches (a bright backlight behind a plain ball)
         bg = 55.0 + 20.0 * rows / H + 6.0 * np.sin(cols / W * math.pi)
+        if ball_surface == "plain":
+            bg = bg + (PLAIN_BACKLIGHT_GRAY - 55.0)
         blot = cv2.GaussianBlur(rng.random((H + 2 * M, W)), (0, 0), 6.0)
         blot = (blot - blot.mean()) / (blot.std() + 1e-12)
         self.drift = drift
@@ -276,13 +307,17 @@ class Renderer:
         # the speckle draws above stay, so that the rest of the scene is the same whatever the ball's surface
         self.shiny_ball = (_ShinyBall(hp, R, self.patch_centre_row, hp / 2 - 0.5, light_deg)
                            if ball_surface == "shiny" else None)
+        self.plain_ball = (_PlainBall(hp, R, self.patch_centre_row, hp / 2 - 0.5)
+                           if ball_surface == "plain" else None)
 
     def _ball_over(self, img: np.ndarray, ball_mm: float, dr: float, angle_rad: float = 0.0) -> np.ndarray:
         L = self.L
         H, W = L.height_px, L.width_px
         row_b = float(L.row_of_mm(ball_mm)) + dr
         ri = math.floor(row_b)
-        if self.shiny_ball is not None:
+        if self.plain_ball is not None:
+            pv, pa = self.plain_ball.patch(row_b - ri, angle_rad)
+        elif self.shiny_ball is not None:
             pv, pa = self.shiny_ball.patch(row_b - ri, angle_rad)
         elif self.spinning_ball is not None:
             pv, pa = self.spinning_ball.patch(row_b - ri, angle_rad)
@@ -350,6 +385,18 @@ class Renderer:
         y = int(round(rc - side / 2 + 0.5))
         return [x, y, side, side]
 
+    def outline_roi(self, ball_mm0: float, margin_px: int = OUTLINE_ROI_MARGIN_PX) -> list[int]:
+        """[x, y, w, h] box around the whole ball in frame 0 with ``margin_px`` beyond its outline (px), kept
+        inside the image: what a plain ball's outline tracking (rig.yaml ``dic.ball_method: outline``) needs."""
+        L = self.L
+        half = L.ball_radius_px + margin_px
+        rc = float(L.row_of_mm(ball_mm0))
+        x0 = max(int(math.floor(L.col_mid - half)), 0)
+        y0 = max(int(math.floor(rc - half)), 0)
+        x1 = min(int(math.ceil(L.col_mid + half)) + 1, L.width_px)
+        y1 = min(int(math.ceil(rc + half)) + 1, L.height_px)
+        return [x0, y0, x1 - x0, y1 - y0]
+
     def structure_roi(self, structure_mm0: float) -> list[int]:
         """[x, y, w, h] on the lower plate in frame 0, starting ROI_MARGIN_PX below its edge."""
         L = self.L
@@ -359,9 +406,12 @@ class Renderer:
         return [x, y, L.width_px - 16, STRUCT_ROI_H_PX]
 
 
-def quantise(img: np.ndarray, tiff16: bool, jpeg_quality: int = 0) -> np.ndarray:
+def quantise(img: np.ndarray, tiff16: bool, jpeg_quality: int = 0, bits12: bool = False) -> np.ndarray:
     """Round a float image (gray levels of 255) to uint8, or to uint16 (x 257). ``jpeg_quality`` 1..100: the
-    8-bit image then goes through a JPEG encode/decode at that quality (lossy video; 0 = none)."""
+    8-bit image then goes through a JPEG encode/decode at that quality (lossy video; 0 = none). ``bits12``: a
+    12-bit camera's codes (x 4095 / 255, rounded) at the top of uint16 words (x 16), as Photron files hold them."""
+    if bits12:
+        return (np.clip(np.rint(img * (4095.0 / 255.0)), 0, 4095).astype(np.uint16) << 4).astype(np.uint16)
     if tiff16:
         return np.clip(np.rint(img * 257.0), 0, 65535).astype(np.uint16)
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)

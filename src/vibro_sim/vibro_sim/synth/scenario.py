@@ -86,6 +86,7 @@ class SynthConfig:
     still          no motion at all (noise study); ``drift`` adds slow camera drift.
     drift_px       peak camera drift in pixels (vertical) when ``drift``.
     tiff16         write 16-bit TIFF instead of 8-bit PNG.
+    bits12         write 16-bit TIFF holding a 12-bit camera's codes (x 4095 / 255, at the top of the word).
     width_px, height_px  image size (160 x 480).
     mm_per_px      image scale; None = 0.06 or larger if the motion needs it.
     accel          write accel.csv (50 kHz) and the rig's accelerometers block.
@@ -102,6 +103,9 @@ class SynthConfig:
     ball_surface   "speckle" (default: a speckle pattern DIC can track) or "shiny": a dark glossy sphere without
                    texture whose specular highlight is fixed relative to the light (real footage's common
                    case; :mod:`.render`).
+                   "plain": a uniformly dark ball without texture in front of a bright backlight, a sharp
+                   anti-aliased outline (how drop and bounce tests are filmed); rig.yaml then tracks it by its
+                   outline (``dic.ball_method: outline``, ``dic.ball_roi`` a box around the whole ball).
     light_deg      with "shiny": the light's angle from the camera axis, tilted towards the image top (30);
                    the highlight sits R sin(light_deg / 2) above the ball's centre.
     jpeg_quality   1..100: every 8-bit frame goes through a JPEG encode/decode at that quality before it is
@@ -129,6 +133,7 @@ class SynthConfig:
     drift: bool = False
     drift_px: float = 0.3
     tiff16: bool = False
+    bits12: bool = False
     width_px: int = 160
     height_px: int = 480
     mm_per_px: float | None = None
@@ -163,7 +168,7 @@ class SynthConfig:
             ("spin_rad_s", abs(self.spin_rad_s) <= 100.0, "within +-100 rad/s"),
             ("spin_sigma_rad_s", 0.0 <= self.spin_sigma_rad_s <= 100.0, "in [0, 100] rad/s"),
             ("spin_cor_coupling_s_per_rad", abs(self.spin_cor_coupling_s_per_rad) <= 1.0, "within +-1 s/rad"),
-            ("ball_surface", self.ball_surface in ("speckle", "shiny"), "'speckle' or 'shiny'"),
+            ("ball_surface", self.ball_surface in ("speckle", "shiny", "plain"), "'speckle', 'shiny' or 'plain'"),
             ("light_deg", 0.0 <= self.light_deg < 180.0, "in [0, 180) degrees"),
             ("jpeg_quality", isinstance(self.jpeg_quality, int) and 0 <= self.jpeg_quality <= 100,
              "an integer in [0, 100] (0 = no JPEG)"),
@@ -176,7 +181,7 @@ class SynthConfig:
                 raise SynthError(f"synth option '{name}' must be {expect}, got {value!r}")
         if self.mm_per_px is not None and not self.mm_per_px > 0:
             raise SynthError(f"synth option 'mm_per_px' must be > 0, got {self.mm_per_px!r}")
-        if self.jpeg_quality and self.tiff16:
+        if self.jpeg_quality and (self.tiff16 or self.bits12):
             raise SynthError("synth option 'jpeg_quality' needs 8-bit frames (not tiff16)")
         if not math.isfinite(self.clock_offset_s) or abs(self.clock_offset_s) > 1.0:
             raise SynthError(f"synth option 'clock_offset_s' must be within +-1 s, got {self.clock_offset_s!r}")

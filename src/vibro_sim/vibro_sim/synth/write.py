@@ -119,9 +119,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
                                   poisson_ratio=models.cavity.plate_nu),
         excitation=ExcitationConfig(frequency_hz=cfg.frequency_hz,
                                     acceleration_ms2=None if cfg.still or cfg.accel_mps2 <= 0 else cfg.accel_mps2),
-        dic=DicConfig(subset_px=SUBSET_PX, mesh_step_px=MESH_STEP_PX,
-                      ball_roi=Roi(*renderer.ball_roi(ball_mm[0] + drift[0], SUBSET_PX)),
-                      structure_roi=Roi(*renderer.structure_roi(struct_mm[0] + drift[0]))),
+        dic=_dic_config(cfg, renderer, ball_mm[0] + drift[0], struct_mm[0] + drift[0]),
         accelerometers=ACCEL_COLUMNS if cfg.accel else None,
         path=str(out_dir / "rig.yaml"),
     )
@@ -145,6 +143,16 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
         write_rig(rig, tmp)
     atomic_write_text(truth_path(out_dir), json.dumps(truth, indent=1))
     return truth
+
+
+def _dic_config(cfg: SynthConfig, renderer: Renderer, ball_mm0: float, structure_mm0: float) -> DicConfig:
+    """rig.yaml's dic block: a speckled or shiny ball by its DIC mesh (a ROI inside the disc), a plain ball by its
+    outline (a box around the whole ball)."""
+    outline = cfg.ball_surface == "plain"
+    ball_roi = renderer.outline_roi(ball_mm0) if outline else renderer.ball_roi(ball_mm0, SUBSET_PX)
+    return DicConfig(subset_px=SUBSET_PX, mesh_step_px=MESH_STEP_PX, ball_roi=Roi(*ball_roi),
+                     structure_roi=Roi(*renderer.structure_roi(structure_mm0)),
+                     ball_method="outline" if outline else "mesh")
 
 
 def _ball_angle(models, traj):
@@ -187,7 +195,7 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
 
     t = traj.frame_t_s
     S = traj.result.structure
-    ext = ".tif" if cfg.tiff16 else ".png"
+    ext = ".tif" if cfg.tiff16 or cfg.bits12 else ".png"
     # OpenCV's PNG default (level 1, RLE): 1.6 ms a frame, against 2.7 ms with an explicit level 1
     params: list[int] = []
     show = sys.stderr.isatty() if progress is None else progress
@@ -208,7 +216,8 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
         img = img * gain
         if cfg.noise_gray > 0:
             img = img + rng.normal(0.0, cfg.noise_gray, img.shape)
-        ok = cv2.imwrite(str(folder / f"{k:06d}{ext}"), quantise(img, cfg.tiff16, cfg.jpeg_quality), params)
+        ok = cv2.imwrite(str(folder / f"{k:06d}{ext}"), quantise(img, cfg.tiff16, cfg.jpeg_quality, cfg.bits12),
+                         params)
         if not ok:
             raise SynthError(f"{folder / f'{k:06d}{ext}'}: cannot write frame")
 
