@@ -622,15 +622,28 @@ def assess_texture(reference: np.ndarray, dic: DicConfig, noise: NoiseEstimate, 
     bodies = {name: assess_body(name, reference, getattr(dic, f"{name}_roi"), dic.subset_px, dic.mesh_step_px,
                                 noise, max_subset_sigma_px=max_subset_sigma_px,
                                 min_valid_fraction=min_valid_fraction, grad_xy=grad)
-              for name in ("ball", "structure")}
+              for name in _mesh_bodies(dic)}
+    if dic.ball_method == "outline":  # a plain ball: its outline's accuracy instead (vibro_dic.outline)
+        from .outline import assess_outline
+
+        bodies = {"ball": assess_outline("ball", reference, dic.ball_roi, noise.sigma_gray,
+                                         max_sigma_px=max_subset_sigma_px, min_valid_fraction=min_valid_fraction),
+                  **bodies}
     return TextureReport(noise, bodies)
 
 
+def _mesh_bodies(dic: DicConfig) -> tuple[str, ...]:
+    """The bodies tracked by a DIC mesh of subsets: both, or the structure alone when the ball is tracked by
+    its outline (rig.yaml ``dic.ball_method``)."""
+    return ("structure",) if dic.ball_method == "outline" else ("ball", "structure")
+
+
 def mesh_corners(dic: DicConfig) -> np.ndarray:
-    """(N, 2) top-left corners (x, y) px of the ball's and the structure's DIC subsets."""
+    """(N, 2) top-left corners (x, y) px of the ball's and the structure's DIC subsets (the structure's alone
+    when the ball is tracked by its outline)."""
     half = dic.subset_px // 2
-    return np.vstack([mesh_points(roi, dic.subset_px, dic.mesh_step_px) - half
-                      for roi in (dic.ball_roi, dic.structure_roi)]).astype(np.intp)
+    return np.vstack([mesh_points(getattr(dic, f"{name}_roi"), dic.subset_px, dic.mesh_step_px) - half
+                      for name in _mesh_bodies(dic)]).astype(np.intp)
 
 
 def check_texture(reference: np.ndarray, second: np.ndarray | None, dic: DicConfig, *,

@@ -76,6 +76,7 @@ from vibro_model.errors import FrameError, RecordingError
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
+from .outline import OutlineTracker
 from .quality import TrackQuality
 from .rotation import fit_rotation, rotation_lever_arms
 from .search import SearchResult, zncc_search
@@ -406,6 +407,10 @@ class MeshTracker:
 class DicTracker:
     """Streaming DIC tracker of ball and structure against ``reference_image`` (frame 0).
 
+    The ball is a DIC mesh, or (rig.yaml ``dic.ball_method: outline``) a plain ball tracked by its outline
+    (:class:`vibro_dic.outline.OutlineTracker`: same results, rotation NaN = not measured); the structure is
+    always a DIC mesh.
+
     ``dic_config`` gives subset size, mesh step and the two ROIs (px, frame 0);
     ``mm_per_px`` converts to mm. ``method``: "icgn" (default) or "parabolic" (baseline).
     Call :meth:`track` once per frame, in order; it keeps the motion prediction within a segment of
@@ -456,8 +461,11 @@ class DicTracker:
         ref32 = ref.astype(np.float32)
         kw = dict(method=method, zncc_min=zncc_min, min_valid_fraction=min_valid_fraction, search_px=search_px,
                   taps=taps, outlier_k=outlier_k, outlier_floor_px=outlier_floor_px)
-        self.ball = MeshTracker("ball", ref32, dic_config.ball_roi, dic_config.subset_px,
-                                dic_config.mesh_step_px, rotation_corrected=True, **kw)
+        if dic_config.ball_method == "outline":  # a plain ball by its outline (vibro_dic.outline)
+            self.ball = OutlineTracker("ball", ref32, dic_config.ball_roi, min_valid_fraction=min_valid_fraction)
+        else:
+            self.ball = MeshTracker("ball", ref32, dic_config.ball_roi, dic_config.subset_px,
+                                    dic_config.mesh_step_px, rotation_corrected=True, **kw)
         self.structure = MeshTracker("structure", ref32, dic_config.structure_roi, dic_config.subset_px,
                                      dic_config.mesh_step_px, **kw,
                                      drive_rad_per_frame=None if drive is None else 2.0 * math.pi * drive)
@@ -475,6 +483,8 @@ class DicTracker:
         """Leave out the subsets the texture check found unusable (:mod:`vibro_dic.texture`)."""
         for mesh in (self.ball, self.structure):
             body = texture.bodies.get(mesh.name)
+            if not isinstance(mesh, MeshTracker):
+                continue  # the outline keeps every sector its own fit accepts
             if body is not None and len(body.usable) == len(mesh.points):
                 mesh.subsets.textured &= body.usable
 

@@ -28,9 +28,10 @@ the ball's centre but never with a texture (a spinning shiny ball looks the same
 saturates (clipped at 255), as it does on film.
 
 A plain ball (``Renderer(..., ball_surface="plain")``: no speckle, backlit, the way drop and bounce tests are
-filmed) is a uniformly dark disc (:data:`PLAIN_BALL_GRAY`) in front of a bright background
-(:data:`PLAIN_BACKLIGHT_GRAY`), drawn analytically every frame about its sub-pixel centre. Its outline is
-sharp and anti-aliased: an erf edge of :data:`PLAIN_EDGE_SIGMA_PX` (a 0.5 px lens blur and the pixel's area,
+filmed) is a uniformly dark disc (:data:`PLAIN_BALL_GRAY`) in front of a bright backlight
+(:data:`PLAIN_BACKLIGHT_GRAY`; its blotches defocused to :data:`PLAIN_BACKLIGHT_BLUR_PX`, as a backlight far
+behind the focal plane is), drawn analytically every frame about its sub-pixel centre. Its outline is sharp and
+anti-aliased: an erf edge of :data:`PLAIN_EDGE_SIGMA_PX` (a 0.5 px lens blur and the pixel's area,
 sqrt(0.5^2 + 1/12) px), symmetric about the true radius, so the outline's 50 % level lies on the true circle.
 Only DIC's structure ROI needs texture: the plates keep their speckle.
 """
@@ -200,6 +201,9 @@ class _ShinyBall:
 
 PLAIN_BALL_GRAY = 30.0         # the backlit ball's silhouette (gray levels of 255)
 PLAIN_BACKLIGHT_GRAY = 200.0   # the backlight behind it (+ a 20 gray-level vertical gradient, faint blotches)
+#: the backlight is far behind the focal plane: its nonuniformity (the same 4 gray-level blotches) is defocused to
+#: this sigma (px). Sharper blotches under the outline bias its edges: 6 px ones give 0.0015 px (std over positions)
+PLAIN_BACKLIGHT_BLUR_PX = 24.0
 PLAIN_EDGE_SIGMA_PX = math.sqrt(0.5 ** 2 + 1.0 / 12.0)  # lens blur 0.5 px and the pixel's area: 0.58 px
 
 
@@ -266,10 +270,12 @@ class Renderer:
         cols = np.arange(W)[None, :]
         # static background: dim gradient with faint blurred blotches (a bright backlight behind a plain ball)
         bg = 55.0 + 20.0 * rows / H + 6.0 * np.sin(cols / W * math.pi)
-        if ball_surface == "plain":
-            bg = bg + (PLAIN_BACKLIGHT_GRAY - 55.0)
         blot = cv2.GaussianBlur(rng.random((H + 2 * M, W)), (0, 0), 6.0)
         blot = (blot - blot.mean()) / (blot.std() + 1e-12)
+        if ball_surface == "plain":  # a backlight, far behind the focal plane: its blotches defocused
+            bg = bg + (PLAIN_BACKLIGHT_GRAY - 55.0)
+            blot = cv2.GaussianBlur(blot, (0, 0), PLAIN_BACKLIGHT_BLUR_PX)
+            blot = (blot - blot.mean()) / (blot.std() + 1e-12)
         self.drift = drift
         if drift:  # the background moves with the camera too: keep it as a padded layer
             bgc = np.pad(bg, ((M, M), (0, 0)), mode="edge") + 4.0 * blot
