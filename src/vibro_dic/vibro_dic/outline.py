@@ -44,9 +44,10 @@ of the sectors kept.
 **Accuracy before tracking** (:func:`assess_outline`, the analogue of the SSSIG check of speckle): the
 reference frame's fit with the image noise gives each sector's s_e from the edge contrast c, the blur w and
 the pixels in the band (a sector whose fit leaves a residual std above the noise, a real ball's refraction or
-a clipped backlight, counts that misfit as its noise), and the circle fit propagates them over the N sectors: the predicted displacement
-sigma per axis, about sqrt(2) x sqrt(2 / N) x s_e with s_e ~ noise sqrt(2 sqrt(pi) w / rho) / |c| (rho the
-sector's pixels per px of radius; the exact propagation is used). Refused (:class:`~vibro_dic.texture.
+a clipped backlight, counts that misfit as its noise), and the circle fit propagates them over the N sectors:
+the predicted displacement sigma per axis, about sqrt(2) x sqrt(2 / N) x s_e with
+s_e ~ noise sqrt(2 sqrt(pi) w / rho) / |c| (rho the sector's pixels per px of radius; the exact propagation is
+used). Refused (:class:`~vibro_dic.texture.
 TextureError`), with the numbers, when no disc is found in the ROI, the outline leaves the image, the
 contrast is below :data:`MIN_CONTRAST_TO_NOISE` x the noise, fewer sectors than the tracker needs are
 usable, or the predicted sigma exceeds ``max_sigma_px``.
