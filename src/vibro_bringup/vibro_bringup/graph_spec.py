@@ -377,9 +377,10 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
                  time_origin_ns: int | None = None) -> list[LaunchNode]:
     """What launch/vibro.launch.py starts: the same nodes, parameters and declared readers as ``vibro graph``
     (without its monitor). File mode: dic_tracker's reference is frame 0 written to ``reference_dir``
-    (default: a new temporary folder), every node exits once its stream has ended, and a processing
-    node that dies (non-zero exit) is restarted after ``respawn_delay_s``; launch's own ``respawn=True``
-    would also restart a node that finished, so it is used live only, where nodes never finish.
+    (default: a new temporary folder) and every node exits once its stream has ended. What a node's exit
+    means (restart after ``respawn_delay_s``, or end the run) is :func:`vibro_bringup.exit_policy.exit_verdict`'s
+    call in the launch file's exit handlers, not launch's own ``respawn=True`` (which would restart a node
+    that finished, or one that refused its input).
     ``foxglove``: the Foxglove bridge's parameters (e.g. ``{"port": 8765}``) to start it too (None: not started);
     from a recording it exits once the other nodes have gone, live it stays up and respawns.
     ``reference_image``: dic_tracker's reference (an image of frame 0) instead of the one written from the

@@ -28,6 +28,7 @@ from vibro_ros.node_support import (
     declare,
     run_node,
     stamp_from_seconds,
+    stop_requested,
     time_origin_parameter,
 )
 from vibro_ros.readiness import ReaderGate
@@ -120,7 +121,9 @@ class FrameSource(Node):
         return False
 
     def _send_until(self, limit: int) -> None:
-        while not self.exhausted and self.sent + self.lost < limit:
+        # a stop signal ends the burst: a reliable publish to readers that died blocks (history full), and a
+        # burst of them kept the node from seeing SIGINT for seconds (launch escalated to SIGTERM)
+        while not self.exhausted and self.sent + self.lost < limit and not stop_requested():
             if not self._send_one():
                 break
         if self.exhausted:
