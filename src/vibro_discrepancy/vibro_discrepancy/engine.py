@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, Mapping
 
@@ -53,6 +53,7 @@ from vibro_discrepancy.model import FittedModel, fit_model
 from vibro_discrepancy.onestep import OneStep, one_step
 from vibro_discrepancy.runs import FullRun, full_run, restarted_run
 from vibro_discrepancy.select import UNEXPLAINED_RATIO, StageResult, StagewiseSelector, law_variance_share
+from vibro_discrepancy.shape import ShapeCheck, check_flight_shape
 from vibro_discrepancy.systematic import Mismatch, contact_scatter, systematic_mismatch
 from vibro_discrepancy.tone import TONE_EFFECT, ToneDecision, model_structure_tone
 from vibro_io.dictrack import DicTrack
@@ -193,7 +194,8 @@ def explain_cor(chain: FindingChain, kind: str, stage: StageResult, library: Can
 
 def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: StageResult | None,
                         f_stage: StageResult | None, patterns: list[Mismatch], before: ModelStep | None = None,
-                        tone: ToneDecision | None = None) -> DiscrepancyFinding | None:
+                        tone: ToneDecision | None = None, shape: ShapeCheck | None = None
+                        ) -> DiscrepancyFinding | None:
     """What the final model leaves that is not noise (a stage's residual above UNEXPLAINED_RATIO x its
     noise floor, the systematic patterns of :mod:`.systematic`), or None; random COR scatter is not.
     ``before``: the model before a located mismatch was modelled (a structure tone, ``tone.model``; its
@@ -215,11 +217,15 @@ def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: S
         if math.sqrt(flights.sse / max(flights.n_points, 1)) / floors.ball_m > 1.5:
             leftovers.append(flights_words)
     leftovers += [p.words() for p in patterns]
+    if shape is not None and shape.structured:
+        leftovers.insert(0, shape.words())
     if not leftovers:
         return None
     details: dict[str, Any] = {"paper_deviation_before": before.run.deviation,
                                "paper_deviation_after": cur.run.deviation,
                                "mismatches": [p.to_dict() for p in patterns]}
+    if shape is not None and shape.structured:
+        details["shape"] = shape.to_dict()
     params: dict[str, Any] = {}
     stds = None
     if tone is not None and tone.tests and tone.model is None:   # located, tested, not modelled: why
@@ -231,6 +237,46 @@ def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: S
         details["one_step_after"] = cur.steps.summary()
         leftovers.append(tone.model.words())
     return finding(UNEXPLAINED, params, "; ".join(leftovers), before.restarted, cur.restarted, stds, details)
+
+
+def flight_shape(chain: FindingChain, f_stage: StageResult | None) -> ShapeCheck | None:
+    """The flights' residual in the catalogue's coordinates (:mod:`.shape`) after the chosen flight terms,
+    when any was chosen or the flights keep a mismatch; every flight finding carries it
+    (``details.shape_check``) and, when the residual is structured, says that it does not fit it."""
+    if f_stage is None or not (f_stage.chosen or f_stage.unexplained):
+        return None
+    model = chain.current.model
+    try:
+        shape = check_flight_shape(chain.meas, model.flights, model.motion, chain.floors.ball_m)
+    except (ValueError, np.linalg.LinAlgError) as exc:   # a degenerate design: no test, said so
+        log.warning("flight shape check failed: %s", exc)
+        return None
+    if shape is None:
+        return None
+    flight_effects = {t.effect for t in FLIGHT_TERMS}
+    for k, f in enumerate(chain.findings):
+        if f.effect not in flight_effects:
+            continue
+        extra: dict[str, Any] = {"shape_check": shape.to_dict()}
+        where = f.where
+        if shape.structured:
+            extra["fits_residual_shape"] = False
+            where = (f"{where}; lowers the deviation but does not fit the residual's shape: the residual left "
+                     "depends on the ball's position (see unexplained)")
+        chain.findings[k] = replace(f, where=where, details={**(f.details or {}), **json_value(extra)})
+    return shape
+
+
+def order_findings(findings: list[DiscrepancyFinding], leftover: DiscrepancyFinding | None,
+                   shape: ShapeCheck | None) -> list[DiscrepancyFinding]:
+    """The findings in the order they are reported: the chain's, then ``unexplained``; when the flight
+    finding leaves a structured residual (``shape``), ``unexplained`` comes first and the catalogue
+    findings below it (a model that lowers the deviation without fitting the shape is not claimed on top)."""
+    if leftover is None:
+        return list(findings)
+    if shape is not None and shape.structured:
+        return [leftover] + list(findings)
+    return list(findings) + [leftover]
 
 
 def add_structure_tone(chain: FindingChain, tone: ToneDecision) -> ModelStep | None:
@@ -317,6 +363,7 @@ class DiscrepancyEstimator:
         chain = FindingChain(meas, floors, base)
         explain_structure(chain, s_fit, s_stage, sine)
         explain_flights(chain, f_fit, f_stage, self.library.flight_terms)
+        shape = flight_shape(chain, f_stage)
         explain_cor(chain, kind, c_stage, self.library)
         fps = 1.0 / float(np.median(np.diff(meas.t_s)))
         patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps)
@@ -325,10 +372,10 @@ class DiscrepancyEstimator:
         if before_tone is not None:   # the contact levels and CORs again, under the model with the tone
             patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
                                            structure=[p for p in patterns if p.series == "structure"])
-        leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone)
+        leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone, shape)
 
         cur = chain.current
-        findings = chain.findings + ([] if leftover is None else [leftover])
+        findings = order_findings(chain.findings, leftover, shape)
         details = run_details(meas, chain, floors, location, stages_section(s_stage, f_stage, c_stage), patterns)
         result = Discrepancy(json_number(base.restarted.deviation), findings, json_number(cur.restarted.deviation),
                              json_value(details))

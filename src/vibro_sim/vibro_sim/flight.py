@@ -228,6 +228,33 @@ class NumericFlight(Segment):
         return self._amax, self._jmax, self._jmax * 1e4
 
 
+class StateFlight(NumericFlight):
+    """A force that depends on time and position too (kind ``"state"``: ``force.force_state_n(t, y, v)``):
+    DOP853 dense solution of y'' = accel_fn(t, y, v) over [t0, t_stop]."""
+
+    def __init__(self, t0: float, y0: float, v0: float, accel_fn, t_stop: float):
+        self.t0 = t0
+        self.state_fn = accel_fn
+        self.t_natural_end = t_stop
+        sol = solve_ivp(lambda t, s: (s[1], accel_fn(t, s[0], s[1])), (t0, t_stop), (y0, v0),
+                        method="DOP853", rtol=1e-12, atol=1e-15, dense_output=True)
+        if not sol.success:  # pragma: no cover - solver failure
+            raise RuntimeError(f"free-flight integration failed: {sol.message}")
+        self.sol = sol.sol
+        grid = np.linspace(t0, t_stop, 200)
+        y, v = self.sol(grid)
+        a = np.array([accel_fn(t, yy, vv) for t, yy, vv in zip(grid, y, v)])
+        self._amax = 2.0 * float(np.max(np.abs(a))) + 1e-9
+        da = np.abs(np.diff(a)) / max(grid[1] - grid[0], 1e-300)
+        self._jmax = 4.0 * float(np.max(da, initial=0.0)) + 1e-6
+
+    def acc(self, t):
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        y, v = self.sol(tt)
+        out = np.array([self.state_fn(a, b, c) for a, b, c in zip(tt, y, v)])
+        return out if np.ndim(t) else float(out[0])
+
+
 class Stuck(Segment):
     """The ball rides on a plate: y = Y_s(t) + side * b (side +1 top, -1 bottom)."""
 
@@ -290,4 +317,6 @@ def make_flight_segment(t0: float, y0: float, v0: float, force, flight_index: in
     t_stop = min(t_limit, t0 + 0.05)
     if t_stop <= t0:
         t_stop = t0 + 1e-6
+    if kind == "state":
+        return StateFlight(t0, y0, v0, lambda t, y, v: -g_eff + force.force_state_n(t, y, v) / mass_kg, t_stop)
     return NumericFlight(t0, y0, v0, lambda v: -g_eff + force.force_n(v, flight_index) / mass_kg, t_stop)

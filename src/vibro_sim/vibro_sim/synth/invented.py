@@ -12,6 +12,11 @@ with where and what. They exist to test that; a lab recording may show any of th
   ``step_time_s`` it backs off upwards by ``step_um``; the cavity grows, the lower plate and the
   tracked structure (the ROI sits on the lower plate) stay. The images draw the upper plate where it
   was (the step is about a pixel; DIC never tracks the upper plate).
+- ``position_force``: an attraction towards the lower plate that depends on where the ball is, not on how
+  it moves (a magnet under the plate, electrostatics): F = -weight_fraction m g exp(-d / decay_mm), d the
+  gap between the ball and the lower plate (0 in contact); downward on rising and falling flights alike.
+  No catalogue term has this shape: Coulomb friction flips sign with the direction of motion, a tilt is
+  the same everywhere, drags follow the speed. Combined with a catalogue force the two add.
 
 Parameters: {effect: {parameter: (default, min, max)}}, SI except the explicit ``_um``.
 """
@@ -21,6 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+from ..forces import ForceLaw, NoForce
 from ..restitution import RestitutionLaw
 from ..structure import StructureKinematics, StructureWithTone  # noqa: F401 - StructureWithTone: its home was here
 
@@ -29,12 +35,15 @@ INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "structure_tone": {"tone_amplitude_um": (15.0, 0.0, 500.0), "tone_frequency_hz": (7.3, 0.5, 200.0),
                        "tone_phase_rad": (0.4, -2 * math.pi, 2 * math.pi)},
     "plate_step": {"step_um": (60.0, 0.0, 1000.0), "step_time_s": (0.15, 0.0, 100.0)},
+    "position_force": {"weight_fraction": (0.25, 0.0, 2.0), "decay_mm": (3.0, 0.05, 100.0)},
 }
 
 INVENTED_HELP = {
     "cor_drift": "the COR drifts linearly in time by drift_per_s per second (wear/heating)",
     "structure_tone": "a second structure tone of tone_amplitude_um at tone_frequency_hz, not a drive harmonic",
     "plate_step": "at step_time_s the upper plate backs off upwards by step_um (a loosening screw)",
+    "position_force": ("a force towards the lower plate, weight_fraction of the ball's weight there, decaying "
+                       "over decay_mm with the ball's distance from it, whatever the direction of motion"),
 }
 
 #: the tone must stay this far (Hz) from every drive harmonic 1..MAX_HARMONIC, else it is a harmonic
@@ -103,3 +112,47 @@ def stepped_cavity(S: StructureKinematics, cavity, step: dict[str, float]):
     moves up by step/2, so the upper plate is ``step_um`` higher and the lower plate stays."""
     half = 0.5e-6 * step["step_um"]
     return replace(S, offset_m=S.offset_m + half), replace(cavity, free_play_m=cavity.free_play_m + half)
+
+
+class PositionForce(ForceLaw):
+    """``position_force`` (module docstring) on top of a velocity force law ``base`` (N, positive up):
+    F(t, y, v) = base(v) - weight_fraction m g exp(-(y - Y_s(t) + b) / decay), integrated numerically by
+    the COR model (kind "state"). ``force_n(v)`` (used only to decide when a ball riding a plate lifts
+    off) is the force in contact with the lower plate."""
+
+    kind = "state"
+    effect = "position_force"
+
+    def __init__(self, structure: StructureKinematics, free_play_m: float, mass_kg: float, g_mps2: float,
+                 weight_fraction: float, decay_mm: float, base: ForceLaw | None = None):
+        self.S, self.b = structure, float(free_play_m)
+        self.peak_n = float(weight_fraction) * float(mass_kg) * float(g_mps2)
+        self.decay_m = 1e-3 * float(decay_mm)
+        self.weight_fraction, self.decay_mm = float(weight_fraction), float(decay_mm)
+        self.base = base if base is not None else NoForce()
+
+    def __repr__(self) -> str:
+        return (f"PositionForce(weight_fraction={self.weight_fraction!r}, decay_mm={self.decay_mm!r}, "
+                f"base={self.base!r})")
+
+    def attraction_n(self, t_s: float, y_m: float) -> float:
+        d = max(float(y_m) - float(self.S.position(t_s)) + self.b, 0.0)
+        return -self.peak_n * math.exp(-d / self.decay_m)
+
+    def force_state_n(self, t_s: float, y_m: float, v_mps: float) -> float:
+        return self.base.force_n(v_mps, 0) + self.attraction_n(t_s, y_m)
+
+    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
+        return self.base.force_n(v_mps, flight_index) - self.peak_n
+
+    def parameters(self) -> dict:
+        return {"weight_fraction": self.weight_fraction, "decay_mm": self.decay_mm}
+
+
+def position_force(structure: StructureKinematics, cavity, base: ForceLaw, params: dict[str, float]) -> PositionForce:
+    """``position_force`` in the cavity ``cavity`` (its free play, ball mass) around the structure motion,
+    added to the catalogue force ``base``; the weight is m g with the standard g."""
+    from vibro_model.constants import G_MPS2
+
+    return PositionForce(structure, cavity.free_play_m, cavity.mass_kg, G_MPS2, params["weight_fraction"],
+                         params["decay_mm"], base)

@@ -21,7 +21,14 @@ from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
 from ..structure import StructureKinematics
-from .invented import INVENTED_EFFECTS, DriftingCOR, check_invented, drift_per_impact, tone_structure
+from .invented import (
+    INVENTED_EFFECTS,
+    DriftingCOR,
+    check_invented,
+    drift_per_impact,
+    position_force,
+    tone_structure,
+)
 from .spin import SpinCoupled, spin_sequence
 
 if TYPE_CHECKING:
@@ -298,6 +305,8 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
     if "structure_tone" in eff:
         structure = tone_structure(structure, eff["structure_tone"])
     law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
+    if "position_force" in eff:
+        force = position_force(structure, cavity, force, eff["position_force"])
     plain_law = effect_laws(eff)[0]   # the same law without any per-impact scatter (truth: cor_law)
     spins = None
     if cfg.spin_rad_s != 0.0 or cfg.spin_sigma_rad_s > 0.0:
