@@ -33,6 +33,7 @@ import numpy as np
 from vibro_discrepancy.data import Measured
 from vibro_discrepancy.fitting import FlightModelFit, _cumtrapz
 from vibro_discrepancy.select import ALPHA, MIN_EXPLAINED_SIGMA
+from vibro_model.constants import G_MPS2
 from vibro_model.tail_probability import chi2_sf
 from vibro_sim.structure import StructureKinematics
 
@@ -56,7 +57,7 @@ class ShapeCheck:
     accel_odd_mps2: list[float] = field(default_factory=list)
     direction_dependent: bool = False
     exponential: dict | None = None
-    g_mps2: float = 9.81
+    g_mps2: float = G_MPS2
 
     def to_dict(self) -> dict:
         return {"structured": self.structured, "model": list(self.model_terms), "tests": self.tests,

@@ -30,6 +30,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from vibro_model.constants import G_MPS2
+
 #: family-wise probability of a false alarm of one test family (impacts, plates, all)
 FALSE_ALARM = 1e-3
 #: a local structure velocity differs from the whole recording's sine by more than this fraction of the
@@ -192,7 +194,7 @@ def negative_friction(flights: Sequence, mass_kg: float) -> dict | None:
     sd = 0.5 * math.sqrt(var)
     z = -d_n / sd if sd > 0 else math.inf
     if d_n < 0 and z > z_threshold(1):
-        return {"dissipative_n": d_n, "std_n": sd, "z": z, "weight_fraction": d_n / (mass_kg * 9.81)}
+        return {"dissipative_n": d_n, "std_n": sd, "z": z, "weight_fraction": d_n / (mass_kg * G_MPS2)}
     return None
 
 
