@@ -82,6 +82,7 @@ CONTRAST_TOLERANCE = 0.35
 #: ... or whose edge sigma exceeds this many times the reference's plus the motion blur allowance
 MAX_BLUR_GROWTH = 4.0
 BLUR_ALLOWANCE_PX = 1.5
+MAX_RESIDUAL_RATIO = 2.5     # a sector fitted this many times worse than the median sector is not the outline
 TUKEY_C = 4.685              # Tukey biweight limit (in robust standard deviations)
 MIN_CONTRAST_TO_NOISE = 10.0  # an outline weaker than this (|contrast| / noise) is refused
 DEFAULT_MAX_OUTLINE_SIGMA_PX = 0.05
@@ -411,6 +412,17 @@ class OutlineFit:
     usable: np.ndarray  # (N,) sectors not occluded (contrast, blur, fit) before the circle fit
 
 
+def reference_levels(reference: SectorEdges) -> tuple[np.ndarray, np.ndarray]:
+    """(contrast, blur) per sector that a later frame's sectors are compared with: the reference's own where its
+    fit was clean, the median over its clean sectors where it was not (a plate in the band of frame 0)."""
+    clean = reference.ok & (reference.residual_std <= MAX_RESIDUAL_RATIO * float(
+        np.median(reference.residual_std[reference.ok])) if reference.ok.any() else reference.ok)
+    if not clean.any():
+        return reference.contrast, reference.blur_px
+    return (np.where(clean, reference.contrast, np.median(reference.contrast[clean])),
+            np.where(clean, reference.blur_px, np.median(reference.blur_px[clean])))
+
+
 def sector_count(radius_px: float) -> int:
     """Sectors of ~:data:`SECTOR_ARC_PX` of arc each on a ball of ``radius_px``."""
     return int(np.clip(round(2 * math.pi * radius_px / SECTOR_ARC_PX), MIN_SECTORS, MAX_SECTORS))
@@ -429,14 +441,18 @@ def fit_outline(image: np.ndarray, centre: np.ndarray, radius: float, n_sectors:
     the image noise (the edge sigmas are then the Cramer-Rao bounds; None: each sector's residual std)."""
     sec = sector_edges(image, centre, radius, n_sectors, band_px, start=reference, blur0_px=blur0_px)
     usable = sec.ok.copy()
-    if reference is not None:
-        c_ref = reference.contrast
-        with np.errstate(invalid="ignore"):
+    if not usable.any():
+        return None
+    # a sector whose pixels the edge model explains much worse than the others' holds something else (a plate's
+    # speckle in its band, a holder, a shadow's edge)
+    usable &= sec.residual_std <= MAX_RESIDUAL_RATIO * float(np.median(sec.residual_std[usable]))
+    with np.errstate(invalid="ignore"):
+        if reference is not None:
+            c_ref, w_ref = reference_levels(reference)
             usable &= np.abs(sec.contrast - c_ref) <= CONTRAST_TOLERANCE * np.abs(c_ref)
-            usable &= sec.blur_px <= MAX_BLUR_GROWTH * reference.blur_px + BLUR_ALLOWANCE_PX
-    else:
-        med = float(np.nanmedian(np.where(sec.ok, sec.contrast, np.nan))) if sec.ok.any() else math.nan
-        with np.errstate(invalid="ignore"):
+            usable &= sec.blur_px <= MAX_BLUR_GROWTH * w_ref + BLUR_ALLOWANCE_PX
+        else:
+            med = float(np.median(sec.contrast[usable]))
             usable &= np.abs(sec.contrast - med) <= CONTRAST_TOLERANCE * abs(med)
     noise = sec.residual_std if noise_gray is None else np.full(n_sectors, float(noise_gray))
     sigma_e = sec.crb_unit * noise
