@@ -15,9 +15,11 @@ from typing import Any, Mapping
 
 import yaml
 
-from vibro_model.errors import RigError
+from vibro_model.errors import FrameError, RigError
 
 from .accel_checks import VOLTAGE_UNITS, canonical_unit
+from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
+from .frames_source import find_frames_source
 from .paths import relative_name_problem
 
 log = logging.getLogger(__name__)
@@ -274,11 +276,6 @@ def load_rig(path: str | Path) -> RigConfig:
     (:func:`vibro_io.camera_files.merge_camera_header`).
     """
     data = load_yaml(path)
-    from vibro_model.errors import FrameError
-
-    from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
-    from .frames import find_frames_source
-
     try:
         source = find_frames_source(Path(path).parent)
     except FrameError:

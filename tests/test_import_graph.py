@@ -1,0 +1,101 @@
+"""No import loops among vibro's own modules, counting imports inside functions too.
+
+A loop hidden in a function-level import (rig.yaml's reader importing the frame reader, which imports the rig
+types) works until someone moves the import to the top of the file; then one of the two modules is half
+initialised when the other reads it. The graph is read from the sources (ast), not by importing them.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def own_modules() -> dict[str, Path]:
+    """Dotted name -> file of every module of the Python packages under src/ (``pkg/pkg/...``)."""
+    out = {}
+    for path in SRC.glob("vibro_*/vibro_*/**/*.py"):
+        if "__pycache__" in path.parts:
+            continue
+        parts = list(path.relative_to(SRC).parts[1:])
+        name = ".".join(parts)[: -len(".py")]
+        out[name.removesuffix(".__init__")] = path
+    return out
+
+
+def imported(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """Own modules that module ``name`` imports anywhere in its source (``from pkg.mod import f`` -> pkg.mod,
+    ``from pkg import mod`` -> pkg.mod, relative imports resolved)."""
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
+            for alias in node.names:
+                target = f"{base}.{alias.name}"
+                found.add(target if target in modules else base)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+    return {m for m in found if m in modules and m != name}
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[v] = min(low[v], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                component = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    component.append(w)
+                    if w == v:
+                        break
+                if len(component) > 1:
+                    out.append(sorted(component))
+    return out
+
+
+def test_the_cycle_finder_finds_a_loop() -> None:
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_loops_among_vibros_modules() -> None:
+    modules = own_modules()
+    assert len(modules) > 100 and "vibro_io.rig" in modules and "vibro_io.frames" in modules
+    graph = {name: imported(name, path, modules) for name, path in modules.items()}
+    assert "vibro_io.frames_source" in graph["vibro_io.rig"]  # the reader is seen through its imports
+    assert cycles(graph) == []
