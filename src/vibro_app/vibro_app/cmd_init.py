@@ -121,26 +121,45 @@ def rig_yaml_text(p, args: argparse.Namespace, fps: float, source: Path, frequen
     """The commented rig.yaml for proposal ``p`` (:class:`vibro_dic.init_rig.Proposal`)."""
     b, pl, sc = p.ball, p.plates, p.scale
     a = ASSUMED
-    return f"""# rig.yaml proposed by `vibro init` from {source}
-# Measured on frame 0 ({p.width_px}x{p.height_px} px) and the motion over {p.motion.frames.size} frames:
-#   ball: centre ({b.x_px:.2f}, {b.y_px:.2f}) px, radius {b.radius_px:.2f} +- {b.radius_std_px:.2f} px \
-(1 sigma from the
+    if b.method == "outline":
+        nl = "\n#         "
+        ball_lines = f"""#   ball: plain (no speckle), tracked by its outline: centre ({b.x_px:.3f}, {b.y_px:.3f}) px, \
+radius {b.radius_px:.3f} +- {b.fit_radius_std_px:.4f} px
+#         (1 sigma from the residuals of a circle through {b.n_edge_points} of {b.n_sectors} outline sectors, \
+{b.edge_residual_px:.3f} px RMS;
+#         the scale takes +- {b.radius_std_px:.2f} px: an edge model's definition of the edge); moves
+#         {p.motion.ball_relative_range_px:.1f} px relative to the plates; edge blur sigma {b.blur_px:.2f} px
+#         outline check: {outline_summary(p.ball_outline, nl)}
+"""
+        ball_roi = f"{p.ball_roi.as_list()}    # box around the whole ball, >= {_margin(p):.1f} px beyond its outline"
+        ball_cr = "structure"
+    else:
+        ball_lines = f"""#   ball: centre ({b.x_px:.2f}, {b.y_px:.2f}) px, radius {b.radius_px:.2f} +- \
+{b.radius_std_px:.2f} px (1 sigma from the
 #         scatter of {b.n_edge_points} sector edges, {b.edge_residual_px:.2f} px); moves \
 {p.motion.ball_relative_range_px:.1f} px relative to the plates
+"""
+        ball_roi = f"{p.ball_roi.as_list()}    # square inside the ball, >= 6 px inside its edge"
+        ball_cr = f"ball {p.ball_cramer_rao_px:.4f} px,\n#         structure"
+    method = "\n  ball_method: outline    # a plain ball, tracked by its outline (docs/real-footage.md)" \
+        if b.method == "outline" else ""
+    return f"""# rig.yaml proposed by `vibro init` from {source}
+# Measured on frame 0 ({p.width_px}x{p.height_px} px) and the motion over {p.motion.frames.size} frames:
+{ball_lines.rstrip()}
 #   plates: cavity edges at rows {pl.top_row_px:.2f} +- {pl.top_std_px:.2f} and \
 {pl.bottom_row_px:.2f} +- {pl.bottom_std_px:.2f} (1 sigma from column blocks;
 #         gap {pl.gap_px:.2f} +- {pl.gap_std_px:.2f} px); structure travel seen \
 {p.motion.structure_range_px[0]:+.1f}..{p.motion.structure_range_px[1]:+.1f} px (rows, + down)
-#   edges located on the texture along them, blur sigma {p.edge_sigma_px:.2f} px
-#   scale from the ball ({args.ball_diameter_mm:g} mm): {sc.from_ball:.6f} mm/px +- {100 * sc.ball_rel_std:.2f} %
-#   scale from the gap  ({args.gap_mm:g} mm): {sc.from_gap:.6f} mm/px +- {100 * sc.gap_rel_std:.2f} %
+#   {"plate " if b.method == "outline" else ""}edges located on the texture along them, blur sigma \
+{p.edge_sigma_px:.2f} px
+#   scale from the ball ({args.ball_diameter_mm:g} mm): {sc.from_ball:.6f} mm/px +- {_pct(sc.ball_rel_std)} %
+#   scale from the gap  ({args.gap_mm:g} mm): {sc.from_gap:.6f} mm/px +- {_pct(sc.gap_rel_std)} %
 #   they disagree by {100 * sc.disagreement_rel:+.2f} % \
 (allowed {100 * sc.tolerance_rel:.2f} %: 3 sigma + 0.25 px per edge)
 #   scale written: their inverse-variance mean (ball weight {sc.ball_weight:.2f}), \
-{sc.mm_per_px:.6f} mm/px +- {100 * sc.rel_std:.2f} %
+{sc.mm_per_px:.6f} mm/px +- {_pct(sc.rel_std)} %
 #   image noise {p.noise_gray:.2f} gray levels; worst subset displacement std (Cramer-Rao): \
-ball {p.ball_cramer_rao_px:.4f} px,
-#         structure {p.structure_cramer_rao_px:.4f} px
+{ball_cr} {p.structure_cramer_rao_px:.4f} px
 # Keys marked ASSUMED are not measurable from video: the paper's Test 1 rig; edit them for yours.
 camera:
   fps: {fps!r}
@@ -160,10 +179,34 @@ excitation:
   frequency_hz: {frequency_hz:.6g}    # {freq_note}; vibro analyze refines it
 dic:
   subset_px: {p.subset_px}
-  mesh_step_px: {p.mesh_step_px}
-  ball_roi: {p.ball_roi.as_list()}    # square inside the ball, >= 6 px inside its edge
+  mesh_step_px: {p.mesh_step_px}{method}
+  ball_roi: {ball_roi}
   structure_roi: {p.structure_roi.as_list()}    # on the {p.structure_plate} plate, in the image over the travel seen
 """
+
+
+def _pct(rel: float) -> str:
+    """A relative 1-sigma in percent, to two decimals or two significant digits when smaller."""
+    pct = 100.0 * rel
+    if not (math.isfinite(pct) and pct > 0):
+        return f"{pct:.2f}"
+    return f"{pct:.{max(2, 1 - math.floor(math.log10(pct)))}f}"
+
+
+def _margin(p) -> float:
+    """The least background (px) the outline box keeps beyond the ball's outline."""
+    b, r = p.ball, p.ball_roi
+    return min(b.x_px - r.x, r.x + r.w - 1 - b.x_px, b.y_px - r.y, r.y + r.h - 1 - b.y_px) - b.radius_px
+
+
+def outline_summary(check, sep: str = " ") -> str:
+    """The outline check's prediction (:class:`vibro_dic.outline.OutlineTexture`): sigma, contrast over noise,
+    sectors; ``sep`` between the sigma and the rest."""
+    s = check.mesh_sigma_px
+    return (f"predicted displacement sigma {s[0]:.4f} px (x), {s[1]:.4f} px (y);{sep}contrast "
+            f"{abs(check.contrast_gray):.1f} / noise {check.noise_gray:.2f} gray levels = "
+            f"{abs(check.contrast_gray) / check.noise_gray:.0f}x, {check.n_usable} of {len(check.points)} "
+            f"sectors usable (the tracker needs {check.min_usable})")
 
 
 def draw_preview(frame0: np.ndarray, p, path: Path, scale_up: int = 2) -> None:
@@ -180,6 +223,8 @@ def draw_preview(frame0: np.ndarray, p, path: Path, scale_up: int = 2) -> None:
         cv2.line(img, (0, int(round(row * s))), (img.shape[1] - 1, int(round(row * s))), (255, 128, 0), 1)
     for roi, colour in ((p.ball_roi, (0, 255, 0)), (p.structure_roi, (255, 0, 255))):
         cv2.rectangle(img, (roi.x * s, roi.y * s), ((roi.x + roi.w) * s - 1, (roi.y + roi.h) * s - 1), colour, 1)
+        if roi is p.ball_roi and b.method == "outline":
+            continue  # a box around the whole ball: no subsets
         for x, y in mesh_points(roi, p.subset_px, p.mesh_step_px):
             cv2.circle(img, (int(round(x * s)), int(round(y * s))), 2, colour, -1)
     bar_mm = 1.0 if p.width_px * p.scale.mm_per_px > 2.0 else 0.5
@@ -223,9 +268,11 @@ def run(args: argparse.Namespace) -> int:
     draw_preview(frames[0][1], p, preview)
     sc = p.scale
     print(f"wrote {out} and {preview}")
-    print(f"scale {sc.mm_per_px:.6f} mm/px +- {100 * sc.rel_std:.2f} %: {sc.from_ball:.6f} from the ball (r "
+    print(f"scale {sc.mm_per_px:.6f} mm/px +- {_pct(sc.rel_std)} %: {sc.from_ball:.6f} from the ball (r "
           f"{p.ball.radius_px:.2f} +- {p.ball.radius_std_px:.2f} px), {sc.from_gap:.6f} from the gap "
           f"({p.plates.gap_px:.2f} +- {p.plates.gap_std_px:.2f} px), {100 * sc.disagreement_rel:+.2f} % apart "
           f"(allowed {100 * sc.tolerance_rel:.2f} %)")
+    if p.ball.method == "outline":
+        print(f"ball: plain, tracked by its outline (dic.ball_method outline): {outline_summary(p.ball_outline)}")
     print(f"ball_roi {p.ball_roi.as_list()}  structure_roi {p.structure_roi.as_list()}  frequency {freq:.4g} Hz")
     return 0

@@ -35,7 +35,9 @@ from vibro_io.rig import Roi
 from vibro_model.errors import RecordingError
 
 from . import init_edges as edges
+from . import outline
 from .mesh import mesh_points
+from .outline import OutlineTexture
 
 EDGE_SYSTEMATIC_PX = 0.25     # allowed model error of one edge position beyond its statistical error (px)
 EDGE_STD_FLOOR_PX = 0.05      # an edge's stated 1-sigma is never below this (px)
@@ -61,7 +63,10 @@ def to_gray255(image: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Ball:
-    """The ball in frame 0: centre (x, y) px, radius px, and the 1-sigma uncertainty of the radius (px)."""
+    """The ball in frame 0: centre (x, y) px, radius px, and the 1-sigma uncertainty of the radius (px).
+    ``method`` "mesh": a speckled ball (DIC subsets inside it); "outline": a plain disc found by its
+    silhouette and fitted by :mod:`vibro_dic.outline` (``n_sectors`` sectors tried, ``n_edge_points`` kept,
+    ``blur_px`` the outline's edge sigma)."""
 
     x_px: float
     y_px: float
@@ -69,6 +74,15 @@ class Ball:
     radius_std_px: float
     n_edge_points: int
     edge_residual_px: float
+    method: str = "mesh"
+    n_sectors: int = 0
+    blur_px: float = math.nan
+    fit_radius_std_px: float = math.nan  # outline: the circle fit's own 1-sigma (radius_std_px is floored)
+
+    def describe(self) -> str:
+        """One phrase naming the ball found (for messages)."""
+        kind = "a plain ball (by its outline)" if self.method == "outline" else "a speckled ball"
+        return f"{kind} at ({self.x_px:.2f}, {self.y_px:.2f}) px, radius {self.radius_px:.2f} px"
 
 
 @dataclass
@@ -156,11 +170,17 @@ class Proposal:
     mesh_step_px: int
     noise_gray: float
     edge_sigma_px: float            # the edges' blur (ball and plates)
-    ball_cramer_rao_px: float       # worst subset of the ball ROI
+    ball_cramer_rao_px: float       # worst subset of the ball ROI (NaN for a ball tracked by its outline)
     structure_cramer_rao_px: float  # worst subset of the structure ROI
     frequency_hz: float | None = None
     frequency_note: str = ""
     notes: list[str] = field(default_factory=list)
+    #: a plain ball: the outline check of ``ball_roi`` (:func:`vibro_dic.outline.assess_outline`), else None
+    ball_outline: OutlineTexture | None = None
+
+    @property
+    def ball_method(self) -> str:
+        return self.ball.method
 
 
 # ----------------------------------------------------------------------------------------------- ball
@@ -305,10 +325,120 @@ def find_ball(frame0: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> tuple[Ball,
         if got is not None and got[0].radius_px >= 8:
             found.append(got)
     if not found:
+        plain, why_not = find_plain_ball(frame0)
+        if plain is not None:
+            return plain
         raise InitError("no ball found in frame 0: no textured disc with a clean edge on "
                         f">= {MIN_CLEAN_SECTORS} of {edges.N_BALL_SECTORS} sectors (cv2.HoughCircles on the texture "
-                        "energy, refined on the texture along the edge); is the ball in view, in focus and speckled?")
+                        f"energy, refined on the texture along the edge), and no plain disc with a clean outline "
+                        f"({why_not}); is the ball in view and in focus, speckled or backlit?")
     return min(found, key=lambda b: (-b[0].n_edge_points, b[0].edge_residual_px))
+
+
+# ------------------------------------------------------------------------------------------ plain ball
+MIN_PLAIN_RADIUS_PX = 8.0
+#: the outline box reaches this far (px) beyond the ball's outline, at least (the synth's and the docs' box)
+OUTLINE_ROI_MARGIN_PX = 6
+#: ... and never less than this where a plate or the image border cuts it (find_disc needs background round it)
+MIN_OUTLINE_ROI_MARGIN_PX = 2
+
+
+def _silhouettes(frame0: np.ndarray) -> list[tuple[float, float, float]]:
+    """(x, y, half the larger bounding-box side) px of the connected regions of either class of Otsu's threshold
+    of frame 0 (lightly smoothed) that are large enough for a ball and do not touch the image border, holes
+    filled (a highlight inside a dark ball): the candidates for a plain disc, the largest first."""
+    h, w = frame0.shape
+    lo, hi = float(np.percentile(frame0, 0.5)), float(np.percentile(frame0, 99.5))
+    if not hi > lo:
+        return []
+    u8 = np.clip((frame0 - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+    _, bright = cv2.threshold(cv2.GaussianBlur(u8, (0, 0), 1.0), 0, 1, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    from scipy.ndimage import binary_fill_holes
+
+    out = []
+    for fg in (bright == 0, bright == 1):
+        n, _, stats, centroids = cv2.connectedComponentsWithStats(
+            binary_fill_holes(fg).astype(np.uint8), connectivity=8)
+        for k in range(1, n):
+            x, y, bw, bh, area = (int(v) for v in stats[k])
+            if x == 0 or y == 0 or x + bw >= w or y + bh >= h or area < math.pi * MIN_PLAIN_RADIUS_PX ** 2:
+                continue
+            out.append((float(centroids[k][0]), float(centroids[k][1]), 0.5 * max(bw, bh), area))
+    return [c[:3] for c in sorted(out, key=lambda c: -c[3])]
+
+
+def _box(cx: float, cy: float, half: float, width_px: int, height_px: int, rows: tuple[int, int] | None = None
+         ) -> Roi:
+    """The box [cx - half, cx + half] x [cy - half, cy + half] (whole pixels, inclusive of both ends), cut at the
+    image and at ``rows`` (first, last allowed row)."""
+    y_lo, y_hi = (0, height_px - 1) if rows is None else (max(rows[0], 0), min(rows[1], height_px - 1))
+    x0, x1 = max(int(math.floor(cx - half)), 0), min(int(math.ceil(cx + half)), width_px - 1)
+    y0, y1 = max(int(math.floor(cy - half)), y_lo), min(int(math.ceil(cy + half)), y_hi)
+    return Roi(x0, y0, max(x1 - x0 + 1, 0), max(y1 - y0 + 1, 0))
+
+
+def find_plain_ball(frame0: np.ndarray) -> tuple[tuple[Ball, float] | None, str]:
+    """((the ball in frame 0, its outline's edge blur sigma px), "") for a plain ball: a dark or bright disc with a
+    clean outline (:func:`vibro_dic.outline.find_disc` in a box round each silhouette of :func:`_silhouettes`,
+    then the outline tracker's reference fit: sub-pixel edges of ~4 px sectors, a robust circle fit giving the
+    centre, the radius and their 1-sigma from the residuals). The disc with the most sectors kept wins (at
+    least half of them, what the tracker needs). (None, why) without one."""
+    h, w = frame0.shape
+    img = np.asarray(frame0, np.float32)
+    best: tuple[Ball, float] | None = None
+    tried: list[str] = []
+    for x, y, half in _silhouettes(img):
+        box = _box(x, y, half + OUTLINE_ROI_MARGIN_PX, w, h)
+        disc = outline.find_disc(img, box)
+        if disc is None or disc.radius_px < MIN_PLAIN_RADIUS_PX:
+            tried.append(f"({x:.0f}, {y:.0f}): not round")
+            continue
+        box = _box(disc.cx, disc.cy, disc.radius_px + OUTLINE_ROI_MARGIN_PX, w, h)
+        try:
+            tracker = outline.OutlineTracker("ball", img, box)
+        except outline.OutlineError:
+            tried.append(f"({x:.0f}, {y:.0f}): no outline fit")
+            continue
+        fit = tracker.reference_fit
+        kept = int(np.count_nonzero(fit.circle.kept))
+        if kept < tracker.min_valid:
+            tried.append(f"({x:.0f}, {y:.0f}): {kept} of {tracker.n_sectors} outline sectors clean")
+            continue
+        c = fit.circle
+        res = c.residual_px[c.kept]
+        # the radius's 1-sigma for the scale: the fit's, never below EDGE_STD_FLOOR_PX as for a speckled ball
+        # (the edge model's own definition of the edge: a clipped backlight or a refracting ball moves the fitted
+        # edge by tenths of a px against the half-level contour, ball_12bit 0.27 px, beyond the fit's sigma)
+        ball = Ball(float(c.centre[0]), float(c.centre[1]), float(c.radius_px),
+                    max(float(c.sigma_px[2]), EDGE_STD_FLOOR_PX), kept, float(np.sqrt(np.mean(res ** 2))),
+                    method="outline", n_sectors=tracker.n_sectors, blur_px=float(tracker.blur0),
+                    fit_radius_std_px=float(c.sigma_px[2]))
+        if best is None or kept > best[0].n_edge_points:
+            best = (ball, tracker.blur0)
+    if best is not None:
+        return best, ""
+    if not tried:
+        return None, "no dark or bright region of ball size clear of the image border"
+    return None, "candidates " + "; ".join(tried[:4])
+
+
+def propose_outline_roi(ball: Ball, plates: Plates | None, width_px: int, height_px: int) -> Roi:
+    """The box around the whole plain ball in frame 0 that ``dic.ball_method: outline`` tracks from: the outline
+    plus OUTLINE_ROI_MARGIN_PX, or the outline's edge band (:func:`vibro_dic.outline.band_width`) plus 1 px when
+    that is wider, cut at the image and before the plates' edges; InitError when less than
+    MIN_OUTLINE_ROI_MARGIN_PX of background is left on a side (the ball touches a plate or the border)."""
+    margin = max(OUTLINE_ROI_MARGIN_PX, math.ceil(outline.band_width(ball.blur_px) + 1.0))
+    rows = None
+    if plates is not None:
+        rows = (int(math.floor(plates.top_row_px)) + 1, int(math.ceil(plates.bottom_row_px)) - 1)
+    roi = _box(ball.x_px, ball.y_px, ball.radius_px + margin, width_px, height_px, rows)
+    left = min(ball.x_px - roi.x, roi.x + roi.w - 1 - ball.x_px, ball.y_px - roi.y,
+               roi.y + roi.h - 1 - ball.y_px) - ball.radius_px
+    if left < MIN_OUTLINE_ROI_MARGIN_PX:
+        raise InitError(f"{ball.describe()}: its box {roi.as_list()} keeps only {left:.1f} px of background beyond "
+                        f"the outline on one side (the image's border or a plate; need {MIN_OUTLINE_ROI_MARGIN_PX} "
+                        "px): pick a recording whose frame 0 shows the ball clear of the plates")
+    return roi
 
 
 # --------------------------------------------------------------------------------------------- plates
@@ -412,6 +542,15 @@ def measure_frame0(frame0: np.ndarray) -> tuple[Ball, Plates, float]:
     (same lens and focus): the median of the three edges' own fits; all edges are then fitted with it."""
     gx, gy = edges.gradients_xy(frame0)
     ball, sig_ball = find_ball(frame0, gx, gy)
+    if ball.method == "outline":
+        # a plain ball: fitted by its outline already (its erf blur is not the plates' texture blur)
+        try:
+            guess, sig_plates = find_plates(gx, ball, None)
+            sigma = float(np.median(sig_plates)) if sig_plates else sig_ball
+            plates, _ = find_plates(gx, ball, sigma)
+        except InitError as exc:
+            raise InitError(f"found {ball.describe()}, but {exc}") from None
+        return ball, plates, sigma
     guess, sig_plates = find_plates(gx, ball, None)
     sigma = float(np.median([sig_ball, *sig_plates]))
     allowed = cavity_pixels(gx.shape, guess.top_row_px, guess.bottom_row_px)
@@ -462,10 +601,14 @@ def structure_template(frame0: np.ndarray, plates: Plates, plate: str, rows_px: 
 
 
 def follow_motion(frames: list[tuple[int, np.ndarray]], ball: Ball, plates: Plates, plate: str,
-                  n_ball_frames: int = 60) -> Motion:
+                  n_ball_frames: int = 60, outline_roi: Roi | None = None) -> Motion:
     """Rows moved (down, px) by the plate strip and by the ball's inner square over ``frames``
-    ((index, gray image) pairs, frame 0 first); the ball only on its first ``n_ball_frames``."""
+    ((index, gray image) pairs, frame 0 first); the ball only on its first ``n_ball_frames``. A plain ball
+    (``outline_roi``: its box in frame 0) is followed by its outline (:class:`vibro_dic.outline.OutlineTracker`):
+    its inside holds nothing to match."""
     frame0 = frames[0][1]
+    tracker = None if outline_roi is None else outline.OutlineTracker("ball", np.asarray(frame0, np.float32),
+                                                                      outline_roi)
     strip_rows = 24
     sx, sy, strip = structure_template(frame0, plates, plate, strip_rows)
     half = int(max(4, math.floor((ball.radius_px - EDGE_MARGIN_PX) / math.sqrt(2))))
@@ -482,7 +625,10 @@ def follow_motion(frames: list[tuple[int, np.ndarray]], ball: Ball, plates: Plat
         s_down.append(ds if peak_s > 0.5 else math.nan)
         if np.isfinite(ds) and peak_s > 0.5:
             prev_s = ds
-        if len(b_down) < n_ball_frames:
+        if len(b_down) < n_ball_frames and tracker is not None:
+            r = tracker.track(np.asarray(img, np.float32), int(k)) if k != frames[0][0] else None
+            b_down.append(0.0 if r is None else (math.nan if r.lost else float(r.u_px[1])))
+        elif len(b_down) < n_ball_frames:
             db, _, peak_b = _match_rows(img, ball_tpl, bx, by + int(round(prev_b)), min(search_b, 3 * half),
                                         search_x_px=half)
             db = db + int(round(prev_b)) if np.isfinite(db) else math.nan
@@ -643,7 +789,8 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
                         f"between the plates found (rows {plates.top_row_px:.1f}, {plates.bottom_row_px:.1f})")
     # follow the plate with more room in the image (the ROI goes there too)
     plate = "bottom" if h - plates.bottom_row_px >= plates.top_row_px else "top"
-    motion = follow_motion(frames, ball, plates, plate)
+    outline_roi = propose_outline_roi(ball, plates, w, h) if ball.method == "outline" else None
+    motion = follow_motion(frames, ball, plates, plate, outline_roi=outline_roi)
     n_seen = int(np.isfinite(motion.structure_down_px).sum())
     lo, hi = motion.structure_range_px if n_seen else (0.0, 0.0)
     if n_seen < 2 or hi - lo < MIN_STRUCTURE_MOTION_PX:
@@ -663,7 +810,7 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
             f"{plates.gap_px:.2f} +- {plates.gap_std_px:.2f} px = {scale.from_gap:.5f} mm/px) disagree by "
             f"{100 * scale.disagreement_rel:+.2f} % (localisation allows {100 * tol:.2f} %): check --ball-diameter-mm "
             "and --gap-mm")
-    ball_roi = propose_ball_roi(ball, subset_px, w, h)
+    ball_roi = outline_roi if outline_roi is not None else propose_ball_roi(ball, subset_px, w, h)
     structure_roi, which = propose_structure_roi(plates, motion, subset_px, mesh_step_px, w, h)
     cavity = np.zeros(frame0.shape, bool)
     cavity[int(plates.top_row_px) + 4:int(plates.bottom_row_px) - 3] = True
@@ -671,9 +818,19 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
     cavity &= np.hypot(xx - ball.x_px, yy - ball.y_px) > ball.radius_px + 4
     cavity &= ~clipped_gray255(frame0, effective_bits)
     noise = noise_sigma_gray(frame0, cavity if cavity.sum() > 500 else None, effective_bits=effective_bits)
-    cr_ball = worst_cramer_rao_px(frame0, ball_roi, subset_px, mesh_step_px, noise)
-    cr_struct = worst_cramer_rao_px(frame0, structure_roi, subset_px, mesh_step_px, noise)
-    for name, cr in (("ball", cr_ball), ("structure", cr_struct)):
+    checked = [("structure", worst_cramer_rao_px(frame0, structure_roi, subset_px, mesh_step_px, noise))]
+    check = None
+    if outline_roi is not None:
+        # a plain ball: no subsets inside it; its outline's accuracy is predicted instead (the texture check's)
+        check = outline.assess_outline("ball", np.asarray(frame0, np.float32), outline_roi, noise)
+        if check.refused:
+            raise InitError(f"found {ball.describe()}, but {check.problem()}")
+        cr_ball = math.nan
+    else:
+        cr_ball = worst_cramer_rao_px(frame0, ball_roi, subset_px, mesh_step_px, noise)
+        checked.insert(0, ("ball", cr_ball))
+    cr_struct = checked[-1][1]
+    for name, cr in checked:
         if not cr <= MAX_SUBSET_CRAMER_RAO_PX:  # NaN (no measurement) fails too
             raise InitError(f"the {name} ROI has too little texture for DIC: its worst {subset_px} px subset's "
                             f"displacement std would be {cr:.3f} px (sum of squared gradients against the noise, "
@@ -681,4 +838,4 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
                             "light it better or give a larger --subset-px")
     freq, note = estimate_frequency_hz(motion, fps)
     return Proposal(w, h, ball, plates, motion, scale, ball_roi, structure_roi, which, subset_px, mesh_step_px,
-                    noise, edge_sigma, cr_ball, cr_struct, freq, note)
+                    noise, edge_sigma, cr_ball, cr_struct, freq, note, ball_outline=check)
