@@ -50,6 +50,8 @@ CAMERA_TOPIC = "camera/image_raw"
 SEED = 21
 GOAL_RATE_HZ = 1000.0
 GOAL_EXCESS_S = 0.005
+#: give dic_tracker frame 0 as its reference file (built before the camera starts); --first-image-reference: not
+WITH_REFERENCE = "--first-image-reference" not in sys.argv
 #: dic_tracker's status of a frame slot whose image never arrived
 NOT_RECEIVED = "no image received"
 
@@ -78,10 +80,13 @@ def start_nodes(rec: Path, folder: Path, env: dict[str, str]) -> tuple[dict[str,
     origin (ns) they were given: the camera must stamp its frames on it, as a driver on the lab's clock does."""
     from launch_like import launch_command
 
-    from vibro_bringup.graph_spec import launch_nodes
+    from vibro_bringup.graph_spec import launch_nodes, write_reference_frame
 
     procs = {}
-    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC)
+    # frame 0 as the tracker's reference file, as docs/live.md asks of a lab: the tracker is then built before
+    # the camera starts and says "ready"
+    reference = write_reference_frame(rec, folder / "reference_frame0.png") if WITH_REFERENCE else None
+    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC, reference_image=reference)
     origins = {int(n.parameters["time_origin_unix_ns"]) for n in nodes if "time_origin_unix_ns" in n.parameters}
     if len(origins) != 1:
         raise SystemExit(f"the live nodes were given {len(origins)} lab-clock origins: {sorted(origins)}")
@@ -121,7 +126,10 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str]) -> tu
                                      stderr=subprocess.STDOUT, env=env)
         try:
             deadline = time.monotonic() + 60.0
-            while not ready.exists():
+            tracker_log = folder / "dic_tracker.log"
+            # the camera starts once the probe listens and the tracker says it is ready (a lab's trigger)
+            while not ready.exists() or (WITH_REFERENCE and "ready: reference" not in
+                                         tracker_log.read_text(errors="replace")):
                 dead = {n: p.returncode for n, p in {**nodes, "probe": probe}.items() if p.poll() is not None}
                 if dead or time.monotonic() > deadline:
                     raise SystemExit(f"live graph did not come up at {rate_hz:g} Hz (exited: {dead}); logs in {folder}")
@@ -217,6 +225,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1500)
     parser.add_argument("--rates", default="250,500,1000", help="camera rates to run (Hz), comma-separated")
+    parser.add_argument("--first-image-reference", action="store_true",
+                        help="give dic_tracker no reference file: it builds its tracker on the first image (A/B of "
+                             "the start-up)")
     args = parser.parse_args()
     rates = [float(r) for r in args.rates.split(",")]
     from vibro_io.rig import load_rig

@@ -79,6 +79,12 @@ def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "",
     return frame_track_to_message(row, mesh_points, status, reference_frame_index, run_id, origin_ns)
 
 
+#: live, the first image may come this long (s of camera time) after the reference frame: the slots between are
+#: answered as lost (the session's first images dropped); later, the clock's origin is wrong (the tracker says
+#: which origin makes its first image frame 0) or the tracker was restarted mid-run
+LEADING_SLOTS_S = 0.5
+
+
 class DicTrackerNode(Node):
     def __init__(self) -> None:
         super().__init__("dic_tracker")
@@ -119,6 +125,7 @@ class DicTrackerNode(Node):
             except RecordingError as exc:
                 raise RecordingError(f"dic_tracker: parameter 'reference_image': {exc}") from None
         self.tracker: DicTracker | None = None
+        self._started = False  # the first image has been received (and the tracker checked against it)
         self.quality: TrackQuality | None = None
         self.next_index = 0
         self.reference_index: int | None = 0 if self.reference is not None else None  # the stream begins here
@@ -140,6 +147,22 @@ class DicTrackerNode(Node):
         # the node exits once they have acknowledged everything (file mode)
         self.gate = ReaderGate(self, on_open=self._release, health=self.health)
         self.done = self.gate.done
+        if live:
+            self._prepare_live()
+
+    def _prepare_live(self) -> None:
+        """Live with a reference file: build the DIC tracker (meshes, templates, the texture check on the
+        reference alone: an upper bound on the noise) now, not on the first image, whose ~15 ms of set-up would
+        drop the camera's next images from a shallow sensor queue; then report ``ready`` on /diagnostics (a lab
+        triggers its camera once the graph says so). Without a reference file the first image is the reference
+        and ``ready`` says so."""
+        if self.reference is None:
+            self.health.values["ready"] = "false: no reference_image, the first image received becomes it"
+            return
+        self._build_tracker(self.reference, self.reference)
+        self.health.values["ready"] = "true"
+        self.get_logger().info(f"ready: reference {self.reference_file} loaded and the tracker built; "
+                               "start the camera")
 
     @property
     def _released(self) -> bool:
@@ -198,8 +221,8 @@ class DicTrackerNode(Node):
         t = self.rig.camera.frame_time_s(k)
         try:
             image = image_array(msg)
-            if self.tracker is None:
-                if k > 0 and self.live_camera:
+            if not self._started:
+                if k > self.rig.camera.fps * LEADING_SLOTS_S and self.live_camera:
                     hint = live_origin_hint(k, stamp_ns(msg.header), self.rig.camera.t0_s)
                     self.get_logger().warning(hint)
                     self.health.warn(hint)
@@ -212,11 +235,13 @@ class DicTrackerNode(Node):
                                      str(exc))
             self.next_index = k + 1
             return
+        why = ("no image received (dropped or unreadable upstream)" if self.received > 1 else
+               "before the first image received (the camera started before the tracker, or its first images "
+               "were dropped)")
         for gap in range(self.next_index, k):  # frames that never arrived
             gt = self.rig.camera.frame_time_s(gap)
             self._publish(FrameTrack(frame=gap, t_s=gt, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
-                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
-                          "no image received (dropped or unreadable upstream)")
+                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True), why)
         row = self.tracker.track_image(k, t, image)
         self.quality.add(k, self.tracker.last_results)
         reasons = "; ".join(r.reason for r in self.tracker.last_results.values() if r.lost and r.reason)
@@ -226,7 +251,8 @@ class DicTrackerNode(Node):
         self._maybe_finish()
 
     def _start_tracker(self, k: int, image: np.ndarray) -> None:
-        """Build the DicTracker on the reference file (checked against this first image) or on ``image``."""
+        """Build the DicTracker on the reference file (checked against this first image) or on ``image``
+        (a tracker built ahead, live, is only checked)."""
         if self.reference is not None:
             ref = self.reference
             if ref.shape != image.shape or ref.dtype != image.dtype:
@@ -241,6 +267,18 @@ class DicTrackerNode(Node):
             ref = image
             if k != 0:
                 self.get_logger().warning(f"first image is frame {k}; it is the DIC reference")
+        if self.tracker is None:
+            self._build_tracker(ref, image)
+        self.next_index = k
+        leading = k - (self.reference_index or 0)
+        if self.live_camera and self.reference is not None and 0 < leading <= self.rig.camera.fps * LEADING_SLOTS_S:
+            # a live session's first images dropped (or the camera started a moment early): the stream still
+            # begins at the reference frame, its first slots answered as lost, so readers take the run whole
+            self.next_index = self.reference_index or 0
+        self._started = True
+
+    def _build_tracker(self, ref: np.ndarray, image: np.ndarray) -> None:
+        """The DicTracker on reference ``ref`` with its texture check (noise from ``image`` against ``ref``)."""
         tracker = DicTracker.for_rig(ref, self.rig, method=self.method, zncc_min=self.zncc_min)
         # the texture check (vibro_dic.texture): noise from this image against the reference when they differ,
         # else from the reference alone (an upper bound on speckle); a refusal is raised like a bad ROI
@@ -251,7 +289,6 @@ class DicTrackerNode(Node):
         tracker.use_texture(texture)
         self.quality = TrackQuality(texture)
         self.tracker = tracker
-        self.next_index = k
 
     def _on_status(self, msg: StreamStatus) -> None:
         if not self.guard.accept(topics.STATUS.name, run_id=msg.run_id):

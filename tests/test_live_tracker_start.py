@@ -1,0 +1,86 @@
+"""A live dic_tracker is ready before the camera starts, and a session whose first images were dropped still
+begins at its reference frame (issue #28, start-up). Driven in-process: the node's image callback called
+directly with the Image messages a driver would send (no DDS); its results are read where it holds them
+until its declared reader (here one that never comes) has matched."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+ORIGIN_NS = 1_764_000_000_000_000_000
+
+
+def _node(rec: Path, *params: str):
+    import rclpy
+
+    from vibro_dic.dic_tracker_node import DicTrackerNode
+
+    rclpy.init(args=["--ros-args", "-p", f"rig_file:={rec / 'rig.yaml'}", "-p", "readers:=[nobody_yet]",
+                     "-p", f"time_origin_unix_ns:={ORIGIN_NS}", *params])
+    return DicTrackerNode()
+
+
+@pytest.fixture
+def close_rclpy():
+    import rclpy
+
+    nodes = []
+    yield nodes
+    for n in nodes:
+        n.destroy_node()
+    if rclpy.ok():
+        rclpy.shutdown()
+
+
+def _images(rec: Path) -> dict[int, object]:
+    from vibro_dic.frame_source_node import image_message
+    from vibro_io.recording import open_recording
+
+    return {f.index: image_message(f, "camera", ORIGIN_NS) for f in open_recording(rec).frames if f.ok}
+
+
+def test_ready_before_the_first_image_and_the_dropped_first_images_answered(tiny_recording: Path,
+                                                                            close_rclpy, ros_domain) -> None:
+    node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}")
+    close_rclpy.append(node)
+    # built from the reference file at start: nothing is left to set up when the first image arrives
+    assert node.tracker is not None and node.health.values["ready"] == "true"
+    images = _images(tiny_recording)
+    node._on_image(images[2])  # frames 0 and 1 never arrived: the camera's first images were dropped
+    node._on_image(images[3])
+    rows = {int(m.frame_index): m for m in node._held}
+    assert sorted(rows) == [0, 1, 2, 3]
+    for k in (0, 1):
+        assert rows[k].lost and rows[k].status.startswith("before the first image received"), rows[k].status
+        assert rows[k].reference_frame_index == 0
+    # the fixture's ball moves down 2 whole px per frame at 0.05 mm/px: -0.1 mm per frame, measured against
+    # frame 0 from the file (interpolation error of a noise-free pattern: far under 0.02 px = 0.001 mm)
+    for k in (2, 3):
+        assert not rows[k].lost and abs(rows[k].ball_mm - (-0.1 * k)) < 1e-3, rows[k]
+        assert abs(rows[k].structure_mm) < 1e-3
+
+
+def test_without_a_reference_file_ready_says_the_first_image_becomes_it(tiny_recording: Path, close_rclpy,
+                                                                       ros_domain) -> None:
+    node = _node(tiny_recording, "-p", "live_camera:=true")
+    close_rclpy.append(node)
+    assert node.tracker is None and node.health.values["ready"].startswith("false: no reference_image")
+    node._on_image(_images(tiny_recording)[1])
+    (row,) = node._held  # the first image is the reference: the stream begins there, nothing before it
+    assert row.frame_index == 1 and row.reference_frame_index == 1 and not row.lost
+    assert math.isclose(row.ball_mm, 0.0, abs_tol=1e-6)  # the reference itself: 0 to the solver's tolerance
+
+
+def test_from_a_recording_no_ready_flag_and_no_leading_slots(tiny_recording: Path, close_rclpy,
+                                                             ros_domain) -> None:
+    """File mode: a tracker restarted mid-run gets its first image late; the earlier slots were answered by the
+    tracker before it, so they are not answered again (readers would see frame numbers go back)."""
+    node = _node(tiny_recording, "-p", f"reference_image:={tiny_recording / 'frames' / '000000.png'}")
+    close_rclpy.append(node)
+    assert "ready" not in node.health.values
+    node._on_image(_images(tiny_recording)[3])
+    assert [int(m.frame_index) for m in node._held] == [3]
