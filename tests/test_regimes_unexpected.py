@@ -106,8 +106,22 @@ def test_landings_without_cor_are_reported_not_called_resting(low_cor_16):
     # every landing (|v_rel| > 0.1 m/s) after the first fitted flight, up to the end of the last one
     true_landings = [i for i in truth["impacts"] if abs(i["v_ball_before"] - i["v_structure"]) > 0.1
                      and t_lo < i["t"] <= t_hi + 0.002]
-    assert len(true_landings) >= 5 and len(landings) == len(true_landings)
-    for got, ref in zip(landings, true_landings):
+    # a landing whose rebound holds 3 frames is now measured (a COR from the hop chain, vibro_fit.hops):
+    # then its COR is right within 4 of its sigma; the others are reported without a COR
+    hop = {}
+    for ref in true_landings:
+        m = [x for x in doc["impacts"] if x.get("method") == "hop_chain" and abs(x["t"] - ref["t"]) < 3e-4]
+        if m:
+            assert abs(m[0]["cor"] - ref["cor"]) <= 4 * m[0]["cor_std"]
+            hop[ref["t"]] = m[0]
+    assert len(true_landings) >= 5
+    unmeasured = [i for i in true_landings if i["t"] not in hop]
+    # every landing not measured is reported without a COR; a reported one may also be where a measured
+    # hop lands (its rebound too short): each is a true impact
+    assert all(any(abs(x["t"] - i["t"]) < 3e-4 for x in landings) for i in unmeasured)
+    true_t = np.array([i["t"] for i in truth["impacts"]])
+    for got in landings:
+        ref = truth["impacts"][int(np.argmin(np.abs(true_t - got["t"])))]
         # time: the flight parabola meets the level where the ball rests: within 0.3 ms (a third of a frame)
         assert got["t"] == pytest.approx(ref["t"], abs=3e-4)
         assert got["plate"] == ref["plate"] == "bottom"
@@ -136,6 +150,10 @@ def test_impact_hidden_by_a_chatter_burst_is_reported(low_cor_27):
     slow = [i for i in truth["impacts"] if 0.05 < abs(i["v_ball_before"] - i["v_structure"]) < 0.1]
     assert slow, "the synthetic rig no longer makes a slow landing: choose another seed"
     ref = slow[0]
+    measured = [x for x in doc["impacts"] if x.get("method") == "hop_chain" and abs(x["t"] - ref["t"]) < 5e-4]
+    if measured:   # its rebound holds 3 frames: measured on the plate (vibro_fit.hops), COR within 4 sigma
+        assert abs(measured[0]["cor"] - ref["cor"]) <= 4 * measured[0]["cor_std"]
+        return
     got = [x for x in doc["identification"]["impacts_without_cor"] if abs(x["t"] - ref["t"]) < 5e-4]
     assert len(got) == 1
     assert got[0]["v_rel_before"] == pytest.approx(ref["v_ball_before"] - ref["v_structure"], abs=0.004)

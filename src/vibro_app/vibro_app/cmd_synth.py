@@ -36,6 +36,9 @@ def register(sub) -> None:
                    help="effect parameter (contract names, SI), e.g. force_n=2e-4; repeatable")
     p.add_argument("--seed", type=int, default=0, help="random seed (phase, speckle, noise, scatter)")
     p.add_argument("--frequency-hz", type=float, default=22.0, help="shaker frequency (Hz)")
+    p.add_argument("--cor", type=float, default=None, metavar="E",
+                   help="the baseline's constant COR (default 0.7); with a drive near g, e.g. --cor 0.5 "
+                        "--accel-mps2 13 --frequency-hz 10: chatter with sticking on the lower plate")
     p.add_argument("--accel-mps2", "--accel-ms2", dest="accel_mps2", type=float, default=None,
                    help="shaker acceleration amplitude (m/s^2; default 27: two impacts per cycle)")
     p.add_argument("--noise", type=float, default=2.0, metavar="GRAY", help="read noise sigma (gray levels)")
@@ -83,6 +86,8 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
     kw = {}
     if args.accel_mps2 is not None:
         kw["accel_mps2"] = args.accel_mps2
+    if args.cor is not None:
+        kw["cor"] = args.cor
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,

@@ -102,7 +102,7 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
         kind = "velocity_dependent_restitution"
         coefs = [eff[kind]["cor_at_zero"], eff[kind]["slope_s_per_m"]]
     else:
-        kind, coefs = "none", [BASELINE_COR]
+        kind, coefs = "none", [float(truth.get("baseline", {}).get("cor", BASELINE_COR))]
     c = np.asarray(coefs, dtype=float)
     cor = CorModelFit(kind, c, np.zeros((c.size, c.size)), 0.0, 0, 1, np.zeros(0))
     structure = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))  # unused: motion fixed

@@ -19,9 +19,11 @@ from vibro_model.errors import RecordingError
 from vibro_model.results import StructureMotion
 
 from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
+from .contacts import ContactPhase, contact_frames, find_contacts, refine_contacts
 from .coverage import FrameCoverage, frame_coverage
 from .flight_fit import FlightFit
 from .gaps import GapVerdict
+from .hops import HopChain, acceleration_prior, hop_chain
 from .impacts import ImpactFit, joint_impact
 from .landings import Landing, find_landings
 from .methods import METHODS
@@ -34,6 +36,8 @@ from .streaming import Cluster, StreamingFitter
 from .structure_fit import StructureFit, fit_structure
 
 log = logging.getLogger(__name__)
+
+SHORT_FLIGHT_POINTS = 6   # a flight opened by a COR impact with fewer than twice this joins the hop chain after it
 
 
 @dataclass(kw_only=True)
@@ -62,6 +66,8 @@ class Identification:
     accel_unseen_s: list[float] | None = None  # accelerometer impacts (camera clock) the camera does not see
     rig_consistency: list[RigStatement] = field(default_factory=list)
     gaps: list[GapVerdict] = field(default_factory=list)   # runs of lost frames: impact found, or what they may hide
+    contacts: list[ContactPhase] = field(default_factory=list)   # the ball riding a plate (vibro_fit.contacts)
+    hop_chains: list[HopChain] = field(default_factory=list)     # short hops measured on the plate (vibro_fit.hops)
 
     def structure_motion(self) -> StructureMotion:
         """The identified structure as the model type, with the ball offset from the plate levels; no
@@ -87,11 +93,12 @@ def track_rows(track: DicTrack):
 
 def run_streaming(track: DicTrack, frequency_hz: float, noise_mm: float | None, method: str = "paper",
                   config: SegmentationConfig | None = None, accel_times_s=(), weights: str | None = None,
-                  free_play_mm: float | None = None) -> StreamingFitter:
+                  free_play_mm: float | None = None, contact_frames: set[int] | None = None) -> StreamingFitter:
     """Run the streaming fitter over a whole track (accelerometer impact times on the camera clock;
-    ``free_play_mm``: the rig's, for impacts inside lost frames, :mod:`vibro_fit.gaps`)."""
+    ``free_play_mm``: the rig's, for impacts inside lost frames, :mod:`vibro_fit.gaps`; ``contact_frames``:
+    track indices of the ball riding a plate, :mod:`vibro_fit.contacts`)."""
     sf = StreamingFitter(frequency_hz, noise_mm=noise_mm, method="paper" if method == "joint" else method,
-                         config=config, weights=weights, free_play_mm=free_play_mm)
+                         config=config, weights=weights, free_play_mm=free_play_mm, contact_frames=contact_frames)
     for tx in accel_times_s:
         sf.push_accel_impact(tx)
     for row in track_rows(track):
@@ -202,6 +209,14 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
                                   1.0 / rig.camera.fps)
         if coverage.message():
             warnings.append(coverage.message())
+    sig_rel = float(np.hypot(noise, structure.rms_residual_mm))
+    levels0 = {k: v for k, v in plate_levels(list(sf.impacts)).items() if k in ("top", "bottom")}
+    contacts = find_contacts(t, ball, st, good, sig_rel, rig.free_play_mm, levels0)
+    cframes = contact_frames(contacts, good)
+    if cframes:
+        # the ball riding a plate: contact frames whatever their acceleration (near release it is -g)
+        sf = run_streaming(track, f_nom, noise, method, cfg, accel_times_s=accel_cam_s or (), weights=weights,
+                           free_play_mm=rig.free_play_mm, contact_frames=cframes)
     impacts = list(sf.impacts)
     levels = plate_levels(impacts, rig.free_play_mm)
     if method == "joint":
@@ -217,6 +232,14 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
             refined.append(joint_impact(est, p, q, t, ball, y_plate,
                                         (_prior_for(p, priors), _prior_for(q, priors)), noise))
         impacts = refined
+    chains = _hop_chains(sf, impacts, levels, contacts, cframes, track, rig, f_motion, float(noise))
+    flights = list(sf.flights)
+    if chains:
+        flights, impacts = _merge_chains(flights, impacts, chains, sf.gaps)
+    if contacts:
+        prior = acceleration_prior(sf.flights)
+        contacts = refine_contacts(contacts, chains, structure, 2.0e-3 * prior[0] if prior else None,
+                                   1.0 / rig.camera.fps)
     b = rig.free_play_mm
     if "free_play_mm" in levels and abs(levels["free_play_mm"] - b) > 0.05 * b:
         warnings.append(f"measured free play {levels['free_play_mm']:.3f} mm (half the ball's relative travel "
@@ -235,13 +258,22 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
             warnings.append(f"flight {fl.index} ({fl.t_start_s:.4f}..{fl.t_end_s:.4f} s) is not a free flight: "
                             f"{fl.reason}; no COR from it")
     warnings += sf.rejected
-    landings = _landings(sf, structure, rig, t, ball, st, cfg, levels)
+    hop_ids = {id(h) for c in chains for h in c.hops}
+    landings = find_landings([f for f in flights if id(f) not in hop_ids], impacts, sf.clusters, sf.short_flights,
+                             structure, levels, t, ball, st, cfg.max_impact_frames)
+    for c in chains:   # where the last measured hop lands: the chatter after it is too short to fit
+        if c.landing_s is not None and c.hops:
+            landings.append(Landing(c.landing_s, c.plate, float(c.landing_v_rel_mps), int(c.hops[-1].index),
+                                    "the last hop measured on the plate lands here; the rebound after it lasts "
+                                    "too few frames to fit a flight (chatter, then the ball rides the plate: "
+                                    "contact phase)"))
+    landings.sort(key=lambda x: x.t_s)
     for ld in landings:
         warnings.append(f"impact without COR at t = {ld.t_s:.4f} s on the {ld.plate} plate (relative speed "
                         f"{abs(ld.v_rel_before_mps):.3f} m/s, end of flight {ld.flight_before}): {ld.reason}")
     unseen = None
     if accel_res is not None:
-        unseen = _accel_unseen(accel_cam_s, impacts, landings, sf.flights, t, rig.camera.fps)
+        unseen = _accel_unseen(accel_cam_s, impacts, landings, flights, t, rig.camera.fps)
         n_acc = len(accel_res.impacts)
         if unseen:
             warnings.append(f"the accelerometers see {len(unseen)} impact(s) the camera does not identify, at t = "
@@ -254,7 +286,8 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     dt = float(np.median(np.diff(t)))
     regime = classify_regime(float(t[-1] - t[0] + dt), f_motion, impacts, sf.clusters,
                              sf.short_flights, cfg.max_impact_frames, dt, y_rel_range(ball, st), b,
-                             n_landings=len(landings))
+                             n_landings=len(landings), contacts=contacts,
+                             n_hop_impacts=sum(len(c.impacts) for c in chains))
     if regime.name != "two_impacts_per_cycle":
         warnings.append(f"regime: {regime.name} ({'; '.join(regime.notes) or 'see regime counts'})")
     motion = classify_motion(structure, y_rel_range(ball, st), float(noise),
@@ -265,13 +298,100 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     rig_state = check_rig(rig, structure, moving, impacts, sf.flights, float(noise), cfg.g_mps2, daq_f)
     for r in rig_state:
         warnings.append(f"rig description inconsistent with the measurement: {r.message}")
-    return Identification(structure=structure, flights=list(sf.flights), impacts=impacts, friction=friction,
+    return Identification(structure=structure, flights=flights, impacts=impacts, friction=friction,
                           cor_summary=cor_summary(impacts), regime=regime, plate_levels=levels,
                           noise_mm=float(noise), method=method, mass_kg=rig.ball.mass_kg,
                           short_flights=list(sf.short_flights), clusters=list(sf.clusters),
                           accel=accel_res, clock_offset=offset, warnings=warnings, weights=weights or "none",
                           coverage=coverage, motion=motion, landings=landings, accel_unseen_s=unseen,
-                          rig_consistency=rig_state, gaps=list(sf.gaps))
+                          rig_consistency=rig_state, gaps=list(sf.gaps), contacts=contacts, hop_chains=chains)
+
+
+def _hop_chains(sf: StreamingFitter, impacts: list[ImpactFit], levels: dict, contacts: list[ContactPhase],
+                cframes: set[int], track: DicTrack, rig: RigConfig, f_hz: float, noise_mm: float) -> list[HopChain]:
+    """The short hops after every free flight that no COR impact closes (:mod:`vibro_fit.hops`): the plate's
+    level from the impacts, else from its contact phases; hops stop before a contact phase or the next
+    fitted flight."""
+    from .structure_fit import fit_structure
+
+    prior = acceleration_prior(sf.flights)
+    if prior is None:
+        return []
+    lv = {p: levels[p] for p in ("top", "bottom") if p in levels}
+    for plate in ("top", "bottom"):
+        vals = [c.level_mm for c in contacts if c.plate == plate]
+        if plate not in lv and vals:
+            lv[plate] = float(np.median(vals))
+    t, ball, st, good = track.t_s, track.ball_mm, track.structure_mm, track.good
+    usable = good.copy()
+    if cframes:
+        usable[np.fromiter(cframes, int)] = False
+    dt = float(np.median(np.diff(t)))
+    closed = {i.flight_before for i in impacts}
+    by_index = {f.index: f for f in sf.flights}
+    fitted = sorted([f for f in sf.flights if f.fitted], key=lambda f: f.t_start_s)
+    chains: list[HopChain] = []
+    n_imp, n_fl = 10 ** 6, 10 ** 6   # temporary indices, renumbered by _merge_chains
+    for k, fl in enumerate(fitted):
+        if not fl.is_free or fl.index in closed:
+            continue
+        t_lim = float(t[-1]) + dt
+        if k + 1 < len(fitted):
+            t_lim = min(t_lim, fitted[k + 1].t_start_s)
+        later = [c.start_s for c in contacts if c.start_s > fl.t_end_s]
+        if later:
+            t_lim = min(t_lim, later[0])
+        w = (t >= fl.t_start_s - 1.0 / f_hz) & (t <= t_lim) & good
+        if w.sum() < 8:
+            continue
+        s_fit = fit_structure(t[w], st[w], f0_hz=f_hz)
+        v_end = float(fl.velocity_mps(fl.t_end_s) - s_fit.velocity_mps(fl.t_end_s))
+        plate = "bottom" if v_end < 0 else "top"
+        if plate not in lv:
+            continue
+        # a short flight opened by a COR impact on the same plate is the chain's first hop: the chain starts
+        # from the flight before it (its launch then sits on the plate's level, and its sigma is the chain's)
+        start, replaced = fl, None
+        opened = next((i for i in impacts if i.flight_after == fl.index), None)
+        prev = by_index.get(opened.flight_before) if opened is not None else None
+        if opened is not None and opened.plate == plate and fl.n_points < 2 * SHORT_FLIGHT_POINTS \
+                and prev is not None and prev.is_free:
+            start, replaced = prev, (opened, fl)
+            w = (t >= prev.t_start_s - 1.0 / f_hz) & (t <= t_lim) & good
+            s_fit = fit_structure(t[w], st[w], f0_hz=f_hz)
+        ch = hop_chain(start, plate, lv[plate], s_fit, t, ball, usable, t_lim, prior, noise_mm, n_imp, n_fl)
+        if ch is None and replaced is not None:
+            ch = hop_chain(fl, plate, lv[plate], s_fit, t, ball, usable, t_lim, prior, noise_mm, n_imp, n_fl)
+            replaced = None
+        if ch is not None:
+            ch.replaces = replaced
+            chains.append(ch)
+            n_imp += len(ch.impacts)
+            n_fl += len(ch.hops)
+    return chains
+
+
+def _merge_chains(flights: list[FlightFit], impacts: list[ImpactFit], chains: list[HopChain],
+                  gaps: list[GapVerdict]) -> tuple[list[FlightFit], list[ImpactFit]]:
+    """Flights and impacts with the chains' hops and impacts, in time order and numbered again (the
+    impacts' flight_before/after and the gaps' flights follow)."""
+    gone_f = {id(c.replaces[1]) for c in chains if c.replaces is not None}
+    gone_i = {id(c.replaces[0]) for c in chains if c.replaces is not None}
+    flights = [f for f in flights if id(f) not in gone_f]
+    impacts = [i for i in impacts if id(i) not in gone_i]
+    flights = sorted(flights + [h for c in chains for h in c.hops], key=lambda f: f.t_start_s)
+    new_f = {f.index: j for j, f in enumerate(flights)}
+    impacts = sorted(impacts + [i for c in chains for i in c.impacts], key=lambda i: i.t_s)
+    for j, f in enumerate(flights):
+        f.index = j
+    for j, i in enumerate(impacts):
+        i.index = j
+        i.flight_before = new_f.get(i.flight_before, i.flight_before)
+        i.flight_after = new_f.get(i.flight_after, i.flight_after)
+    for g in gaps:
+        g.flight_before = new_f.get(g.flight_before, g.flight_before)
+        g.flight_after = new_f.get(g.flight_after, g.flight_after)
+    return flights, impacts
 
 
 def _clock_offset(acc_t: list[float], sf: StreamingFitter, structure: StructureFit, rig: RigConfig,

@@ -4,6 +4,11 @@ Rules (per recording; counts are per excitation cycle, n_cycles = duration x fre
 - ``resting``: contact phases (clusters longer than an impact) cover more than half the record, or no
   impact at all (neither with a COR nor a landing without one) while the ball moves with the structure
   (ball - structure range < 10 % of 2b).
+- ``chatter_with_sticking``: the ball rides a plate (contact phases found from the positions,
+  :mod:`vibro_fit.contacts`) after hops on it, in at least every other cycle, covering at most half the
+  record (rarer contact phases are noted under the other names); ``description`` names the
+  plate ("chatter with sticking on the lower plate"), the hops per cycle and the time on the plate. The
+  model has no term for riding: the regime is described, never turned into a physics finding.
 - ``chattering``: more than 0.3 short flights (too few frames to fit) or same-plate re-impacts within a
   quarter period per cycle.
 - ``two_impacts_per_cycle``: top and bottom impacts each 0.8..1.2 per cycle.
@@ -28,19 +33,29 @@ class Regime:
     short_flights: int
     contact_fraction: float
     notes: list[str] = field(default_factory=list)
+    description: str = ""
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "n_cycles": self.n_cycles, "top_per_cycle": self.top_per_cycle,
-                "bottom_per_cycle": self.bottom_per_cycle, "short_flights": self.short_flights,
-                "contact_fraction": self.contact_fraction, "notes": list(self.notes)}
+        out = {"name": self.name, "n_cycles": self.n_cycles, "top_per_cycle": self.top_per_cycle,
+               "bottom_per_cycle": self.bottom_per_cycle, "short_flights": self.short_flights,
+               "contact_fraction": self.contact_fraction, "notes": list(self.notes)}
+        if self.description:
+            out["description"] = self.description
+        return out
 
 
 def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, short_flights,
                     max_impact_frames: int, frame_dt_s: float, y_rel_range_mm: float, free_play_mm: float,
-                    n_landings: int = 0) -> Regime:
+                    n_landings: int = 0, contacts=(), n_hop_impacts: int = 0) -> Regime:
     """Regime from the impacts, contact clusters and short flights of a recording (see module rules);
-    ``n_landings``: impacts without a COR (:mod:`vibro_fit.landings`), noted and never called resting."""
+    ``n_landings``: impacts without a COR (:mod:`vibro_fit.landings`), noted and never called resting;
+    ``contacts``: the ball riding a plate (:class:`vibro_fit.contacts.ContactPhase`); ``n_hop_impacts``: the
+    impacts between short hops among ``impacts`` (:mod:`vibro_fit.hops`)."""
     n_cycles = max(duration_s * frequency_hz, 1e-9)
+    contacts = list(contacts)
+    if contacts and len(contacts) >= 0.5 * n_cycles:
+        return _sticking(duration_s, n_cycles, impacts, clusters, short_flights, contacts, n_landings,
+                         n_hop_impacts, frame_dt_s)
     n_top = sum(1 for i in impacts if i.plate == "top")
     n_bot = sum(1 for i in impacts if i.plate == "bottom")
     contact_s = sum((c.n + 1) * frame_dt_s for c in clusters if c.n > max_impact_frames)
@@ -78,6 +93,35 @@ def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, s
         notes.append(f"{n_phases} contact phase(s) (chatter or sticking, {100 * contact_fraction:.0f} % of the time)")
     return Regime(name, float(n_cycles), float(top_pc), float(bot_pc), len(short_flights),
                   float(contact_fraction), notes)
+
+
+def _sticking(duration_s, n_cycles, impacts, clusters, short_flights, contacts, n_landings, n_hop_impacts,
+              frame_dt_s) -> Regime:
+    """``chatter_with_sticking`` (or ``resting`` beyond half the record on a plate) from the contact phases."""
+    n_top = sum(1 for i in impacts if i.plate == "top")
+    n_bot = sum(1 for i in impacts if i.plate == "bottom")
+    on = {p: sum(c.end_s - c.start_s + frame_dt_s for c in contacts if c.plate == p) for p in ("top", "bottom")}
+    frac = sum(on.values()) / max(duration_s, 1e-12)
+    plate = max(on, key=on.get)
+    word = "lower" if plate == "bottom" else "upper"
+    n_ph = sum(1 for c in contacts if c.plate == plate)
+    notes = [f"{len(contacts)} contact phase(s): the ball rides the {word} plate {100 * frac:.0f} % of the time "
+             f"(mean {1e3 * on[plate] / max(n_ph, 1):.1f} ms each)"]
+    if n_hop_impacts:
+        notes.append(f"{n_hop_impacts} impact(s) between short hops measured on the plate (hop chains)")
+    if n_landings:
+        notes.append(f"{n_landings} impact(s) without a COR (the last hops, too short to fit)")
+    if frac > 0.5:
+        name = "resting"
+        desc = f"resting on the {word} plate {100 * frac:.0f} % of the time"
+    else:
+        name = "chatter_with_sticking"
+        hops = (n_top if plate == "top" else n_bot) / max(n_ph, 1)
+        desc = (f"chatter with sticking on the {word} plate: per contact phase {hops:.1f} impact(s) with a COR "
+                f"(landing and hops), then the ball rides the plate ({100 * frac:.0f} % of the time) until its "
+                "acceleration releases it; the model has no term for riding, so this is described, not a finding")
+    return Regime(name, float(n_cycles), float(n_top / n_cycles), float(n_bot / n_cycles), len(short_flights),
+                  float(frac), notes, desc)
 
 
 def y_rel_range(ball_mm: np.ndarray, structure_mm: np.ndarray) -> float:

@@ -47,6 +47,7 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
     """The sections the model does not type yet: regime, identification details, accelerometers."""
     out: dict[str, Any] = {
         "regime": ident.regime.to_dict(),
+        "contacts": [c.to_dict() for c in ident.contacts],
         "identification": {"method": ident.method, "weights": ident.weights, "noise_mm": ident.noise_mm,
                            "plate_levels_mm": dict(ident.plate_levels),
                            "short_flights": [{"t_start": f.t_start_s, "t_end": f.t_end_s, "n_points": f.n_points}

@@ -60,7 +60,7 @@ class StreamingFitter:
     def __init__(self, frequency_hz: float, *, noise_mm: float | None = None, method: str = "paper",
                  config: SegmentationConfig | None = None, warmup_frames: int = 100,
                  history_s: float | None = None, weights: str | None = None,
-                 free_play_mm: float | None = None) -> None:
+                 free_play_mm: float | None = None, contact_frames: set[int] | None = None) -> None:
         if method not in ("paper", "joint"):
             raise ValueError(f"unknown method {method!r} (paper, joint)")
         if weights not in (None, "none", "dic_valid"):
@@ -95,6 +95,9 @@ class StreamingFitter:
         self._short_gap = 0                      # lost frames inside the impact gap being closed
         self.gaps: list[GapVerdict] = []         # runs of lost frames longer than an impact's contact frames
         self.free_play_mm = free_play_mm
+        # track indices known to be contact (the ball riding a plate, vibro_fit.contacts): contact frames
+        # whatever their acceleration
+        self.contact_frames = set(contact_frames or ())
 
     # ------------------------------------------------------------------ input
     def push_accel_impact(self, t_s: float) -> None:
@@ -169,6 +172,8 @@ class StreamingFitter:
         if pos <= 0 or pos >= len(g) - 1:
             return False
         i, j, k = g[pos - 1], g[pos], g[pos + 1]
+        if j in self.contact_frames:
+            return True
         acc, fac = accel_estimate(np.array([t[i], t[j], t[k]]), np.array([self.ball[i], self.ball[j], self.ball[k]]))
         thr = max(self.cfg.k_sigma * fac * float(self.noise_mm), self.cfg.min_threshold_mps2)
         if abs(acc + self.cfg.g_mps2) > thr:

@@ -79,6 +79,10 @@ class SynthConfig:
                    parameters take the defaults of ``EFFECTS``); empty = baseline
                    (constant COR 0.7, gravity only, pure sine, vertical).
     frequency_hz   shaker frequency (22 Hz).
+    cor            the baseline's constant COR, every plate (0.7); a restitution effect replaces it. A low COR
+                   with a drive near g (e.g. cor 0.5, accel_mps2 13 at 10 Hz) gives chatter with sticking:
+                   each cycle a flight, hops decaying on the lower plate, then the ball rides the plate
+                   until its downward acceleration exceeds g (truth ``contacts``).
     accel_ms2      shaker acceleration amplitude A w^2 (27 m/s^2: two impacts/cycle).
     phase_rad      structure phase at camera time 0; None = drawn from the seed.
     seed           seeds every random draw (phase, speckle, noise, COR scatter).
@@ -125,6 +129,7 @@ class SynthConfig:
 
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     frequency_hz: float = 22.0
+    cor: float = BASELINE_COR
     accel_mps2: float = DEFAULT_ACCEL_MS2
     phase_rad: float | None = None
     seed: int = 0
@@ -161,7 +166,8 @@ class SynthConfig:
     def __post_init__(self) -> None:
         self.effects = normalise_effects(self.effects)
         checks = [
-            ("frequency_hz", self.frequency_hz > 0, "> 0"), ("accel_mps2", self.accel_mps2 >= 0, ">= 0"),
+            ("frequency_hz", self.frequency_hz > 0, "> 0"),
+            ("cor", 0.0 <= self.cor <= 1.0, "in [0, 1]"), ("accel_mps2", self.accel_mps2 >= 0, ">= 0"),
             ("frames", isinstance(self.frames, int) and self.frames >= 2, "an integer >= 2"),
             ("fps", self.fps > 0, "> 0"), ("lead_in_s", self.lead_in_s >= 0, ">= 0"),
             ("noise_gray", self.noise_gray >= 0, ">= 0"), ("flicker", 0 <= self.flicker < 0.5, "in [0, 0.5)"),
@@ -304,10 +310,10 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
     if "structure_tone" in eff:
         structure = tone_structure(structure, eff["structure_tone"])
-    law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919)
+    law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919, baseline_cor=cfg.cor)
     if "position_force" in eff:
         force = position_force(structure, cavity, force, eff["position_force"])
-    plain_law = effect_laws(eff)[0]   # the same law without any per-impact scatter (truth: cor_law)
+    plain_law = effect_laws(eff, baseline_cor=cfg.cor)[0]   # the law without per-impact scatter (truth: cor_law)
     spins = None
     if cfg.spin_rad_s != 0.0 or cfg.spin_sigma_rad_s > 0.0:
         spins = spin_sequence(cfg.spin_rad_s, cfg.spin_sigma_rad_s, cfg.seed)
@@ -321,14 +327,14 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                   cfg.cor_scatter, cfg.seed + 104729, spins)
 
 
-def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None
-                ) -> tuple[RestitutionLaw, ForceLaw]:
+def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None,
+                baseline_cor: float = BASELINE_COR) -> tuple[RestitutionLaw, ForceLaw]:
     """The COR law and flight force law of a set of contract effects ({name: parameters}, SI).
 
-    The baseline is a constant COR and no force. ``scatter_seed`` draws the asymmetric case's
+    The baseline is a constant COR (``baseline_cor``) and no force. ``scatter_seed`` draws the asymmetric case's
     per-impact COR scatter (``cor_sigma``); None leaves the scatter out (the deterministic law).
     """
-    law: RestitutionLaw = Constant(BASELINE_COR)
+    law: RestitutionLaw = Constant(baseline_cor)
     if "asymmetric_restitution" in effects:
         p = effects["asymmetric_restitution"]
         law = PerPlate(p["cor_top"], p["cor_bottom"])

@@ -30,7 +30,7 @@ from vibro_model.units import m_to_mm, um_to_mm
 
 from .accel import make_accel
 from .render import Renderer, choose_layout, quantise
-from .scenario import BASELINE_COR, STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
+from .scenario import STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
 from .spin import spin_angle, spin_rate
 from .trajectory import regime, simulate_window
 
@@ -263,9 +263,17 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
                   "ball_radius_px": layout.ball_radius_px, "row_mid": layout.row_mid,
                   "ball_roi": rig.dic.ball_roi.as_list(), "structure_roi": rig.dic.structure_roi.as_list()},
         "models": {"restitution": repr(models.restitution), "force": repr(models.force)},
-        "baseline": {"cor": BASELINE_COR, "force": "none", "gravity": "vertical",
+        "baseline": {"cor": cfg.cor, "force": "none", "gravity": "vertical",
                      "structure": "pure sine", "note": "what the effects modify"},
         "regime": regime(traj, cfg.frequency_hz) if not cfg.still else None,
+        # the ball riding a plate (COR model: a rebound slower than its stick speed): from the landing to the
+        # release, when the plate's downward acceleration exceeds g (clipped to the filmed interval)
+        "contacts": [{"start_s": max(s.t_start_s, float(traj.frame_t_s[0])),
+                      "end_s": min(s.t_end_s, float(traj.frame_t_s[-1])), "plate": s.plate,
+                      "starts_before_recording": bool(s.t_start_s < traj.frame_t_s[0]),
+                      "ends_after_recording": bool(s.t_end_s > traj.frame_t_s[-1])}
+                     for s in traj.result.stuck
+                     if s.t_end_s > traj.frame_t_s[0] and s.t_start_s < traj.frame_t_s[-1]] if not cfg.still else [],
         "config": cfg_dict,
     }
     if hasattr(S, "tone_frequency_hz"):
