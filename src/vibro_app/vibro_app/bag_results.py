@@ -123,7 +123,16 @@ class BagResults:
                                 source_lost=self.finished_lost.get("frames", 0))
 
     def merged(self, topic: str) -> list:
-        """Final messages, and the streamed preview of every index without a final one."""
+        """The final messages when the fitter's final pass is in the bag whole (its end-of-stream status announced
+        them all); otherwise the final messages and the streamed preview of every index without a final one.
+        A preview is never kept beside a complete final pass: the final identification may number its flights and
+        impacts differently (hops measured as a chain, landings), and a preview at an index it does not use is
+        not a result."""
+        stream = {topics.FLIGHTS.name: "flights", topics.IMPACTS.name: "impacts"}[topic]
+        announced = self.finished.get(stream)
+        if announced is not None and len(self.final[topic]) >= announced and (announced or not self.streamed[topic]
+                                                                              or self.structure is not None):
+            return list(self.final[topic].values())
         return list({**self.streamed[topic], **self.final[topic]}.values())
 
 
