@@ -16,6 +16,13 @@ the same index. A bag is complete when every stream the fitter, simulator and di
 finished (vibro/status) has all its items in the bag; otherwise (the recorder was killed, a node died)
 the document keeps what there is (streamed estimates where no final one arrived), says
 ``"complete": false`` with a warning naming what is missing, and ``vibro results`` exits 1.
+
+The fitter runs ``vibro analyze``'s cross-checks (:func:`vibro_fit.cross_checks.consistency_checks`) in its final
+pass and carries them on its /diagnostics status (values ``consistency``: the section's JSON, ``refused``: the
+refusal line; :data:`vibro_ros.topics.CONSISTENCY_KEY`), which the bag records: the document gets analyze's
+``consistency`` section. A refused run (the fitter published no final impact, ended its impacts stream with them
+counted lost and exited with code 2) gives analyze's refused document: no COR table (streamed previews
+dropped too), ``"complete": false``, and ``vibro results`` exits 2 with the refusal in one line.
 """
 
 from __future__ import annotations
@@ -62,6 +69,8 @@ class BagResults:
         self.finished_lost: dict[str, int] = {}  # stream -> items it announced lost at its end
         self.frames: list = []  # vibro/dic, as recorded
         self.pids: dict[str, set[str]] = {}  # node name -> process ids its /diagnostics carried (restarts)
+        self.consistency: dict | None = None  # the fitter's cross-checks (its /diagnostics, topics.CONSISTENCY_KEY)
+        self.refused = ""  # the fitter's refusal line (topics.REFUSED_KEY), "" when it published its results
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
                   topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name,
@@ -73,6 +82,7 @@ class BagResults:
                     pid = next((kv.value for kv in status.values if kv.key == "pid"), None)
                     if pid is not None:
                         self.pids.setdefault(str(status.name).rsplit("/", 1)[-1], set()).add(str(pid))
+                    self._note_consistency(status)
             elif m.topic == topics.DIC.name:
                 self.frames.append(msg)
             elif m.topic == topics.STRUCTURE.name:
@@ -88,6 +98,20 @@ class BagResults:
             elif msg.finished:
                 self.finished[str(msg.stream)] = int(msg.items_sent)
                 self.finished_lost[str(msg.stream)] = int(msg.items_lost)
+
+    def _note_consistency(self, status) -> None:
+        """The trajectory_fitter's cross-checks and refusal, carried by its /diagnostics status once its final
+        pass ran (the latest wins)."""
+        if str(status.name).rsplit("/", 1)[-1] != "trajectory_fitter":
+            return
+        values = {kv.key: kv.value for kv in status.values}
+        if topics.CONSISTENCY_KEY in values:
+            try:
+                self.consistency = json.loads(values[topics.CONSISTENCY_KEY])
+            except ValueError:
+                self.consistency = None
+        if values.get(topics.REFUSED_KEY):
+            self.refused = values[topics.REFUSED_KEY]
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]
@@ -181,11 +205,37 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
     effects = measurement_effects(findings)
     doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))
     doc.sections["cor_statistics"] = cor_statistics_section(doc.impacts)
+    if r.consistency is not None or r.refused:
+        section = dict(r.consistency or {"findings": [], "checks": {}})
+        section["refused"] = bool(r.refused) or bool(section.get("refused"))
+        doc.sections["consistency"] = section
+        doc.warnings += [f"consistency: {f['message']}" for f in section.get("findings", [])]
+    if r.refused or (r.consistency or {}).get("refused"):
+        return _refused_document(doc, r)
     spin, why_not = ball_spin_from_frames(r.frames, doc.flights, doc.impacts)
     if spin is None:
         doc.warnings.append(f"ball_spin: not reported: {why_not}")
     else:
         doc.sections["ball_spin"] = spin
+    return doc
+
+
+def _refused_document(doc: ResultsDocument, r: BagResults) -> ResultsDocument:
+    """A run the fitter refused (its cross-checks, as vibro analyze's): the COR table withheld as analyze
+    withholds it (:func:`vibro_app.analyze.withhold_results`: no impacts, streamed previews included, friction
+    withheld when implausible), ``complete`` false, and the refusal first among the warnings."""
+    from vibro_app.analyze import withhold_results
+    from vibro_fit.plausibility import Finding
+
+    findings = [Finding(f.get("check", ""), f.get("message", ""), list(f.get("keys", ())), dict(f.get("evidence", {})),
+                        f.get("severity", "warn"), f.get("frame")) for f in doc.sections["consistency"]["findings"]]
+    had_statements = "rig_consistency" in doc.sections  # a bag carries none: not added empty
+    withhold_results(doc, findings)
+    if not had_statements and not doc.sections.get("rig_consistency"):
+        doc.sections.pop("rig_consistency", None)
+    doc.complete = False
+    line = r.refused or next((f.message for f in findings if f.refuses), "the trajectory_fitter refused the run")
+    doc.warnings.insert(0, f"refused: {line}")
     return doc
 
 
@@ -230,8 +280,15 @@ def run(args: argparse.Namespace) -> int:
         stream = sys.stderr  # stdout holds the JSON document
     from vibro_app.findings_text import findings_lines
 
-    for line in findings_lines(json.loads(text).get("discrepancy")):
-        print(line, file=stream)
+    consistency = doc.sections.get("consistency") or {}
+    if not consistency.get("refused"):  # a refused run never reached the discrepancy analysis
+        for line in findings_lines(json.loads(text).get("discrepancy")):
+            print(line, file=stream)
+    if consistency.get("refused"):
+        print(f"vibro results: error: {args.bag}: the run was refused: {doc.warnings[0].removeprefix('refused: ')}; "
+              "the document has no COR table (see its 'consistency' section) and is marked \"complete\": false",
+              file=sys.stderr)
+        return 2
     if not doc.complete:
         print(f"vibro results: error: {args.bag}: the run in this bag is incomplete ({doc.warnings[0]}); "
               "the document is marked \"complete\": false", file=sys.stderr)

@@ -110,6 +110,18 @@ def foxglove_parameters(args: argparse.Namespace) -> dict | None:
     return {"host": host, "port": port}
 
 
+def _print_cor_table(s: GraphSummary) -> None:
+    print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
+    for plate in ("bottom", "top"):
+        cors = [m.cor for m in (s.final_impacts or s.impacts).values() if m.plate == plate and math.isfinite(m.cor)]
+        if cors:
+            mean = sum(cors) / len(cors)
+            std = math.sqrt(sum((c - mean) ** 2 for c in cors) / max(1, len(cors) - 1))
+            print(f"{plate:8s} {len(cors):4d} {mean:9.4f} {std:8.4f}")
+        else:
+            print(f"{plate:8s} {0:4d} {'-':>9s} {'-':>8s}")
+
+
 def print_summary(s: GraphSummary, bag: Path) -> None:
     # the tracker's own end-of-stream count is authoritative (one DicFrame per frame slot);
     # the monitor's view of vibro/dic only adds the reasons. A restarted tracker only counts what it
@@ -143,15 +155,12 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
                              sorted(s.accel_impacts_s.values()), None, 1.0 / cam.fps)
         if cov.message():
             print(f"note: {cov.message()}")
-    print(f"{'plate':8s} {'n':>4s} {'COR mean':>9s} {'COR std':>8s}")
-    for plate in ("bottom", "top"):
-        cors = [m.cor for m in (s.final_impacts or s.impacts).values() if m.plate == plate and math.isfinite(m.cor)]
-        if cors:
-            mean = sum(cors) / len(cors)
-            std = math.sqrt(sum((c - mean) ** 2 for c in cors) / max(1, len(cors) - 1))
-            print(f"{plate:8s} {len(cors):4d} {mean:9.4f} {std:8.4f}")
-        else:
-            print(f"{plate:8s} {0:4d} {'-':>9s} {'-':>8s}")
+    withheld = s.counts.get("impacts", (0, 0))[1] if s.finished.get("impacts") and not s.final_impacts else 0
+    if withheld:  # the fitter refused the run (its cross-checks): its streamed previews are not results
+        print(f"COR table withheld: trajectory_fitter published no final impact ({withheld} withheld; its refusal "
+              "is in the FAILED lines below)")
+    else:
+        _print_cor_table(s)
     for model, d in sorted(s.deviations.items()):
         print(f"D {model:12s} {100 * d:6.2f} %")
     if s.findings:

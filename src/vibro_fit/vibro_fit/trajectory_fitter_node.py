@@ -9,6 +9,15 @@ function ``vibro analyze`` calls, and publishes the final structure motion, flig
 impacts; a final estimate replaces the streamed one with the same index. So the graph's
 results equal the offline CLI's on the same recording.
 
+After identify() the node runs ``vibro analyze``'s cross-checks (:func:`vibro_fit.cross_checks.consistency_checks`:
+time base, physical plausibility, accelerometer drive tone and plates) and carries their section on its
+/diagnostics status (values ``consistency`` and, on a refusal, ``refused``: vibro_ros.topics.CONSISTENCY_KEY),
+where ``vibro results`` reads it from the bag. A refusal (e.g. COR outside [0, 1] with rig.yaml's
+excitation.frequency_hz wrong) refuses the run as analyze does: the final structure motion and flights are
+published (friction withheld when it is the implausible part), no final impact, the impacts stream ends with them
+counted lost, and once the readers have acknowledged it the node exits with code 2 and the refusal as one line
+(vibro_bringup.exit_policy: the run ends).
+
 Restart: vibro/dic and vibro/accel are latched histories, so a fitter restarted mid-run receives every
 DicFrame and block again and reaches the same final results. A history that does not begin where its
 stream began (frame ``reference_frame_index``, block 0), no accelerometer block at all when they are
@@ -18,12 +27,15 @@ never a run with fewer impacts.
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.task import Future
 
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
@@ -46,6 +58,7 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
+from .cross_checks import consistency_checks, consistency_section
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactFit
@@ -110,7 +123,9 @@ class TrajectoryFitter(Node):
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.create_timer(0.5, self._maybe_finish)
         self.gate = ReaderGate(self, health=self.health)  # exits once its readers have the final outputs
-        self.done = self.gate.done
+        self.refusal: str | None = None  # the cross-checks' refusal (one line), set by the final pass
+        self.done = Future()  # the gate's, or a refusal once the readers have what was published (exit code 2)
+        self.gate.done.add_done_callback(self._gate_done)
 
     # ---------------------------------------------------------------- streaming
     def _on_dic(self, msg: DicFrame) -> None:
@@ -210,6 +225,14 @@ class TrajectoryFitter(Node):
         lo = np.concatenate([np.asarray(self.blocks[i].lower_ms2) for i in order])
         return AccelData(t, up, lo)
 
+    def _gate_done(self, gate_done: Future) -> None:
+        if gate_done.exception() is not None:
+            self.done.set_exception(gate_done.exception())
+        elif self.refusal is not None:  # run_node logs it as the node's last line and exits with code 2
+            self.done.set_exception(RecordingError(self.refusal))
+        else:
+            self.done.set_result(gate_done.result())
+
     def _maybe_finish(self) -> None:
         if self.done_final or not self.guard.ok() or not self._ready():
             return
@@ -217,8 +240,10 @@ class TrajectoryFitter(Node):
         for est in self.stream.finish():
             self.pub_impacts.publish(impact_message(est, origin_ns=self.time_origin_ns))
         track = DicTrack.from_frames(self.rows)
+        accel = self._accel()
         try:
-            ident = identify(track, self.rig, self._accel(), method=self.method, weights=self.weights)
+            ident = identify(track, self.rig, accel, method=self.method, weights=self.weights)
+            findings, evidence = consistency_checks(ident, track, self.rig, accel, f"the frames on {topics.DIC.name}")
         except RecordingError as exc:
             self.health.error(str(exc))
             self.get_logger().error(f"identification failed: {exc}")
@@ -226,20 +251,48 @@ class TrajectoryFitter(Node):
             self.status.publish(0, 0, True)
             self.gate.finish()
             return
+        # vibro analyze's cross-checks, the same core: the bag's reader finds them on /diagnostics
+        self.health.values[topics.CONSISTENCY_KEY] = json.dumps(consistency_section(findings, evidence))
+        refusal = next((f for f in findings if f.refuses), None)
+        for f in findings:
+            if not f.refuses:
+                self.get_logger().warning(f"consistency: {f.message}")
         smsg = structure_to_message(ident.structure_motion(), float(track.t_s[-1]) if len(track.t_s) else None,
                                     self.time_origin_ns)
         self.pub_structure.publish(smsg)
+        no_friction = any(f.check == "negative_friction" and f.refuses for f in findings)
         for fl in ident.flights:
-            self.pub_flights.publish(flight_message(fl, ident.mass_kg, final=True, origin_ns=self.time_origin_ns))
-        for est in ident.impacts:
-            self.pub_impacts.publish(impact_message(est, final=True, origin_ns=self.time_origin_ns))
+            model = fl.model(ident.mass_kg)
+            if no_friction:  # as vibro analyze withholds it (vibro_app.analyze.withhold_results)
+                model = replace(model, friction_n=None, friction_std_n=None)
+            self.pub_flights.publish(flight_to_message(model, True, self.time_origin_ns))
         for w in ident.warnings:
             self.get_logger().warning(w)
         self.flights_status.publish(len(ident.flights), 0, True)
+        if refusal is not None:
+            self._refuse(refusal.message, len(ident.impacts))
+            return
+        for est in ident.impacts:
+            self.pub_impacts.publish(impact_message(est, final=True, origin_ns=self.time_origin_ns))
         self.status.publish(len(ident.impacts), 0, True)
         self.get_logger().info(f"final: {len(ident.flights)} flights, {len(ident.impacts)} impacts, "
                                f"regime {ident.regime.name}")
         self.gate.finish()
+
+    def _refuse(self, message: str, withheld: int) -> None:
+        """A cross-check refused the identification (as ``vibro analyze`` refuses it): no final impact is
+        published, the impacts stream ends with the ``withheld`` impacts counted lost, /diagnostics carries the
+        error and the consistency section at once, and the node exits with code 2 (one line, the refusal) once
+        its readers have acknowledged what was published (the structure and flights), without keeping its
+        history for restarted readers: a refusal ends the run (vibro_bringup.exit_policy)."""
+        self.refusal = (f"{message} (results withheld: the final impacts are not published; the impacts stream "
+                        f"ends with {withheld} counted lost)")
+        self.get_logger().error(self.refusal)
+        self.health.error(self.refusal)
+        self.health.values[topics.REFUSED_KEY] = self.refusal
+        self.health.publish()
+        self.status.publish(0, withheld, True)
+        self.gate.finish(always=True, keep_history=False)  # live too: a refusal ends the run
 
 
 def main(args: list[str] | None = None) -> int:

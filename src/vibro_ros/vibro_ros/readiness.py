@@ -160,9 +160,12 @@ class ReaderGate:
         if self._waiting_since is None and not self.open:
             self._waiting_since = time.monotonic()
 
-    def finish(self, always: bool = False) -> None:
+    def finish(self, always: bool = False, keep_history: bool = True) -> None:
         """The node's outputs are final: exit once the readers have them (when ``exit_when_done``, or
-        ``always``: a source ends with its input)."""
+        ``always``: a source ends with its input). ``keep_history`` False: do not wait for
+        ``keep_history_until`` (a node that refused its run: the run ends, no reader will be restarted)."""
+        if not keep_history:
+            self.keep_until = []
         if (self.exit_when_done or always) and not self._finishing:
             self._finishing = True
             self._waiting_since = time.monotonic()

@@ -53,6 +53,11 @@ STATUS = Topic("vibro/status", "vibro_msgs/msg/StreamStatus", "results", "every 
                "items sent/lost per stream and end-of-stream markers")
 DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "default", "every node",
                     "health: rate, lag, dropped/lost counts")
+#: /diagnostics values of trajectory_fitter's status once its final pass ran: ``consistency``, the JSON of
+#: vibro analyze's results.json 'consistency' section (vibro_fit.cross_checks.consistency_section) of the same
+#: checks; ``refused``, the one-line refusal when a check refused the run (no final impact was published)
+CONSISTENCY_KEY = "consistency"
+REFUSED_KEY = "refused"
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
               IMPACTS_FINAL_MODEL, STATUS, DIAGNOSTICS)
