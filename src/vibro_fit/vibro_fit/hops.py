@@ -95,15 +95,7 @@ class _Chain:
         lo = t0 + 1e-3 * self.dt
         if t_max <= lo:
             return None
-        grid = np.linspace(lo, t_max, max(int((t_max - lo) / (0.05 * self.dt)) + 2, 3))
-        r = self.rel(grid, t0, v, a)
-        if r[0] <= 0:
-            return None
-        neg = np.flatnonzero(r <= 0)
-        if neg.size == 0:
-            return None
-        j = int(neg[0])
-        return float(brentq(lambda x: float(self.rel(x, t0, v, a)), grid[j - 1], grid[j], xtol=1e-14))
+        return first_crossing(lambda t: self.rel(t, t0, v, a), lo, t_max, 0.05 * self.dt)
 
     def times(self, th, k_hops, t_max):
         """Impact times t_1 .. t_{K+1} (the last: where the last hop lands, None past t_max)."""
@@ -117,6 +109,21 @@ class _Chain:
         return ts
 
 
+def first_crossing(f, lo: float, hi: float, step: float) -> float | None:
+    """The first t in (lo, hi] where ``f`` (vectorised; > 0 at lo: the ball above the plate's level) reaches 0,
+    from a grid of about ``step`` (s) and Brent's method in the first interval that crosses; None when ``f`` is not
+    positive at ``lo`` or stays positive."""
+    grid = np.linspace(lo, hi, max(int((hi - lo) / step) + 2, 3))
+    r = np.asarray(f(grid), dtype=float)
+    if r[0] <= 0:
+        return None
+    neg = np.flatnonzero(r <= 0)
+    if neg.size == 0:
+        return None
+    j = int(neg[0])
+    return float(brentq(lambda x: float(f(x)), grid[j - 1], grid[j], xtol=1e-14))
+
+
 def _fit_hop_v(chain: _Chain, t0, a, tt, yy):
     """Launch velocity (mm/s) of a hop from t0 with acceleration a: linear least squares on (tt, yy)."""
     tau = tt - t0
@@ -126,16 +133,8 @@ def _fit_hop_v(chain: _Chain, t0, a, tt, yy):
 
 def _flight_root(fl: FlightFit, chain: _Chain, t_from, t_max):
     """Where a fitted flight's parabola meets the plate after ``t_from`` (None before ``t_max``)."""
-    grid = np.linspace(t_from, t_max, max(int((t_max - t_from) / (0.05 * chain.dt)) + 2, 3))
-    r = chain.sign * (fl.position_mm(grid) - chain.s.position_mm(grid) - chain.L)
-    if r[0] <= 0:
-        return None
-    neg = np.flatnonzero(r <= 0)
-    if neg.size == 0:
-        return None
-    j = int(neg[0])
-    f = lambda x: float(chain.sign * (fl.position_mm(x) - chain.s.position_mm(x) - chain.L))  # noqa: E731
-    return float(brentq(f, grid[j - 1], grid[j], xtol=1e-14))
+    return first_crossing(lambda t: chain.sign * (fl.position_mm(t) - chain.s.position_mm(t) - chain.L),
+                          t_from, t_max, 0.05 * chain.dt)
 
 
 def hop_chain(fl: FlightFit, plate: str, level: float, s_fit: StructureFit, t: np.ndarray, y: np.ndarray,
