@@ -28,8 +28,10 @@ NOT_CARRIED = {
     "impacts[].method": "ImpactEstimate has no method field",
     "discrepancy.*": "the engine's extras (model, noise floors, location, stages, notes): no message",
     "discrepancy.findings[].*": "the engine's per-finding extras (one-step errors, alternatives): no message",
-    "consistency": "vibro analyze's cross-checks of the instruments (vibro_fit.cross_checks): no node runs them "
-                   "yet, no message carries them",
+    "consistency": "the cross-checks (vibro_fit.cross_checks) the fitter runs reach the bag as a /diagnostics "
+                   "JSON value, compared in tests/test_graph_refusal.py; their evidence numbers here come from "
+                   "analyze's own DIC",
+    "contacts": "identify()'s contact phases (a ball riding a plate): no message carries them",
     "dic_quality": "the tracker's texture and correlation checks: the node logs them and reports them on "
                    "/diagnostics (ZNCC medians, frames below the threshold); no message carries the summary",
 }

@@ -192,17 +192,22 @@ class NumericFlight(Segment):
     """Any force law: DOP853 dense solution of y'' = -g_eff + F(v)/m over [t0, t_stop]."""
 
     def __init__(self, t0: float, y0: float, v0: float, accel_fn, t_stop: float):
-        self.t0 = t0
         self.accel_fn = accel_fn
+        self._integrate(t0, y0, v0, t_stop, lambda t, y, v: accel_fn(v))
+
+    def _integrate(self, t0: float, y0: float, v0: float, t_stop: float, accel_tyv) -> None:
+        """DOP853 dense solution of y'' = accel_tyv(t, y, v) over [t0, t_stop] (SI), and bounds on |a| and |a'|
+        from 200 samples of it (doubled and quadrupled: the event search's margins)."""
+        self.t0 = t0
         self.t_natural_end = t_stop
-        sol = solve_ivp(lambda t, s: (s[1], accel_fn(s[1])), (t0, t_stop), (y0, v0),
+        sol = solve_ivp(lambda t, s: (s[1], accel_tyv(t, s[0], s[1])), (t0, t_stop), (y0, v0),
                         method="DOP853", rtol=1e-12, atol=1e-15, dense_output=True)
         if not sol.success:  # pragma: no cover - solver failure
             raise RuntimeError(f"free-flight integration failed: {sol.message}")
         self.sol = sol.sol
         grid = np.linspace(t0, t_stop, 200)
         y, v = self.sol(grid)
-        a = np.array([accel_fn(x) for x in v])
+        a = np.array([accel_tyv(t, yy, vv) for t, yy, vv in zip(grid, y, v)])
         self._amax = 2.0 * float(np.max(np.abs(a))) + 1e-9
         da = np.abs(np.diff(a)) / max(grid[1] - grid[0], 1e-300)
         self._jmax = 4.0 * float(np.max(da, initial=0.0)) + 1e-6
@@ -233,20 +238,8 @@ class StateFlight(NumericFlight):
     DOP853 dense solution of y'' = accel_fn(t, y, v) over [t0, t_stop]."""
 
     def __init__(self, t0: float, y0: float, v0: float, accel_fn, t_stop: float):
-        self.t0 = t0
         self.state_fn = accel_fn
-        self.t_natural_end = t_stop
-        sol = solve_ivp(lambda t, s: (s[1], accel_fn(t, s[0], s[1])), (t0, t_stop), (y0, v0),
-                        method="DOP853", rtol=1e-12, atol=1e-15, dense_output=True)
-        if not sol.success:  # pragma: no cover - solver failure
-            raise RuntimeError(f"free-flight integration failed: {sol.message}")
-        self.sol = sol.sol
-        grid = np.linspace(t0, t_stop, 200)
-        y, v = self.sol(grid)
-        a = np.array([accel_fn(t, yy, vv) for t, yy, vv in zip(grid, y, v)])
-        self._amax = 2.0 * float(np.max(np.abs(a))) + 1e-9
-        da = np.abs(np.diff(a)) / max(grid[1] - grid[0], 1e-300)
-        self._jmax = 4.0 * float(np.max(da, initial=0.0)) + 1e-6
+        self._integrate(t0, y0, v0, t_stop, accel_fn)
 
     def acc(self, t):
         tt = np.atleast_1d(np.asarray(t, dtype=float))
