@@ -16,7 +16,7 @@ from rclpy.serialization import serialize_message
 from vibro_msgs.msg import ImpactEstimate, StreamStatus, StructureMotion
 
 
-def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | None) -> Path:
+def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | None, lost: int = 0) -> Path:
     from vibro_ros.bags import BagWriter
 
     writer = BagWriter(path)
@@ -27,7 +27,7 @@ def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | 
                   ImpactEstimate(index=k, plate="bottom", cor=0.7, final=True)) for k in final]
     if announced is not None:
         messages.append(("/vibro/status", "vibro_msgs/msg/StreamStatus",
-                         StreamStatus(stream="impacts", items_sent=announced, finished=True)))
+                         StreamStatus(stream="impacts", items_sent=announced, items_lost=lost, finished=True)))
     for stamp, (topic, kind, msg) in enumerate(messages, start=1):
         writer.add_topic(topic, kind)
         writer.write(topic, stamp, serialize_message(msg))
@@ -52,3 +52,14 @@ def test_a_final_pass_cut_short_keeps_the_previews_of_what_it_misses(tmp_path: P
     assert _indices(bag) == {0: 0.7, 1: 0.7, 2: 0.5, 3: 0.5, 4: 0.5}
     bag = _bag(tmp_path / "c", streamed=[0, 1, 2], final=[], announced=None)  # no final pass at all
     assert _indices(bag) == {0: 0.5, 1: 0.5, 2: 0.5}
+
+
+def test_impacts_a_fitter_withheld_make_the_run_incomplete_even_without_its_diagnostics(tmp_path: Path) -> None:
+    """A refused run: the fitter publishes no final impact and announces them lost. Read from a bag that did not
+    record /diagnostics (where the refusal's words are), the document still says something is missing, and keeps
+    none of the previews as a result."""
+    from vibro_app.bag_results import document_from_bag
+
+    doc = document_from_bag(_bag(tmp_path / "b", streamed=[0, 1, 2], final=[], announced=0, lost=3))
+    assert doc.complete is False and doc.impacts == []
+    assert any("3 vibro/impacts message(s) announced lost by their publisher" in w for w in doc.warnings), doc.warnings

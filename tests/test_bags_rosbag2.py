@@ -216,9 +216,9 @@ def test_a_bag_written_by_rosbags_like_ros2_bag_record_gives_the_same_results(gr
         with writer:
             conns = {}
             for c in reader.connections:
-                # vibro graph runs in its own namespace (/vibro_<run id>/vibro/...): the copy keeps the vibro/ part
-                name = prefix + (c.topic[c.topic.index("/vibro/") + 1:] if "/vibro/" in c.topic
-                                 else c.topic.lstrip("/"))
+                # vibro graph runs in its own namespace (/vibro_<run id>/vibro/...): the copy keeps the vibro/ part;
+                # /diagnostics is absolute in every namespace (ROS convention): a recorder keeps it as it is
+                name = prefix + c.topic[c.topic.index("/vibro/") + 1:] if "/vibro/" in c.topic else c.topic
                 conns[c.id] = writer.add_connection(name, c.msgtype, typestore=store,
                                                     offered_qos_profiles=c.ext.offered_qos_profiles)
             for c, t, raw in reader.messages():
