@@ -83,12 +83,12 @@ def fine_step_ode(t_end=1.5):
 
 def bench_models(quick):
     rows = {}
-    t_cor, r = timed(lambda: simulate_cor(S, CAV, LAW, None, 0.0, 0.0, 0.0, 1.5), 3 if quick else 7)
+    t_cor, r = timed(lambda: simulate_cor(S, CAV, LAW, None, t_end_s=1.5), 3 if quick else 7)
     t_ode, n_ode = timed(fine_step_ode, 1)
     rows["cor_model_1p5s"] = {"seconds": t_cor, "impacts": len(r.impacts), "goal_s": 0.05,
                               "baseline": "fine-step DOP853 ODE with events", "baseline_s": t_ode,
                               "baseline_impacts": n_ode, "speedup_vs_baseline": t_ode / t_cor}
-    t_h, h = timed(lambda: simulate_hertz(S, CAV, LAW, None, 0.0, 0.0, 0.0, 1.5), 1 if quick else 3)
+    t_h, h = timed(lambda: simulate_hertz(S, CAV, LAW, None, t_end_s=1.5), 1 if quick else 3)
     rows["hertz_model_1p5s"] = {"seconds": t_h, "impacts": len(h.impacts), "goal_s": 2.0,
                                 "baseline": "COR model (same run)", "baseline_s": t_cor,
                                 "ratio_to_baseline": t_h / t_cor}
@@ -157,7 +157,7 @@ def bench_replay():
     from vibro_sim.replay import ReplayInputs, compare_models
 
     forces = PerFlight(list(np.random.default_rng(2).normal(0.0, 1e-4, 200)))
-    w = simulate_cor(S, CAV, LAW, forces, 0.0, 0.0, 0.0, 2.5)
+    w = simulate_cor(S, CAV, LAW, forces, y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=2.5)
     t0 = 1.4
     inputs = ReplayInputs(S, [i.t_s for i in w.impacts], [i.plate for i in w.impacts],
                           [i.cor for i in w.impacts],

@@ -217,11 +217,12 @@ def test_hertz_replay_keeps_no_dense_contact_solutions() -> None:
     from vibro_sim.structure import StructureKinematics
 
     S, cav = StructureKinematics(1.4e-3, 22.0, 0.3, 0.0), BallCavity()
-    simulate_hertz(S, cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 0.1, delta_a="calibrated")
+    simulate_hertz(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.1, delta_a="calibrated")
     tracemalloc.start()
     try:
         base = tracemalloc.get_traced_memory()[0]
-        res = simulate_hertz(S, cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 1.0, delta_a="calibrated")
+        res = simulate_hertz(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=1.0,
+                             delta_a="calibrated")
         kept = tracemalloc.get_traced_memory()[0] - base
     finally:
         tracemalloc.stop()

@@ -76,7 +76,7 @@ def test_effective_cor_rises_with_speed_for_fixed_delta_a():
 
 
 def _steady_state(law, t0=1.0):
-    w = simulate_cor(S, CAV, law, None, 0.0, 0.0, 0.0, t0)
+    w = simulate_cor(S, CAV, law, None, y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=t0)
     return float(w.sample(t0)), float(w.velocity(t0))
 
 
@@ -87,8 +87,8 @@ def test_hertz_matches_cor_model_fed_with_its_effective_cor():
     e_top = hertz_single_impact(CAV, 0.6, 1.0)[0]
     e_bot = hertz_single_impact(CAV, 0.75, 1.0)[0]
     y0, v0 = _steady_state(PerPlate(e_top, e_bot))
-    h = simulate_hertz(S, CAV, PerPlate(0.6, 0.75), None, y0, v0, 1.0, 1.5)
-    c = simulate_cor(S, CAV, PerPlate(e_top, e_bot), None, y0, v0, 1.0, 1.5)
+    h = simulate_hertz(S, CAV, PerPlate(0.6, 0.75), None, y0_m=y0, v0_mps=v0, t0_s=1.0, t_end_s=1.5)
+    c = simulate_cor(S, CAV, PerPlate(e_top, e_bot), None, y0_m=y0, v0_mps=v0, t0_s=1.0, t_end_s=1.5)
     t = np.linspace(1.0, 1.5, 3001)
     assert len(h.impacts) == len(c.impacts) > 15
     assert np.max(np.abs(h.sample(t) - c.sample(t))) < 5e-5
@@ -100,7 +100,7 @@ def _identified():
     law = Scattered(PerPlate(0.6, 0.75), 0.04, seed=11)
     forces = PerFlight(list(np.random.default_rng(2).normal(0.0, 1e-4, 100)))
     y0, v0 = _steady_state(law)
-    ref = simulate_cor(S, CAV, law, forces, y0, v0, 1.0, 2.5)
+    ref = simulate_cor(S, CAV, law, forces, y0_m=y0, v0_mps=v0, t0_s=1.0, t_end_s=2.5)
     return ref, forces
 
 

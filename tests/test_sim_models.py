@@ -31,7 +31,7 @@ def test_free_flight_is_exact_parabola():
     # trajectory must be y0 + v0 t - g t^2 / 2 to rounding (1e-15 m scale).
     S = StructureKinematics(0.0, F_HZ)
     v0 = 0.2
-    r = simulate_cor(S, CAV, Constant(0.7), NoForce(), 0.0, v0, 0.0, 0.1)
+    r = simulate_cor(S, CAV, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=v0, t0_s=0.0, t_end_s=0.1)
     # first contact: bottom, where v0 t - g t^2/2 = -b
     t_hit = (v0 + math.sqrt(v0 ** 2 + 2 * G * B)) / G
     assert r.impacts and abs(r.impacts[0].t_s - t_hit) < 1e-9
@@ -43,7 +43,7 @@ def test_free_flight_is_exact_parabola():
 
 def test_every_flight_is_a_parabola_with_gravity_curvature():
     S = shaker()
-    r = simulate_cor(S, CAV, PerPlate(0.6, 0.75), NoForce(), 0.0, 0.0, 0.0, 0.5)
+    r = simulate_cor(S, CAV, PerPlate(0.6, 0.75), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.5)
     assert len(r.impacts) > 10
     for fl in r.flights[1:-1]:
         t = np.linspace(fl.t_start_s, fl.t_end_s, 20)
@@ -57,7 +57,7 @@ def test_every_flight_is_a_parabola_with_gravity_curvature():
 
 def test_impacts_lie_on_the_plates():
     S = shaker(35.0, h2_ratio=0.05, h3_ratio=0.02)
-    r = simulate_cor(S, CAV, Constant(0.7), NoForce(), 0.001, 0.0, 0.0, 0.5)
+    r = simulate_cor(S, CAV, Constant(0.7), NoForce(), y0_m=0.001, v0_mps=0.0, t0_s=0.0, t_end_s=0.5)
     for imp in r.impacts:
         rel = r.relative_position(imp.t_s)
         expect = B if imp.plate == "top" else -B
@@ -70,7 +70,7 @@ def test_impacts_lie_on_the_plates():
 
 
 def test_elastic_impacts_keep_relative_speed():
-    r = simulate_cor(shaker(), CAV, Constant(1.0), NoForce(), 0.0, 0.3, 0.0, 0.5)
+    r = simulate_cor(shaker(), CAV, Constant(1.0), NoForce(), y0_m=0.0, v0_mps=0.3, t0_s=0.0, t_end_s=0.5)
     assert len(r.impacts) > 5
     for imp in r.impacts:
         assert imp.v_rel_after_mps == pytest.approx(-imp.v_rel_before_mps, rel=1e-12)
@@ -80,7 +80,7 @@ def test_elastic_impacts_keep_relative_speed():
                                  Scattered(PerPlate(0.6, 0.75), 0.04, seed=3)])
 def test_energy_across_impact_scales_with_e_squared(law):
     # In the plate's frame (infinite structure mass) the kinetic energy ratio is e^2.
-    r = simulate_cor(shaker(), CAV, law, NoForce(), 0.0, 0.0, 0.0, 0.4)
+    r = simulate_cor(shaker(), CAV, law, NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.4)
     assert len(r.impacts) > 5
     for imp in r.impacts:
         ratio = imp.v_rel_after_mps ** 2 / imp.v_rel_before_mps ** 2
@@ -132,7 +132,7 @@ def test_event_driven_matches_fine_step_ode(force):
     # at worst over 0.25 s (11 impacts), so 1e-6 m is a fair bound (the brief's).
     S = shaker(40.0)
     law = PerPlate(0.6, 0.75)
-    r = simulate_cor(S, CAV, law, force, 0.0, 0.1, 0.0, 0.25)
+    r = simulate_cor(S, CAV, law, force, y0_m=0.0, v0_mps=0.1, t0_s=0.0, t_end_s=0.25)
     t_ref, y_ref = _reference_ode(S, CAV, law, force, 0.0, 0.1, 0.25)
     assert len(r.impacts) >= 8
     assert np.max(np.abs(r.sample(t_ref) - y_ref)) < 1e-6
@@ -142,7 +142,7 @@ def test_coulomb_changes_sign_at_apex():
     # Fixed plates, ball launched up: rising deceleration g + F/m, falling g - F/m.
     S = StructureKinematics(0.0, F_HZ)
     F = 2e-4
-    r = simulate_cor(S, CAV, Constant(0.7), Coulomb(F), -B + 1e-4, 0.25, 0.0, 0.03)
+    r = simulate_cor(S, CAV, Constant(0.7), Coulomb(F), y0_m=-B + 1e-4, v0_mps=0.25, t0_s=0.0, t_end_s=0.03)
     m = CAV.mass_kg
     t_apex = 0.25 / (G + F / m)
     assert r.acceleration(0.5 * t_apex) == pytest.approx(-G - F / m, rel=1e-12)
@@ -155,7 +155,7 @@ def test_viscous_closed_form_matches_analytic():
     c = 5e-3
     k = c / CAV.mass_kg
     v0 = 0.3
-    r = simulate_cor(S, CAV, Constant(0.7), Viscous(c), -B + 1e-3, v0, 0.0, 0.02)
+    r = simulate_cor(S, CAV, Constant(0.7), Viscous(c), y0_m=-B + 1e-3, v0_mps=v0, t0_s=0.0, t_end_s=0.02)
     t = np.linspace(0, min(0.02, r.impacts[0].t_s if r.impacts else 0.02), 100)
     vinf = -G / k
     expect = -B + 1e-3 + vinf * t + (v0 - vinf) * (1 - np.exp(-k * t)) / k
@@ -165,14 +165,15 @@ def test_viscous_closed_form_matches_analytic():
 def test_tilt_lowers_flight_acceleration():
     tilt = 40.0
     cav = BallCavity(tilt_deg=tilt)
-    r = simulate_cor(StructureKinematics(0.0, F_HZ), cav, Constant(0.7), NoForce(), 0.0, 0.0, 0.0, 0.01)
+    r = simulate_cor(StructureKinematics(0.0, F_HZ), cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0,
+                     t_end_s=0.01)
     assert r.acceleration(0.005) == pytest.approx(-9.81 * math.cos(math.radians(tilt)), rel=1e-12)
 
 
 def test_sticking_ends_and_releases_when_plate_drops_faster_than_g():
     # e = 0: the ball lands and rides the bottom plate; it must leave when Y_s'' = -g.
     S = shaker(15.0)  # 15 m/s^2 > g so the plate throws the ball
-    r = simulate_cor(S, CAV, Constant(0.0), NoForce(), 0.0, 0.0, 0.0, 0.3)
+    r = simulate_cor(S, CAV, Constant(0.0), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.3)
     assert r.stuck, "expected sticking phases"
     for ph in r.stuck:
         if ph.t_end_s < 0.3:
@@ -184,7 +185,7 @@ def test_sticking_ends_and_releases_when_plate_drops_faster_than_g():
 def test_chattering_does_not_loop_forever():
     # Plate too weak to lift the ball (5 m/s^2 < g): bounces decay, then the ball sits.
     S = shaker(5.0)
-    r = simulate_cor(S, CAV, Constant(0.5), NoForce(), 0.0, 0.0, 0.0, 1.0)
+    r = simulate_cor(S, CAV, Constant(0.5), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=1.0)
     assert not r.truncated
     assert r.stuck and r.stuck[-1].t_end_s == pytest.approx(1.0)
     assert len(r.impacts) < 200
@@ -192,12 +193,12 @@ def test_chattering_does_not_loop_forever():
 
 def test_per_impact_and_per_flight_lists_are_followed():
     cors = [0.5, 0.9, 0.6, 0.8, 0.7]
-    r = simulate_cor(shaker(), CAV, PerImpact(cors), NoForce(), 0.0, 0.0, 0.0, 0.3)
+    r = simulate_cor(shaker(), CAV, PerImpact(cors), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.3)
     for imp in r.impacts:
         expect = cors[imp.index] if imp.index < len(cors) else float(np.mean(cors))
         assert imp.cor == expect
     forces = [1e-4, -2e-4, 3e-4]
-    r = simulate_cor(shaker(), CAV, Constant(0.7), PerFlight(forces), 0.0, 0.0, 0.0, 0.3)
+    r = simulate_cor(shaker(), CAV, Constant(0.7), PerFlight(forces), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.3)
     for fl in r.flights[:3]:
         assert fl.mean_force_n == pytest.approx(forces[fl.index], abs=1e-12)
 
@@ -226,7 +227,7 @@ def test_deviation_of_scaled_sine():
 
 def test_bad_inputs_raise_clear_errors():
     with pytest.raises(ValueError, match="outside the cavity"):
-        simulate_cor(shaker(), CAV, Constant(0.7), None, 0.01, 0.0, 0.0, 0.1)
+        simulate_cor(shaker(), CAV, Constant(0.7), None, y0_m=0.01, v0_mps=0.0, t0_s=0.0, t_end_s=0.1)
     with pytest.raises(ValueError, match="in \\[0, 1\\]"):
         Constant(1.2)
     with pytest.raises(ValueError, match="force_n"):
@@ -237,7 +238,7 @@ def test_bad_inputs_raise_clear_errors():
         deviation([0, 1], [0, 1], [0, 0])
     with pytest.raises(ValueError, match="frequency_hz"):
         StructureKinematics(1e-3, 0.0)
-    r = simulate_cor(shaker(), CAV, Constant(0.7), None, 0.0, 0.0, 0.0, 0.1)
+    r = simulate_cor(shaker(), CAV, Constant(0.7), None, y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.1)
     with pytest.raises(ValueError, match="outside the simulated span"):
         r.sample(0.2)
 
@@ -250,7 +251,7 @@ def test_grazing_contact_between_scan_points_is_not_missed(overshoot):
     S = StructureKinematics(0.0, F_HZ)
     h = B + overshoot
     v0 = math.sqrt(2 * G * h)
-    r = simulate_cor(S, CAV, Constant(0.7), NoForce(), 0.0, v0, 0.0, v0 / G + 1e-3)
+    r = simulate_cor(S, CAV, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=v0, t0_s=0.0, t_end_s=v0 / G + 1e-3)
     if overshoot > 0:
         assert r.impacts and r.impacts[0].plate == "top"
         assert r.impacts[0].t_s == pytest.approx(v0 / G - math.sqrt(2 * overshoot / G), abs=1e-9)

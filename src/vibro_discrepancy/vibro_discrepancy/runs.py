@@ -50,7 +50,7 @@ def full_run(meas: Measured, model: FittedModel) -> FullRun:
         rel = y_start + c0 - float(S.position(t0))
         rel = min(max(rel, -b * (1 - 1e-9)), b * (1 - 1e-9))
         res = simulate_cor(S, model.cavity(meas, b), model.restitution_law(), model.force_law(),
-                           float(S.position(t0)) + rel, v_start, t0, float(t[-1]))
+                           y0_m=float(S.position(t0)) + rel, v0_mps=v_start, t0_s=t0, t_end_s=float(t[-1]))
         sim = np.asarray(res.sample(t), dtype=float) - c0
         return FullRun(t, sim, y, float(deviation(t, sim, y)))
     except Exception as exc:  # a model that cannot be simulated must not lose the analysis

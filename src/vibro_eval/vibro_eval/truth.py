@@ -65,7 +65,7 @@ def true_model_run(meas: Measured, truth: Mapping[str, Any], t0_s: float, t_end_
     side = 1.0 if imps[j]["plate"] == "top" else -1.0
     y0 = float(S.position(ti)) + side * b * (1 - 1e-9)
     t_end = meas.t_last_s if t_end_s is None else t_end_s
-    res = simulate_cor(S, cav, law, force, y0, float(imps[j]["v_ball_after"]), ti, t_end)
+    res = simulate_cor(S, cav, law, force, y0_m=y0, v0_mps=float(imps[j]["v_ball_after"]), t0_s=ti, t_end_s=t_end)
     keep = (meas.t_s >= ti) & (meas.t_s <= t_end)
     t = meas.t_s[keep]
     sim = np.asarray(res.sample(t), dtype=float) - c0

@@ -335,8 +335,8 @@ class _Simulator:
 
 
 def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
-                 force: ForceLaw | None = None, y0_m: float = 0.0, v0_mps: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5, *, stick_speed_mps: float = 1e-4,
+                 force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
+                 t0_s: float = 0.0, t_end_s: float = 1.5, stick_speed_mps: float = 1e-4,
                  scan_step_s: float | None = None, max_events: int = 1_000_000) -> SimResult:
     """Simulate the COR model from (t0_s, y0_m, v0_mps) to t_end_s.
 

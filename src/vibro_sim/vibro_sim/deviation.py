@@ -109,7 +109,8 @@ def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: St
         tk, yk = t[sel], y[sel]
         y_s0 = float(structure.position(r.t_start_s))
         rel = min(max(r.y_m + frame_offset_m - y_s0, -b * (1 - 1e-9)), b * (1 - 1e-9))
-        res = simulate_cor(structure, cavity, restitution, force, y_s0 + rel, r.v_mps, r.t_start_s, float(tk[-1]))
+        res = simulate_cor(structure, cavity, restitution, force, y0_m=y_s0 + rel, v0_mps=r.v_mps, t0_s=r.t_start_s,
+                           t_end_s=float(tk[-1]))
         sim = np.asarray(res.sample(tk), dtype=float) - frame_offset_m
         num += float(np.trapezoid((sim - yk) ** 2, tk))
         den += float(np.trapezoid(yk ** 2, tk))

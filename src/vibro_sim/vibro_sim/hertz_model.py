@@ -184,8 +184,8 @@ class _HertzSimulator(_Simulator):
 
 
 def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
-                   force: ForceLaw | None = None, y0_m: float = 0.0, v0_mps: float = 0.0,
-                   t0_s: float = 0.0, t_end_s: float = 1.5, *, delta_a: str | float = "impact",
+                   force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
+                   t0_s: float = 0.0, t_end_s: float = 1.5, delta_a: str | float = "impact",
                    stick_speed_mps: float = 1e-4, rtol: float = 1e-9,
                    max_events: int = 1_000_000) -> SimResult:
     """Simulate the Hertz damped model; same conventions and arguments as ``simulate_cor``.
@@ -225,7 +225,7 @@ def hertz_single_impact(cavity: BallCavity, e: float, v_mps: float, delta_a: str
     t_hit = 1e-4
     y0 = -cav.free_play_m + v_mps * t_hit
     tc = hertz_contact_time(cav, v_mps)
-    r = simulate_hertz(S, cav, Constant(e), NoForce(), y0, -v_mps, 0.0, t_hit + 20 * tc,
+    r = simulate_hertz(S, cav, Constant(e), NoForce(), y0_m=y0, v0_mps=-v_mps, t0_s=0.0, t_end_s=t_hit + 20 * tc,
                        delta_a=delta_a, rtol=rtol)
     return r.effective_cors[0], r.contact_durations_s[0]  # type: ignore[attr-defined]
 

@@ -124,9 +124,10 @@ def simulate_measured(inputs: ReplayInputs, cavity: BallCavity, t_eval_s,
     out: dict[str, tuple[np.ndarray, SimResult]] = {}
     for name in models:
         if name == "cor_model":
-            res = simulate_cor(S, cavity, law, force, y0, v0, t0, inputs.t_end_s)
+            res = simulate_cor(S, cavity, law, force, y0_m=y0, v0_mps=v0, t0_s=t0, t_end_s=inputs.t_end_s)
         elif name == "hertz_model":
-            res = simulate_hertz(S, cavity, law, force, y0, v0, t0, inputs.t_end_s, delta_a=hertz_delta_a)
+            res = simulate_hertz(S, cavity, law, force, y0_m=y0, v0_mps=v0, t0_s=t0, t_end_s=inputs.t_end_s,
+                                 delta_a=hertz_delta_a)
         else:
             raise ValueError(f"unknown model {name!r} (expected 'cor_model' or 'hertz_model')")
         out[name] = (np.asarray(res.sample(t_eval), dtype=float), res)

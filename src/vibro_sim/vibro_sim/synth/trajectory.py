@@ -47,7 +47,7 @@ def simulate_window(cfg: SynthConfig, models: Models) -> Trajectory:
         b = models.cavity.free_play_m
         ball = np.full(t_frames.shape, float(S.position(0.0)) - b)
         res = simulate_cor(S, models.cavity, models.restitution, models.force,
-                           float(S.position(t_start)) - b, 0.0, t_start, t_end)
+                           y0_m=float(S.position(t_start)) - b, v0_mps=0.0, t0_s=t_start, t_end_s=t_end)
         return Trajectory(res, t_frames, ball, np.asarray(S.position(t_frames), dtype=float), [], [])
     splits = []
     if models.cor_drift_per_impact:
@@ -59,7 +59,7 @@ def simulate_window(cfg: SynthConfig, models: Models) -> Trajectory:
         res = _simulate_pieces(models, [t_start] + splits + [t_end], float(t_frames[0]))
     else:
         res = simulate_cor(S, models.cavity, models.restitution, models.force,
-                           float(S.position(t_start)), 0.0, t_start, t_end)
+                           y0_m=float(S.position(t_start)), v0_mps=0.0, t0_s=t_start, t_end_s=t_end)
     lo, hi = float(t_frames[0]), float(t_frames[-1])
     impacts = [i for i in res.impacts if lo <= i.t_s <= hi]
     flights = [f for f in res.flights if f.t_end_s > lo and f.t_start_s < hi]
@@ -85,7 +85,7 @@ def _simulate_pieces(models: Models, bounds: list[float], t_window_s: float) -> 
                       else (S, models.cavity))
         if a >= t_window_s and models.cor_drift_per_impact and law is models.restitution:
             law = models.window_laws(n_imp)[0]
-        res = simulate_cor(S_k, cav_k, IndexShifted(law, n_imp), models.force, y, v, a, b)
+        res = simulate_cor(S_k, cav_k, IndexShifted(law, n_imp), models.force, y0_m=y, v0_mps=v, t0_s=a, t_end_s=b)
         res.impacts = [replace(i, index=i.index + n_imp) for i in res.impacts]
         n_imp += len(res.impacts)
         y, v = float(res.sample(b)), float(res.velocity(b))
