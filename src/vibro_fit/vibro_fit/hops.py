@@ -36,7 +36,7 @@ from scipy.optimize import brentq, least_squares
 from vibro_model.units import mm_to_m
 
 from .flight_fit import FlightFit
-from .impacts import ImpactFit
+from .impacts import ImpactFit, central_jacobian
 from .structure_fit import StructureFit
 
 MIN_HOP_FRAMES = 3
@@ -244,21 +244,15 @@ def hop_chain(fl: FlightFit, plate: str, level: float, s_fit: StructureFit, t: n
         return None
     t_imp, e_imp, v_imp, ts_all = base
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    jac_t = np.zeros((k, th.size))
-    jac_e = np.zeros((k, th.size))
-    for j in range(th.size):
-        h = 1e-3 * sd[j] if sd[j] > 0 else 0.0
-        if h == 0.0:
-            continue
-        qs = []
-        for sgn in (1.0, -1.0):
-            x = th.copy()
-            x[j] += sgn * h
-            qs.append(quantities(x))
-        if qs[0] is None or qs[1] is None:
-            continue
-        jac_t[:, j] = (qs[0][0] - qs[1][0]) / (2 * h)
-        jac_e[:, j] = (qs[0][1] - qs[1][1]) / (2 * h)
+
+    def times_and_cors(x):
+        q = quantities(x)
+        return None if q is None else np.concatenate([q[0], q[1]])
+
+    jac = central_jacobian(times_and_cors, th, sd)
+    if jac.shape[0] == 0:
+        jac = np.zeros((2 * k, th.size))
+    jac_t, jac_e = jac[:k], jac[k:]
     var_t = np.einsum("ij,jk,ik->i", jac_t, cov, jac_t)
     var_e = np.einsum("ij,jk,ik->i", jac_e, cov, jac_e)
     out = HopChain(fl, plate, level)

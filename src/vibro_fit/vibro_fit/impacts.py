@@ -100,6 +100,31 @@ def _quantities(pc, p_ref, qc, q_ref, sp, s_fit: StructureFit, t_lo, t_hi):
     return t_i, vm, vp, vs, -(vp - vs) / (vm - vs)
 
 
+def central_jacobian(f, x0: np.ndarray, sd: np.ndarray, rel_step: float = 1e-3) -> np.ndarray:
+    """Jacobian (outputs x parameters) of ``f`` (parameters -> 1-D array, or None where undefined) at ``x0`` by
+    central differences, each parameter stepped by ``rel_step`` times its 1-sigma ``sd``: the first-order
+    propagation of a fit's covariance. A parameter with sigma 0, or whose step leaves ``f`` undefined on either
+    side, gives a zero column."""
+    cols: dict[int, np.ndarray] = {}
+    for j in range(x0.size):
+        h = rel_step * sd[j] if sd[j] > 0 else 0.0
+        if h == 0.0:
+            continue
+        outs = []
+        for sgn in (1.0, -1.0):
+            x = x0.copy()
+            x[j] += sgn * h
+            outs.append(f(x))
+        if outs[0] is None or outs[1] is None:
+            continue
+        cols[j] = (np.asarray(outs[0], float) - np.asarray(outs[1], float)) / (2 * h)
+    n_out = len(next(iter(cols.values()))) if cols else 0
+    jac = np.zeros((n_out, x0.size))
+    for j, col in cols.items():
+        jac[:, j] = col
+    return jac
+
+
 def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) -> ImpactFit | None:
     """Impact between fitted flights p (before) and q (after) with the paper's plain method, or None
     when the parabolas do not meet inside the gap or the relative velocity does not reverse."""
@@ -117,21 +142,14 @@ def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) ->
     cov = np.zeros((10, 10))
     cov[:3, :3], cov[3:6, 3:6], cov[6:, 6:] = p.cov, q.cov, scov
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    jac = np.zeros((2, 10))
-    for j in range(10):
-        h = 1e-3 * sd[j] if sd[j] > 0 else 0.0
-        if h == 0.0:
-            continue
-        outs = []
-        for sgn in (1.0, -1.0):
-            x = x0.copy()
-            x[j] += sgn * h
-            r = _quantities(x[:3], p.t_ref_s, x[3:6], q.t_ref_s, x[6:], s_fit, t_lo - 1.0, t_hi + 1.0)
-            outs.append(r)
-        if outs[0] is None or outs[1] is None:
-            continue
-        jac[0, j] = (outs[0][0] - outs[1][0]) / (2 * h)
-        jac[1, j] = (outs[0][4] - outs[1][4]) / (2 * h)
+
+    def time_and_cor(x):
+        r = _quantities(x[:3], p.t_ref_s, x[3:6], q.t_ref_s, x[6:], s_fit, t_lo - 1.0, t_hi + 1.0)
+        return None if r is None else (r[0], r[4])
+
+    jac = central_jacobian(time_and_cor, x0, sd)
+    if jac.shape[0] == 0:
+        jac = np.zeros((2, x0.size))
     var = jac @ cov @ jac.T
     y_rel = float(p.position_mm(t_i) - s_fit.position_mm(t_i))
     return ImpactFit(index=index, t_s=float(t_i), t_std_s=float(np.sqrt(max(var[0, 0], 0))),
@@ -202,18 +220,13 @@ def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_
     if s_fit.cov_ref is not None:
         sp0 = np.asarray(s_fit.params_ref, float)
         sd = np.sqrt(np.clip(np.diag(s_fit.cov_ref), 0, None))
-        gs = np.zeros(4)
-        for j in range(4):
-            if sd[j] == 0:
-                continue
-            h = 1e-3 * sd[j]
-            vals = []
-            for sgn in (1.0, -1.0):
-                sp = sp0.copy()
-                sp[j] += sgn * h
-                vs2 = float(with_params(s_fit, sp).velocity_mps(t_i))
-                vals.append(-(vp - vs2) / (vm - vs2))
-            gs[j] = (vals[0] - vals[1]) / (2 * h)
+
+        def cor_of(sp):
+            vs2 = float(with_params(s_fit, sp).velocity_mps(t_i))
+            return (-(vp - vs2) / (vm - vs2),)
+
+        jac = central_jacobian(cor_of, sp0, sd)
+        gs = jac[0] if jac.shape[0] else np.zeros(sp0.size)
         var += float(gs @ s_fit.cov_ref @ gs)
     return ImpactFit(index=est.index, t_s=float(t_i), t_std_s=float(np.sqrt(max(cov_th[0, 0], 0))), plate=est.plate,
                      cor=float(e), cor_std=float(np.sqrt(max(var, 0))), v_ball_before_mps=float(vm),
