@@ -169,6 +169,9 @@ def test_live_reference_image_and_time_origin(launch_file, tiny_recording, tmp_p
     for bad, why in (("1764000000", "not a wall time in nanoseconds"), ("soon", "expected an integer")):
         with pytest.raises(A.LaunchArgumentError, match=f"^time_origin_unix_ns:={bad}: {why}"):
             L.run_opaque(launch_file, recording=str(tiny_recording), live="true", time_origin_unix_ns=bad)
+    for name in ("reference_image", "params_file"):
+        with pytest.raises(A.LaunchArgumentError, match=f"^{name}:=.*nowhere.png: no such file"):
+            L.run_opaque(launch_file, recording=str(tiny_recording), **{name: str(tmp_path / "nowhere.png")})
     (tmp_path / "not.png").write_text("text")
     with pytest.raises(A.LaunchArgumentError, match=r"^reference_image:=.*not.png: not an image"):
         L.run_opaque(launch_file, recording=str(tiny_recording), reference_image=str(tmp_path / "not.png"))

@@ -73,27 +73,29 @@ def time_origin_ns(text: str) -> int | None:
     return ns
 
 
-def reference_image(text: str) -> Path | None:
-    """``reference_image``: an existing image file (dic_tracker's DIC reference: frame 0), None for empty."""
+def _existing_file(name: str, text: str) -> Path | None:
+    """Launch argument ``name``: an existing file (resolved), None for empty."""
     value = text.strip()
     if not value:
         return None
     path = Path(value).expanduser()
     if not path.is_file():
-        raise LaunchArgumentError(f"reference_image:={text}: no such file")
+        raise LaunchArgumentError(f"{name}:={text}: no such file")
+    return path.resolve()
+
+
+def reference_image(text: str) -> Path | None:
+    """``reference_image``: an existing image file (dic_tracker's DIC reference: frame 0), None for empty."""
+    path = _existing_file("reference_image", text)
+    if path is None:
+        return None
     import cv2
 
     if cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is None:
         raise LaunchArgumentError(f"reference_image:={text}: not an image OpenCV can read")
-    return path.resolve()
+    return path
 
 
 def params_file(text: str) -> Path | None:
     """``params_file``: a parameters YAML replacing the installed defaults (config/vibro.yaml), None for empty."""
-    value = text.strip()
-    if not value:
-        return None
-    path = Path(value).expanduser()
-    if not path.is_file():
-        raise LaunchArgumentError(f"params_file:={text}: no such file")
-    return path.resolve()
+    return _existing_file("params_file", text)
