@@ -123,36 +123,6 @@ def _frames_source_name(recording_dir: str | Path, track_csv: str | Path | None)
         return "the frames"
 
 
-#: rig.yaml keys whose statement rests on the impacts' local structure fits (the free play)
-_GEOMETRY_KEYS = {"structure.gap_mm", "ball.diameter_mm", "camera.mm_per_px"}
-
-
-def withhold_results(document, findings) -> None:
-    """A refused run's document: the COR table withheld (no impacts, an empty COR summary and statistics),
-    friction withheld when it is implausible, and rig.yaml statements that the refusal shows to be
-    consequences (the free play measured against structure fits seeded at a wrong frequency) dropped
-    from ``rig_consistency`` and the warnings, the refusal having named the key that is wrong."""
-    from dataclasses import replace
-
-    from vibro_model.results import CorSummary
-
-    document.impacts = []
-    document.cor_summary = CorSummary.of([])
-    document.sections.pop("cor_statistics", None)
-    if any(f.check == "negative_friction" and f.refuses for f in findings):
-        document.flights = [replace(f, friction_n=None, friction_std_n=None) for f in document.flights]
-    frequency_cause = any(f.refuses and {"excitation.frequency_hz", "camera.fps"} & set(f.keys)
-                          and "cor_against_recording_sine_range" in f.evidence for f in findings)
-    if not frequency_cause:
-        return
-    statements = document.sections.get("rig_consistency") or []
-    dropped = [r for r in statements if set(r.get("keys", ())) <= _GEOMETRY_KEYS]
-    document.sections["rig_consistency"] = [r for r in statements if r not in dropped]
-    texts = [r["message"] for r in dropped]
-    document.warnings = [w for w in document.warnings if not w.startswith("measured free play")
-                         and not any(t in w for t in texts)]
-
-
 class _NoFigure(Exception):
     """The discrepancy run had nothing to plot (its temporary file is discarded)."""
 
@@ -182,6 +152,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     from vibro_discrepancy.reidentify import reidentify_document
     from vibro_fit.cross_checks import consistency_checks, consistency_section
     from vibro_fit.identify import identify
+    from vibro_fit.plausibility import withhold_results
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
     from vibro_fit.spin import ball_spin_section
     from vibro_io.results_file import write_results

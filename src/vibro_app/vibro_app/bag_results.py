@@ -224,10 +224,9 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
 
 def _refused_document(doc: ResultsDocument, r: BagResults) -> ResultsDocument:
     """A run the fitter refused (its cross-checks, as vibro analyze's): the COR table withheld as analyze
-    withholds it (:func:`vibro_app.analyze.withhold_results`: no impacts, streamed previews included, friction
+    withholds it (:func:`vibro_fit.plausibility.withhold_results`: no impacts, streamed previews included, friction
     withheld when implausible), ``complete`` false, and the refusal first among the warnings."""
-    from vibro_app.analyze import withhold_results
-    from vibro_fit.plausibility import Finding
+    from vibro_fit.plausibility import Finding, withhold_results
 
     findings = [Finding(f.get("check", ""), f.get("message", ""), list(f.get("keys", ())), dict(f.get("evidence", {})),
                         f.get("severity", "warn"), f.get("frame")) for f in doc.sections["consistency"]["findings"]]

@@ -285,3 +285,40 @@ def _structure_cause(impacts, structure, rig, local, freq, structure_moves: bool
                 "excitation.frequency_hz)"), [], ev
     return ("no rig.yaml key explains it (check the ball track, dic.ball_roi, and the camera's time base)",
             [], ev)
+
+
+#: rig.yaml keys whose statement rests on the impacts' local structure fits (the free play)
+_GEOMETRY_KEYS = {"structure.gap_mm", "ball.diameter_mm", "camera.mm_per_px"}
+
+
+def friction_withheld(findings: Iterable[Finding]) -> bool:
+    """A refusal says the flights' friction is implausible: it is withheld with the COR table."""
+    return any(f.check == "negative_friction" and f.refuses for f in findings)
+
+
+def withhold_results(document, findings: Sequence[Finding]) -> None:
+    """A refused run's document (vibro analyze's, or one rebuilt from a graph run's bag): the COR table withheld
+    (no impacts, an empty COR summary and statistics), friction withheld when it is implausible
+    (:func:`friction_withheld`, which the trajectory_fitter node applies to what it publishes), and rig.yaml
+    statements that the refusal shows to be consequences (the free play measured against structure fits seeded
+    at a wrong frequency) dropped from ``rig_consistency`` and the warnings, the refusal having named the key
+    that is wrong."""
+    from dataclasses import replace
+
+    from vibro_model.results import CorSummary
+
+    document.impacts = []
+    document.cor_summary = CorSummary.of([])
+    document.sections.pop("cor_statistics", None)
+    if friction_withheld(findings):
+        document.flights = [replace(f, friction_n=None, friction_std_n=None) for f in document.flights]
+    frequency_cause = any(f.refuses and {"excitation.frequency_hz", "camera.fps"} & set(f.keys)
+                          and "cor_against_recording_sine_range" in f.evidence for f in findings)
+    if not frequency_cause:
+        return
+    statements = document.sections.get("rig_consistency") or []
+    dropped = [r for r in statements if set(r.get("keys", ())) <= _GEOMETRY_KEYS]
+    document.sections["rig_consistency"] = [r for r in statements if r not in dropped]
+    texts = [r["message"] for r in dropped]
+    document.warnings = [w for w in document.warnings if not w.startswith("measured free play")
+                         and not any(t in w for t in texts)]

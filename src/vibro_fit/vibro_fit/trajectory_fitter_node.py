@@ -62,6 +62,7 @@ from .cross_checks import consistency_checks, consistency_section
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactFit
+from .plausibility import friction_withheld
 from .streaming import StreamingFitter
 
 
@@ -260,10 +261,10 @@ class TrajectoryFitter(Node):
         smsg = structure_to_message(ident.structure_motion(), float(track.t_s[-1]) if len(track.t_s) else None,
                                     self.time_origin_ns)
         self.pub_structure.publish(smsg)
-        no_friction = any(f.check == "negative_friction" and f.refuses for f in findings)
+        no_friction = friction_withheld(findings)
         for fl in ident.flights:
             model = fl.model(ident.mass_kg)
-            if no_friction:  # as vibro analyze withholds it (vibro_app.analyze.withhold_results)
+            if no_friction:  # as vibro analyze withholds it (vibro_fit.plausibility.withhold_results)
                 model = replace(model, friction_n=None, friction_std_n=None)
             self.pub_flights.publish(flight_to_message(model, True, self.time_origin_ns))
         for w in ident.warnings:
