@@ -78,8 +78,9 @@ class BagSource(Node):
         self.accel = [self._restamped_block(m.data, bag) for m in raw if m.topic == topics.ACCEL.name]
         if not self.frames:
             raise RecordingError(f"{bag}: no {self.frames_topic} messages to replay")
-        self.frames_lost = self._unreadable(bag, self.frames_topic, len(self.frames))
-        self.accel_lost = self._unreadable(bag, topics.ACCEL.name, len(self.accel))
+        listed = recorded_message_counts(bag)
+        self.frames_lost = self._unreadable(bag, listed, self.frames_topic, len(self.frames))
+        self.accel_lost = self._unreadable(bag, listed, topics.ACCEL.name, len(self.accel))
         self.sent = 0
         self.last_index_acked = -1
         self.guard = InputGuard(self)  # the acknowledgements must be this run's tracker's
@@ -103,9 +104,10 @@ class BagSource(Node):
         self.create_timer(0.01, self._tick)
         self.get_logger().info(f"{len(self.frames)} frames and {len(self.accel)} accelerometer blocks from {bag}")
 
-    def _unreadable(self, bag: str, topic: str, read: int) -> int:
-        """Messages of ``topic`` that metadata.yaml lists and the bag's files no longer hold (logged as an error)."""
-        listed = sum(n for name, n in recorded_message_counts(bag).items() if matching_name(name, {topic}))
+    def _unreadable(self, bag: str, counts: dict[str, int], topic: str, read: int) -> int:
+        """Messages of ``topic`` that metadata.yaml lists (``counts``) and the bag's files no longer hold (logged
+        as an error)."""
+        listed = sum(n for name, n in counts.items() if matching_name(name, {topic}))
         lost = max(0, listed - read)
         if lost:
             self.get_logger().error(f"{bag}: {read} of the {listed} {topic} messages its metadata.yaml lists are "
