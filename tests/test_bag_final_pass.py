@@ -16,7 +16,8 @@ from rclpy.serialization import serialize_message
 from vibro_msgs.msg import ImpactEstimate, StreamStatus, StructureMotion
 
 
-def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | None, lost: int = 0) -> Path:
+def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | None, lost: int = 0,
+         fitter_values: dict[str, str] | None = None) -> Path:
     from vibro_ros.bags import BagWriter
 
     writer = BagWriter(path)
@@ -28,6 +29,12 @@ def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | 
     if announced is not None:
         messages.append(("/vibro/status", "vibro_msgs/msg/StreamStatus",
                          StreamStatus(stream="impacts", items_sent=announced, items_lost=lost, finished=True)))
+    if fitter_values is not None:  # the trajectory_fitter's /diagnostics status
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        status = DiagnosticStatus(name="/trajectory_fitter",
+                                  values=[KeyValue(key=k, value=v) for k, v in fitter_values.items()])
+        messages.append(("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DiagnosticArray(status=[status])))
     for stamp, (topic, kind, msg) in enumerate(messages, start=1):
         writer.add_topic(topic, kind)
         writer.write(topic, stamp, serialize_message(msg))
@@ -63,3 +70,21 @@ def test_impacts_a_fitter_withheld_make_the_run_incomplete_even_without_its_diag
     doc = document_from_bag(_bag(tmp_path / "b", streamed=[0, 1, 2], final=[], announced=0, lost=3))
     assert doc.complete is False and doc.impacts == []
     assert any("3 vibro/impacts message(s) announced lost by their publisher" in w for w in doc.warnings), doc.warnings
+
+
+def test_a_consistency_value_that_is_not_vibros_section_is_said_not_dropped(tmp_path: Path) -> None:
+    """The fitter's cross-checks travel as a JSON value on /diagnostics; one that does not parse as the section
+    (a foreign or damaged bag) is named in a warning, and a refusal recorded beside it still refuses."""
+    from vibro_app.bag_results import document_from_bag
+    from vibro_ros import topics
+
+    for i, bad in enumerate(("{not json", "[1, 2]", '{"findings": "none"}')):
+        doc = document_from_bag(_bag(tmp_path / f"b{i}", streamed=[0], final=[0], announced=1,
+                                     fitter_values={topics.CONSISTENCY_KEY: bad}))
+        assert any("is not a consistency section" in w for w in doc.warnings), doc.warnings
+        assert "consistency" not in doc.sections
+    doc = document_from_bag(_bag(tmp_path / "r", streamed=[0], final=[], announced=0, lost=1,
+                                 fitter_values={topics.CONSISTENCY_KEY: "{not json",
+                                                topics.REFUSED_KEY: "COR outside [0, 1]"}))
+    assert doc.sections["consistency"]["refused"] is True and doc.impacts == [] and doc.complete is False
+    assert doc.warnings[0] == "refused: COR outside [0, 1]"

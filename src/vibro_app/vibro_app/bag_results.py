@@ -71,6 +71,7 @@ class BagResults:
         self.pids: dict[str, set[str]] = {}  # node name -> process ids its /diagnostics carried (restarts)
         self.consistency: dict | None = None  # the fitter's cross-checks (its /diagnostics, topics.CONSISTENCY_KEY)
         self.refused = ""  # the fitter's refusal line (topics.REFUSED_KEY), "" when it published its results
+        self.consistency_problem = ""  # why a recorded consistency value could not be read
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
                   topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name,
@@ -107,9 +108,17 @@ class BagResults:
         values = {kv.key: kv.value for kv in status.values}
         if topics.CONSISTENCY_KEY in values:
             try:
-                self.consistency = json.loads(values[topics.CONSISTENCY_KEY])
-            except ValueError:
+                section = json.loads(values[topics.CONSISTENCY_KEY])
+            except ValueError as exc:
+                section = exc
+            if isinstance(section, dict) and isinstance(section.get("findings", []), list) \
+                    and all(isinstance(f, dict) for f in section.get("findings", [])):
+                self.consistency, self.consistency_problem = section, ""
+            else:  # not vibro's section: said, never read as "no finding"
                 self.consistency = None
+                self.consistency_problem = (f"the trajectory_fitter's /diagnostics value '{topics.CONSISTENCY_KEY}' "
+                                            f"is not a consistency section ({str(section)[:80]}); its cross-checks "
+                                            "are not in this document")
         if values.get(topics.REFUSED_KEY):
             self.refused = values[topics.REFUSED_KEY]
 
@@ -207,6 +216,8 @@ def document_from_bag(bag: str | Path) -> ResultsDocument:
     effects = measurement_effects(findings)
     doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))
     doc.sections["cor_statistics"] = cor_statistics_section(doc.impacts)
+    if r.consistency_problem:
+        doc.warnings.append(r.consistency_problem)
     if r.consistency is not None or r.refused:
         section = dict(r.consistency or {"findings": [], "checks": {}})
         section["refused"] = bool(r.refused) or bool(section.get("refused"))
