@@ -20,11 +20,22 @@ import sys
 from pathlib import Path
 
 from vibro_app.cmd_track import DIC_CSV
+from vibro_app.report_files import FIGURE_FILES, REPORT_HTML
+from vibro_dic.chunked import track_rows
+from vibro_dic.quality import TrackQuality, dic_quality_section
+from vibro_fit.cross_checks import consistency_checks, consistency_section
+from vibro_fit.plausibility import withhold_results
+from vibro_fit.spin import ball_spin_section
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
+from vibro_io.frames import find_frames_source
 from vibro_io.outputs import atomic_path, prepare_output_dir
 from vibro_io.recording import load_recording_accel, open_recording
+from vibro_io.results_file import write_results
 from vibro_io.rig import RigConfig, load_rig
 from vibro_model.errors import RecordingError
+from vibro_model.results import Simulation
+from vibro_model.units import m_to_mm, mm_to_m
+from vibro_sim.params import BallCavity
 
 log = logging.getLogger(__name__)
 
@@ -43,9 +54,7 @@ def replay_models(document, track: DicTrack, rig: RigConfig) -> dict:
 
     Returns {"t_s", "measured_mm", "curves": {name: mm}, "deviations": {name: D}, "errors": {name: msg}}.
     """
-    from vibro_model.units import m_to_mm, mm_to_m
     from vibro_sim.measured import replay_and_score, replay_inputs
-    from vibro_sim.params import BallCavity
 
     out = {"t_s": None, "measured_mm": None, "curves": {}, "deviations": {}, "errors": {}}
     good = track.good
@@ -73,7 +82,6 @@ DISCREPANCY_PNG = "discrepancy.png"
 
 def analyze_outputs() -> tuple[str, ...]:
     """Every file ``vibro analyze`` may write into its output folder (what ``--overwrite`` replaces)."""
-    from vibro_app.report_files import FIGURE_FILES, REPORT_HTML
     from vibro_fit.results import CSV_TABLES, RESULTS_JSON
 
     return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *FIGURE_FILES.values(), DISCREPANCY_PNG, REPORT_HTML)
@@ -99,7 +107,6 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
         accel = load_recording_accel(rec_dir, rig)
         prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
         return rig, track, accel
-    from vibro_dic.chunked import track_rows
 
     rec = open_recording(rec_dir)
     accel = rec.load_accel()
@@ -113,8 +120,6 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
 
 def _frames_source_name(recording_dir: str | Path, track_csv: str | Path | None) -> str:
     """How the time-base finding names the frames: the video's file name, or 'the frames'."""
-    from vibro_io.frames import find_frames_source
-
     if track_csv is not None:
         return "the frames"
     try:
@@ -147,16 +152,10 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
     into ``out_dir`` (created; refused when it holds anything but this run's inputs, unless ``overwrite``:
     see :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically. Returns the results
     mapping. ``workers``/``scheduler``: DIC in chunks on Dask workers (:func:`load_inputs`)."""
-    from vibro_dic.quality import TrackQuality, dic_quality_section
     from vibro_discrepancy.engine import discrepancy_for_results
     from vibro_discrepancy.reidentify import reidentify_document
-    from vibro_fit.cross_checks import consistency_checks, consistency_section
     from vibro_fit.identify import identify
-    from vibro_fit.plausibility import withhold_results
     from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
-    from vibro_fit.spin import ball_spin_section
-    from vibro_io.results_file import write_results
-    from vibro_model.results import Simulation
 
     out = Path(out_dir)
     bar = _bar(4, progress, "analyze")

@@ -32,7 +32,10 @@ import json
 import sys
 from pathlib import Path
 
+from vibro_app.findings_text import findings_lines
 from vibro_app.run_completeness import RunCompleteness, restarts_from_pids, run_completeness
+from vibro_fit.plausibility import Finding, withhold_results
+from vibro_fit.spin import ball_spin_section
 from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_model.results import Discrepancy, ResultsDocument, Simulation, results_text
 from vibro_ros import topics
@@ -175,8 +178,6 @@ def ball_spin_from_frames(frames: list, flights: list, impacts: list) -> tuple[d
     """``vibro analyze``'s ``ball_spin`` section (:func:`vibro_fit.spin.ball_spin_section`) of DicFrame messages
     (rclpy or decoded from a bag) and the final flights and impacts (model types); (None, the reason) when the
     frames carry no ball rotation at all (none recorded, or a bag recorded before DicFrame had it)."""
-    from vibro_fit.spin import ball_spin_section
-
     if not frames:
         return None, f"no {topics.DIC.name} message in the bag, so no ball rotation"
     if not all(carries_ball_rotation(m) for m in frames):
@@ -237,8 +238,6 @@ def _refused_document(doc: ResultsDocument, r: BagResults) -> ResultsDocument:
     """A run the fitter refused (its cross-checks, as vibro analyze's): the COR table withheld as analyze
     withholds it (:func:`vibro_fit.plausibility.withhold_results`: no impacts, streamed previews included, friction
     withheld when implausible), ``complete`` false, and the refusal first among the warnings."""
-    from vibro_fit.plausibility import Finding, withhold_results
-
     findings = [Finding(f.get("check", ""), f.get("message", ""), list(f.get("keys", ())), dict(f.get("evidence", {})),
                         f.get("severity", "warn"), f.get("frame")) for f in doc.sections["consistency"]["findings"]]
     had_statements = "rig_consistency" in doc.sections  # a bag carries none: not added empty
@@ -290,7 +289,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(text, end="")
         stream = sys.stderr  # stdout holds the JSON document
-    from vibro_app.findings_text import findings_lines
 
     consistency = doc.sections.get("consistency") or {}
     if not consistency.get("refused"):  # a refused run never reached the discrepancy analysis

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from vibro_app.analyze import analyze_recording
+from vibro_app.findings_text import findings_lines
 from vibro_dic.cluster import add_cluster_args
 from vibro_fit.methods import METHODS
 
@@ -29,8 +31,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vibro_app.analyze import analyze_recording
-    from vibro_app.findings_text import findings_lines
 
     progress = not args.no_progress and sys.stderr.isatty()
     doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from vibro_app.campaign.engine import run_campaign
+from vibro_app.campaign.report import CAMPAIGN_CSV, CAMPAIGN_JSON, REPORT_HTML
 from vibro_dic.cluster import add_cluster_args, default_workers
 from vibro_fit.methods import METHODS
 
@@ -33,8 +35,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vibro_app.campaign.engine import run_campaign
-    from vibro_app.campaign.report import CAMPAIGN_CSV, CAMPAIGN_JSON, REPORT_HTML
 
     doc = run_campaign(args.source, args.out, workers=args.workers, scheduler=args.scheduler, method=args.method,
                        progress=not args.no_progress and sys.stderr.isatty())

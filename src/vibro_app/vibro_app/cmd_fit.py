@@ -6,6 +6,13 @@ import argparse
 from pathlib import Path
 
 from vibro_fit.methods import METHODS
+from vibro_fit.statistics import errorbar_table
+from vibro_io.accel import load_accel
+from vibro_io.dictrack import read_dic_csv
+from vibro_io.outputs import atomic_open, prepare_output_dir, prepare_output_file
+from vibro_io.results_file import read_results, write_results
+from vibro_io.rig import load_rig
+from vibro_model.errors import RecordingError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,12 +42,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from vibro_fit.identify import identify
     from vibro_fit.results import CSV_TABLES, RESULTS_JSON, results_model, write_csv_tables
-    from vibro_io.accel import load_accel
-    from vibro_io.dictrack import read_dic_csv
-    from vibro_io.outputs import prepare_output_dir
-    from vibro_io.results_file import write_results
-    from vibro_io.rig import load_rig
-    from vibro_model.errors import RecordingError
 
     rig = load_rig(args.rig)
     track = read_dic_csv(args.track)
@@ -65,10 +66,6 @@ def run_summary(args: argparse.Namespace) -> int:
     import csv
 
     from vibro_app.report import fig_errorbars, figure_formats
-    from vibro_fit.statistics import errorbar_table
-    from vibro_io.outputs import atomic_open, prepare_output_file
-    from vibro_io.results_file import read_results
-    from vibro_model.errors import RecordingError
 
     out = Path(args.out)
     if out.suffix.lower().lstrip(".") not in figure_formats():

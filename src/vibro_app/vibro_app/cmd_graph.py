@@ -12,9 +12,11 @@ import math
 import time
 from pathlib import Path
 
+from vibro_app.findings_text import finding_line
 from vibro_bringup.graph_runner import GraphSummary, execute_graph, new_bag_path, prepare_environment
 from vibro_bringup.graph_spec import graph_nodes, write_reference_frame
 from vibro_bringup.isolation import namespace_argument
+from vibro_fit.coverage import frame_coverage
 from vibro_foxglove.view import DEFAULT_PORT
 from vibro_io.recording import open_recording
 from vibro_model.errors import RecordingError
@@ -148,7 +150,6 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     for node, n in sorted(s.restarts.items()):
         print(f"restarted: {node} x{n}")
     if s.accel_span_s and s.camera is not None and announced > 0:
-        from vibro_fit.coverage import frame_coverage
 
         cam = s.camera
         cov = frame_coverage([cam.frame_time_s(0), cam.frame_time_s(announced - 1)], s.accel_span_s,
@@ -164,7 +165,6 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
     for model, d in sorted(s.deviations.items()):
         print(f"D {model:12s} {100 * d:6.2f} %")
     if s.findings:
-        from vibro_app.findings_text import finding_line
 
         for f in s.findings:
             sigmas = dict(zip(f.parameter_names, f.parameter_std))

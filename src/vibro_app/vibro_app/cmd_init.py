@@ -14,9 +14,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vibro_dic.mesh import mesh_points
+from vibro_io.camera_files import open_camera_file
 from vibro_io.frames import CAMERA_FILE_SUFFIXES, FrameSequence, find_frames_source
 from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_file
-from vibro_io.rig import CameraConfig, check_rois_in_image, parse_rig
+from vibro_io.rig import CameraConfig, _RigLoader, check_rois_in_image, parse_rig
 from vibro_model.errors import RecordingError
 
 MAX_FRAMES_EXAMINED = 400
@@ -73,7 +75,6 @@ def _fps(args: argparse.Namespace, src: Path) -> float:
         if args.fps is None:
             raise RecordingError(f"{src}: the frame rate is not recorded in these files: give --fps")
         return args.fps
-    from vibro_io.camera_files import open_camera_file
 
     header = open_camera_file(src).header
     base = header.time_base
@@ -211,8 +212,6 @@ def outline_summary(check, sep: str = " ") -> str:
 
 def draw_preview(frame0: np.ndarray, p, path: Path, scale_up: int = 2) -> None:
     """Frame 0 with the ball circle, plate edges, ROIs, mesh points and a scale bar, written to ``path``."""
-    from vibro_dic.mesh import mesh_points
-
     img = np.clip(frame0, 0, 255).astype(np.uint8)
     img = cv2.cvtColor(cv2.resize(img, None, fx=scale_up, fy=scale_up, interpolation=cv2.INTER_NEAREST),
                        cv2.COLOR_GRAY2BGR)
@@ -260,7 +259,6 @@ def run(args: argparse.Namespace) -> int:
     text = rig_yaml_text(p, args, fps, source, freq, note)
     import yaml
 
-    from vibro_io.rig import _RigLoader
 
     rig = parse_rig(yaml.load(text, Loader=_RigLoader), str(out))  # what we write must load as it will be read
     check_rois_in_image(rig, p.height_px, p.width_px)

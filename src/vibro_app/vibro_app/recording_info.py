@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from vibro_dic.texture import estimate_noise, mesh_corners
 from vibro_io.camera_files import CAMERA_FILE_SUFFIXES
 from vibro_io.frames import FrameSequence
 from vibro_io.recording import open_recording
@@ -121,8 +122,6 @@ def _pixels_part(frames: FrameSequence, images: list[np.ndarray], dic: Any = Non
     subsets' correlation for a lossy codec; never below quantization), in gray levels of the effective depth.
     ``images``: the first one or two readable frames; ``dic`` (rig.yaml's DicConfig, or None): the subsets the
     correlation estimate uses."""
-    from vibro_dic.texture import estimate_noise, mesh_corners
-
     bits = frames.effective_bits
     shift = 0 if frames.dtype == np.uint8 else 16 - bits
     top = 2 ** bits - 1

@@ -71,7 +71,8 @@ def _nodes(context, *unused, **kwargs):
                          camera_topic=value("camera_topic"), base=args.params_file(value("params_file")),
                          respawn_delay_s=float(value("respawn_delay")),
                          foxglove=foxglove, reference_image=args.reference_image(value("reference_image")),
-                         time_origin_ns=args.time_origin_ns(value("time_origin_unix_ns")))
+                         time_origin_ns=args.time_origin_ns(value("time_origin_unix_ns")),
+                         accel_topic=value("accel_topic") or None, accel_rate_hz=float(value("accel_rate_hz")))
     actions = []
     for n in nodes:
         actions += _start(n, namespace, 0, respawn_max, live)
@@ -93,6 +94,12 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("camera_topic", default_value="vibro/frames",
                               description="image topic to track (remap to a camera driver's image_raw)"),
         DeclareLaunchArgument("live", default_value="false", description="true: frames come from a live camera"),
+        DeclareLaunchArgument("accel_topic", default_value="",
+                              description="live: a DAQ driver's AccelBlock topic (docs/live.md, Live accelerometers; "
+                                          "empty: camera only)"),
+        DeclareLaunchArgument("accel_rate_hz", default_value="0.0",
+                              description="live: the DAQ's sample rate; a block at another rate is refused (0: the "
+                                          "first block's)"),
         DeclareLaunchArgument("reference_image", default_value="",
                               description="image of frame 0 as dic_tracker's DIC reference (live: else the first "
                                           "image received; from a recording: else its frame 0)"),

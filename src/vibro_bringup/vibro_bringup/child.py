@@ -14,6 +14,8 @@ import runpy
 import signal
 import sys
 
+from vibro_ros.entry import install_early_stop
+
 
 def main() -> None:
     if len(sys.argv) < 2:
@@ -24,7 +26,6 @@ def main() -> None:
             sys.exit(0)
     except OSError:
         pass
-    from vibro_ros.entry import install_early_stop
 
     module = sys.argv[1]
     install_early_stop(module.rsplit(".", 1)[-1])  # a stop while the node module imports: exit 0, no traceback

@@ -27,6 +27,7 @@ from vibro_bringup.graph_spec import (
     ALL_SPECS,
     MONITOR,
     NodeSpec,
+    foxglove_layout_file,
     graph_nodes,
     node_parameters,
     run_time_origin,
@@ -34,7 +35,11 @@ from vibro_bringup.graph_spec import (
 )
 from vibro_bringup.isolation import RunIdentity, new_run_identity
 from vibro_bringup.supervisor import Failure, Supervisor
+from vibro_foxglove.view import websocket_url
+from vibro_io.outputs import prepare_output_entries
+from vibro_io.rig import load_rig
 from vibro_model.errors import RecordingError
+from vibro_ros import topics
 
 
 @dataclass
@@ -80,7 +85,6 @@ class Monitor:
             SimulationResult,
             StreamStatus,
         )
-        from vibro_ros import topics
         from vibro_ros.node_support import RESULTS_QOS, STREAM_QOS, make_executor
 
         s = self.summary = summary
@@ -129,7 +133,6 @@ class Monitor:
         node.create_subscription(AccelImpact, topics.ACCEL_IMPACTS.name,
                                  lambda m: s.accel_impacts_s.__setitem__(int(m.index), float(m.t_s)), RESULTS_QOS)
         try:
-            from vibro_io.rig import load_rig
             s.camera = load_rig(Path(recording) / "rig.yaml").camera
         except (RecordingError, OSError):
             s.camera = None
@@ -194,8 +197,6 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         print(summary.identity, flush=True)
         print(f"stamps: {describe_origin(time_origin_ns)}", flush=True)
         if foxglove is not None and any(s.name == "foxglove_bridge" for s in nodes):
-            from vibro_bringup.graph_spec import foxglove_layout_file
-            from vibro_foxglove.view import websocket_url
 
             summary.foxglove_url = websocket_url(foxglove["host"], foxglove["port"])
             print(f"foxglove: {summary.foxglove_url} (open it in the Foxglove app: Open connection > Foxglove "
@@ -315,8 +316,6 @@ def new_bag_path(bag: str | Path, overwrite: bool = False) -> Path:
     """A bag path free for the recorder, and its log folder ``<bag>.logs`` (refused if either exists,
     unless ``overwrite`` and they look like a graph run's: then removed); the parent is created and
     must be writable."""
-    from vibro_io.outputs import prepare_output_entries
-
     bag = Path(bag)
     prepare_output_entries(bag.parent, (bag.name, f"{bag.name}.logs"), overwrite=overwrite,
                            owned=bag_outputs(bag.name), command="graph")

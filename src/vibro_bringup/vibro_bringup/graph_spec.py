@@ -8,8 +8,10 @@ from typing import Any, Iterable
 
 import yaml
 
+from vibro_io.rig import load_rig
+from vibro_model.errors import RecordingError
 from vibro_ros import topics as T
-from vibro_ros.lab_clock import TIME_ORIGIN_PARAMETER
+from vibro_ros.lab_clock import TIME_ORIGIN_PARAMETER, origin_from_custom_data, run_time_origin_ns
 
 #: The in-process node ``vibro graph`` watches the graph with; a declared reader of every node there.
 MONITOR = "vibro_graph_monitor"
@@ -96,7 +98,7 @@ def graph_nodes(*, bag: bool, with_accel: bool, live: bool = False, replay: bool
             continue
         if spec.name in ("impact_detector", "accel_source") and not with_accel:
             continue
-        if spec.role == "source" and (replay or (live and spec.name == "frame_source")):
+        if spec.role == "source" and (replay or live):  # live: a camera and a DAQ driver publish instead
             continue
         out.append(spec)
     if replay:
@@ -177,8 +179,6 @@ def params_file_key(node_name: str) -> str:
 def node_name_of_key(key: str, source: str | Path = "params file") -> str:
     """The node name of a params-file key (``/**/name``, or a bare ``name``/``/name``);
     RecordingError naming ``source`` for keys this graph cannot map to one of its nodes."""
-    from vibro_model.errors import RecordingError
-
     name = key[len(ANY_NAMESPACE):] if key.startswith(ANY_NAMESPACE) else key.removeprefix("/")
     if not name.isidentifier():
         raise RecordingError(f"{source}: key {key!r}: expected /**/<node name> (e.g. /**/dic_tracker)")
@@ -211,7 +211,6 @@ def write_reference_frame(recording: str | Path, out_png: str | Path) -> Path | 
     import cv2
 
     from vibro_io.frames import FrameSequence, find_frames_source
-    from vibro_io.rig import load_rig
 
     rec = Path(recording)
     seq = FrameSequence(find_frames_source(rec), load_rig(rec / "rig.yaml").camera)
@@ -228,9 +227,6 @@ def run_time_origin(rig_yaml: str | Path) -> int:
     """The lab-clock origin (ns since the Unix epoch) of a run on the recording of ``rig_yaml``: the wall time of
     data time 0, from ``camera.start_time_unix_s`` (wall time of frame 0) when rig.yaml gives it, else with
     frame 0 at the wall clock now (:func:`vibro_ros.lab_clock.run_time_origin_ns`)."""
-    from vibro_io.rig import load_rig
-    from vibro_ros.lab_clock import run_time_origin_ns
-
     cam = load_rig(rig_yaml).camera
     return run_time_origin_ns(cam.t0_s, cam.start_time_unix_s)
 
@@ -238,9 +234,7 @@ def run_time_origin(rig_yaml: str | Path) -> int:
 def bag_time_origin_ns(bag: str | Path) -> int:
     """The lab-clock origin a bag's stamps are on (metadata custom_data ``vibro.time_origin_unix_ns``; 0 for a bag
     recorded without it, whose stamps are data time); RecordingError for a malformed value."""
-    from vibro_model.errors import RecordingError
     from vibro_ros.bags import read_custom_data
-    from vibro_ros.lab_clock import origin_from_custom_data
 
     try:
         return origin_from_custom_data(read_custom_data(bag), f"{bag}/metadata.yaml")
@@ -255,7 +249,6 @@ def frames_topic_of_bag(bag: str | Path, requested: str | None = None) -> str:
     """The bag topic holding the camera images to replay: ``requested`` (checked: recorded, as an Image), else
     ``vibro/frames`` (any namespace), else the bag's only Image topic (a live session's camera, e.g.
     ``/camera/image_raw``); RecordingError naming the Image topics when none or several could be meant."""
-    from vibro_model.errors import RecordingError
     from vibro_ros.bags import matching_name, recorded_topics
 
     recorded = recorded_topics(bag)
@@ -284,7 +277,6 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
     from sensor_msgs.msg import Image
 
     from vibro_dic.dic_tracker_node import image_array
-    from vibro_io.rig import load_rig
     from vibro_ros.bags import read_messages
     from vibro_ros.node_support import seconds_from_stamp
 
@@ -374,7 +366,8 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
                  camera_topic: str = T.FRAMES.name, base: str | Path | None = None,
                  reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0,
                  foxglove: dict[str, Any] | None = None, reference_image: str | Path | None = None,
-                 time_origin_ns: int | None = None) -> list[LaunchNode]:
+                 time_origin_ns: int | None = None, accel_topic: str | None = None,
+                 accel_rate_hz: float = 0.0) -> list[LaunchNode]:
     """What launch/vibro.launch.py starts: the same nodes, parameters and declared readers as ``vibro graph``
     (without its monitor). File mode: dic_tracker's reference is frame 0 written to ``reference_dir``
     (default: a new temporary folder) and every node exits once its stream has ended. What a node's exit
@@ -386,14 +379,18 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
     ``reference_image``: dic_tracker's reference (an image of frame 0) instead of the one written from the
     recording (live: instead of the first image received); ``time_origin_ns``: the lab-clock origin of the
     stamps (wall time of data time 0, ns; live: the camera's frame 0 minus t0_s) instead of
-    :func:`run_time_origin`."""
+    :func:`run_time_origin`. ``accel_topic`` (live): a DAQ driver's AccelBlock topic (docs/live.md, *Live
+    accelerometers*), read by impact_detector and trajectory_fitter with ``live_accel`` (``accel_rate_hz``: the
+    DAQ's rate, a block at another is refused; 0 = the first block's)."""
     from vibro_io.recording import open_recording
 
     rec = open_recording(recording)
     bag = str(bag) if bag else None
     # live, the recording only gives the rig: its accelerometer files are an old run's, which next to a live
-    # camera would put that run's impacts into this one's flights; a live graph is camera-only
-    with_accel = rec.has_accel and not live
+    # camera would put that run's impacts into this one's flights; a live graph takes accelerometers only from a
+    # DAQ driver (accel_topic)
+    live_accel = bool(live and accel_topic)
+    with_accel = live_accel or (rec.has_accel and not live)
     nodes = graph_nodes(bag=bag is not None, with_accel=with_accel, live=live, foxglove=foxglove is not None)
     reference = Path(reference_image) if reference_image is not None else None
     if reference is None and not live:
@@ -405,6 +402,12 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
                              time_origin_ns=time_origin_ns)
     params["dic_tracker"]["live_camera"] = live
     remap = ((T.FRAMES.name, camera_topic),) if camera_topic != T.FRAMES.name else ()
+    if live_accel:
+        for name in ("impact_detector", "trajectory_fitter"):
+            params[name]["live_accel"] = True
+            params[name]["accel_rate_hz"] = float(accel_rate_hz)
+        if accel_topic != T.ACCEL.name:
+            remap += ((T.ACCEL.name, accel_topic),)
     restarted = ("processing", VIEWER)
     return [LaunchNode(spec, params.get(spec.name, {}), remap, live and spec.role in restarted,
                        not live and spec.role in restarted, respawn_delay_s) for spec in nodes]

@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .isolation import namespace_argument
+
 #: values of ``bag`` that mean: record no bag (quotes a shell or a launch file left in the value count as empty)
 NO_BAG = ("", "none", "false", "off", "no", '""', "''")
 _TRUE = ("true", "1", "yes", "on")
@@ -46,8 +48,6 @@ def bag_directory(text: str, record: str = "true") -> str | None:
 
 def namespace(text: str) -> str | None:
     """The ROS namespace to start every node in (``namespace:=lab1`` or ``/lab1``), None for empty or ``/``."""
-    from .isolation import namespace_argument
-
     if text.strip() in ("", "/"):
         return None
     try:

@@ -22,9 +22,10 @@ from typing import Iterator
 
 from vibro_io.dictrack import FrameTrack
 
+from .cluster import check_workers, dask_client
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport
-from .tracker import RESEED_EVERY_FRAMES, SlotNote, emit_rows, reference_texture, track_slots
+from .tracker import RESEED_EVERY_FRAMES, SlotNote, emit_rows, reference_texture, track_recording, track_slots
 
 
 def segment_starts(first_index: int, n_slots: int, reseed_every: int = RESEED_EVERY_FRAMES) -> list[int]:
@@ -91,9 +92,6 @@ def track_rows(recording, *, workers: int | None = None, scheduler: str | None =
     else in chunks on ``client``, on the scheduler at ``scheduler`` or on a new local cluster of ``workers``
     processes (open while the rows are read; started after the texture check passed). The same rows and
     ``quality`` either way (module doc)."""
-    from .cluster import check_workers, dask_client
-    from .tracker import track_recording
-
     check_workers(workers)
     if client is None and scheduler is None and (workers is None or workers <= 1):
         yield from track_recording(recording, method=method, progress=progress, quality=quality,

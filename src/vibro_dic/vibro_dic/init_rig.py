@@ -36,7 +36,9 @@ from vibro_model.errors import RecordingError
 
 from . import init_edges as edges
 from . import outline
+from .icgn import gradients
 from .mesh import mesh_points
+from .noise import cramer_rao_px
 from .outline import OutlineTexture
 
 EDGE_SYSTEMATIC_PX = 0.25     # allowed model error of one edge position beyond its statistical error (px)
@@ -706,9 +708,6 @@ def noise_sigma_gray(image: np.ndarray, mask: np.ndarray | None = None, *, effec
 
 def worst_cramer_rao_px(image: np.ndarray, roi: Roi, subset_px: int, step_px: int, noise_gray: float) -> float:
     """The largest Cramer-Rao displacement std (px, along rows: the motion axis) over the subsets of ``roi``."""
-    from .icgn import gradients
-    from .noise import cramer_rao_px
-
     _, gy = gradients(image)
     half = subset_px // 2
     worst = 0.0

@@ -74,6 +74,7 @@ from .icgn import IcgnBlocks, gradients
 from .interp import kernel_weights, patch_margin
 from .mesh import mesh_points
 from .noise import cramer_rao_px
+from .outline import assess_outline
 from .search import zncc_search
 
 GRAD_NOISE_GAIN = 130.0 / 144.0  # sum of the squared taps of the 4th-order central difference [1,-8,0,8,-1]/12
@@ -624,7 +625,6 @@ def assess_texture(reference: np.ndarray, dic: DicConfig, noise: NoiseEstimate, 
                                 min_valid_fraction=min_valid_fraction, grad_xy=grad)
               for name in _mesh_bodies(dic)}
     if dic.ball_method == "outline":  # a plain ball: its outline's accuracy instead (vibro_dic.outline)
-        from .outline import assess_outline
 
         bodies = {"ball": assess_outline("ball", reference, dic.ball_roi, noise.sigma_gray,
                                          max_sigma_px=max_subset_sigma_px, min_valid_fraction=min_valid_fraction),

@@ -23,6 +23,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import Image
 
 from vibro_foxglove import view as fv
+from vibro_io.rig import load_rig
 from vibro_model.errors import RecordingError
 from vibro_msgs.msg import DicFrame, DiscrepancyFinding, FreeFlight, ImpactEstimate, SimulationResult, StructureMotion
 from vibro_ros import topics
@@ -74,7 +75,6 @@ class FoxgloveBridge(Node):
                                  f"(known: {', '.join(fv.CHANNELS_BY_TOPIC)})")
         self.geometry = None
         if rig_file:
-            from vibro_io.rig import load_rig
 
             self.geometry = fv.ImageGeometry.from_rig(load_rig(rig_file))
         elif fv.ANNOTATIONS.topic in channels:

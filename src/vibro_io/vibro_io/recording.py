@@ -11,6 +11,7 @@ from .accel import AccelData, load_accel
 from .frames import FrameSequence, find_frames_source
 from .paths import inside_recording
 from .rig import RigConfig, check_rois_in_image, load_rig
+from .tdms import load_tdms_accel
 
 
 @dataclass
@@ -53,7 +54,6 @@ def load_recording_accel(recording: str | Path, rig: RigConfig) -> AccelData | N
     if path is None:
         return None
     if rig.accelerometers.is_tdms:
-        from .tdms import load_tdms_accel
 
         return load_tdms_accel(path, rig.accelerometers, rig.camera)
     return load_accel(path, rig.accelerometers, camera_fps=rig.camera.fps)

@@ -15,6 +15,7 @@ from typing import Sequence
 import numpy as np
 
 from .cor_model import SimResult, simulate_cor
+from .deviation import deviation
 from .forces import PerFlight
 from .hertz_model import simulate_hertz
 from .params import BallCavity
@@ -143,8 +144,6 @@ def compare_models(inputs: ReplayInputs, cavity: BallCavity, t_s, y_exp_m,
     ``inputs.structure`` (so that simulated and measured positions compare directly).
     Returns ``{model: {"deviation": D, "y_m": simulated positions, "result": SimResult}}``.
     """
-    from .deviation import deviation
-
     t = np.asarray(t_s, dtype=float)
     y_exp = np.asarray(y_exp_m, dtype=float)
     if t.shape != y_exp.shape:

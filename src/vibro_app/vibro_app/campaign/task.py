@@ -16,6 +16,9 @@ import time
 import traceback
 from pathlib import Path
 
+from vibro_app.campaign.fingerprint import forget_fingerprint, write_fingerprint
+from vibro_model.errors import RecordingError
+
 
 class _WarningCollector(logging.Handler):
     """Keeps the WARNING (and worse) lines that vibro logs during one run (they go to the run's record)."""
@@ -32,8 +35,6 @@ class _WarningCollector(logging.Handler):
 def analyze_run(name: str, recording: str, run_dir: str, options: dict, fingerprint: str, version: str) -> dict:
     """Analyse one recording into ``run_dir`` (see module doc); the record of the run."""
     from vibro_app.analyze import analyze_recording
-    from vibro_app.campaign.fingerprint import forget_fingerprint, write_fingerprint
-    from vibro_model.errors import RecordingError
 
     start = time.perf_counter()
     record = {"name": name, "recording": recording, "status": "ok", "reason": "", "warnings": [],
