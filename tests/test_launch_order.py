@@ -52,6 +52,14 @@ def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, t
     assert live["dic_tracker"].parameters["keep_history_until"] == ["impacts"]
     recorded = {n.spec.name for n in launch_nodes(recording, tmp_path / "live_bag", live=True)}
     assert recorded == set(live) | {"recorder"}
+    # live accelerometers from a DAQ driver: the detector joins, no file source, both readers check the blocks
+    daq = {n.spec.name: n for n in launch_nodes(recording, None, live=True, camera_topic="/camera/image_raw",
+                                                accel_topic="/daq/accel", accel_rate_hz=50_000.0)}
+    assert set(daq) == {"dic_tracker", "trajectory_fitter", "impact_detector"}
+    for name in ("trajectory_fitter", "impact_detector"):
+        assert daq[name].parameters["live_accel"] is True and daq[name].parameters["accel_rate_hz"] == 50_000.0
+        assert ("vibro/accel", "/daq/accel") in daq[name].remappings
+    assert daq["trajectory_fitter"].parameters["use_accelerometers"] is True
 
 
 def test_reader_topics_pair_every_declared_reader_with_topics_the_node_publishes(recording: Path, tmp_path: Path

@@ -447,3 +447,23 @@ class AccelImpactDetector:
         k0 = i + int(round(self.refractory_s * self.fs))
         above = np.flatnonzero(s[k0:j] > self.threshold) if k0 < j else np.empty(0, int)
         return int(k0 + above[0]) if above.size else j
+
+
+def refine_clock_offset(accel_times_s, dic_times_s, seed_s: float, tol_s: float = 0.0005,
+                        min_matched: int = MIN_MATCHED_IMPACTS) -> ClockOffset:
+    """The offset t_daq = t_camera + offset refined from ``seed_s`` (a live run's lab-clock stamps) as
+    :func:`estimate_clock_offset` refines each candidate: the median of the differences of the impacts matched
+    within ``tol_s``, twice. Determined with at least ``min_matched`` impacts matched; no search over other
+    candidates (the seed already says which whole period is right)."""
+    a = np.sort(np.asarray(accel_times_s, float))
+    d = np.sort(np.asarray(dic_times_s, float))
+    if a.size == 0 or d.size == 0:
+        return ClockOffset(float(seed_s), 0, 0.0, False, "no impact on one of the clocks yet", None, int(a.size),
+                           int(d.size))
+    off, n, sd = _refine(a, d, float(seed_s), tol_s)
+    _, sel = _match(a, d, off, tol_s)
+    span = (float(d[sel][0]), float(d[sel][-1])) if sel.any() else None
+    reason = "" if n >= min_matched else (f"only {n} impact(s) matched within {1e3 * tol_s:g} ms of the stamps' "
+                                          f"offset {seed_s:+.6f} s, at least {min_matched} needed")
+    return ClockOffset(float(off) if n else float(seed_s), int(n), float(sd), not reason, reason, span, int(a.size),
+                       int(d.size), assumption="seeded at the lab-clock stamps' offset")

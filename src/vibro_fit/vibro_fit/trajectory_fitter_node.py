@@ -18,6 +18,14 @@ published (friction withheld when it is the implausible part), no final impact, 
 counted lost, and once the readers have acknowledged it the node exits with code 2 and the refusal as one line
 (vibro_bringup.exit_policy: the run ends).
 
+Live accelerometers (``live_accel``: a DAQ driver publishes vibro/accel, docs/live.md): every block is checked
+as the impact detector checks it (:class:`vibro_fit.live_accel.BlockCheck`, a refusal stops the node), blocks are
+not kept (a live stream has no end), the impacts are detected here with the same core as ``impact_detector`` and
+put on the camera clock with the camera-to-DAQ offset from the blocks' lab-clock stamps, refined from the impacts
+both see as ``vibro analyze`` refines it (:class:`vibro_fit.live_accel.LiveClockOffset`); they mark the frames next
+to them as contact (``StreamingFitter.push_accel_impact``). /diagnostics: ``clock_offset_s``, its source, the
+stamps' offset and jitter, ``accel_impacts_count``, lost blocks and samples.
+
 Restart: vibro/dic and vibro/accel are latched histories, so a fitter restarted mid-run receives every
 DicFrame and block again and reaches the same final results. A history that does not begin where its
 stream began (frame ``reference_frame_index``, block 0), no accelerometer block at all when they are
@@ -54,14 +62,17 @@ from vibro_ros.node_support import (
     history_depth_parameter,
     history_qos,
     run_node,
+    stamp_ns,
     time_origin_parameter,
 )
 from vibro_ros.readiness import ReaderGate
 
+from .accel_impacts import AccelImpactDetector
 from .cross_checks import consistency_checks, consistency_section
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactFit
+from .live_accel import AccelStreamRefused, BlockCheck, LiveClockOffset
 from .plausibility import friction_withheld
 from .streaming import StreamingFitter
 
@@ -89,6 +100,14 @@ class TrajectoryFitter(Node):
         self.stream_wait_s = float(declare(self, "stream_wait_s", 5.0,
                                            "after a stream is announced finished, wait this long for missing "
                                            "items, then finish without them (they are reported lost)"))
+        self.live_accel = bool(declare(self, "live_accel", False,
+                                       "true: vibro/accel comes from a DAQ driver (docs/live.md): blocks are checked, "
+                                       "not kept, and their impacts mark the streamed flights' ends"))
+        accel_rate = float(declare(self, "accel_rate_hz", 0.0, "live: the DAQ's sample rate (Hz); a block at another "
+                                                                "rate is refused (0 = the first block's rate)"))
+        self.offset_tol_s = float(declare(self, "clock_offset_tol_s", 0.0005,
+                                          "live: an accelerometer and a DIC impact this close (s, after the stamps' "
+                                          "offset) are one impact when the offset is refined"))
         if not rig_file:
             raise RecordingError("trajectory_fitter: parameter 'rig_file' is required")
         if self.method not in METHODS:
@@ -98,6 +117,9 @@ class TrajectoryFitter(Node):
         self.weights = None if weights == "none" else weights
         self.rig = load_rig(rig_file)
         self.time_origin_ns = time_origin_parameter(self)
+        self.block_check = BlockCheck(accel_rate, self.time_origin_ns) if self.live_accel and self.use_accel else None
+        self.clock = LiveClockOffset(self.offset_tol_s)
+        self.accel_detector: AccelImpactDetector | None = None
         self.stream = StreamingFitter(self.rig.excitation.frequency_hz,
                                       method="paper" if self.method == "joint" else self.method)
         self.rows: list[FrameTrack] = []
@@ -153,16 +175,68 @@ class TrajectoryFitter(Node):
         for est in self.stream.push(row):
             self.pub_impacts.publish(impact_message(est, origin_ns=self.time_origin_ns))
             self.health.count("streamed_impacts")
+            if self.block_check is not None:
+                self.clock.add_dic(est.t_s)
+                self._report_clock()
         for fl in self.stream.pop_flights():
             self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg, origin_ns=self.time_origin_ns))
 
     def _on_block(self, msg: AccelBlock) -> None:
-        if not self.guard.accept(topics.ACCEL.name, run_id=msg.run_id, index=msg.block_index, first_index=0,
-                                 what="block"):
+        live = self.block_check is not None
+        if not self.guard.accept(topics.ACCEL.name, run_id=msg.run_id, index=msg.block_index,
+                                 first_index=None if live else 0, what="block"):
+            return
+        if live:
+            self._on_live_block(msg)
             return
         self.blocks[int(msg.block_index)] = msg
         self._last_block_at = time.monotonic()
         self._maybe_finish()
+
+    def _on_live_block(self, msg: AccelBlock) -> None:
+        """A DAQ driver's block: checked, its impacts detected and put on the camera clock for the streaming fit."""
+        try:
+            verdict = self.block_check.check(block_index=msg.block_index, first_sample_index=msg.first_sample_index,
+                                             sample_rate_hz=msg.sample_rate_hz, t_start_s=msg.t_start_s,
+                                             stamp_ns=stamp_ns(msg.header), upper_ms2=msg.upper_ms2,
+                                             lower_ms2=msg.lower_ms2)
+        except AccelStreamRefused as exc:
+            self.guard.fail(f"{topics.ACCEL.name}: {exc}")
+            return
+        for w in verdict.warnings:
+            self.health.warn(w)
+        if verdict.lost_blocks:
+            self.health.count("accel_blocks_lost", verdict.lost_blocks)
+        if verdict.lost_samples:
+            self.health.count("accel_samples_lost", verdict.lost_samples)
+        found = []
+        if verdict.restart and self.accel_detector is not None:  # no high-pass across a discontinuity
+            found += self.accel_detector.finish()
+            self.accel_detector = AccelImpactDetector(msg.sample_rate_hz, self.rig.excitation.frequency_hz,
+                                                      threshold=self.accel_detector.threshold)
+        if self.accel_detector is None:
+            self.accel_detector = AccelImpactDetector(msg.sample_rate_hz, self.rig.excitation.frequency_hz)
+        t = msg.t_start_s + np.arange(len(msg.upper_ms2)) / msg.sample_rate_hz
+        found += self.accel_detector.push_block(t, msg.upper_ms2, msg.lower_ms2)
+        self.clock.stamps_s = self.block_check.stamp_offset_s
+        for imp in found:
+            self.clock.add_accel(imp.t_s)
+            self.health.count("accel_impacts")
+        if found:
+            self.clock.refine()
+        offset = self.clock.offset_s
+        for imp in found:
+            self.stream.push_accel_impact(imp.t_s - offset)
+        self._last_block_at = time.monotonic()
+        self._report_clock()
+
+    def _report_clock(self) -> None:
+        offset = self.clock.offset_s
+        self.health.values["clock_offset_s"] = "" if offset is None else f"{offset:.7f}"
+        self.health.values["clock_offset_source"] = self.clock.source
+        stamps = self.block_check.stamp_offset_s
+        self.health.values["clock_offset_from_stamps_s"] = "" if stamps is None else f"{stamps:.7f}"
+        self.health.values["stamp_jitter_s"] = f"{self.block_check.stamp_jitter_s:.7f}"
 
     def _on_status(self, msg: StreamStatus) -> None:
         if not self.guard.accept(topics.STATUS.name, run_id=msg.run_id):
