@@ -24,7 +24,7 @@ from .accel_checks import (
     MS2,
     AccelData,
     check_sample_rate,
-    ms2_per_unit,
+    mps2_per_unit,
     warn_if_clipped,
 )
 from .rig import AccelConfig
@@ -60,8 +60,29 @@ def _parse_row(path: Path, line_no: int, row: list[str], idx: list[int], last_t:
 
 
 def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None = None) -> AccelData:
-    """Read an accelerometer CSV; refuses non-numeric or non-increasing times naming the line.
+    """Read an accelerometer CSV.
 
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (a header row naming ``columns``' time, upper and lower columns).
+    columns : AccelConfig
+        rig.yaml's ``accelerometers`` block: column names, the samples' unit, the sensor sensitivity.
+    camera_fps : float, optional
+        The camera's frame rate (frames/s), which the sample rate must exceed.
+
+    Returns
+    -------
+    AccelData
+        Times (s, the file's time column) and both channels in m/s^2 (+ up).
+
+    Raises
+    ------
+    AccelError
+        Non-numeric or non-increasing times (naming the line), a missing column, an implausible rate.
+
+    Notes
+    -----
     A UTF-8 byte-order mark is accepted. A last line without a line end (the writer stopped
     mid-line) is dropped with a warning naming file and line. The sample rate implied by the
     time column (seconds) is checked: see :func:`check_sample_rate`.
@@ -114,23 +135,39 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
                       camera_fps)
     for column, values in ((columns.upper_column, data[:, 1]), (columns.lower_column, data[:, 2])):
         warn_if_clipped(values, f"{path}: column '{column}'")
-    scales = (csv_ms2_per_unit(columns, "upper", path), csv_ms2_per_unit(columns, "lower", path))
+    scales = (csv_mps2_per_unit(columns, "upper", path), csv_mps2_per_unit(columns, "lower", path))
     unit = columns.unit or MS2
     return AccelData(t_s=data[:, 0], upper_ms2=data[:, 1] * scales[0], lower_ms2=data[:, 2] * scales[1],
                      source_units=(unit, unit), ms2_per_source_unit=scales,
                      unit_source="accelerometers.unit" if columns.unit else "default")
 
 
-def csv_ms2_per_unit(columns: AccelConfig, role: str, path: Path | str) -> float:
-    """M/s^2 per unit of the CSV's ``upper`` or ``lower`` column (``columns.unit``, m/s^2 when None).
+def csv_mps2_per_unit(columns: AccelConfig, role: str, path: Path | str) -> float:
+    """The scale of a CSV column: m/s^2 per unit of its ``upper`` or ``lower`` column.
 
+    Parameters
+    ----------
+    columns : AccelConfig
+        rig.yaml's ``accelerometers`` block (``unit``: m/s^2 when None; ``sensitivity_mv_per_g`` for a voltage).
+    role : str
+        ``"upper"`` or ``"lower"``.
+    path : str or Path
+        The CSV, named in a refusal.
+
+    Returns
+    -------
+    float
+        m/s^2 per unit of the column.
+
+    Notes
+    -----
     A voltage unit without ``sensitivity_mv_per_g`` is refused (:class:`AccelError` naming the
     file and the rig.yaml key); rig.yaml's parser already refuses it, this guards a config built in code.
     """
     unit = columns.unit or MS2
     sensitivity = columns.sensitivity_mv_per_g.of(role) if columns.sensitivity_mv_per_g else None
     try:
-        return ms2_per_unit(unit, sensitivity)
+        return mps2_per_unit(unit, sensitivity)
     except ValueError as exc:
         raise AccelError(f"{path}: accelerometers.unit {unit}: {exc} (accelerometers.sensitivity_mv_per_g "
                          "in rig.yaml)") from None
@@ -138,7 +175,7 @@ def csv_ms2_per_unit(columns: AccelConfig, role: str, path: Path | str) -> float
 
 def write_accel(path: str | Path, data: AccelData, columns: AccelConfig) -> None:
     """Write samples as CSV with the column names of ``columns``, in its unit (m/s^2 when ``columns.unit`` is None)."""
-    table = np.column_stack([data.t_s, data.upper_ms2 / csv_ms2_per_unit(columns, "upper", path),
-                             data.lower_ms2 / csv_ms2_per_unit(columns, "lower", path)])
+    table = np.column_stack([data.t_s, data.upper_ms2 / csv_mps2_per_unit(columns, "upper", path),
+                             data.lower_ms2 / csv_mps2_per_unit(columns, "lower", path)])
     header = f"{columns.time_column},{columns.upper_column},{columns.lower_column}"
     np.savetxt(path, table, delimiter=",", header=header, comments="", fmt=["%.7f", "%.6g", "%.6g"])

@@ -1,9 +1,9 @@
 """Accelerometer samples and what accel.csv and accel.tdms share: units, sample-rate and clipping checks.
 
 The samples are always delivered in m/s^2. A file may hold them in m/s^2, in g (standard
-gravity, :data:`STANDARD_GRAVITY_MS2`) or as the sensor's output voltage (V or mV), which the
+gravity, :data:`STANDARD_GRAVITY_MPS2`) or as the sensor's output voltage (V or mV), which the
 sensor's sensitivity (mV per g, rig.yaml's ``accelerometers.sensitivity_mv_per_g``) turns into
-an acceleration: ``a_ms2 = u_V * 1000 / sensitivity_mv_per_g * 9.80665``.
+an acceleration: ``a_mps2 = u_V * 1000 / sensitivity_mv_per_g * 9.80665``.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from vibro_model.errors import AccelError
 log = logging.getLogger(__name__)
 
 #: Standard gravity g_n (m/s^2), the "g" of accelerometer data sheets (exact by definition).
-STANDARD_GRAVITY_MS2 = 9.80665
+STANDARD_GRAVITY_MPS2 = 9.80665
 
 #: Canonical unit names: what rig.yaml's ``accelerometers.unit`` and a TDMS unit string may mean.
 MS2, G, VOLT, MILLIVOLT = "m/s^2", "g", "V", "mV"
@@ -48,19 +48,34 @@ def canonical_unit(text: str) -> str | None:
     return _CANONICAL.get(key)
 
 
-def ms2_per_unit(unit: str, sensitivity_mv_per_g: float | None = None) -> float:
-    """Factor (m/s^2 per ``unit``) that turns samples in canonical ``unit`` into m/s^2.
+def mps2_per_unit(unit: str, sensitivity_mv_per_g: float | None = None) -> float:
+    """Factor that turns samples in a canonical unit into m/s^2.
 
-    A voltage unit needs ``sensitivity_mv_per_g`` (mV per g, > 0); without it :class:`ValueError`.
+    Parameters
+    ----------
+    unit : str
+        A canonical unit (:func:`canonical_unit`): :data:`MS2`, :data:`G`, :data:`VOLT` or :data:`MILLIVOLT`.
+    sensitivity_mv_per_g : float, optional
+        The sensor's sensitivity (mV per g, > 0); required for a voltage unit.
+
+    Returns
+    -------
+    float
+        m/s^2 per ``unit``.
+
+    Raises
+    ------
+    ValueError
+        A voltage unit without a positive sensitivity, or a unit that is not canonical.
     """
     if unit == MS2:
         return 1.0
     if unit == G:
-        return STANDARD_GRAVITY_MS2
+        return STANDARD_GRAVITY_MPS2
     if unit in VOLTAGE_UNITS:
         if sensitivity_mv_per_g is None:
             raise ValueError(f"a sensitivity (mV per g) is needed to convert {unit} to m/s^2")
-        return _MV_PER_UNIT[unit] / sensitivity_mv_per_g * STANDARD_GRAVITY_MS2
+        return _MV_PER_UNIT[unit] / sensitivity_mv_per_g * STANDARD_GRAVITY_MPS2
     raise ValueError(f"unknown unit {unit!r}")
 
 
@@ -130,8 +145,26 @@ def _time_column_hint(rate_hz: float, low_hz: float) -> str:
 
 def check_sample_rate(rate_hz: float, where: str, camera_fps: float | None = None,
                       wf_increment_s: float | None = None) -> None:
-    """Refuse a sample rate (Hz) no accelerometer DAQ for impacts has (:class:`AccelError` naming ``where``).
+    """Refuse a sample rate no accelerometer DAQ for impacts has.
 
+    Parameters
+    ----------
+    rate_hz : float
+        The sample rate (Hz) implied by the file.
+    where : str
+        The file (and column or channel) named in the message.
+    camera_fps : float, optional
+        The camera's frame rate (frames/s): the rate must exceed it.
+    wf_increment_s : float, optional
+        A TDMS channel's own sample spacing (s per sample), named in the message instead of a time column.
+
+    Raises
+    ------
+    AccelError
+        A rate outside the plausible range, naming ``where`` (and the likely unit mistake).
+
+    Notes
+    -----
     The plausible range is [max(MIN_SAMPLE_RATE_HZ, camera_fps), MAX_SAMPLE_RATE_HZ]: impacts
     need several kHz, and more than the camera's frame rate (fps).
 
@@ -157,9 +190,22 @@ CLIP_RUN_SAMPLES = 3
 
 
 def warn_if_clipped(values: np.ndarray, where: str) -> int:
-    """Warn (naming ``where`` and the first sample) when the signal sits at its maximum or minimum for
-    CLIP_RUN_SAMPLES samples or more in a row: a saturated sensor, amplifier or DAQ range flattens
-    the impact peaks. Returns the number of such flat runs."""
+    """Warn when the signal sits at its maximum or minimum for CLIP_RUN_SAMPLES samples or more in a row.
+
+    A saturated sensor, amplifier or DAQ range flattens the impact peaks.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        One channel's samples (any unit: only their extremes are compared).
+    where : str
+        The file and channel named in the warning (with the first flat sample's index).
+
+    Returns
+    -------
+    int
+        The number of flat runs at the extremes (0: not clipped).
+    """
     runs = 0
     first = None
     for extreme in (values.max(initial=-np.inf), values.min(initial=np.inf)):

@@ -92,6 +92,28 @@ def from_header_step(record_fps: float, step: int, n_saved: int, n_recorded: int
                      name: str) -> TimeBase:
     """The time base a Photron header gives: record rate, saved-frame step, recorded frame count.
 
+    Parameters
+    ----------
+    record_fps : float
+        The record rate (frames/s) in the header.
+    step : int
+        Saved-frame step: every ``step``-th recorded frame was saved.
+    n_saved : int
+        Frames in the file.
+    n_recorded : int or None
+        Frames the camera recorded (None: not in the header).
+    start_frame : int or None
+        The recorded frame number of the first saved frame (None: not in the header).
+    name : str
+        The file, named in the time base's description.
+
+    Returns
+    -------
+    TimeBase
+        ``fps`` is the saved frames' rate (frames/s), None when the header contradicts itself.
+
+    Notes
+    -----
     ``step`` > 1 is trusted when ``(n_saved - 1) * step < n_recorded`` (the recorded take can hold the
     saved frames that far apart); otherwise the header contradicts itself and ``fps`` is None.
     """
@@ -117,11 +139,30 @@ def from_stamps(stamps_s: np.ndarray, origin_unix_s: float, record_fps: float, t
                 name: str) -> TimeBase:
     """The time base of a file whose images carry their own time stamps (one per image, file order).
 
-    ``stamps_s`` and ``trigger_s`` (None: unknown) are seconds after ``origin_unix_s`` (a whole Unix second
-    near them: relative values keep the stamps' resolution, which an absolute Unix time in float64 loses).
+    Parameters
+    ----------
+    stamps_s : numpy.ndarray
+        Each image's time stamp, s after ``origin_unix_s``.
+    origin_unix_s : float
+        A whole Unix second near the stamps (s since the Unix epoch): relative values keep the stamps'
+        resolution, which an absolute Unix time in float64 loses.
+    record_fps : float
+        The rate (frames/s) the header states.
+    trigger_s : float or None
+        The trigger time, s after ``origin_unix_s`` (None: unknown).
+    name : str
+        The file, named in the time base's description.
 
-    Raises ValueError (the caller names the file) when the stamps do not form a clock: fewer than 2,
-    no positive spacing, more than :data:`MAX_CORRUPT_STAMP_SHARE` corrupt, or valid ones out of order.
+    Returns
+    -------
+    TimeBase
+        The rate measured from the stamps (frames/s) and each image's time.
+
+    Raises
+    ------
+    ValueError
+        The stamps do not form a clock (the caller names the file): fewer than 2, no positive spacing, more
+        than :data:`MAX_CORRUPT_STAMP_SHARE` corrupt, or valid ones out of order.
     """
     t = np.asarray(stamps_s, dtype=np.float64)
     n = t.size
@@ -181,6 +222,20 @@ def from_stamps(stamps_s: np.ndarray, origin_unix_s: float, record_fps: float, t
 def fps_tolerance(base: TimeBase, n_frames: int) -> float:
     """Relative difference from ``base.fps`` within which a user's camera.fps names the same spacing.
 
+    Parameters
+    ----------
+    base : TimeBase
+        The file's time base.
+    n_frames : int
+        Frames in the take.
+
+    Returns
+    -------
+    float
+        The tolerance, relative (dimensionless).
+
+    Notes
+    -----
     Header-derived rates are exact numbers: 1e-6. A rate measured from stamps is known to the stamps'
     jitter; a user value is accepted when it moves the last frame by less than 0.1 frame.
     """

@@ -41,7 +41,7 @@ from .accel_checks import (
     AccelData,
     canonical_unit,
     check_sample_rate,
-    ms2_per_unit,
+    mps2_per_unit,
     warn_if_clipped,
 )
 from .rig import AccelConfig, CameraConfig
@@ -130,7 +130,7 @@ def _factor(unit: str, cfg: AccelConfig, role: str, where: str, shown: str) -> f
                          "(mV per g) to rig.yaml as accelerometers.sensitivity_mv_per_g (one number, or "
                          "{upper: .., lower: ..}) to convert it to m/s^2")
     sensitivity = cfg.sensitivity_mv_per_g.of(role) if unit in VOLTAGE_UNITS else None
-    return ms2_per_unit(unit, sensitivity)
+    return mps2_per_unit(unit, sensitivity)
 
 
 def _unit_source(sources: list[str]) -> str:
@@ -149,8 +149,27 @@ def _warn_assumed(path: Path, cfg: AccelConfig, sources: list[str]) -> None:
 
 def load_tdms_accel(path: str | Path, cfg: AccelConfig, camera: CameraConfig | None = None,
                     camera_fps: float | None = None) -> AccelData:
-    """The samples of ``cfg.group``/``cfg.upper_channel`` and ``cfg.lower_channel`` (m/s^2) on the camera clock (s).
+    """The samples of ``cfg.group``/``cfg.upper_channel`` and ``cfg.lower_channel`` on the camera clock.
 
+    Parameters
+    ----------
+    path : str or Path
+        The NI TDMS file.
+    cfg : AccelConfig
+        rig.yaml's ``accelerometers`` block: group, channel names, unit, sensitivity.
+    camera : CameraConfig, optional
+        rig.yaml's camera: places the samples by wall-clock time and gives the frame rate the sample rate must
+        exceed.
+    camera_fps : float, optional
+        The camera's frame rate (frames/s), when ``camera`` is not given.
+
+    Returns
+    -------
+    AccelData
+        Times (s, camera clock) and both channels in m/s^2 (+ up), with the unit read and the factor applied.
+
+    Notes
+    -----
     Each channel's unit (:func:`recorded_unit`) is converted to m/s^2 (:func:`channel_scale`);
     the returned :class:`AccelData` says which unit was read and the factor applied.
 
