@@ -47,8 +47,15 @@ def test_ready_before_the_first_image_and_the_dropped_first_images_answered(tiny
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
                  f"reference_image:={tiny_recording / 'frames' / '000000.png'}")
     close_rclpy.append(node)
-    # built from the reference file at start: nothing is left to set up when the first image arrives
-    assert node.tracker is not None and node.health.values["ready"] == "true"
+    # built from the reference file at start and every per-image path run once: nothing is left to set up when the
+    # first image arrives; not ready while its declared reader of vibro/dic has not matched
+    assert node.tracker is not None and node.health.values["ready"].startswith("false: tracker built and warm")
+    # the warm-up tracked the reference as frames 0-3 and then forgot them: no motion history carries over
+    assert not node.tracker.ball.history and not node.tracker.structure.history and not node._held
+    node.gate.open = True  # the reader matched (what the gate's poll finds over DDS)
+    node._release()
+    assert node.health.values["ready"] == "true"
+    node.gate.open = False  # hold the results again, to read them below
     images = _images(tiny_recording)
     node._on_image(images[2])  # frames 0 and 1 never arrived: the camera's first images were dropped
     node._on_image(images[3])
@@ -84,3 +91,40 @@ def test_from_a_recording_no_ready_flag_and_no_leading_slots(tiny_recording: Pat
     assert "ready" not in node.health.values
     node._on_image(_images(tiny_recording)[3])
     assert [int(m.frame_index) for m in node._held] == [3]
+
+
+def test_images_waiting_behind_the_one_handed_over_are_skipped_and_the_newest_tracked(tiny_recording: Path,
+                                                                                     close_rclpy, ros_domain) -> None:
+    import time
+
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    from vibro_dic.catch_up import SKIPPED
+
+    node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}")
+    close_rclpy.append(node)
+    camera = rclpy.create_node("camera_driver")
+    close_rclpy.append(camera)
+    pub = camera.create_publisher(Image, "vibro/frames", qos_profile_sensor_data)
+    deadline = time.monotonic() + 10
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    images = _images(tiny_recording)
+    for k in (0, 1, 2, 3):  # a stalled tracker: four images queued before it looks again
+        pub.publish(images[k])
+    got = None
+    while got is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        got = node._image_sub.handle.take_message(Image, False)  # what the executor hands the callback: frame 0
+    assert got is not None
+    time.sleep(0.2)
+    node._on_image(got[0])
+    rows = {int(m.frame_index): m for m in node._held}
+    assert sorted(rows) == [0, 1, 2, 3]
+    for k in (0, 1, 2):
+        assert rows[k].lost and rows[k].status == SKIPPED
+    assert not rows[3].lost and abs(rows[3].ball_mm - (-0.3)) < 1e-3  # tracked across the gap from frame 0
+    assert node.health.counters["skipped"] == 3 and node.health.values["catch_up_last"] == "frames 0..2"

@@ -11,6 +11,12 @@ is restarted mid-run still measures displacement since frame 0), else the first 
 vibro/dic is a latched history (``history_depth`` frames, transient local): a fitter, simulator or
 discrepancy node restarted mid-run receives every DicFrame again. Frames from a second publisher,
 repeated or going back, and statuses of another run stop the node (vibro_ros.guard).
+
+Live (``live_camera``), a tracker that falls behind jumps to the newest image (:mod:`vibro_dic.catch_up`): each
+time it is handed an image it first takes every image waiting in its queue (only their stamps are read), tracks
+the newest across the gap from the motion prediction, and answers the others with lost DicFrames whose status is
+:data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``, ``catch_up_episodes``,
+``catch_up_largest``, ``catch_up_last``).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import time
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image
 
 from vibro_io.dictrack import FrameTrack
@@ -48,6 +55,7 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
+from .catch_up import SKIPPED, CatchUpStats, cdr_stamp_ns, choose
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
 from .tracker import METHODS, DicTracker
@@ -140,7 +148,10 @@ class DicTrackerNode(Node):
         self.guard.watch(topics.FRAMES)
         self.pub = self.create_publisher(DicFrame, topics.DIC.name, history_qos(history_depth_parameter(self)))
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
-        self.create_subscription(Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS)
+        self.catch_up = CatchUpStats()
+        self._skipped: set[int] = set()  # frame indices received and passed over for a newer image (live)
+        self._image_sub = self.create_subscription(Image, topics.FRAMES.name, self._on_image,
+                                                   SENSOR_QOS if live else STREAM_QOS)
         self.create_timer(1.0, self._report)
         self._held: list[DicFrame] = []  # results kept back until every declared reader of vibro/dic matched
         # readers (the fitter, simulator, discrepancy, recorder, the frame source's acknowledgements) by name;
@@ -153,16 +164,54 @@ class DicTrackerNode(Node):
     def _prepare_live(self) -> None:
         """Live with a reference file: build the DIC tracker (meshes, templates, the texture check on the
         reference alone: an upper bound on the noise) now, not on the first image, whose ~15 ms of set-up would
-        drop the camera's next images from a shallow sensor queue; then report ``ready`` on /diagnostics (a lab
-        triggers its camera once the graph says so). Without a reference file the first image is the reference
-        and ``ready`` says so."""
+        drop the camera's next images from a shallow sensor queue; run every per-image code path once on the
+        reference (:meth:`_warm_up`); then, once the declared readers of vibro/dic have matched, report ``ready``
+        on /diagnostics and in the log (a lab triggers its camera once the graph says so). Without a reference
+        file the first image is the reference and ``ready`` says so."""
+        self._ready_announced = False
         if self.reference is None:
             self.health.values["ready"] = "false: no reference_image, the first image received becomes it"
             return
         self._build_tracker(self.reference, self.reference)
+        self._warm_ms = self._warm_up()
+        self.health.values["ready"] = "false: tracker built and warm, waiting for the readers of vibro/dic"
+        if self.gate.open:
+            self._announce_ready()
+
+    def _warm_up(self) -> float:
+        """Every per-image path once, on the reference as frames 0-3 (so the prediction path runs too): the image
+        serialized and read back (its stamp from the raw bytes as the catch-up reads it), its pixels, DIC, the
+        DicFrame; then the motion history is forgotten. The first call of each costs a multiple of the next
+        (imports, caches, allocations) and must not fall on the camera's first images. Returns its ms."""
+        t0 = time.perf_counter()
+        ref = self.reference
+        enc = "mono8" if ref.dtype == np.uint8 else "mono16"
+        msg = Image(height=ref.shape[0], width=ref.shape[1], encoding=enc, step=ref.shape[1] * ref.itemsize,
+                    data=ref.tobytes())
+        raw = serialize_message(msg)
+        cdr_stamp_ns(raw)
+        image = image_array(deserialize_message(raw, Image))
+        cam = self.rig.camera
+        for k in range(4):
+            row = self.tracker.track_image(k, cam.frame_time_s(k), image)
+            dic_message(row, (len(self.tracker.ball.points), len(self.tracker.structure.points)), "", 0,
+                        self.guard.run_id, self.time_origin_ns)
+        for mesh in (self.tracker.ball, self.tracker.structure):
+            mesh.reseed()
+            for counter in ("n_widened", "n_global", "n_predicted"):
+                if hasattr(mesh, counter):
+                    setattr(mesh, counter, 0)
+        self.tracker._segment = None
+        return 1e3 * (time.perf_counter() - t0)
+
+    def _announce_ready(self) -> None:
+        if self._ready_announced:
+            return
+        self._ready_announced = True
         self.health.values["ready"] = "true"
-        self.get_logger().info(f"ready: reference {self.reference_file} loaded and the tracker built; "
-                               "start the camera")
+        self.health.publish()
+        self.get_logger().info(f"ready: reference {self.reference_file} loaded, the tracker built and warm "
+                               f"({self._warm_ms:.0f} ms), the readers of vibro/dic matched; start the camera")
 
     @property
     def _released(self) -> bool:
@@ -173,11 +222,52 @@ class DicTrackerNode(Node):
         for msg in self._held:
             self.pub.publish(msg)
         self._held.clear()
+        if self.live_camera and self.reference is not None and self.tracker is not None:
+            self._announce_ready()
         self._maybe_finish()
 
     def _index_of(self, msg: Image) -> int:
+        return self._index_of_ns(stamp_ns(msg.header))
+
+    def _index_of_ns(self, stamp: int) -> int:
         cam = self.rig.camera
-        return int(round((seconds_from_stamp(msg.header, self.time_origin_ns) - cam.t0_s) * cam.fps))
+        return int(round(((stamp - self.time_origin_ns) / 1e9 - cam.t0_s) * cam.fps))
+
+    def _on_image(self, msg: Image) -> None:
+        """An image from the frame topic; live, with every image already waiting behind it: the newest is
+        tracked, the others are answered as skipped (:mod:`vibro_dic.catch_up`)."""
+        if not self.live_camera:
+            self._take(msg)
+            return
+        waiting: list[tuple[int, Image | bytes]] = [(self._index_of(msg), msg)]
+        while True:  # the images queued meanwhile, serialized: only their stamps are read
+            got = self._image_sub.handle.take_message(Image, True)
+            if got is None:
+                break
+            try:
+                waiting.append((self._index_of_ns(cdr_stamp_ns(got[0])), got[0]))
+            except ValueError:
+                continue
+        if len(waiting) == 1:
+            self._take(msg)
+            return
+        choice = choose([k for k, _ in waiting])
+        for k in choice.skipped:  # in arrival order: a stamp repeated or going back stops the node as before
+            if k < 0 or not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
+                if k < 0:  # a stamp before the origin: let the newest image's checks name it
+                    continue
+                return
+        self._skipped.update(k for k in choice.skipped if k >= 0)
+        self.received += len(choice.skipped)
+        self.catch_up.add(choice)
+        self.health.count("skipped", len(choice.skipped))
+        self.health.values["catch_up_episodes"] = self.catch_up.episodes
+        self.health.values["catch_up_largest"] = self.catch_up.largest
+        self.health.values["catch_up_last"] = f"frames {self.catch_up.last[0]}..{self.catch_up.last[1]}"
+        newest = waiting[-1][1]
+        if isinstance(newest, bytes):
+            newest = deserialize_message(newest, Image)
+        self._take(newest)
 
     def _plausible(self, k: int, msg: Image) -> bool:
         """False (and the node stops, exit code 2) for a frame whose stamp is not within a day after the
@@ -210,7 +300,7 @@ class DicTrackerNode(Node):
             self.health.count("lost")
         self.health.count("tracked")
 
-    def _on_image(self, msg: Image) -> None:
+    def _take(self, msg: Image) -> None:
         k = self._index_of(msg)
         if not self._plausible(k, msg):
             return
@@ -238,10 +328,12 @@ class DicTrackerNode(Node):
         why = ("no image received (dropped or unreadable upstream)" if self.received > 1 else
                "before the first image received (the camera started before the tracker, or its first images "
                "were dropped)")
-        for gap in range(self.next_index, k):  # frames that never arrived
+        for gap in range(self.next_index, k):  # frames that never arrived, or were passed over (live)
             gt = self.rig.camera.frame_time_s(gap)
             self._publish(FrameTrack(frame=gap, t_s=gt, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
-                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True), why)
+                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
+                          SKIPPED if gap in self._skipped else why)
+        self._skipped.clear()
         row = self.tracker.track_image(k, t, image)
         self.quality.add(k, self.tracker.last_results)
         reasons = "; ".join(r.reason for r in self.tracker.last_results.values() if r.lost and r.reason)

@@ -1,0 +1,136 @@
+"""A live tracker that falls behind jumps to the newest image: which images it tracks, which it reports lost.
+
+No rclpy here. ``dic_tracker`` (live camera), each time it is handed an image, first takes every image already
+waiting in its subscription's queue (raw, unread: only their stamps are read, :func:`cdr_stamp_ns`), then tracks
+the newest of them and reports the others lost with :data:`SKIPPED` as the reason. So after a stall (another
+process on its core, a slow frame) the backlog is cleared in one step: the next frame tracked is the camera's
+newest, predicted across the gap from the motion history (vibro_dic.tracker, step 1: quadratic for the ball,
+the drive's sine for the structure), and tracking is back at the camera's rate one frame's work after the stall
+ended, however long it was. Without the jump a tracker working through a backlog oldest first stays behind for
+as long as the backlog lasts, and a shallow sensor queue drops images meanwhile, at random, instead.
+
+:func:`simulate` runs this policy (or the oldest-first one) on a schedule of image arrivals, a per-frame cost and
+stalls, deterministically: what the tests and the bench's expectations rest on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+#: reason of a DicFrame whose image was received but passed over for a newer one
+SKIPPED = "skipped: the tracker fell behind and jumped to the newest image"
+
+
+def cdr_stamp_ns(raw: bytes) -> int:
+    """The header stamp (ns) of a serialized message whose first field is a std_msgs/Header (sensor_msgs/Image):
+    CDR encapsulation (4 bytes: representation id, options), then int32 sec and uint32 nanosec in its byte
+    order. Reads 12 bytes; the image itself is never deserialized."""
+    if len(raw) < 12:
+        raise ValueError(f"a serialized message of {len(raw)} bytes has no header stamp")
+    order = "little" if raw[1] & 1 else "big"  # 0x0001 CDR_LE, 0x0000 CDR_BE (and their PL_ variants 2/3)
+    sec = int.from_bytes(raw[4:8], order, signed=True)
+    nanosec = int.from_bytes(raw[8:12], order)
+    return sec * 1_000_000_000 + nanosec
+
+
+@dataclass
+class Choice:
+    """The image to track now (its frame index) and the frame indices of the waiting images passed over."""
+
+    track: int
+    skipped: list[int]
+
+
+def choose(waiting: Sequence[int]) -> Choice:
+    """Of the frame indices of the images waiting (arrival order, growing), the newest is tracked and the rest
+    skipped."""
+    if not waiting:
+        raise ValueError("no image waiting")
+    return Choice(int(waiting[-1]), [int(k) for k in waiting[:-1]])
+
+
+@dataclass
+class CatchUpStats:
+    """What the jumps cost a live session: images skipped, episodes (calls that skipped any), the largest."""
+
+    skipped: int = 0
+    episodes: int = 0
+    largest: int = 0
+    last: tuple[int, int] | None = None  # (first, last) frame index of the latest episode's skipped images
+
+    def add(self, choice: Choice) -> None:
+        if not choice.skipped:
+            return
+        self.skipped += len(choice.skipped)
+        self.episodes += 1
+        self.largest = max(self.largest, len(choice.skipped))
+        self.last = (choice.skipped[0], choice.skipped[-1])
+
+
+@dataclass
+class Simulation:
+    """Outcome of :func:`simulate`: frame indices tracked (with the time each finished), skipped (received and
+    passed over), dropped (pushed out of the reader's queue before being taken), and per stall the time from its
+    end to the end of the first frame tracked that arrived after it (``recovery_s``)."""
+
+    tracked: list[int] = field(default_factory=list)
+    finished_s: list[float] = field(default_factory=list)
+    skipped: list[int] = field(default_factory=list)
+    dropped: list[int] = field(default_factory=list)
+    recovery_s: list[float] = field(default_factory=list)
+
+
+def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *,
+             stalls: Sequence[tuple[float, float]] = (), queue_depth: int = 5, jump: bool = True) -> Simulation:
+    """Frame k arrives at ``arrivals_s[k]`` into a keep-last queue of ``queue_depth``; the tracker, whenever it is
+    free and an image waits, takes what waits (``jump``: all of it, tracks the newest, skips the rest; else the
+    oldest only) and is busy for ``cost_s(k, gap)`` (gap: frames since the last one tracked); during a stall
+    (start, end) it does nothing."""
+    sim = Simulation()
+    queue: list[int] = []
+    nxt = 0  # next frame to arrive
+    now = 0.0
+    last = None
+    n = len(arrivals_s)
+    stalls = sorted(stalls)
+    pending_stalls = list(stalls)
+
+    def arrive_until(t: float) -> None:
+        nonlocal nxt
+        while nxt < n and arrivals_s[nxt] <= t:
+            queue.append(nxt)
+            nxt += 1
+            if len(queue) > queue_depth:
+                sim.dropped.append(queue.pop(0))
+
+    while nxt < n or queue:
+        arrive_until(now)
+        if pending_stalls and pending_stalls[0][0] <= now:
+            start, end = pending_stalls.pop(0)
+            if end > now:  # busy elsewhere: images keep arriving (and being dropped)
+                arrive_until(end)
+                now = end
+            continue
+        if not queue:
+            now = max(now, arrivals_s[nxt])
+            if pending_stalls and pending_stalls[0][0] < now:
+                now = pending_stalls[0][0]
+            continue
+        if jump:
+            choice = choose(queue)
+            queue.clear()
+        else:
+            choice = Choice(queue.pop(0), [])
+        sim.skipped += choice.skipped
+        k = choice.track
+        gap = k - last if last is not None else 1
+        now += cost_s(k, gap)
+        sim.tracked.append(k)
+        sim.finished_s.append(now)
+        last = k
+    for _, end in stalls:
+        after = [f for k, f in zip(sim.tracked, sim.finished_s) if arrivals_s[k] >= end]
+        sim.recovery_s.append(after[0] - end if after else math.nan)
+    return sim
