@@ -338,14 +338,41 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
                  force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
                  t0_s: float = 0.0, t_end_s: float = 1.5, stick_speed_mps: float = 1e-4,
                  scan_step_s: float | None = None, max_events: int = 1_000_000) -> SimResult:
-    """Simulate the COR model from (t0_s, y0_m, v0_mps) to t_end_s.
+    """Simulate the COR model (instantaneous impacts, Eq. 4-6) from (t0_s, y0_m, v0_mps) to t_end_s.
 
-    ``y0_m``: ball centre (m) in the structure's frame of reference (the lab frame);
-    ``v0_mps``: its velocity (m/s). ``force``: a :mod:`vibro_sim.forces` law (None =
-    gravity only). ``stick_speed_mps``: rebounds slower than this (relative, m/s) are
-    set to zero (sticking). ``scan_step_s``: grid of the contact scan (default
-    min(1e-4 s, T/400)); contacts are found exactly whatever its value.
-    Raises ValueError if the ball starts outside the cavity or t_end_s < t0_s.
+    Parameters
+    ----------
+    structure : StructureKinematics
+        The cavity's motion (m, m/s, m/s^2 against time in s).
+    cavity : BallCavity
+        Ball and cavity geometry (m) and mass (kg).
+    restitution : RestitutionLaw
+        The COR of each impact (per plate; constant or a law of the impact speed).
+    force : ForceLaw, optional
+        A :mod:`vibro_sim.forces` law acting in flight (None: gravity only).
+    y0_m : float
+        Ball centre (m) in the lab frame (the structure's frame of reference), + up.
+    v0_mps : float
+        Ball velocity (m/s), + up.
+    t0_s, t_end_s : float
+        Start and end of the simulation (s).
+    stick_speed_mps : float
+        Rebounds slower than this (relative, m/s) are set to zero: the ball sticks.
+    scan_step_s : float, optional
+        Grid of the contact scan (default min(1e-4 s, T/400)); contacts are found exactly whatever its value.
+    max_events : int
+        Events (impacts, sticking starts and ends) after which the simulation stops with a warning and
+        ``truncated`` set.
+
+    Returns
+    -------
+    SimResult
+        Impacts (time s, velocities m/s, COR), flights, sticking phases and the exact trajectory's segments.
+
+    Raises
+    ------
+    ValueError
+        A non-finite start, a ball outside the cavity, or ``t_end_s < t0_s``.
     """
     for name, value in (("y0_m", y0_m), ("v0_mps", v0_mps), ("t0_s", t0_s), ("t_end_s", t_end_s)):
         if not math.isfinite(value):

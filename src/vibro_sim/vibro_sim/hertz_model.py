@@ -188,8 +188,47 @@ def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restituti
                    t0_s: float = 0.0, t_end_s: float = 1.5, delta_a: str | float = "impact",
                    stick_speed_mps: float = 1e-4, rtol: float = 1e-9,
                    max_events: int = 1_000_000) -> SimResult:
-    """Simulate the Hertz damped model; same conventions and arguments as ``simulate_cor``.
+    """Simulate the Hertz damped contact model (Eq. 7-12); same conventions as :func:`simulate_cor`.
 
+    Parameters
+    ----------
+    structure : StructureKinematics
+        The cavity's motion (m, m/s, m/s^2 against time in s).
+    cavity : BallCavity
+        Ball and cavity geometry (m), mass (kg) and contact stiffness.
+    restitution : RestitutionLaw
+        The target COR e of each impact (Eq. 11).
+    force : ForceLaw, optional
+        A :mod:`vibro_sim.forces` law acting in flight (None: gravity only).
+    y0_m : float
+        Ball centre (m) in the lab frame, + up.
+    v0_mps : float
+        Ball velocity (m/s), + up.
+    t0_s, t_end_s : float
+        Start and end of the simulation (s).
+    delta_a : str or float
+        The reference indentation of the damping (Eq. 11-12): ``"impact"`` (each impact's maximum
+        penetration), ``"calibrated"`` (chosen per impact so that the achieved COR is e) or a length (m); see
+        the module doc.
+    stick_speed_mps : float
+        Rebounds slower than this (relative, m/s) are set to zero: the ball sticks.
+    rtol : float
+        Relative tolerance of the contact integration.
+    max_events : int
+        Events after which the simulation stops with a warning and ``truncated`` set.
+
+    Returns
+    -------
+    SimResult
+        As :func:`simulate_cor`'s (see Notes for the impacts' meaning).
+
+    Raises
+    ------
+    ValueError
+        A non-finite start, ``t_end_s < t0_s`` or an invalid ``delta_a``.
+
+    Notes
+    -----
     In the result, ``impacts[i].t_s`` is the contact entry, ``v_ball_after_mps`` the
     velocity at contact exit and ``cor`` the *target* e given to Eq. 11;
     ``result.contact_durations_s`` and ``result.effective_cors`` hold, per impact, the
