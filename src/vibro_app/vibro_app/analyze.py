@@ -148,10 +148,46 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
                       method: str = "paper", track_csv: str | Path | None = None, dic_method: str = "icgn",
                       report: bool = True, weights: str | None = None, overwrite: bool = False,
                       workers: int | None = None, scheduler: str | None = None) -> dict:
-    """Run the whole analysis; writes results.json, flights.csv, impacts.csv, PNG figures and report.html
-    into ``out_dir`` (created; refused when it holds anything but this run's inputs, unless ``overwrite``:
-    see :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically. Returns the results
-    mapping. ``workers``/``scheduler``: DIC in chunks on Dask workers (:func:`load_inputs`)."""
+    """Run the whole analysis of one recording (``vibro analyze``).
+
+    Parameters
+    ----------
+    recording_dir : str or Path
+        The recording (rig.yaml beside its frames or camera file, and accelerometer file if any).
+    out_dir : str or Path
+        Where results.json, flights.csv, impacts.csv, the PNG figures and report.html are written (created;
+        refused when it holds anything but this run's inputs, unless ``overwrite``: see
+        :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically.
+    progress : bool
+        Progress bars on stderr.
+    method : str
+        Impact identification: ``"paper"`` (Eq. 15-16) or ``"joint"`` (:func:`vibro_fit.identify.identify`).
+    track_csv : str or Path, optional
+        A DIC track (dic.csv) to use instead of tracking the frames.
+    dic_method : str
+        The DIC sub-pixel method: ``"icgn"`` or ``"parabolic"`` (:mod:`vibro_dic.tracker`).
+    report : bool
+        Write the figures and report.html.
+    weights : str, optional
+        Flight-fit weights (``"dic_valid"``: by the valid ball subsets per frame).
+    overwrite : bool
+        Replace an earlier analysis's files in ``out_dir``.
+    workers : int, optional
+        DIC in chunks on a new local Dask cluster of this many processes.
+    scheduler : str, optional
+        DIC in chunks on the Dask scheduler at this address.
+
+    Returns
+    -------
+    dict
+        The results.json document (lengths mm, times s, velocities m/s; docs/recording-format.md).
+
+    Raises
+    ------
+    RecordingError
+        Bad input (named, with where); or a run the cross-checks refuse, after results.json is written with its
+        ``consistency`` section and without a COR table.
+    """
     from vibro_discrepancy.engine import discrepancy_for_results
     from vibro_discrepancy.reidentify import reidentify_document
     from vibro_fit.identify import identify

@@ -88,10 +88,37 @@ def _join_chunks(recording, client, texture: TextureReport, method: str, progres
 def track_rows(recording, *, workers: int | None = None, scheduler: str | None = None, client=None,
                method: str = "icgn", progress: bool = False, quality: TrackQuality | None = None,
                max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX, **tracker_kwargs) -> Iterator[FrameTrack]:
-    """The rows of ``recording``: in this process (``workers`` None or 1, no ``scheduler``, no ``client``),
-    else in chunks on ``client``, on the scheduler at ``scheduler`` or on a new local cluster of ``workers``
-    processes (open while the rows are read; started after the texture check passed). The same rows and
-    ``quality`` either way (module doc)."""
+    """The DIC rows of a recording, one per frame, in frame order: the same rows and ``quality`` in this process
+    or in chunks on Dask workers (module doc).
+
+    Parameters
+    ----------
+    recording : Recording
+        The opened recording (:func:`vibro_io.recording.open_recording`).
+    workers : int, optional
+        None or 1: in this process; more: on a new local cluster of that many processes (open while the rows
+        are read; started after the texture check passed).
+    scheduler : str, optional
+        The address of a running Dask scheduler to track on.
+    client : distributed.Client, optional
+        A Dask client to track on.
+    method : str
+        The DIC sub-pixel method: ``"icgn"`` or ``"parabolic"`` (:mod:`vibro_dic.tracker`).
+    progress : bool
+        A progress bar on stderr.
+    quality : TrackQuality, optional
+        Filled with the track's quality counters (lost subsets and frames, and why).
+    max_subset_sigma_px : float
+        The texture check's limit on a subset's predicted displacement std (px).
+    **tracker_kwargs
+        Passed on to :class:`vibro_dic.tracker.DicTracker`.
+
+    Yields
+    ------
+    FrameTrack
+        Each frame slot's time (s), ball and structure displacement (mm), valid mesh points and ZNCC, and
+        whether the frame was lost.
+    """
     check_workers(workers)
     if client is None and scheduler is None and (workers is None or workers <= 1):
         yield from track_recording(recording, method=method, progress=progress, quality=quality,
