@@ -153,13 +153,41 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
              weights: str | None = None) -> Identification:
     """Identify structure motion, free flights, impacts (COR), friction and regime from a DIC track.
 
-    ``method``: "paper" (Eq. 15-16 on separate parabola fits) or "joint" (pairs of flights refitted with the
-    constraint that they meet on the plate). With ``accel`` the impacts are also detected on the
-    accelerometers, the camera-to-DAQ clock offset estimated, and the accelerometer impact times (camera
-    clock) used to refine the segmentation; the offset is used only when determined (see
-    :func:`~vibro_fit.accel_impacts.estimate_clock_offset`), else the reason is a warning.
-    ``weights="dic_valid"`` weights the flight fits by the number of valid ball mesh points of each frame.
+    Parameters
+    ----------
+    track : DicTrack
+        The DIC track: times (s), ball and structure displacements (mm, + up), lost frames flagged.
+    rig : RigConfig
+        rig.yaml: the excitation's nominal frequency (Hz), ball and cavity geometry (mm).
+    accel : AccelData, optional
+        Accelerometer samples (s on the DAQ clock, m/s^2). The impacts are then also detected on them, the
+        camera-to-DAQ clock offset estimated, and the accelerometer impact times (camera clock) used to refine
+        the segmentation; the offset is used only when determined (see
+        :func:`~vibro_fit.accel_impacts.estimate_clock_offset`), else the reason is a warning.
+    method : str
+        ``"paper"`` (Eq. 15-16 on separate parabola fits) or ``"joint"`` (pairs of flights refitted with the
+        constraint that they meet on the plate).
+    config : SegmentationConfig, optional
+        Thresholds of the flight segmentation (default: :class:`SegmentationConfig`'s).
+    highpass_hz : float
+        Corner of the accelerometers' high-pass filter (Hz).
+    weights : str, optional
+        ``"dic_valid"``: the flight fits weighted by the number of valid ball mesh points of each frame.
 
+    Returns
+    -------
+    Identification
+        Structure sine (mm, Hz, rad), flights (parabola coefficients, mm and s), impacts (time s, velocities
+        m/s, COR with sigmas), friction, regime, contacts, gaps and warnings.
+
+    Raises
+    ------
+    RecordingError
+        An unknown ``method`` or ``weights``; a track of fewer than 20 frames or 20 usable ones, or whose times
+        do not increase.
+
+    Notes
+    -----
     Also stated (warnings and fields): what the recording shows (``motion``), impacts without a COR
     (``landings``), accelerometer impacts the camera misses (``accel_unseen_s``) and contradictions between
     rig.yaml and the measurement (``rig_consistency``).
