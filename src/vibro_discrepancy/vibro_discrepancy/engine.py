@@ -267,14 +267,39 @@ def flight_shape(chain: FindingChain, f_stage: StageResult | None) -> ShapeCheck
     return shape
 
 
+#: COR patterns in the catalogue COR laws' own coordinates and beside them: left after a chosen law, the law
+#: does not fit the COR's shape (a trend or step in time is another effect on top of a law that fits)
+COR_LAW_SHAPES = ("plate", "speed", "parity")
+
+
+def cor_shape_left(chain: FindingChain, patterns: list[Mismatch]) -> list[Mismatch]:
+    """The COR patterns (:mod:`.systematic`, tested against the COR scatter after the final COR law) that
+    the chosen COR law leaves in its coordinates (``COR_LAW_SHAPES``); the law's finding then says it
+    does not fit the COR's shape (``fits_residual_shape`` false, ``details.cor_shape_left``). Empty when no
+    COR law was chosen."""
+    left = [p for p in patterns if p.series == "cor" and p.shape in COR_LAW_SHAPES]
+    laws = set(CandidateLibrary.cor_terms)
+    hit = [k for k, f in enumerate(chain.findings) if f.effect in laws]
+    if not left or not hit:
+        return []
+    for k in hit:
+        f = chain.findings[k]
+        where = (f"{f.where}; lowers the COR scatter but does not fit the COR's shape: "
+                 + "; ".join(p.what() for p in left) + " (see unexplained)")
+        extra = {"fits_residual_shape": False, "cor_shape_left": [p.to_dict() for p in left]}
+        chain.findings[k] = replace(f, where=where, details={**(f.details or {}), **json_value(extra)})
+    return left
+
+
 def order_findings(findings: list[DiscrepancyFinding], leftover: DiscrepancyFinding | None,
-                   shape: ShapeCheck | None) -> list[DiscrepancyFinding]:
+                   shape: ShapeCheck | None, cor_left: list[Mismatch] | None = None) -> list[DiscrepancyFinding]:
     """The findings in the order they are reported: the chain's, then ``unexplained``; when the flight
-    finding leaves a structured residual (``shape``), ``unexplained`` comes first and the catalogue
-    findings below it (a model that lowers the deviation without fitting the shape is not claimed on top)."""
+    finding leaves a structured residual (``shape``) or the COR law a shaped COR residual (``cor_left``),
+    ``unexplained`` comes first and the catalogue findings below it (a model that lowers the deviation
+    without fitting the shape is not claimed on top)."""
     if leftover is None:
         return list(findings)
-    if shape is not None and shape.structured:
+    if (shape is not None and shape.structured) or cor_left:
         return [leftover] + list(findings)
     return list(findings) + [leftover]
 
@@ -373,9 +398,10 @@ class DiscrepancyEstimator:
             patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
                                            structure=[p for p in patterns if p.series == "structure"])
         leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone, shape)
+        cor_left = cor_shape_left(chain, patterns)
 
         cur = chain.current
-        findings = order_findings(chain.findings, leftover, shape)
+        findings = order_findings(chain.findings, leftover, shape, cor_left)
         details = run_details(meas, chain, floors, location, stages_section(s_stage, f_stage, c_stage), patterns)
         result = Discrepancy(json_number(base.restarted.deviation), findings, json_number(cur.restarted.deviation),
                              json_value(details))

@@ -19,7 +19,11 @@ flight terms (``coulomb_friction``, ``viscous_drag``, ``quadratic_drag``, ``grav
 ``unexplained`` finding whose located structure tone was modelled (:mod:`.tone`; its parameters carry
 the tone, its ``cor_method`` part is ``structure_tone``). A COR law (``asymmetric_restitution``,
 ``velocity_dependent_restitution``) describes the measured CORs and does not change them; any other
-``unexplained`` mismatch has no model. Without such a finding, or for an impact the final
+``unexplained`` mismatch has no model. A flight term that lowers the deviation without fitting the
+residual's shape (``fits_residual_shape`` false: :mod:`.shape`, e.g. Coulomb friction absorbing part of a
+force that depends on the ball's position) does not measure the impacts either: it would bias every COR
+(measured: 0.003 mean error against 0.0014 for Eq. 16 on a position force of 20 % of the weight).
+Without such a finding, or for an impact the final
 model does not see from both sides (a flight too short to fit), the identification's values stay and
 the impact's ``cor_method`` is ``"paper"``.
 
@@ -74,6 +78,9 @@ def measurement_effects(findings: Iterable[object]) -> list[str]:
     out = []
     for f in findings:
         name = f.get("effect") if isinstance(f, dict) else getattr(f, "effect", None)
+        details = f if isinstance(f, dict) else (getattr(f, "details", None) or {})
+        if details.get("fits_residual_shape") is False:   # lowers D but leaves a shaped residual: not a
+            continue                                      # model to measure the impacts with
         if modelled_tone(f):
             name = TONE_EFFECT
         if name in MEASUREMENT_EFFECTS and name not in out:

@@ -12,7 +12,10 @@ Three series of the final model's residuals are tested for a pattern, each with 
   frame. Tested for a trend or a step in time (noise estimated from the series: F-tests);
 - the COR residual of the final COR law (the per-impact CORs scatter physically: the noise is that
   scatter, estimated: F-tests): trend and step in time, slope with impact speed within each plate, a
-  difference between the plates, slope with the drive phase of the impact within each plate.
+  difference between the plates, slope with the drive phase of the impact within each plate, and the
+  impact's parity on each plate (the COR alternating on the plate's successive impacts: :func:`parity_signs`).
+  These are the coordinates of the catalogue's COR laws (plate, speed) and those next to them (time,
+  phase, parity): a COR pattern left after a chosen COR law means the law does not fit the COR's shape.
 
 Matching pursuit per series: the strongest pattern is accepted when its family-corrected p-value
 (Bonferroni over its candidate split points or frequencies, and over every test of the recording:
@@ -54,9 +57,10 @@ class Mismatch:
     """One systematic pattern: which series (and plate), its shape, size and significance."""
 
     series: str                 # "structure", "contact_level", "cor"
-    shape: str                  # "trend", "step", "periodic", "speed", "plate", "phase"
+    shape: str                  # "trend", "step", "periodic", "speed", "plate", "phase", "parity"
     size: float                 # trend/step: change over the span / the jump; periodic: amplitude;
-                                # speed/phase: change over the range; plate: top - bottom (unit below)
+                                # speed/phase: change over the range; plate: top - bottom; parity: the
+                                # even impacts' COR - the odd ones' (unit below)
     unit: str                   # "um" or "cor"
     t_from_s: float
     t_to_s: float
@@ -68,6 +72,7 @@ class Mismatch:
     step_between_s: tuple[float, float] | None = None   # the samples either side of the step (s)
     size_ms: float | None = None   # contact level: the impact-time shift it causes (ms)
     frequencies_searched: int | None = None   # periodic: independent frequencies the search tried
+    levels: tuple[float, float] | None = None   # parity: the mean measured COR on the even and odd impacts
     fit: np.ndarray | None = None  # the pattern's values on the series (for subtraction)
 
     def what(self) -> str:
@@ -88,6 +93,12 @@ class Mismatch:
                     f"{self.size:.3g}{u} over {span}")
         elif self.shape == "plate":
             what = f"differs between the plates by {self.size:+.3g} (top - bottom)"
+        elif self.shape == "parity":
+            pl = {"top": "upper", "bottom": "lower"}.get(self.plate or "", "")
+            between = (f"between {self.levels[0]:.3f} and {self.levels[1]:.3f}" if self.levels is not None
+                       else f"by {self.size:+.3g}")
+            return f"COR alternates {between} on successive {pl}-plate impacts (t = {self.t_from_s:.3f} to " \
+                   f"{self.t_to_s:.3f} s)"
         else:
             what = f"changes by {self.size:+.3g} over the range of impact {self.shape}s within each plate"
         return f"{where}: {what}"
@@ -110,6 +121,8 @@ class Mismatch:
             out["size_ms"] = _num(self.size_ms)
         if self.frequencies_searched is not None:
             out["frequencies_searched"] = int(self.frequencies_searched)
+        if self.levels is not None:
+            out["levels"] = [_num(x) for x in self.levels]
         return out
 
 
@@ -502,13 +515,32 @@ def _within(x: np.ndarray, plates: np.ndarray) -> np.ndarray:
     return out
 
 
+def parity_signs(t: np.ndarray, f0_hz: float) -> np.ndarray:
+    """+1/-1 alternating over one plate's impacts at times ``t`` (s, any order): successive impacts flip the
+    sign; impacts more than half a drive period apart flip it once per drive cycle between them (rounded),
+    so an impact missed in a one-impact-per-cycle regime does not turn the alternation over."""
+    t = np.asarray(t, float)
+    order = np.argsort(t)
+    out = np.zeros(t.size)
+    k = 0
+    for j, i in enumerate(order):
+        if j:
+            cycles = (t[i] - t[order[j - 1]]) * f0_hz if f0_hz > 0 else 0.0
+            k += max(1, int(round(cycles))) if cycles >= 0.5 else 1
+        out[i] = 1.0 if k % 2 == 0 else -1.0
+    return out
+
+
 def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual: np.ndarray, f0_hz: float,
-                 n_tests: int = N_SERIES, shapes=("plate", "speed", "phase")) -> list[Mismatch]:
+                 n_tests: int = N_SERIES, shapes=("plate", "speed", "phase", "parity"),
+                 cor: np.ndarray | None = None) -> list[Mismatch]:
     """Systematic patterns of a COR residual (measured - model COR at each impact): trend and step in
     time, and ``shapes`` of: a plate difference, a within-plate slope with impact speed, with the drive
-    phase of the impact (rad)."""
+    phase of the impact (rad), the COR alternating on a plate's successive impacts (per plate,
+    :func:`parity_signs`; ``cor``, the measured CORs, gives the two alternating values' means)."""
     t, plates, speed, r = (np.asarray(x) for x in (t, plates, speed, residual))
     ok = np.isfinite(r)
+    cor = None if cor is None else np.asarray(cor, float)[ok]
     t, plates, speed, r = t[ok].astype(float), plates[ok], speed[ok].astype(float), r[ok].astype(float)
     if r.size < 2 * MIN_SPLIT:
         return []
@@ -525,7 +557,26 @@ def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual:
             if sel.sum() >= 2:
                 dev[sel] = np.angle(z[sel] * np.conj(np.mean(z[sel])))   # rad from the plate's mean phase
         cols["phase"] = _within(dev, plates)
-    return _series_pursuit("cor", t, r, cols, MIN_COR_RMS, 1.0, "cor", None, n_tests, rms_floor=True)
+    signs = {}
+    if "parity" in shapes:
+        for p in ("top", "bottom"):
+            sel = plates == p
+            if sel.sum() >= 2 * MIN_SPLIT:
+                x = np.zeros_like(t)
+                x[sel] = parity_signs(t[sel], f0_hz)
+                signs[p] = x.copy()
+                x[sel] -= x[sel].mean()
+                cols[f"parity_{p}"] = x
+    found = _series_pursuit("cor", t, r, cols, MIN_COR_RMS, 1.0, "cor", None, n_tests, rms_floor=True)
+    for m in found:
+        if m.shape.startswith("parity_"):
+            m.shape, m.plate = "parity", m.shape[len("parity_"):]
+            x = signs[m.plate]   # the pursuit's size, c (max - min) of the +-1 column, is even - odd
+            if cor is not None:
+                m.levels = (float(np.mean(cor[x > 0])), float(np.mean(cor[x < 0])))
+            sel = plates == m.plate
+            m.t_from_s, m.t_to_s = float(t[sel].min()), float(t[sel].max())
+    return found
 
 
 def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, sigma_f_m: float,
@@ -536,7 +587,7 @@ def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, si
            else structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.frequency_hz, fps))
     out += level_mismatch(meas, model, sigma_f_m)
     imp = model.impacts
-    out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.frequency_hz)
+    out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.frequency_hz, cor=imp.cor)
     return out
 
 

@@ -34,6 +34,8 @@ structure_tone                   tone_amplitude_um 5 .. 30, tone_frequency_hz 5 
 plate_step                       step_um 30 .. 100; step_time_s uniform over the middle 30-70 % of T
                                  keeping 4 drive cycles either side (T / 2 when T is too short)
 position_force                   weight_fraction 0.1 .. 0.3 at the lower plate, decay_mm 1.5 .. 5
+cor_parity                       the lower plate's COR alternates on successive impacts between two
+                                 values 0.08 .. 0.16 apart around 0.62 .. 0.72 (either one first)
 ===============================  ==========================================================
 
 Two ways to draw (``Draws``):
@@ -49,6 +51,17 @@ Either way each case also draws its per-impact COR scatter (uniform in ``Draws.c
 synth's ``--cor-scatter``), its noise (``Draws.noise_gray``) and motion blur (probability
 ``Draws.blur_share``, the synth's ``--blur``: 0.5 ms exposure); scatter and blur come from a stream
 separate from the legacy draws, so that ``--cases`` runs without them draw what they drew before.
+
+Harder rigs (``vibro prove --harder [--cases N] [--frames N] [--seed S]``, :mod:`.harder`): a separate set
+drawn by the same generator, the families of the issue on harder rigs: near-chatter with sticking (baseline
+COR 0.4 .. 0.6 at 9 .. 11 Hz and 12 .. 14 m/s^2; a control), runs of 2 .. 6 deleted frame files hiding an
+impact on either plate or inside a flight, on recordings with and without accelerometers (a control, and with
+Coulomb friction), ``position_force`` and ``cor_parity`` (out of the catalogue), a plain control: 13 cases of
+1000 frames by default. Scored per case, one table row each with pass/FAIL per criterion: impact recall over the
+measurable impacts (short hops included) >= 98 %, no invented impact, every impact inside a gap found
+(``in_gap``, time and COR within 3 of their sigmas) or counted by the gap's verdict, mean |COR error| <= 0.002,
+findings against the truth (controls: no catalogue finding; out of the catalogue: ``unexplained`` on top), D_r
+lowered by every correct catalogue finding; PySINDy's findings beside.
 
 Scored per case (:mod:`.truth`): effects identified (an out-of-catalogue effect only as ``unexplained``
 with a location; ``located``: its mismatches where the truth has it), spurious findings (anything on a
@@ -199,6 +212,10 @@ def draw_effect(family: str, rng: np.random.Generator, u: float | None = None, d
                          "step_time_s": _step_time_s(rng, duration_s, frequency_hz)}}
     if family == "position_force":
         return {family: {"weight_fraction": _value(rng, 0.1, 0.3, u), "decay_mm": float(rng.uniform(1.5, 5.0))}}
+    if family == "cor_parity":
+        mid, half = float(rng.uniform(0.62, 0.72)), 0.5 * _value(rng, 0.08, 0.16, u)
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        return {family: {"cor_even": mid - sign * half, "cor_odd": mid + sign * half}}
     raise ValueError(f"unknown effect family {family!r}")
 
 

@@ -17,6 +17,12 @@ with where and what. They exist to test that; a lab recording may show any of th
   gap between the ball and the lower plate (0 in contact); downward on rising and falling flights alike.
   No catalogue term has this shape: Coulomb friction flips sign with the direction of motion, a tilt is
   the same everywhere, drags follow the speed. Combined with a catalogue force the two add.
+- ``cor_parity``: the lower plate's COR alternates between ``cor_even`` and ``cor_odd`` on successive
+  lower-plate impacts (a period-2 contact state: a ball that lands alternately on two spots of a worn plate):
+  impact i (counting every impact from the lead-in's first) gets ``cor_even`` when floor(i / 2) is even, which
+  in the rig's two-impacts-per-cycle regime alternates on the lower plate's successive impacts; the upper
+  plate keeps the law's COR (the baseline's, or ``asymmetric_restitution``'s ``cor_top``). No catalogue COR
+  law has this shape: each gives every impact of a plate at one speed the same COR.
 
 Parameters: {effect: {parameter: (default, min, max)}}, SI except the explicit ``_um``.
 """
@@ -36,6 +42,7 @@ INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
                        "tone_phase_rad": (0.4, -2 * math.pi, 2 * math.pi)},
     "plate_step": {"step_um": (60.0, 0.0, 1000.0), "step_time_s": (0.15, 0.0, 100.0)},
     "position_force": {"weight_fraction": (0.25, 0.0, 2.0), "decay_mm": (3.0, 0.05, 100.0)},
+    "cor_parity": {"cor_even": (0.62, 0.0, 1.0), "cor_odd": (0.74, 0.0, 1.0)},
 }
 
 INVENTED_HELP = {
@@ -44,6 +51,7 @@ INVENTED_HELP = {
     "plate_step": "at step_time_s the upper plate backs off upwards by step_um (a loosening screw)",
     "position_force": ("a force towards the lower plate, weight_fraction of the ball's weight there, decaying "
                        "over decay_mm with the ball's distance from it, whatever the direction of motion"),
+    "cor_parity": "the lower plate's COR alternates between cor_even and cor_odd on successive lower-plate impacts",
 }
 
 #: the tone must stay this far (Hz) from every drive harmonic 1..MAX_HARMONIC, else it is a harmonic
@@ -79,6 +87,28 @@ class DriftingCOR(RestitutionLaw):
     def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
         e = self.base.cor(plate, v_rel_mps, impact_index) + self.drift_per_impact * (impact_index - self.first_index)
         return float(min(1.0, max(0.0, e)))
+
+
+@dataclass(frozen=True)
+class ParityCOR(RestitutionLaw):
+    """``cor_parity`` (module docstring): the lower plate's COR ``cor_even`` when floor(i / 2) is even, else
+    ``cor_odd``; the upper plate's from ``base``."""
+
+    base: RestitutionLaw
+    cor_even: float
+    cor_odd: float
+
+    @property
+    def effect(self) -> str:  # type: ignore[override]
+        return "cor_parity"
+
+    def cor(self, plate: str, v_rel_mps: float = 0.0, impact_index: int = 0) -> float:
+        if plate != "bottom":
+            return self.base.cor(plate, v_rel_mps, impact_index)
+        return self.cor_even if (int(impact_index) // 2) % 2 == 0 else self.cor_odd
+
+    def parameters(self) -> dict:
+        return dict(self.base.parameters(), cor_even=self.cor_even, cor_odd=self.cor_odd)
 
 
 @dataclass(frozen=True)

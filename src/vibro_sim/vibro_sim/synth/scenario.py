@@ -5,7 +5,8 @@ every parameter name belongs to exactly one effect, so ``--param key=value`` fin
 effect by the key. Extra (non-contract) knobs: ``cor_sigma`` (per-impact Gaussian COR
 scatter of ``asymmetric_restitution``, default 0.04 as in the paper's Table 2) and
 ``h2_phase_rad``/``h3_phase_rad`` of ``structure_harmonics``. Invented effects outside the
-discrepancy catalogue (``cor_drift``, ``structure_tone``, ``plate_step``): :mod:`.invented`.
+discrepancy catalogue (``cor_drift``, ``structure_tone``, ``plate_step``, ``position_force``,
+``cor_parity``): :mod:`.invented`.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from ..structure import StructureKinematics
 from .invented import (
     INVENTED_EFFECTS,
     DriftingCOR,
+    ParityCOR,
     check_invented,
     drift_per_impact,
     position_force,
@@ -343,6 +345,8 @@ def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | 
     elif "velocity_dependent_restitution" in effects:
         p = effects["velocity_dependent_restitution"]
         law = VelocityDependent(p["cor_at_zero"], p["slope_s_per_m"])
+    if "cor_parity" in effects:   # out of the catalogue (:mod:`.invented`): the lower plate alternates
+        law = ParityCOR(law, effects["cor_parity"]["cor_even"], effects["cor_parity"]["cor_odd"])
     force: ForceLaw = NoForce()
     if "coulomb_friction" in effects:
         force = Coulomb(effects["coulomb_friction"]["force_n"])
