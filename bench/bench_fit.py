@@ -53,8 +53,9 @@ def scenario_per_flight(seed: int, noise: float):
     r = np.random.default_rng(seed)
     ball = 1e3 * (res.sample(t) - res.sample(0.0)) + noise * r.standard_normal(N)
     st = 1e3 * (S.position(t) - S.position(0.0)) + noise * r.standard_normal(N)
-    track = DicTrack(np.arange(N), t, ball, st, np.full(N, 20), np.full(N, 40), np.full(N, 0.99),
-                     np.full(N, 0.99), np.zeros(N, bool))
+    track = DicTrack(frame=np.arange(N), t_s=t, ball_mm=ball, structure_mm=st, ball_valid=np.full(N, 20),
+                     structure_valid=np.full(N, 40), ball_zncc=np.full(N, 0.99),
+                     structure_zncc=np.full(N, 0.99), lost=np.zeros(N, bool))
     imps = [(i.t_s, i.cor) for i in res.impacts]
     flights = [(f.t_start_s, f.t_end_s, f.mean_force_n) for f in res.flights]
     return track, imps, flights

@@ -159,10 +159,12 @@ def bench_replay():
     forces = PerFlight(list(np.random.default_rng(2).normal(0.0, 1e-4, 200)))
     w = simulate_cor(S, CAV, LAW, forces, y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=2.5)
     t0 = 1.4
-    inputs = ReplayInputs(S, [i.t_s for i in w.impacts], [i.plate for i in w.impacts],
-                          [i.cor for i in w.impacts],
-                          [forces.constant_n(k) for k in range(len(w.impacts) + 1)],
-                          t0, float(w.relative_position(t0)), float(w.velocity(t0) - S.velocity(t0)), 2.5)
+    inputs = ReplayInputs(structure=S, impact_times_s=[i.t_s for i in w.impacts],
+                          impact_plates=[i.plate for i in w.impacts],
+                          impact_cors=[i.cor for i in w.impacts],
+                          flight_forces_n=[forces.constant_n(k) for k in range(len(w.impacts) + 1)],
+                          t_start_s=t0, y_rel_m=float(w.relative_position(t0)),
+                          v_rel_mps=float(w.velocity(t0) - S.velocity(t0)), t_end_s=2.5)
     t = np.linspace(t0, 2.5, 1101)
     out = {}
     for mode in ("impact", "calibrated"):

@@ -239,7 +239,8 @@ def test_csv_without_unit_is_m_s2_by_default(synth, table, tmp_path) -> None:
 def test_write_accel_writes_in_the_configured_unit_and_reads_back(tmp_path) -> None:
     t = np.arange(100) / 20_000.0
     data = AccelData(t, 30.0 * np.sin(t * 2e3), -12.0 * np.cos(t * 2e3))
-    cols = AccelConfig("a.csv", "time_s", "up", "low", unit="V", sensitivity_mv_per_g=AccelSensitivity(100.0, 10.0))
+    cols = AccelConfig(file="a.csv", time_column="time_s", upper_column="up", lower_column="low", unit="V",
+                       sensitivity_mv_per_g=AccelSensitivity(100.0, 10.0))
     write_accel(tmp_path / "a.csv", data, cols)
     raw = np.loadtxt(tmp_path / "a.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(raw[:, 1], data.upper_ms2 / G_MS2 * 100.0 / 1000.0, rtol=RTOL_SIX_DIGITS, atol=0)

@@ -37,8 +37,9 @@ def sim_track(noise_mm: float, n_frames: int = 400, seed: int = 1, sim_seed: int
     ball = 1e3 * (res.sample(t) - res.sample(t[0])) + noise_mm * r.standard_normal(n_frames)
     st = 1e3 * (S.position(t) - S.position(t[0])) + noise_mm * r.standard_normal(n_frames)
     n = n_frames
-    track = DicTrack(np.arange(n), t, ball, st, np.full(n, 20), np.full(n, 40), np.full(n, 0.99),
-                     np.full(n, 0.99), np.zeros(n, bool))
+    track = DicTrack(frame=np.arange(n), t_s=t, ball_mm=ball, structure_mm=st, ball_valid=np.full(n, 20),
+                     structure_valid=np.full(n, 40), ball_zncc=np.full(n, 0.99),
+                     structure_zncc=np.full(n, 0.99), lost=np.zeros(n, bool))
     return track, res
 
 
@@ -208,8 +209,10 @@ def test_resting_ball_gives_no_cor():
     st = 0.2 * np.sin(2 * np.pi * 22 * t)
     rng = np.random.default_rng(0)
     n = t.size
-    track = DicTrack(np.arange(n), t, st + 0.0005 * rng.standard_normal(n), st + 0.0005 * rng.standard_normal(n),
-                     np.full(n, 20), np.full(n, 40), np.full(n, 0.99), np.full(n, 0.99), np.zeros(n, bool))
+    track = DicTrack(frame=np.arange(n), t_s=t, ball_mm=st + 0.0005 * rng.standard_normal(n),
+                     structure_mm=st + 0.0005 * rng.standard_normal(n),
+                     ball_valid=np.full(n, 20), structure_valid=np.full(n, 40), ball_zncc=np.full(n, 0.99),
+                     structure_zncc=np.full(n, 0.99), lost=np.zeros(n, bool))
     ident = identify(track, paper_rig())
     assert ident.impacts == []
     assert ident.regime.name == "resting"
@@ -221,17 +224,17 @@ def test_bad_inputs_are_named():
     track, _ = sim_track(0.0005, n_frames=100)
     with pytest.raises(RecordingError, match="method"):
         identify(track, rig, method="magic")
-    short = DicTrack(*(getattr(track, f)[:10] for f in ("frame", "t_s", "ball_mm", "structure_mm", "ball_valid",
-                                                        "structure_valid", "ball_zncc", "structure_zncc", "lost")))
+    short = DicTrack(**{f: getattr(track, f)[:10] for f in ("frame", "t_s", "ball_mm", "structure_mm", "ball_valid",
+                                                        "structure_valid", "ball_zncc", "structure_zncc", "lost")})
     with pytest.raises(RecordingError, match="10 frames"):
         identify(short, rig)
-    back = DicTrack(*(getattr(track, f).copy() for f in ("frame", "t_s", "ball_mm", "structure_mm", "ball_valid",
-                                                         "structure_valid", "ball_zncc", "structure_zncc", "lost")))
+    back = DicTrack(**{f: getattr(track, f).copy() for f in ("frame", "t_s", "ball_mm", "structure_mm", "ball_valid",
+                                                         "structure_valid", "ball_zncc", "structure_zncc", "lost")})
     back.t_s[40] = back.t_s[38]
     with pytest.raises(RecordingError, match="frame 40"):
         identify(back, rig)
-    dead = DicTrack(*(getattr(track, f).copy() for f in ("frame", "t_s", "ball_mm", "structure_mm", "ball_valid",
-                                                         "structure_valid", "ball_zncc", "structure_zncc", "lost")))
+    dead = DicTrack(**{f: getattr(track, f).copy() for f in ("frame", "t_s", "ball_mm", "structure_mm", "ball_valid",
+                                                         "structure_valid", "ball_zncc", "structure_zncc", "lost")})
     dead.lost[:] = True
     with pytest.raises(RecordingError, match="usable"):
         identify(dead, rig)

@@ -11,7 +11,7 @@ from vibro_io.accel import AccelData, load_accel, write_accel
 from vibro_io.rig import AccelConfig
 from vibro_model.errors import AccelError
 
-COLS = AccelConfig("accel.csv", "time_s", "upper_ms2", "lower_ms2")
+COLS = AccelConfig(file="accel.csv", time_column="time_s", upper_column="upper_ms2", lower_column="lower_ms2")
 
 
 def test_fixture_accel(tiny_recording: Path) -> None:

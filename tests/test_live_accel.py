@@ -96,6 +96,7 @@ def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_report
     fit_status, fit = last["/trajectory_fitter"]
 
     # the stamps say the offset exactly (daq_peer stamps each block at origin + its first sample's camera time)
+    assert fit.get("clock_offset_from_stamps_s"), (fit, fit_status.message)
     assert abs(float(det["clock_offset_from_stamps_s"]) - OFFSET_S) < 1e-6
     assert abs(float(fit["clock_offset_from_stamps_s"]) - OFFSET_S) < 1e-6
     # the two dropped blocks: counted lost, named, and no impact detected in them

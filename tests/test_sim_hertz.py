@@ -135,11 +135,16 @@ def test_replay_of_cor_model_reproduces_the_source_simulation():
 
 def test_replay_inputs_are_validated():
     with pytest.raises(ValueError, match="3 impact times but 2 plates"):
-        ReplayInputs(S, [0.1, 0.2, 0.3], ["top", "bottom"], [0.7, 0.7, 0.7], [], 0.0, 0.0, 0.0, 1.0)
+        ReplayInputs(structure=S, impact_times_s=[0.1, 0.2, 0.3], impact_plates=["top", "bottom"],
+                     impact_cors=[0.7, 0.7,
+                                  0.7], flight_forces_n=[], t_start_s=0.0, y_rel_m=0.0, v_rel_mps=0.0, t_end_s=1.0)
     with pytest.raises(ValueError, match="'top' or 'bottom'"):
-        ReplayInputs(S, [0.1], ["side"], [0.7], [], 0.0, 0.0, 0.0, 1.0)
+        ReplayInputs(structure=S, impact_times_s=[0.1], impact_plates=["side"], impact_cors=[0.7], flight_forces_n=[],
+                     t_start_s=0.0, y_rel_m=0.0, v_rel_mps=0.0, t_end_s=1.0)
     with pytest.raises(ValueError, match="must exceed"):
-        ReplayInputs(S, [], [], [], [], 1.0, 0.0, 0.0, 1.0)
-    bad = ReplayInputs(S, [], [], [], [], 0.0, 0.01, 0.0, 0.1)
+        ReplayInputs(structure=S, impact_times_s=[], impact_plates=[], impact_cors=[], flight_forces_n=[],
+                     t_start_s=1.0, y_rel_m=0.0, v_rel_mps=0.0, t_end_s=1.0)
+    bad = ReplayInputs(structure=S, impact_times_s=[], impact_plates=[], impact_cors=[], flight_forces_n=[],
+                       t_start_s=0.0, y_rel_m=0.01, v_rel_mps=0.0, t_end_s=0.1)
     with pytest.raises(ValueError, match="outside the free play"):
         simulate_measured(bad, CAV, [0.0, 0.05])

@@ -35,7 +35,7 @@ sys.exit(int(code))
 
 
 def _spec(name: str, role: str) -> NodeSpec:
-    return NodeSpec(name, "pkg", name, f"pkg.{name}", role)
+    return NodeSpec(name=name, package="pkg", executable=name, module=f"pkg.{name}", role=role)
 
 
 @pytest.fixture

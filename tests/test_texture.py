@@ -112,7 +112,8 @@ def test_one_frame_noise_is_an_upper_bound_on_speckle() -> None:
 # --- correlation quality: the accumulator on tracker results ---------------------------------------------
 def _mesh(zncc: float, valid: list[bool], lost: bool = False) -> MeshResult:
     n = len(valid)
-    return MeshResult("ball", np.zeros(2) if not lost else np.full(2, np.nan), sum(valid), zncc, lost,
+    return MeshResult(name="ball", u_px=np.zeros(2) if not lost else np.full(2, np.nan), valid=sum(valid), zncc=zncc,
+                      lost=lost,
                       point_valid=np.array(valid), point_zncc=np.full(n, zncc), point_u_px=np.zeros((n, 2)))
 
 

@@ -42,7 +42,7 @@ from vibro_model.errors import RecordingError
 from vibro_ros import topics
 
 
-@dataclass
+@dataclass(kw_only=True)
 class GraphSummary:
     """What the monitor saw on the graph's topics."""
 

@@ -20,7 +20,7 @@ MONITOR_SUBSCRIBES = (T.STATUS.name, T.DIC.name, T.IMPACTS.name, T.SIMULATION.na
                       T.ACCEL.name, T.ACCEL_IMPACTS.name)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class NodeSpec:
     """One node: ``ros2 run <package> <executable>`` on a lab PC, ``python -m <module>`` here.
 
@@ -45,31 +45,40 @@ _RESULTS = (T.STRUCTURE.name, T.FLIGHTS.name, T.IMPACTS.name)
 #: for it or for its end; vibro graph does not wait for it to finish and stops it once the graph has ended.
 VIEWER = "viewer"
 NODES: tuple[NodeSpec, ...] = (
-    NodeSpec("recorder", "vibro_ros", "recorder", "vibro_ros.recorder_node", "sink",
+    NodeSpec(name="recorder", package="vibro_ros", executable="recorder", module="vibro_ros.recorder_node", role="sink",
              subscribes=tuple(t.name for t in T.ALL_TOPICS)),
-    NodeSpec("dic_tracker", "vibro_dic", "dic_tracker", "vibro_dic.dic_tracker_node", "processing",
+    NodeSpec(name="dic_tracker", package="vibro_dic", executable="dic_tracker", module="vibro_dic.dic_tracker_node",
+             role="processing",
              publishes=(T.DIC.name,), subscribes=(T.FRAMES.name, T.STATUS.name)),
-    NodeSpec("impact_detector", "vibro_fit", "impact_detector", "vibro_fit.impact_detector_node", "processing",
+    NodeSpec(name="impact_detector", package="vibro_fit", executable="impact_detector",
+             module="vibro_fit.impact_detector_node", role="processing",
              publishes=(T.ACCEL_IMPACTS.name,), subscribes=(T.ACCEL.name, T.STATUS.name)),
-    NodeSpec("trajectory_fitter", "vibro_fit", "trajectory_fitter", "vibro_fit.trajectory_fitter_node", "processing",
+    NodeSpec(name="trajectory_fitter", package="vibro_fit", executable="trajectory_fitter",
+             module="vibro_fit.trajectory_fitter_node", role="processing",
              publishes=_RESULTS, subscribes=(T.DIC.name, T.ACCEL.name, T.STATUS.name)),
-    NodeSpec("simulator", "vibro_sim", "simulator", "vibro_sim.simulator_node", "processing",
+    NodeSpec(name="simulator", package="vibro_sim", executable="simulator", module="vibro_sim.simulator_node",
+             role="processing",
              publishes=(T.SIMULATION.name,), subscribes=(*_RESULTS, T.DIC.name, T.STATUS.name)),
-    NodeSpec("discrepancy", "vibro_discrepancy", "discrepancy", "vibro_discrepancy.discrepancy_node", "processing",
+    NodeSpec(name="discrepancy", package="vibro_discrepancy", executable="discrepancy",
+             module="vibro_discrepancy.discrepancy_node", role="processing",
              publishes=(T.DISCREPANCY.name, T.IMPACTS_FINAL_MODEL.name),
              subscribes=(*_RESULTS, T.DIC.name, T.STATUS.name),
              waits_for=("simulator",)),
-    NodeSpec("frame_source", "vibro_dic", "frame_source", "vibro_dic.frame_source_node", "source",
+    NodeSpec(name="frame_source", package="vibro_dic", executable="frame_source", module="vibro_dic.frame_source_node",
+             role="source",
              publishes=(T.FRAMES.name,), subscribes=(T.DIC.name,)),
-    NodeSpec("accel_source", "vibro_fit", "accel_source", "vibro_fit.accel_source_node", "source",
+    NodeSpec(name="accel_source", package="vibro_fit", executable="accel_source", module="vibro_fit.accel_source_node",
+             role="source",
              publishes=(T.ACCEL.name,)),
-    NodeSpec("foxglove_bridge", "vibro_foxglove", "foxglove_bridge", "vibro_foxglove.bridge_node", VIEWER,
+    NodeSpec(name="foxglove_bridge", package="vibro_foxglove", executable="foxglove_bridge",
+             module="vibro_foxglove.bridge_node", role=VIEWER,
              subscribes=(T.FRAMES.name, T.DIC.name, *_RESULTS, T.SIMULATION.name, T.DISCREPANCY.name,
                          T.IMPACTS_FINAL_MODEL.name, T.DIAGNOSTICS.name)),
 )
 
 #: Replaces frame_source and accel_source when a recorded bag is replayed (``vibro replay``).
-BAG_SOURCE = NodeSpec("bag_source", "vibro_ros", "bag_source", "vibro_ros.bag_source_node", "source",
+BAG_SOURCE = NodeSpec(name="bag_source", package="vibro_ros", executable="bag_source",
+                      module="vibro_ros.bag_source_node", role="source",
                       publishes=(T.FRAMES.name, T.ACCEL.name), subscribes=(T.DIC.name,))
 
 ALL_SPECS: dict[str, NodeSpec] = {s.name: s for s in (*NODES, BAG_SOURCE)}

@@ -63,7 +63,7 @@ def to_gray255(image: np.ndarray) -> np.ndarray:
     return img / 257.0 if image.dtype == np.uint16 else img
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Ball:
     """The ball in frame 0: centre (x, y) px, radius px, and the 1-sigma uncertainty of the radius (px).
     ``method`` "mesh": a speckled ball (DIC subsets inside it); "outline": a plain disc found by its
@@ -155,7 +155,7 @@ class Scale:
         return (self.ball_rel_std ** -2 + self.gap_rel_std ** -2) ** -0.5
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Proposal:
     """Everything ``vibro init`` found and proposes."""
 
@@ -298,7 +298,8 @@ def refine_ball(gx: np.ndarray, gy: np.ndarray, x0: float, y0: float, r0: float,
     res = np.hypot(ex[use] - cx, ey[use] - cy) - fr
     scatter = float(np.std(res, ddof=3))
     std = max(scatter / math.sqrt(use.sum() - 3), EDGE_STD_FLOOR_PX)
-    return Ball(cx, cy, ring.edge_px, std, int(use.sum()), scatter), sig
+    return Ball(x_px=cx, y_px=cy, radius_px=ring.edge_px, radius_std_px=std, n_edge_points=int(use.sum()),
+                edge_residual_px=scatter), sig
 
 
 def cavity_pixels(shape: tuple[int, int], top_row_px: float, bottom_row_px: float) -> np.ndarray:
@@ -320,7 +321,9 @@ def find_ball(frame0: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> tuple[Ball,
         if coarse is None or coarse[2] < 8:
             continue
         allowed = None
-        top, bottom, strength = plate_guesses(gx, Ball(*coarse, math.nan, 0, math.nan))
+        top, bottom, strength = plate_guesses(gx,
+                                              Ball(x_px=coarse[0], y_px=coarse[1], radius_px=coarse[2],
+                                                   radius_std_px=math.nan, n_edge_points=0, edge_residual_px=math.nan))
         if strength >= MIN_PLATE_STRENGTH:
             allowed = cavity_pixels(gx.shape, top, bottom)
         got = refine_ball(gx, gy, *coarse, None, allowed)
@@ -411,8 +414,9 @@ def find_plain_ball(frame0: np.ndarray) -> tuple[tuple[Ball, float] | None, str]
         # the radius's 1-sigma for the scale: the fit's, never below EDGE_STD_FLOOR_PX as for a speckled ball
         # (the edge model's own definition of the edge: a clipped backlight or a refracting ball moves the fitted
         # edge by tenths of a px against the half-level contour, ball_12bit 0.27 px, beyond the fit's sigma)
-        ball = Ball(float(c.centre[0]), float(c.centre[1]), float(c.radius_px),
-                    max(float(c.sigma_px[2]), EDGE_STD_FLOOR_PX), kept, float(np.sqrt(np.mean(res ** 2))),
+        ball = Ball(x_px=float(c.centre[0]), y_px=float(c.centre[1]), radius_px=float(c.radius_px),
+                    radius_std_px=max(float(c.sigma_px[2]), EDGE_STD_FLOOR_PX), n_edge_points=kept,
+                    edge_residual_px=float(np.sqrt(np.mean(res ** 2))),
                     method="outline", n_sectors=tracker.n_sectors, blur_px=float(tracker.blur0),
                     fit_radius_std_px=float(c.sigma_px[2]))
         if best is None or kept > best[0].n_edge_points:
@@ -836,5 +840,7 @@ def propose(frames: list[tuple[int, np.ndarray]], *, ball_diameter_mm: float, ga
                             f"{noise:.2f} gray levels; need <= {MAX_SUBSET_CRAMER_RAO_PX} px): speckle the {name}, "
                             "light it better or give a larger --subset-px")
     freq, note = estimate_frequency_hz(motion, fps)
-    return Proposal(w, h, ball, plates, motion, scale, ball_roi, structure_roi, which, subset_px, mesh_step_px,
-                    noise, edge_sigma, cr_ball, cr_struct, freq, note, ball_outline=check)
+    return Proposal(width_px=w, height_px=h, ball=ball, plates=plates, motion=motion, scale=scale, ball_roi=ball_roi,
+                    structure_roi=structure_roi, structure_plate=which, subset_px=subset_px, mesh_step_px=mesh_step_px,
+                    noise_gray=noise, edge_sigma_px=edge_sigma, ball_cramer_rao_px=cr_ball,
+                    structure_cramer_rao_px=cr_struct, frequency_hz=freq, frequency_note=note, ball_outline=check)

@@ -218,7 +218,7 @@ def robust_offset(edges: np.ndarray, radius: float, directions: np.ndarray, *, i
 
 
 # -------------------------------------------------------------------------------------- step 3: sectors
-@dataclass
+@dataclass(kw_only=True)
 class SectorEdges:
     """Per-sector erf fits of the edge band about a centre (px; angles of the image, y down)."""
 
@@ -331,7 +331,8 @@ def sector_edges(image: np.ndarray, centre: np.ndarray, radius: float, n_sectors
     o, c, e, w = p[:, 0], p[:, 1], p[:, 2], p[:, 3]
     ok = ok_fit & np.isfinite(crb) & (crb > 0) & np.isfinite(direction).all(axis=1) \
         & (np.abs(e - radius) < band_px - 1e-6) & (w < band_px)
-    return SectorEdges(np.array([cx, cy]), direction, e, o, c, w, crb, rstd, zncc, np.maximum(vg, 0.0), npx, ok)
+    return SectorEdges(centre=np.array([cx, cy]), direction=direction, edge_px=e, outside=o, contrast=c, blur_px=w,
+                       crb_unit=crb, residual_std=rstd, zncc=zncc, variance=np.maximum(vg, 0.0), n_pixels=npx, ok=ok)
 
 
 # --------------------------------------------------------------------------------- step 4: circle fit
@@ -464,7 +465,7 @@ def fit_outline(image: np.ndarray, centre: np.ndarray, radius: float, n_sectors:
 
 
 # ------------------------------------------------------------------------------------------ the tracker
-@dataclass
+@dataclass(kw_only=True)
 class OutlineResult:
     """What the outline tracker gives for one frame, in the DIC mesh's terms (:class:`~vibro_dic.tracker.
     MeshResult`): ``u_px`` the centre's displacement since the reference, ``valid`` the sectors kept,
@@ -615,7 +616,7 @@ class OutlineTracker:
         return fit
 
     def lost(self, reason: str) -> OutlineResult:
-        return OutlineResult(self.name, np.full(2, np.nan), 0, math.nan, True, reason)
+        return OutlineResult(name=self.name, u_px=np.full(2, np.nan), valid=0, zncc=math.nan, lost=True, reason=reason)
 
     def track(self, image: np.ndarray, k: int) -> OutlineResult:
         """Track the outline in ``image`` (2-D float32) of frame index ``k``."""
@@ -648,7 +649,8 @@ class OutlineTracker:
         u = fit.circle.centre - self.centre0
         sig = math.sqrt(2.0) * fit.circle.sigma_px[:2]
         zn = fit.sectors.zncc
-        out = OutlineResult(self.name, u, kept, float(np.mean(zn[fit.circle.kept])), False, "",
+        out = OutlineResult(name=self.name, u_px=u, valid=kept, zncc=float(np.mean(zn[fit.circle.kept])), lost=False,
+                            reason="",
                             point_u_px=np.broadcast_to(u, (self.n_sectors, 2)).copy(), point_valid=fit.circle.kept,
                             point_zncc=zn, sigma_px=sig, radius_px=fit.circle.radius_px,
                             radius_sigma_px=float(fit.circle.sigma_px[2]))
@@ -657,7 +659,7 @@ class OutlineTracker:
 
 
 # ------------------------------------------------------------------------------- accuracy before tracking
-@dataclass
+@dataclass(kw_only=True)
 class OutlineTexture:
     """The outline check of the ball before tracking (module doc), in the texture report's terms
     (:class:`~vibro_dic.texture.BodyTexture`): ``points`` one per sector, ``usable`` the sectors fitted and not
@@ -753,7 +755,8 @@ def assess_outline(name: str, reference: np.ndarray, roi: Roi, noise_gray: float
     try:
         tracker = OutlineTracker(name, reference, roi, min_valid_fraction=min_valid_fraction)
     except OutlineError as exc:
-        return OutlineTexture(name, roi, np.empty((0, 2)), np.empty(0, bool), 1, max_sigma_px, noise_gray,
+        return OutlineTexture(name=name, roi=roi, points=np.empty((0, 2)), usable=np.empty(0, bool), min_usable=1,
+                              max_sigma_px=max_sigma_px, noise_gray=noise_gray,
                               failure=str(exc).split(": ", 1)[-1])
     fit = tracker.reference_fit
     sec = fit.sectors
@@ -765,7 +768,8 @@ def assess_outline(name: str, reference: np.ndarray, roi: Roi, noise_gray: float
     usable = fit.usable & (fit.circle.kept if circle is None else circle.kept)
     sig = np.full(2, np.inf) if circle is None else math.sqrt(2.0) * circle.sigma_pred_px[:2]
     return OutlineTexture(
-        name, roi, tracker.points, usable, tracker.min_valid, max_sigma_px, noise_gray,
+        name=name, roi=roi, points=tracker.points, usable=usable, min_usable=tracker.min_valid,
+        max_sigma_px=max_sigma_px, noise_gray=noise_gray,
         centre_px=tracker.centre0, radius_px=tracker.radius0,
         contrast_gray=float(np.median(sec.contrast[usable])) if usable.any() else math.nan,
         blur_px=float(np.median(sec.blur_px[usable])) if usable.any() else math.nan,

@@ -40,7 +40,7 @@ class TrackQualityError(RecordingError):
     """A body was lost in too many frames to be analysed (numbers in the message)."""
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Body:
     n_subsets: int
     frames: int = 0
@@ -72,7 +72,7 @@ class TrackQuality:
 
     def _body(self, name: str, n: int) -> _Body:
         if name not in self.bodies:
-            self.bodies[name] = _Body(n, kept=np.zeros(n, dtype=np.int64))
+            self.bodies[name] = _Body(n_subsets=n, kept=np.zeros(n, dtype=np.int64))
         return self.bodies[name]
 
     def add(self, frame_index: int, results: dict) -> None:

@@ -449,7 +449,7 @@ def estimate_noise(reference: np.ndarray, second: np.ndarray | None = None, *, e
     return floor_noise(NoiseEstimate(sigma, f"{why}; and the correlation had only {m.describe()}", 0), depth)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BodyTexture:
     """Texture of one body's mesh in the reference frame (pixels, x = column, y = row down)."""
 
@@ -601,8 +601,10 @@ def assess_body(name: str, reference: np.ndarray, roi: Roi, subset_px: int, step
     with np.errstate(divide="ignore"):
         sigma = np.where(signal > 0, cramer_rao_px(np.where(signal > 0, signal, 1.0), s), np.inf)
     usable = sigma.max(axis=1) <= max_subset_sigma_px
-    body = BodyTexture(name, roi, subset_px, points, sssig, sssig_noise, sigma, usable,
-                       max(1, math.ceil(min_valid_fraction * n - 1e-9)), max_subset_sigma_px, variance=variance)
+    body = BodyTexture(name=name, roi=roi, subset_px=subset_px, points=points, sssig=sssig, sssig_noise=sssig_noise,
+                       sigma_px=sigma, usable=usable,
+                       min_usable=max(1, math.ceil(min_valid_fraction * n - 1e-9)),
+                       max_subset_sigma_px=max_subset_sigma_px, variance=variance)
     if usable.any():
         body.mesh_sigma_px = mesh_sigma_px((gx, gy), corners[usable], subset_px, sssig[usable], s)
     return body

@@ -103,7 +103,7 @@ PREDICTION_MAX_ITER = 4
 RESEED_EVERY_FRAMES = 100
 
 
-@dataclass
+@dataclass(kw_only=True)
 class MeshResult:
     """Outcome for one mesh in one frame (pixels, image axes: x = column, y = row down)."""
 
@@ -347,7 +347,7 @@ class MeshTracker:
 
     # --- one frame -------------------------------------------------------------------------------
     def lost(self, reason: str) -> MeshResult:
-        return MeshResult(self.name, np.full(2, np.nan), 0, float("nan"), True, reason)
+        return MeshResult(name=self.name, u_px=np.full(2, np.nan), valid=0, zncc=float("nan"), lost=True, reason=reason)
 
     def track(self, image: np.ndarray, k: int) -> MeshResult:
         """Track this mesh in ``image`` (2-D float32) of frame index ``k``."""
@@ -400,8 +400,10 @@ class MeshTracker:
             # the mean of the points' estimates is the displacement of their mean lever arm's point (their
             # gradient-weighted centre, ~1-2 px off the centroid): remove the rotation's share there
             mean_u -= (rot.angle_rad / nv) * arms_kept.sum(axis=0)
-        return MeshResult(self.name, mean_u, nv, float(zncc[valid].sum()) / nv, False, "",
-                          u, valid, zncc, rot.angle_rad, rot.std_rad)
+        return MeshResult(name=self.name, u_px=mean_u, valid=nv, zncc=float(zncc[valid].sum()) / nv, lost=False,
+                          reason="",
+                          point_u_px=u, point_valid=valid, point_zncc=zncc, rot_rad=rot.angle_rad,
+                          rot_std_rad=rot.std_rad)
 
 
 class DicTracker:

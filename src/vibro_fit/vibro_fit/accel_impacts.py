@@ -79,7 +79,7 @@ def _make_impact(t: float, hu: np.ndarray, hl: np.ndarray, n_att: int, raw_u: np
                        _spectrum_peaks(ch, fs), _flat_extreme(raw_u[:n_att]) or _flat_extreme(raw_l[:n_att]))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class AccelAnalysis:
     impacts: list[AccelImpact]
     freqs_hz: np.ndarray
@@ -92,7 +92,7 @@ class AccelAnalysis:
     warnings: list[str] = field(default_factory=list)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ClockOffset:
     """Camera-to-DAQ clock offset, t_daq = t_camera + offset_s, from ``n_matched`` impact pairs.
 
@@ -234,7 +234,8 @@ def analyse_accel(data: AccelData, frequency_hz: float, highpass_hz: float = 100
         peaks = sorted(float(freqs[idx[k]]) for k in order)
     if not impacts:
         warnings.append("no impact found on the accelerometers")
-    return AccelAnalysis(impacts, freqs, mu, ml, peaks, thr, fs, clipping, warnings)
+    return AccelAnalysis(impacts=impacts, freqs_hz=freqs, mean_spectrum_upper=mu, mean_spectrum_lower=ml,
+                         peaks_hz=peaks, threshold=thr, sample_rate_hz=fs, clipping=clipping, warnings=warnings)
 
 
 def _match(a: np.ndarray, d: np.ndarray, off: float, tol_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -356,8 +357,9 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
         reason = (f"ambiguous: offset {off:+.5f} s matches {n} impacts and {o2:+.5f} s{per} matches {m2}; "
                   "the overlap of the two records is too regular to tell them apart "
                   f"({a.size} accelerometer impacts, {d.size} DIC impacts)")
-    return ClockOffset(float(off), int(n), float(sd), not reason, reason, span, int(a.size), int(d.size),
-                       others, "" if reason else assumption)
+    return ClockOffset(offset_s=float(off), n_matched=int(n), residual_std_s=float(sd), determined=not reason,
+                       reason=reason, matched_span_s=span, n_accel=int(a.size), n_dic=int(d.size),
+                       candidates=others, assumption="" if reason else assumption)
 
 
 class AccelImpactDetector:
@@ -458,12 +460,14 @@ def refine_clock_offset(accel_times_s, dic_times_s, seed_s: float, tol_s: float 
     a = np.sort(np.asarray(accel_times_s, float))
     d = np.sort(np.asarray(dic_times_s, float))
     if a.size == 0 or d.size == 0:
-        return ClockOffset(float(seed_s), 0, 0.0, False, "no impact on one of the clocks yet", None, int(a.size),
-                           int(d.size))
+        return ClockOffset(offset_s=float(seed_s), n_matched=0, residual_std_s=0.0, determined=False,
+                           reason="no impact on one of the clocks yet", matched_span_s=None, n_accel=int(a.size),
+                           n_dic=int(d.size))
     off, n, sd = _refine(a, d, float(seed_s), tol_s)
     _, sel = _match(a, d, off, tol_s)
     span = (float(d[sel][0]), float(d[sel][-1])) if sel.any() else None
     reason = "" if n >= min_matched else (f"only {n} impact(s) matched within {1e3 * tol_s:g} ms of the stamps' "
                                           f"offset {seed_s:+.6f} s, at least {min_matched} needed")
-    return ClockOffset(float(off) if n else float(seed_s), int(n), float(sd), not reason, reason, span, int(a.size),
-                       int(d.size), assumption="seeded at the lab-clock stamps' offset")
+    return ClockOffset(offset_s=float(off) if n else float(seed_s), n_matched=int(n), residual_std_s=float(sd),
+                       determined=not reason, reason=reason, matched_span_s=span, n_accel=int(a.size),
+                       n_dic=int(d.size), assumption="seeded at the lab-clock stamps' offset")

@@ -40,7 +40,7 @@ K_SIGMA = 4.0
 MIN_FRAMES = 5
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ContactPhase:
     """The ball riding ``plate`` from the frame at ``start_s`` to the frame at ``end_s`` (camera clock, s)."""
 
@@ -114,8 +114,9 @@ def find_contacts(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np.ndarray
     for plate, level in found.items():
         for a, b in _runs(np.abs(r - level) <= k * sigma_rel_mm, min_frames):
             first, last = int(idx[a]), int(idx[b])
-            out.append(ContactPhase(float(t[first]), float(t[last]), plate, first, last, b - a + 1, level,
-                                    float(t[first]), float(t[last])))
+            out.append(ContactPhase(start_s=float(t[first]), end_s=float(t[last]), plate=plate, first=first, last=last,
+                                    n_frames=b - a + 1, level_mm=level,
+                                    first_frame_s=float(t[first]), last_frame_s=float(t[last])))
     return sorted(out, key=lambda c: c.start_s)
 
 

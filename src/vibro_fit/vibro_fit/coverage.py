@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FrameCoverage:
     """Filmed interval vs accelerometer interval (camera clock, s) and the accel impacts outside it."""
 
@@ -71,7 +71,8 @@ def frame_coverage(frames_t_s, accel_t_s, accel_impact_times_s, offset_s: float 
     off = 0.0 if offset_s is None else float(offset_s)
     imp = np.asarray(accel_impact_times_s, float) - off
     f0, f1 = float(ft[0]), float(ft[-1])
-    return FrameCoverage(f0, f1, float(at[0]) - off, float(at[-1]) - off,
-                         [float(x) for x in imp[imp < f0 - 0.5 * frame_interval_s]],
-                         [float(x) for x in imp[imp > f1 + 0.5 * frame_interval_s]],
-                         offset_s is not None, slack_s=2.0 * frame_interval_s)
+    return FrameCoverage(frames_start_s=f0, frames_end_s=f1, accel_start_s=float(at[0]) - off,
+                         accel_end_s=float(at[-1]) - off,
+                         impacts_before_s=[float(x) for x in imp[imp < f0 - 0.5 * frame_interval_s]],
+                         impacts_after_s=[float(x) for x in imp[imp > f1 + 0.5 * frame_interval_s]],
+                         clock_offset_known=offset_s is not None, slack_s=2.0 * frame_interval_s)

@@ -19,7 +19,7 @@ from vibro_model.results import Flight
 from vibro_model.units import mm_to_m
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FlightFit:
     """The parabola fit of one flight in track units (mm, centred time) with its covariance, the segmentation's
     verdict (free or not, why) and its frames (track indices); ``coef`` = (A, B, C) about ``t_ref_s``.
@@ -109,9 +109,12 @@ def fit_flight(index: int, frames: np.ndarray, t_s: np.ndarray, y_mm: np.ndarray
     frames = np.asarray(frames, int)
     t, y = t_s[frames], y_mm[frames]
     if frames.size < max(min_points, 4):
-        return FlightFit(index, frames, float(t[0]) if t.size else float("nan"),
-                         float(t[-1]) if t.size else float("nan"), float("nan"), np.full(3, np.nan),
-                         np.full((3, 3), np.nan), float("nan"), int(frames.size), fitted=False,
+        return FlightFit(index=index, frames=frames, t_start_s=float(t[0]) if t.size else float("nan"),
+                         t_end_s=float(t[-1]) if t.size else float("nan"), t_ref_s=float("nan"),
+                         coef=np.full(3, np.nan),
+                         cov=np.full((3, 3),
+                                     np.nan), rms_residual_mm=float("nan"), n_points=int(frames.size), fitted=False,
                          is_free=False, reason=f"too few points ({frames.size} < {min_points})")
     t_ref, coef, cov, rms = fit_parabola(t, y, None if weights is None else weights[frames])
-    return FlightFit(index, frames, float(t[0]), float(t[-1]), t_ref, coef, cov, rms, int(frames.size))
+    return FlightFit(index=index, frames=frames, t_start_s=float(t[0]), t_end_s=float(t[-1]), t_ref_s=t_ref, coef=coef,
+                     cov=cov, rms_residual_mm=rms, n_points=int(frames.size))

@@ -42,7 +42,7 @@ K_SIGMA = 4.0            # agreement required of every consistency test, in sigm
 MIN_LEVEL_IMPACTS = 3    # impacts on a plate before its level (and COR spread) is trusted
 
 
-@dataclass
+@dataclass(kw_only=True)
 class GapVerdict:
     """One run of lost frames between two fitted flights: what was decided there.
 

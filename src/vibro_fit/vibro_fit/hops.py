@@ -43,7 +43,7 @@ MIN_HOP_FRAMES = 3
 MARGIN_FRAMES = 0.3
 
 
-@dataclass
+@dataclass(kw_only=True)
 class HopChain:
     """One chain: the flight that lands (``flight``), the hops after it and the impacts between them."""
 
@@ -255,7 +255,7 @@ def hop_chain(fl: FlightFit, plate: str, level: float, s_fit: StructureFit, t: n
     jac_t, jac_e = jac[:k], jac[k:]
     var_t = np.einsum("ij,jk,ik->i", jac_t, cov, jac_t)
     var_e = np.einsum("ij,jk,ik->i", jac_e, cov, jac_e)
-    out = HopChain(fl, plate, level)
+    out = HopChain(flight=fl, plate=plate, level_mm=level)
     for j in range(k):
         t_end = ts_all[j + 1] if ts_all[j + 1] is not None else float(t[frames[j][-1]])
         a_ = float(th[-1])
@@ -265,9 +265,12 @@ def hop_chain(fl: FlightFit, plate: str, level: float, s_fit: StructureFit, t: n
         d = t_ref - t0
         c = float(s_fit.position_mm(t0)) + level + th[3 + j] * d + a_ * d * d
         b = th[3 + j] + 2.0 * a_ * d
-        hop = FlightFit(first_flight_index + j, np.asarray(frames[j], int), float(t[frames[j][0]]),
-                        float(t[frames[j][-1]]), t_ref, np.array([a_, b, c]), np.full((3, 3), np.nan),
-                        float(np.sqrt(np.mean((res.fun[:-1]) ** 2)) * sig), int(len(frames[j])), fitted=True,
+        hop = FlightFit(index=first_flight_index + j, frames=np.asarray(frames[j], int),
+                        t_start_s=float(t[frames[j][0]]),
+                        t_end_s=float(t[frames[j][-1]]), t_ref_s=t_ref, coef=np.array([a_, b, c]), cov=np.full((3, 3),
+                                                                                                               np.nan),
+                        rms_residual_mm=float(np.sqrt(np.mean((res.fun[:-1]) ** 2)) * sig),
+                        n_points=int(len(frames[j])), fitted=True,
                         is_free=False, reason="short hop: launched from the plate's level, acceleration from the "
                         "free flights (hop chain); no friction from it",
                         direction="up" if plate == "bottom" else "down")

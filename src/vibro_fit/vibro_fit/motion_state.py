@@ -25,7 +25,7 @@ SPREAD_MIN_SIGMA = 20.0
 STATES = ("still", "structure_only", "ball_moving", "impacting")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class MotionState:
     """What moves in a recording (see module rules); amplitudes and noise in mm."""
 
@@ -81,5 +81,7 @@ def classify_motion(structure, y_rel_range_mm: float, ball_noise_mm: float, n_fl
         state = "structure_only" if moves else "still"
     else:
         state = "ball_moving"
-    return MotionState(state, moves, float(structure.amplitude_mm), float(structure.rms_residual_mm),
-                       float(y_rel_range_mm), float(ball_noise_mm), int(n_impacts), int(n_impacts_without_cor))
+    return MotionState(state=state, structure_moves=moves, structure_amplitude_mm=float(structure.amplitude_mm),
+                       structure_residual_mm=float(structure.rms_residual_mm),
+                       ball_relative_range_mm=float(y_rel_range_mm), ball_noise_mm=float(ball_noise_mm),
+                       n_impacts=int(n_impacts), n_impacts_without_cor=int(n_impacts_without_cor))

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Regime:
     name: str
     n_cycles: float
@@ -91,8 +91,9 @@ def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, s
         notes.append(f"{n_landings} impact(s) without a COR (rebound too short to fit, or chatter/sticking after it)")
     if n_phases and name != "resting":
         notes.append(f"{n_phases} contact phase(s) (chatter or sticking, {100 * contact_fraction:.0f} % of the time)")
-    return Regime(name, float(n_cycles), float(top_pc), float(bot_pc), len(short_flights),
-                  float(contact_fraction), notes)
+    return Regime(name=name, n_cycles=float(n_cycles), top_per_cycle=float(top_pc), bottom_per_cycle=float(bot_pc),
+                  short_flights=len(short_flights),
+                  contact_fraction=float(contact_fraction), notes=notes)
 
 
 def _sticking(duration_s, n_cycles, impacts, clusters, short_flights, contacts, n_landings, n_hop_impacts,
@@ -120,8 +121,9 @@ def _sticking(duration_s, n_cycles, impacts, clusters, short_flights, contacts, 
         desc = (f"chatter with sticking on the {word} plate: per contact phase {hops:.1f} impact(s) with a COR "
                 f"(landing and hops), then the ball rides the plate ({100 * frac:.0f} % of the time) until its "
                 "acceleration releases it; the model has no term for riding, so this is described, not a finding")
-    return Regime(name, float(n_cycles), float(n_top / n_cycles), float(n_bot / n_cycles), len(short_flights),
-                  float(frac), notes, desc)
+    return Regime(name=name, n_cycles=float(n_cycles), top_per_cycle=float(n_top / n_cycles),
+                  bottom_per_cycle=float(n_bot / n_cycles), short_flights=len(short_flights),
+                  contact_fraction=float(frac), notes=notes, description=desc)
 
 
 def y_rel_range(ball_mm: np.ndarray, structure_mm: np.ndarray) -> float:

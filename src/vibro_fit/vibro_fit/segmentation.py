@@ -40,7 +40,7 @@ from vibro_model.constants import G_MPS2
 from vibro_model.units import m_to_mm, mm_to_m
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SegmentationConfig:
     """Parameters of the segmentation rule (see module docstring)."""
 

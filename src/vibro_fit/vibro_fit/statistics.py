@@ -18,7 +18,7 @@ def cor_summary(impacts) -> dict[str, dict]:
     return CorSummary.of(impacts).to_dict()
 
 
-@dataclass
+@dataclass(kw_only=True)
 class NormalCheck:
     """Histogram and normal Q-Q diagram of a sample."""
 
@@ -60,8 +60,9 @@ def normal_check(values, bins: int | str = "auto") -> NormalCheck:
     slope = sxy / sxx
     intercept = float(osr.mean() - slope * osm.mean())
     r = sxy / np.sqrt(sxx * syy) if syy > 0 else float("nan")  # undefined for a constant sample
-    return NormalCheck(counts, edges, float(v.mean()), float(v.std(ddof=1)), osm, osr,
-                       float(slope), intercept, float(r))
+    return NormalCheck(counts=counts, edges=edges, mean=float(v.mean()), std=float(v.std(ddof=1)),
+                       theoretical_quantiles=osm, ordered_values=osr,
+                       slope=float(slope), intercept=intercept, r=float(r))
 
 
 def errorbar_table(summaries: dict[str, dict]) -> list[dict]:

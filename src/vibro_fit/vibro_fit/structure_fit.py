@@ -21,7 +21,7 @@ from vibro_model.results import StructureMotion
 from vibro_model.units import mm_to_m
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StructureFit:
     """The sine fit of the structure track (mm) with its covariance, also about the reference time the fit used
     (for error propagation). ``cov`` is the 4x4 covariance of (amplitude_mm, frequency_hz, phase_rad, offset_mm).
@@ -167,6 +167,7 @@ def fit_structure(t_s: np.ndarray, y_mm: np.ndarray, f0_hz: float | None = None,
 
 def with_params(fit: StructureFit, params_ref: np.ndarray) -> StructureFit:
     """A copy of ``fit`` with other (A, f, psi, B) about the same t_ref (used for error propagation)."""
-    return StructureFit(fit.amplitude_mm, fit.frequency_hz, fit.phase_rad, fit.offset_mm, fit.cov,
-                        fit.rms_residual_mm, fit.n_points, fit.t_ref_s,
-                        tuple(float(v) for v in params_ref), fit.cov_ref)
+    return StructureFit(amplitude_mm=fit.amplitude_mm, frequency_hz=fit.frequency_hz, phase_rad=fit.phase_rad,
+                        offset_mm=fit.offset_mm, cov=fit.cov,
+                        rms_residual_mm=fit.rms_residual_mm, n_points=fit.n_points, t_ref_s=fit.t_ref_s,
+                        params_ref=tuple(float(v) for v in params_ref), cov_ref=fit.cov_ref)

@@ -36,7 +36,7 @@ MAX_CORRUPT_STAMP_SHARE = 0.05
 RATE_AGREEMENT = 1e-3
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TimeBase:
     """Where the saved frames lie in time.
 

@@ -44,7 +44,7 @@ class FrameTrack:
     ball_rot_std_rad: float = math.nan   # its 1-sigma noise (rad)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class DicTrack:
     """Column arrays of a whole track (one entry per frame slot, lost frames included, NaN there)."""
 

@@ -109,7 +109,7 @@ class AccelSensitivity:
         return {"upper": self.upper_mv_per_g, "lower": self.lower_mv_per_g}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AccelConfig:
     """Where the accelerometer samples are: CSV columns, or (``file`` ending .tdms) TDMS group and channels.
 

@@ -367,7 +367,7 @@ def link_impacts(flights: Iterable[Flight], impacts: Iterable[Impact]) -> list[F
             for f in flights]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ResultsDocument:
     """The whole results.json of one recording (schema vibro.results/1).
 
@@ -399,9 +399,11 @@ class ResultsDocument:
         opening/closing impacts (:func:`link_impacts`), the COR summary from the impacts."""
         impacts = sorted(impacts, key=lambda i: i.index)
         flights = link_impacts(sorted(flights, key=lambda f: f.index), impacts)
-        return cls(str(recording), structure, flights, impacts, CorSummary.of(impacts),
-                   simulation or Simulation.of_deviations({m: None for m in MODELS}), discrepancy or Discrepancy(),
-                   list(warnings), complete, dict(sections or {}))
+        return cls(recording=str(recording), structure=structure, flights=flights, impacts=impacts,
+                   cor_summary=CorSummary.of(impacts),
+                   simulation=simulation or Simulation.of_deviations({m: None for m in MODELS}),
+                   discrepancy=discrepancy or Discrepancy(), warnings=list(warnings), complete=complete,
+                   sections=dict(sections or {}))
 
     def to_dict(self) -> dict:
         out: dict[str, Any] = {"schema": SCHEMA, "recording": self.recording, "complete": self.complete,
@@ -431,14 +433,15 @@ class ResultsDocument:
         warnings = f.value("warnings", False) or []
         if not isinstance(warnings, list) or not all(isinstance(w, str) for w in warnings):
             raise ResultsError(f"{source}.warnings: must be a list of strings")
-        return cls(f.string("recording"),
-                   None if structure is None else StructureMotion.from_dict(structure, f"{source}.structure"),
-                   [Flight.from_dict(r.data, r.where) for r in f.rows("flights")],
-                   [Impact.from_dict(r.data, r.where) for r in f.rows("impacts")],
-                   CorSummary.from_dict(f.value("cor_summary", True), f"{source}.cor_summary"),
-                   Simulation.from_dict(f.value("simulation", True), f"{source}.simulation"),
-                   Discrepancy.from_dict(f.value("discrepancy", True), f"{source}.discrepancy"),
-                   list(warnings), complete, f.extras(cls.KEYS))
+        return cls(recording=f.string("recording"),
+                   structure=None if structure is None else StructureMotion.from_dict(structure,
+                                                                                      f"{source}.structure"),
+                   flights=[Flight.from_dict(r.data, r.where) for r in f.rows("flights")],
+                   impacts=[Impact.from_dict(r.data, r.where) for r in f.rows("impacts")],
+                   cor_summary=CorSummary.from_dict(f.value("cor_summary", True), f"{source}.cor_summary"),
+                   simulation=Simulation.from_dict(f.value("simulation", True), f"{source}.simulation"),
+                   discrepancy=Discrepancy.from_dict(f.value("discrepancy", True), f"{source}.discrepancy"),
+                   warnings=list(warnings), complete=complete, sections=f.extras(cls.KEYS))
 
 
 def as_document(doc: ResultsDocument | Mapping[str, Any], source: str = "results") -> ResultsDocument:

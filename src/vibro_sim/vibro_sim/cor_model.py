@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 GAP_TOL_M = 1e-12
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FlightRecord:
     """A free flight between two events. Flight i ends with impact i.
 
@@ -64,7 +64,7 @@ class StuckPhase:
     plate: str
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SimResult:
     """Output of :func:`simulate_cor` (and the Hertz model): events and an exact trajectory."""
 
@@ -330,8 +330,9 @@ class _Simulator:
             direction = "up" if start_plate == "bottom" else "down"
         else:
             direction = "up" if v_end - float(self.S.velocity(t_end)) > 0 else "down"
-        res.flights.append(FlightRecord(fi, t_start, t_end, _law_name(self.force), start_plate,
-                                        end_plate, direction, mean_force))
+        res.flights.append(FlightRecord(index=fi, t_start_s=t_start, t_end_s=t_end, force_law=_law_name(self.force),
+                                        start_plate=start_plate,
+                                        end_plate=end_plate, direction=direction, mean_force_n=mean_force))
 
 
 def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,

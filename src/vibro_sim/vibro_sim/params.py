@@ -17,7 +17,7 @@ PLATE_NU = 0.33
 GAP_M = 16.6e-3
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BallCavity:
     """A ball of mass m and radius R in a cavity with free play b (m) each side of centre.
 

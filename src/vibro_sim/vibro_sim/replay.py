@@ -23,7 +23,7 @@ from .restitution import PLATES, RestitutionLaw
 from .structure import StructureKinematics
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ReplayInputs:
     """Identified parameters of one recording (SI, lab frame, positive up).
 
