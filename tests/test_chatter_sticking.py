@@ -145,3 +145,38 @@ def test_regular_recording_has_no_contacts_or_hops(regular):
     assert all(x.get("method") != "hop_chain" for x in res["impacts"])
     seen = _seen_impacts(truth)
     assert all(_match(res["impacts"], i["t"]) is not None for i in seen)
+
+
+def test_report_shows_the_contacts(sticking, tmp_path, monkeypatch):
+    """The report's page lists every contact phase of results.json (to the printed digits) and the
+    displacement figure shades each one that lies in its window, in the plate's colour."""
+    import re
+    from types import SimpleNamespace
+
+    import vibro_app.report as report
+
+    _, res = sticking
+    contacts = res["contacts"]
+    assert contacts
+    page = report.write_html(res, {}, tmp_path / "report.html").read_text()
+    assert "Contact phases" in page
+    rows = re.findall(r"<tr><td>(upper|lower)</td><td>([0-9.]+)</td><td>([0-9.]+)</td>", page)
+    assert len(rows) == len(contacts)
+    for (plate, a, b), c in zip(rows, contacts):
+        assert plate == {"top": "upper", "bottom": "lower"}[c["plate"]]
+        assert abs(float(a) - c["start_s"]) <= 5e-5 and abs(float(b) - c["end_s"]) <= 5e-5
+    # the figure: a stand-in identification holding the contacts; the saved figure is inspected
+    t = np.arange(FRAMES) / FPS
+    ident = SimpleNamespace(structure=SimpleNamespace(frequency_hz=10.0, position_mm=lambda x: 0.0 * x),
+                            flights=[], impacts=[], contacts=contacts)
+    track = SimpleNamespace(t_s=t, ball_mm=0.0 * t, structure_mm=0.0 * t)
+    saved = {}
+    monkeypatch.setattr(report, "save_figure", lambda fig, path: saved.setdefault("fig", fig) and path)
+    report.fig_displacements(track, ident, tmp_path / "d.png")
+    ax = saved["fig"].axes[0]                      # the whole recording
+    spans = sorted((p.get_x(), p.get_x() + p.get_width()) for p in ax.patches)
+    assert len(spans) == len(contacts)
+    for (a, b), c in zip(spans, sorted(contacts, key=lambda c: c["start_s"])):
+        assert a == pytest.approx(c["start_s"], abs=1e-9) and b == pytest.approx(c["end_s"], abs=1e-9)
+    assert "riding" in ax.get_title()
+    assert any("riding the lower plate" in x.get_text() for x in ax.get_legend().get_texts())

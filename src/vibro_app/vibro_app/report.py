@@ -85,12 +85,48 @@ def fig_displacements(track: DicTrack, ident: Identification, path: Path, zoom_c
         for imp in ident.impacts:
             if lo <= imp.t_s <= hi:
                 ax.axvline(imp.t_s, color=PLATE_COLORS[imp.plate], lw=0.5, alpha=0.5)
+        shade_contacts(ax, getattr(ident, "contacts", None) or [], lo, hi)
         ax.set_xlim(lo, hi)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("displacement (mm)")
     axes[0].legend(loc="upper right", fontsize=8)
-    axes[0].set_title("Displacements, fits and impact instants (red: top, blue: bottom)")
+    title = "Displacements, fits and impact instants (red: top, blue: bottom)"
+    if getattr(ident, "contacts", None):
+        title += "; shaded: the ball riding a plate"
+    axes[0].set_title(title)
     return save_figure(fig, path)
+
+
+def shade_contacts(ax, contacts, lo: float, hi: float) -> int:
+    """Shade each contact phase (the ball riding a plate: ``start_s``..``end_s``, ``plate``; objects or
+    results.json mappings) that overlaps [lo, hi] in its plate's colour, one legend entry per plate; returns
+    how many were drawn."""
+    n, labelled = 0, set()
+    for c in contacts:
+        get = c.get if isinstance(c, dict) else (lambda k, c=c: getattr(c, k))
+        a, b, plate = float(get("start_s")), float(get("end_s")), get("plate")
+        if b < lo or a > hi:
+            continue
+        words = {"top": "upper", "bottom": "lower"}.get(plate, plate)
+        ax.axvspan(a, b, color=PLATE_COLORS.get(plate, "0.5"), alpha=0.15, lw=0,
+                   label=None if plate in labelled else f"ball riding the {words} plate")
+        labelled.add(plate)
+        n += 1
+    return n
+
+
+def contacts_html(contacts: list[dict] | None) -> str:
+    """The contact phases (results.json ``contacts``) as a table: plate, start, end, duration; empty without."""
+    if not contacts:
+        return ""
+    e = html.escape
+    rows = "".join(f"<tr><td>{e({'top': 'upper', 'bottom': 'lower'}.get(c['plate'], c['plate']))}</td>"
+                   f"<td>{c['start_s']:.4f}</td><td>{c['end_s']:.4f}</td>"
+                   f"<td>{1e3 * (c['end_s'] - c['start_s']):.1f}</td></tr>" for c in contacts)
+    return (f"<h2>Contact phases</h2><p>{len(contacts)} phase(s) where the ball rides a plate (moves with it "
+            "between the last hop and its release), shaded in the displacement figure.</p>"
+            "<table><tr><th>plate</th><th>start (s)</th><th>end (s)</th><th>duration (ms)</th></tr>"
+            f"{rows}</table>")
 
 
 def _reidentified(impacts) -> bool:
@@ -352,6 +388,7 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left;vertical-align:top}
 <h2>Structure (Eq. 2)</h2><p>{e(METHOD_WORDS.get(method, ""))}</p>
 <table>{_rows(structure_rows(results.get("structure")))}</table>
 <h2>COR per plate (Table 2)</h2><p>{e(impacts_model_text(results.get("impacts_model")))}</p>
+{contacts_html(results.get("contacts"))}
 <h2>Simulation deviation D (Eq. 18)</h2><table>{_rows(simulation_rows(results.get("simulation")))}</table>
 {discrepancy_html(results.get("discrepancy") or {})}
 {dic_quality_html(results.get("dic_quality"))}
