@@ -1,6 +1,7 @@
 """Live at the camera's rate: the processing graph fed by a camera-like source, on this machine's cores.
 
-    scripts/py bench/bench_live.py [--frames 1500] [--rates 250,500,1000]
+    scripts/py bench/bench_live.py [--frames 1500] [--rates 250,500,1000] [--repeat 1] [--no-accel] \
+        [--hog START_S,DURATION_S]
 
 A camera process (bench/camera_peer.py) pre-loads a synthetic recording's frames (``vibro synth
 --no-accel``, made once and cached in the temp folder) as raw mono8 sensor_msgs/Image messages and
@@ -20,7 +21,21 @@ process (bench/live_probe.py) records every DicFrame and ImpactEstimate as it ar
 
 Baseline in the same run: the in-process cost of one frame through dic_tracker (Image deserialization +
 DIC), whose inverse is the one-core ceiling of the tracker; the tracked rate is reported against it.
-Nothing is asserted: the numbers go to stdout and bench/results/live.json.
+
+Live accelerometers (default; ``--no-accel``: camera only): a DAQ process (bench/daq_peer.py) plays the
+recording's accel.csv as 20 ms AccelBlocks at 50 kHz on the camera's schedule (``--start-at-unix-s`` shared
+with the camera; at a camera rate above the fps both run faster by the same factor), stamped on the lab clock;
+impact_detector and trajectory_fitter read them (launch_nodes ``accel_topic``).
+
+Start: the camera and the DAQ start once dic_tracker logs ``ready`` (reference loaded, tracker warm, its reader
+matched) and the probe listens; frames published before that moment would be counted apart ("before the graph was
+ready") and not as losses. Per run: images published / received / tracked, lost after ready (skipped by the
+catch-up, never received, missing on vibro/dic) and whether in blocks (longest run of consecutive lost frames);
+``--hog START_S,DURATION_S``: a CPU hog process pinned to core 0 from START_S after the camera's first frame for
+DURATION_S, and when tracking recovered after it stopped (the first frame published after the hog whose DicFrame
+lag is back under max(5 ms, 2 x the median lag before the hog), from the hog's end). ``--repeat N``: N runs per
+rate, fresh nodes each.
+Nothing is asserted: the numbers go to stdout and bench/results/live.json (every run).
 """
 
 from __future__ import annotations
@@ -52,18 +67,25 @@ GOAL_RATE_HZ = 1000.0
 GOAL_EXCESS_S = 0.005
 #: give dic_tracker frame 0 as its reference file (built before the camera starts); --first-image-reference: not
 WITH_REFERENCE = "--first-image-reference" not in sys.argv
+#: DAQ of the synthetic rig (vibro synth: 50 kHz), block of 20 ms
+ACCEL_RATE_HZ = 50_000.0
+BLOCK_SAMPLES = 1000
+#: a frame is "back" after a hog when its DicFrame lag is under max(this, 2 x the median lag before the hog)
+RECOVERED_LAG_S = 0.005
 #: dic_tracker's status of a frame slot whose image never arrived
 NOT_RECEIVED = "no image received"
 
 
-def cached_recording(frames: int) -> Path:
-    """A video-only synthetic recording of ``frames`` frames (1000 fps), made once per temp folder."""
-    rec = Path(tempfile.gettempdir()) / "vibro_bench_live" / f"rec_{frames}_seed{SEED}"
+def cached_recording(frames: int, accel: bool = True) -> Path:
+    """A synthetic recording of ``frames`` frames (1000 fps; with ``accel`` its 50 kHz accel.csv), made once per
+    temp folder."""
+    rec = Path(tempfile.gettempdir()) / "vibro_bench_live" / f"rec_{frames}_seed{SEED}{'_accel' if accel else ''}"
     truth = rec.parent / f"{rec.name}.truth.json"
     if not (truth.is_file() and (rec / "rig.yaml").is_file()):
         rec.parent.mkdir(parents=True, exist_ok=True)
-        subprocess.run([sys.executable, "-m", "vibro_app.cli", "synth", "--no-accel", "--frames", str(frames),
-                        "--seed", str(SEED), "--out", str(rec), "--overwrite", "--no-progress"], check=True)
+        subprocess.run([sys.executable, "-m", "vibro_app.cli", "synth", *([] if accel else ["--no-accel"]),
+                        "--frames", str(frames), "--seed", str(SEED), "--out", str(rec), "--overwrite",
+                        "--no-progress"], check=True)
     return rec
 
 
@@ -75,7 +97,8 @@ def tracker_cost_ms(rec: Path, n: int = 300) -> dict[str, float]:
     return {k: costs[k] for k in ("image_deserialize_ms", "dic_icgn_ms")}
 
 
-def start_nodes(rec: Path, folder: Path, env: dict[str, str]) -> tuple[dict[str, subprocess.Popen], int]:
+def start_nodes(rec: Path, folder: Path, env: dict[str, str], accel: bool
+                ) -> tuple[dict[str, subprocess.Popen], int]:
     """The live processing nodes, started as ros2 launch starts them (tests/launch_like.py), and the lab-clock
     origin (ns) they were given: the camera must stamp its frames on it, as a driver on the lab's clock does."""
     from launch_like import launch_command
@@ -86,7 +109,8 @@ def start_nodes(rec: Path, folder: Path, env: dict[str, str]) -> tuple[dict[str,
     # frame 0 as the tracker's reference file, as docs/live.md asks of a lab: the tracker is then built before
     # the camera starts and says "ready"
     reference = write_reference_frame(rec, folder / "reference_frame0.png") if WITH_REFERENCE else None
-    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC, reference_image=reference)
+    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC, reference_image=reference,
+                         accel_topic="vibro/accel" if accel else None, accel_rate_hz=ACCEL_RATE_HZ)
     origins = {int(n.parameters["time_origin_unix_ns"]) for n in nodes if "time_origin_unix_ns" in n.parameters}
     if len(origins) != 1:
         raise SystemExit(f"the live nodes were given {len(origins)} lab-clock origins: {sorted(origins)}")
@@ -114,12 +138,23 @@ def stop(procs: dict[str, subprocess.Popen]) -> dict[str, int]:
     return {name: p.returncode for name, p in procs.items()}
 
 
-def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str]) -> tuple[dict, dict, dict[str, float]]:
-    """One live run at ``rate_hz``: (camera log, probe log, CPU s per process while streaming)."""
+def hog(cpu: int, seconds: float) -> subprocess.Popen:
+    """A process spinning on core ``cpu`` for ``seconds`` (a busy loop: another program on the lab PC)."""
+    code = (f"import os, time; os.sched_setaffinity(0, {{{cpu}}}); end = time.monotonic() + {seconds}\n"
+            "while time.monotonic() < end: pass")
+    return subprocess.Popen([sys.executable, "-c", code])
+
+
+def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel: bool,
+             hog_window: tuple[float, float] | None) -> tuple[dict, dict, dict[str, float], dict]:
+    """One live run at ``rate_hz``: (camera log, probe log, CPU s per process while streaming, run facts: the
+    wall time the graph said ready, the hog's window, the DAQ log)."""
     folder.mkdir(parents=True)
-    probe_out, ready, cam_out = folder / "probe.json", folder / "probe.ready", folder / "camera.json"
+    probe_out, ready, cam_out, daq_out = folder / "probe.json", folder / "probe.ready", folder / "camera.json", \
+        folder / "daq.json"
+    facts: dict = {}
     with CpuSampler(DOMAIN) as sampler:
-        nodes, origin_ns = start_nodes(rec, folder, env)
+        nodes, origin_ns = start_nodes(rec, folder, env, accel)
         with (folder / "probe.log").open("w") as log:
             probe = subprocess.Popen([sys.executable, str(BENCH / "live_probe.py"), str(probe_out), str(ready),
                                       "--ros-args", "-r", "__node:=bench_probe"], stdout=log,
@@ -134,13 +169,42 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str]) -> tu
                 if dead or time.monotonic() > deadline:
                     raise SystemExit(f"live graph did not come up at {rate_hz:g} Hz (exited: {dead}); logs in {folder}")
                 time.sleep(0.1)
+            facts["ready_at_s"] = time.time()
+            fps = 1000.0
+            # both peers load, match their readers and say so; then they get one start time (camera time t0)
+            start_file = folder / "start"
+            common = ["--time-origin-ns", str(origin_ns), "--start-file", str(start_file)]
+            peers = {}
+            if accel:
+                with (folder / "daq.log").open("w") as log:
+                    peers["daq"] = subprocess.Popen(
+                        [sys.executable, str(BENCH / "daq_peer.py"), str(rec), str(daq_out), "--speed",
+                         str(rate_hz / fps), "--block-samples", str(BLOCK_SAMPLES), *common, "--min-subscribers",
+                         "2", "--ready-file", str(folder / "daq.ready"), "--ros-args", "-r",
+                         "__node:=daq_driver"], stdout=log, stderr=subprocess.STDOUT, env=env)
             with (folder / "camera.log").open("w") as log:
-                camera = subprocess.run([sys.executable, str(BENCH / "camera_peer.py"), str(rec), str(cam_out),
-                                         "--rate-hz", str(rate_hz), "--time-origin-ns", str(origin_ns),
-                                         "--ros-args", "-r", "__node:=camera_driver"],
-                                        stdout=log, stderr=subprocess.STDOUT, env=env, timeout=300)
-            if camera.returncode != 0:
-                raise SystemExit(f"camera_peer failed at {rate_hz:g} Hz: {(folder / 'camera.log').read_text()}")
+                peers["camera"] = subprocess.Popen(
+                    [sys.executable, str(BENCH / "camera_peer.py"), str(rec), str(cam_out), "--rate-hz", str(rate_hz),
+                     *common, "--ready-file", str(folder / "camera.ready"), "--ros-args", "-r",
+                     "__node:=camera_driver"], stdout=log, stderr=subprocess.STDOUT, env=env)
+            waiting = [folder / f"{n}.ready" for n in peers]
+            while not all(f.exists() for f in waiting):
+                failed = {n: p.returncode for n, p in peers.items() if p.poll() is not None}
+                if failed or time.monotonic() > deadline + 60:
+                    raise SystemExit(f"peers not ready at {rate_hz:g} Hz (exited: {failed}); logs in {folder}")
+                time.sleep(0.02)
+            start = time.time() + 0.3
+            (folder / "start.tmp").write_text(f"{start:.6f}")
+            (folder / "start.tmp").rename(start_file)
+            if hog_window is not None:
+                delay = start + hog_window[0] - time.time()
+                if delay > 0:
+                    time.sleep(delay)
+                facts["hog_s"] = [time.time(), time.time() + hog_window[1]]
+                hog(0, hog_window[1]).wait()
+            for name, p in peers.items():
+                if p.wait(timeout=300) != 0:
+                    raise SystemExit(f"{name} peer failed at {rate_hz:g} Hz: {(folder / f'{name}.log').read_text()}")
             probe.wait(timeout=180)
             died = {n: p.returncode for n, p in nodes.items() if p.poll() is not None}
         finally:
@@ -151,7 +215,74 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str]) -> tu
         cpu = sampler.cpu_between(cam["published_at_s"][0], end)
     if died:
         raise SystemExit(f"node(s) exited while streaming at {rate_hz:g} Hz: {died}; logs in {folder}")
-    return cam, seen, cpu
+    if accel:
+        facts["daq"] = json.loads(daq_out.read_text())
+    return cam, seen, cpu, facts
+
+
+def runs_of(flags: list[bool]) -> list[int]:
+    """Lengths of the runs of consecutive True in ``flags``."""
+    out, n = [], 0
+    for f in flags:
+        if f:
+            n += 1
+        elif n:
+            out.append(n)
+            n = 0
+    if n:
+        out.append(n)
+    return out
+
+
+def after_ready(cam: dict, seen: dict, facts: dict, truth_impacts_s: np.ndarray, t0_s: float, fps: float,
+                offset_s: float) -> dict:
+    """Counts over the frames published after the graph said ready (those before, apart), the losses' reasons and
+    blocks, the accelerometer impacts against the truth, and the recovery after a hog."""
+    ready_at = facts["ready_at_s"]
+    published = dict(zip(cam["frame_index"], cam["published_at_s"]))
+    before = sorted(k for k, t in published.items() if t < ready_at)
+    after = sorted(k for k, t in published.items() if t >= ready_at)
+    first: dict[int, tuple[float, bool, str]] = {}
+    for arrived, k, lost, status in seen["dic"]:
+        first.setdefault(int(k), (arrived, bool(lost), status))
+    lost_flags = [k not in first or first[k][1] for k in after]
+    reasons: dict[str, int] = {}
+    for k in after:
+        why = "missing on vibro/dic" if k not in first else (first[k][2].split(":")[0] if first[k][1] else None)
+        if why:
+            reasons[why] = reasons.get(why, 0) + 1
+    blocks = runs_of(lost_flags)
+    out = {"images_published": len(published), "published_before_ready": len(before),
+           "published_after_ready": len(after),
+           "images_received_after_ready": sum(1 for k in after if k in first and not (
+               first[k][1] and first[k][2].startswith(NOT_RECEIVED))),
+           "tracked_after_ready": sum(1 for k in after if k in first and not first[k][1]),
+           "lost_after_ready": int(sum(lost_flags)), "lost_reasons": reasons,
+           "lost_runs": len(blocks), "longest_lost_run": max(blocks, default=0),
+           "lost_in_blocks": bool(blocks and max(blocks) > 3)}
+    if "daq" in facts:
+        got = np.array(sorted(t for _, _, t in seen.get("accel_impacts", [])))
+        end_cam = t0_s + (max(published) + 1) / fps
+        daq_end = facts["daq"]["block_index"][-1] + 1 if facts["daq"]["block_index"] else 0
+        truth = truth_impacts_s[truth_impacts_s + offset_s < end_cam - 0.06]
+        err = [float(got[np.argmin(np.abs(got - (t + offset_s)))] - (t + offset_s)) for t in truth] if len(got) else []
+        out["accel"] = {"blocks_sent": len(facts["daq"]["block_index"]), "last_block": daq_end - 1,
+                        "impacts_streamed": int(len(got)), "impacts_in_truth": int(len(truth)),
+                        "impacts_within_0_1_ms": int(sum(-2e-5 <= e <= 1e-4 for e in err)),
+                        "onset_minus_truth_us": {"median": 1e6 * float(np.median(err)) if err else math.nan,
+                                                 "max": 1e6 * float(np.max(np.abs(err))) if err else math.nan}}
+    if "hog_s" in facts:
+        h0, h1 = facts["hog_s"]
+        lag = [(published[k], first[k][0] - published[k]) for k in after if k in first and not first[k][1]]
+        before_lag = [x for t, x in lag if t < h0]
+        limit = max(RECOVERED_LAG_S, 2 * float(np.median(before_lag)) if before_lag else 0.0)
+        back = next((t + x for t, x in lag if t >= h1 and x <= limit), None)
+        during = [k for k in after if h0 <= published[k] < h1]
+        out["hog"] = {"window_s": [h0 - published[after[0]] if after else math.nan, h1 - h0],
+                      "lost_during": int(sum(1 for k in during if k not in first or first[k][1])),
+                      "frames_during": len(during), "recovered_lag_limit_ms": 1e3 * limit,
+                      "recovered_after_hog_ms": 1e3 * (back - h1) if back is not None else None}
+    return out
 
 
 def frame_of(t_s: float, t0_s: float, fps: float) -> int:
@@ -225,6 +356,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1500)
     parser.add_argument("--rates", default="250,500,1000", help="camera rates to run (Hz), comma-separated")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per rate, fresh nodes each")
+    parser.add_argument("--no-accel", action="store_true", help="camera only: no DAQ peer, no impact_detector")
+    parser.add_argument("--hog", default="", help="START_S,DURATION_S: a CPU hog on core 0 from START_S after the "
+                                                  "camera's first frame, for DURATION_S")
+    parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "live.json")
     parser.add_argument("--first-image-reference", action="store_true",
                         help="give dic_tracker no reference file: it builds its tracker on the first image (A/B of "
                              "the start-up)")
@@ -232,14 +368,19 @@ def main() -> int:
     rates = [float(r) for r in args.rates.split(",")]
     from vibro_io.rig import load_rig
 
-    rec = cached_recording(args.frames)
+    accel = not args.no_accel
+    hog_window = tuple(float(x) for x in args.hog.split(",")) if args.hog else None
+    rec = cached_recording(args.frames, accel)
     cam = load_rig(rec / "rig.yaml").camera
     truth = json.loads((rec.parent / f"{rec.name}.truth.json").read_text())
     truth_impacts_s = np.array(sorted(i["t"] for i in truth["impacts"]))
     env = dict(os.environ, ROS_DOMAIN_ID=DOMAIN, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     result: dict = {"frames": args.frames, "cores": os.cpu_count(), "goal_rate_hz": GOAL_RATE_HZ,
                     "goal_latency": "one flight + 5 ms", "executor": os.environ.get("VIBRO_EXECUTOR", "events"),
-                    "recording": f"vibro synth --no-accel --frames {args.frames} --seed {SEED}"}
+                    "recording": f"vibro synth {'' if accel else '--no-accel '}--frames {args.frames} --seed {SEED}",
+                    "accelerometers": f"daq_peer {ACCEL_RATE_HZ:g} Hz, {BLOCK_SAMPLES} samples a block" if accel
+                    else None, "hog": {"start_s": hog_window[0], "duration_s": hog_window[1], "core": 0}
+                    if hog_window else None, "command": " ".join(sys.argv)}
     result["tracker_in_process_ms_per_frame"] = tracker_cost_ms(rec)
     one_core = 1e3 / sum(result["tracker_in_process_ms_per_frame"].values())
     result["tracker_one_core_ceiling_frames_per_s"] = one_core
@@ -247,10 +388,14 @@ def main() -> int:
     logs = rec.parent / "runs"  # kept for a look after the run; replaced by the next one
     shutil.rmtree(logs, ignore_errors=True)
     for rate in rates:
-        camera_log, seen, cpu = run_rate(rec, rate, logs / f"rate_{rate:g}", env)
-        run = summarize(rate, camera_log, seen, cpu, truth_impacts_s, cam.t0_s, cam.fps)
-        run["tracked_vs_one_core_ceiling_ratio"] = run["frames_per_s_tracked"] / one_core
-        runs.append(run)
+        for rep in range(args.repeat):
+            camera_log, seen, cpu, facts = run_rate(rec, rate, logs / f"rate_{rate:g}_{rep}", env, accel, hog_window)
+            run = summarize(rate, camera_log, seen, cpu, truth_impacts_s, cam.t0_s, cam.fps)
+            run["repeat"] = rep
+            run["tracked_vs_one_core_ceiling_ratio"] = run["frames_per_s_tracked"] / one_core
+            run.update(after_ready(camera_log, seen, facts, truth_impacts_s, cam.t0_s, cam.fps,
+                                   float(truth.get("clock_offset_s", 0.0))))
+            runs.append(run)
     result["runs"] = runs
 
     c = result["tracker_in_process_ms_per_frame"]
@@ -258,7 +403,8 @@ def main() -> int:
           f"{c['dic_icgn_ms']:.3f} ms/frame = {one_core:.0f} frames/s on one core")
     for r in runs:
         lag, lat, ex = r["dic_lag_ms"], r["impact_latency_ms"], r["latency_minus_flight_ms"]
-        print(f"camera {r['target_rate_hz']:5.0f} Hz: published at {r['publish_rate_hz']:6.1f} Hz, tracked "
+        print(f"camera {r['target_rate_hz']:5.0f} Hz (run {r['repeat'] + 1}): published at "
+              f"{r['publish_rate_hz']:6.1f} Hz, tracked "
               f"{r['frames_per_s_tracked']:6.1f} frames/s ({r['tracked_vs_one_core_ceiling_ratio']:.2f}x the one-core "
               f"ceiling), lost {r['frames_lost_total']} of {r['frames_published']} ({r['frames_lost_flagged']} "
               f"flagged lost, of which {r['frames_lost_image_not_received']} images never reached the tracker; "
@@ -273,7 +419,20 @@ def main() -> int:
               f"{100 * r['cpu_utilisation_of_cores']:.0f} % of {os.cpu_count()} cores in all:")
         for node, v in r["cpu_ms_per_frame"].items():
             print(f"        {node:20s} {v:6.3f} ms/frame")
-    out = ROOT / "bench" / "results" / "live.json"
+        print(f"    after ready: {r['published_after_ready']} published ({r['published_before_ready']} before the "
+              f"graph was ready), {r['tracked_after_ready']} tracked, {r['lost_after_ready']} lost "
+              f"{r['lost_reasons']} in {r['lost_runs']} run(s), longest {r['longest_lost_run']}")
+        if "accel" in r:
+            a = r["accel"]
+            print(f"    accelerometers: {a['blocks_sent']} blocks, {a['impacts_streamed']} impacts streamed, "
+                  f"{a['impacts_within_0_1_ms']} of {a['impacts_in_truth']} in truth found within 0.1 ms "
+                  f"(onset - truth median {a['onset_minus_truth_us']['median']:.0f} us)")
+        if "hog" in r:
+            h = r["hog"]
+            print(f"    hog {h['window_s'][1]:.2f} s on core 0: {h['lost_during']} of {h['frames_during']} frames "
+                  f"lost during it; recovered {h['recovered_after_hog_ms']} ms after it stopped "
+                  f"(lag under {h['recovered_lag_limit_ms']:.1f} ms)")
+    out = args.out
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     return 0

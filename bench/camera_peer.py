@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import rclpy
+from daq_peer import shared_start
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
@@ -38,6 +39,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="lab-clock origin of the stamps (ns since the epoch): stamp = origin + t0_s + k/fps")
     parser.add_argument("--settle-s", type=float, default=1.0, help="wait after the first subscriber matched")
     parser.add_argument("--wait-s", type=float, default=60.0, help="give up when no subscriber after this")
+    parser.add_argument("--min-subscribers", type=int, default=1, help="wait until this many readers matched")
+    parser.add_argument("--ready-file", type=Path, default=None,
+                        help="touched once loaded and the readers matched (for a shared start)")
+    parser.add_argument("--start-file", type=Path, default=None,
+                        help="wait for this file, then take its content as the wall time (s) of camera time t0")
+    parser.add_argument("--start-at-unix-s", type=float, default=None,
+                        help="wall time (s) of frame 0, shared with daq_peer (default: --settle-s after a subscriber)")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
     if args.rate_hz <= 0:
         print(f"camera_peer: --rate-hz must be > 0, got {args.rate_hz}", file=sys.stderr)
@@ -53,15 +61,17 @@ def main(argv: list[str] | None = None) -> int:
     node = rclpy.create_node("camera_driver")
     pub = node.create_publisher(Image, args.topic, qos_profile_sensor_data)
     deadline = time.monotonic() + args.wait_s
-    while pub.get_subscription_count() == 0:
+    while pub.get_subscription_count() < max(args.min_subscribers, 1):
         if time.monotonic() > deadline:
             print(f"camera_peer: no subscriber on {args.topic} after {args.wait_s:g} s", file=sys.stderr)
             return 1
         time.sleep(0.05)
-    time.sleep(args.settle_s)
+    start = shared_start(args)
+    if start is None:
+        time.sleep(args.settle_s)
+        start = time.time() + 0.05
     published_at = []
     period_s = 1.0 / args.rate_hz
-    start = time.time() + 0.05
     for k, msg in enumerate(messages):
         delay = start + k * period_s - time.time()
         if delay > 0:

@@ -4,7 +4,7 @@
         [--start-at-unix-s S] [--drop-blocks 5,6] --ros-args -r __node:=daq_driver
 
 Publishes what docs/live.md asks of a DAQ driver (*Live accelerometers*): vibro_msgs/AccelBlock on vibro/accel,
-reliable, volatile, depth 100; a fixed number of samples per block (``--block-samples``; the last partial block
+reliable, transient local, depth 100; a fixed number of samples per block (``--block-samples``; the last partial block
 is not sent, as a driver sends only full buffers); ``block_index`` from 0, ``first_sample_index`` the sample count,
 ``t_start_s`` the DAQ time of the block's first sample (accel.csv's time column), m/s^2 (+ up); ``header.stamp`` the
 lab-clock time of that sample: origin + DAQ time - the DAQ's clock offset (from the synthetic recording's truth
@@ -34,8 +34,10 @@ from vibro_io.rig import load_rig
 from vibro_msgs.msg import AccelBlock
 from vibro_ros.node_support import stamp_from_seconds
 
-#: what docs/live.md asks of a driver: reliable, volatile, a second of 20 ms blocks
-DRIVER_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+#: what docs/live.md asks of a driver: reliable, transient local (the nodes' own reader matches it at once), a second
+#: of 20 ms blocks
+DRIVER_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def blocks(recording: Path, block_n: int, origin_ns: int, clock_offset_s: float) -> list[AccelBlock]:
@@ -63,6 +65,24 @@ def truth_offset_s(recording: Path) -> float:
     return 0.0
 
 
+def shared_start(args) -> float | None:
+    """The wall time of camera time t0: ``--start-at-unix-s``, else (with ``--start-file``) the content of that file
+    once it exists, after touching ``--ready-file``; None when neither is given."""
+    if args.ready_file is not None:
+        args.ready_file.touch()
+    if args.start_at_unix_s is not None:
+        return float(args.start_at_unix_s)
+    if args.start_file is None:
+        return None
+    deadline = time.monotonic() + args.wait_s
+    while not args.start_file.exists():
+        if time.monotonic() > deadline:
+            raise SystemExit(f"no start file {args.start_file} after {args.wait_s:g} s")
+        time.sleep(0.01)
+    time.sleep(0.01)  # written whole (the writer renames it into place)
+    return float(args.start_file.read_text())
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -78,6 +98,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="wall time (s) of camera time t0_s; default 0.5 s after a subscriber matched")
     parser.add_argument("--drop-blocks", default="", help="block indices not sent, comma-separated")
     parser.add_argument("--wait-s", type=float, default=60.0, help="give up when no subscriber after this")
+    parser.add_argument("--min-subscribers", type=int, default=1, help="wait until this many readers matched")
+    parser.add_argument("--ready-file", type=Path, default=None,
+                        help="touched once loaded and the readers matched (for a shared start)")
+    parser.add_argument("--start-file", type=Path, default=None,
+                        help="wait for this file, then take its content as the wall time (s) of camera time t0")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv)[1:])
     if args.speed <= 0 or args.block_samples <= 0:
         print("daq_peer: --speed and --block-samples must be > 0", file=sys.stderr)
@@ -90,12 +115,12 @@ def main(argv: list[str] | None = None) -> int:
     node = rclpy.create_node("daq_driver")
     pub = node.create_publisher(AccelBlock, args.topic, DRIVER_QOS)
     deadline = time.monotonic() + args.wait_s
-    while pub.get_subscription_count() == 0:
+    while pub.get_subscription_count() < max(args.min_subscribers, 1):
         if time.monotonic() > deadline:
             print(f"daq_peer: no subscriber on {args.topic} after {args.wait_s:g} s", file=sys.stderr)
             return 1
         time.sleep(0.05)
-    start = args.start_at_unix_s if args.start_at_unix_s is not None else time.time() + 0.5
+    start = shared_start(args) or time.time() + 0.5
     sent, at = [], []
     for msg in messages:
         t_end_cam = msg.t_start_s + len(msg.upper_ms2) / msg.sample_rate_hz - offset

@@ -3,7 +3,8 @@
     python bench/live_probe.py OUT.json READY_FILE [--idle-s 3] [--max-s 120] --ros-args -r __node:=bench_probe
 
 Records, per DicFrame, (arrival wall time s, frame_index, lost, status) and, per ImpactEstimate,
-(arrival wall time s, index, t_s, final). Touches READY_FILE once vibro/dic and vibro/impacts each
+(arrival wall time s, index, t_s, final), per AccelImpact (arrival, index, t_s DAQ time).
+Touches READY_FILE once vibro/dic and vibro/impacts each
 have a publisher, so the bench starts the camera only when it can listen. Ends by itself when no
 DicFrame arrived for ``--idle-s`` after the first one (or after ``--max-s``), then writes OUT.json.
 """
@@ -20,7 +21,7 @@ import rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 
-from vibro_msgs.msg import DicFrame, ImpactEstimate
+from vibro_msgs.msg import AccelImpact, DicFrame, ImpactEstimate
 from vibro_ros import topics
 from vibro_ros.node_support import RESULTS_QOS, make_executor, spin_until_done
 
@@ -45,6 +46,9 @@ def main(argv: list[str] | None = None) -> int:
                              lambda m: dic.append((time.time(), m.frame_index, m.lost, m.status)), DIC_QOS)
     node.create_subscription(ImpactEstimate, topics.IMPACTS.name,
                              lambda m: impacts.append((time.time(), m.index, m.t_s, m.final)), RESULTS_QOS)
+    accel: list[tuple[float, int, float]] = []
+    node.create_subscription(AccelImpact, topics.ACCEL_IMPACTS.name,
+                             lambda m: accel.append((time.time(), m.index, m.t_s)), RESULTS_QOS)
     done = Future()
     started = time.monotonic()
 
@@ -60,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     executor = make_executor()
     executor.add_node(node)
     spin_until_done(executor, done, slice_s=0.2)
-    args.out.write_text(json.dumps({"dic": dic, "impacts": impacts}))
+    args.out.write_text(json.dumps({"dic": dic, "impacts": impacts, "accel_impacts": accel}))
     node.destroy_node()
     rclpy.shutdown()
     return 0
