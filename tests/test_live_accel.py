@@ -61,11 +61,14 @@ def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_report
             impacts = probe.subscribe(AccelImpact, "vibro/accel_impacts", RESULTS_QOS)
             diags = probe.subscribe(DiagnosticArray, "/diagnostics", 100)
             assert probe.wait_for_nodes(["/impact_detector", "/trajectory_fitter"], 60)
-            start = time.time() + 3.0  # both peers on one schedule: camera time t0 at this wall time
+            # both peers on one schedule: camera time t0 at this wall time; the DAQ peer sends nothing before both
+            # nodes' readers have matched it (a reader that matched late would start mid-stream)
+            start = time.time() + 3.0
             common = ["--time-origin-ns", str(ORIGIN_NS), "--start-at-unix-s", f"{start:.6f}"]
             daq = subprocess.Popen([sys.executable, str(BENCH / "daq_peer.py"), str(recording),
                                     str(tmp_path / "daq.json"), "--block-samples", str(BLOCK), "--drop-blocks",
-                                    ",".join(map(str, DROPPED)), *common, "--ros-args", "-r", "__node:=daq_driver"],
+                                    ",".join(map(str, DROPPED)), "--min-subscribers", "2", *common,
+                                    "--ros-args", "-r", "__node:=daq_driver"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             dic = subprocess.Popen([sys.executable, str(HERE / "live_dic_peer.py"), str(recording), *common,
                                     "--ros-args", "-r", "__node:=dic_tracker"],
