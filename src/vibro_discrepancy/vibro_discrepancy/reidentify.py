@@ -37,7 +37,7 @@ impacts (``vibro/impacts_final_model``), which ``vibro results <bag>`` puts back
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -56,20 +56,6 @@ PAPER = "paper"
 #: an identified impact and a measured one are the same when their times agree this well (s): both are
 #: the same float read from the same results document
 SAME_IMPACT_S = 1e-9
-
-
-@dataclass(frozen=True)
-class ReidentifiedImpact:
-    """One impact measured under the final model (SI, DIC frame, + up); ``t_s`` the camera time."""
-
-    t_identified_s: float      # the identification's time, which names the impact
-    t_s: float
-    t_std_s: float
-    v_ball_before_mps: float
-    v_ball_after_mps: float
-    v_structure_mps: float
-    cor: float
-    cor_std: float
 
 
 def measurement_effects(findings: Iterable[object]) -> list[str]:
@@ -164,11 +150,12 @@ def impact_stds(meas: Measured, model: FittedModel, j: int) -> tuple[float, floa
     return math.sqrt(max(var_t, 0.0)), math.sqrt(max(var_e, 0.0))
 
 
-def reidentify_impacts(meas: Measured, model: FittedModel) -> list[ReidentifiedImpact]:
+def reidentify_impacts(meas: Measured, model: FittedModel) -> list[Impact]:
     """Every impact that ``model`` sees from both sides (a fitted flight before and after it), measured
     under ``model`` (its ``impacts``, computed by :func:`~vibro_discrepancy.fitting.recompute_impacts`),
-    with propagated stds. Impacts with a side missing are left out (they keep the identification's
-    values)."""
+    with propagated stds: the identified :class:`Impact` with ``t_s``, ``t_std_s``, ``v_*``, ``cor`` and
+    ``cor_std`` re-measured (SI, + up) and ``t_paper_s`` the identification's time, which names it. Impacts
+    with a side missing are left out (they keep the identification's values)."""
     out = []
     imps = model.impacts
     for j in range(imps.index.size):
@@ -182,9 +169,9 @@ def reidentify_impacts(meas: Measured, model: FittedModel) -> list[ReidentifiedI
             t_std, cor_std = impact_stds(meas, model, j)
         except (np.linalg.LinAlgError, ValueError, ZeroDivisionError):
             continue  # no uncertainty, no claim: the impact keeps the identification's values
-        out.append(ReidentifiedImpact(float(imp.t_s), float(imps.t_s[j]), t_std, float(imps.v_before[j]),
-                                      float(imps.v_after[j]), float(imps.v_structure[j]), float(imps.cor[j]),
-                                      cor_std))
+        out.append(replace(imp, t_paper_s=float(imp.t_s), t_s=float(imps.t_s[j]), t_std_s=t_std,
+                           v_ball_before_mps=float(imps.v_before[j]), v_ball_after_mps=float(imps.v_after[j]),
+                           v_structure_mps=float(imps.v_structure[j]), cor=float(imps.cor[j]), cor_std=cor_std))
     return out
 
 
@@ -193,16 +180,18 @@ def _keep_paper(imp: Impact) -> Impact:
 
 
 def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
-                           measured: Sequence[ReidentifiedImpact]) -> ResultsDocument:
+                           measured: Sequence[Impact]) -> ResultsDocument:
     """``doc`` with its impacts measured under the final model: ``cor``, ``cor_std``, ``t``, ``t_std``,
     ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
     ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact; ``cor_summary`` from the new CORs; the
     flights' opening/closing impact times from the new times; the top-level ``impacts_model`` section
     saying which model produced ``cor``. With no ``effects`` every impact keeps the identification's
-    values (``cor_method`` "paper"). The caller recomputes whatever else is derived from the CORs
+    values (``cor_method`` "paper"). ``measured`` (:func:`reidentify_impacts`) names each impact by the
+    identification's time, its ``t_paper_s``. The caller recomputes whatever else is derived from the CORs
     (``cor_statistics``, figures)."""
     method = cor_method_name(effects)
-    by_time = {round(r.t_identified_s / SAME_IMPACT_S): r for r in measured} if effects else {}
+    by_time = ({round(r.t_paper_s / SAME_IMPACT_S): r for r in measured if r.t_paper_s is not None}
+               if effects else {})
     impacts, n_done = [], 0
     for imp in doc.impacts:
         base = _keep_paper(imp)
@@ -248,16 +237,16 @@ def reidentify_document(doc: ResultsDocument, run) -> ResultsDocument:
     return apply_reidentification(doc, effects, reidentify_impacts(run.measured, run.final))
 
 
-def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[ReidentifiedImpact]:
+def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[Impact]:
     """The re-identified impacts as a graph run carries them (the ``discrepancy`` node's
     ``vibro/impacts_final_model`` messages, converted to :class:`Impact`), matched by index to ``doc``'s
-    identified impacts (whose time names them); an index ``doc`` does not hold is dropped."""
+    identified impacts, whose time becomes their ``t_paper_s`` (the name :func:`apply_reidentification`
+    matches by); an index ``doc`` does not hold is dropped."""
     t_identified = {i.index: i.t_s for i in doc.impacts if i.t_s is not None}
     out = []
     for c in corrected:
         if c.index not in t_identified or None in (c.t_s, c.cor, c.v_ball_before_mps, c.v_ball_after_mps,
                                                    c.v_structure_mps):
             continue
-        out.append(ReidentifiedImpact(t_identified[c.index], c.t_s, c.t_std_s, c.v_ball_before_mps,
-                                      c.v_ball_after_mps, c.v_structure_mps, c.cor, c.cor_std))
+        out.append(replace(c, t_paper_s=t_identified[c.index]))
     return out
