@@ -86,3 +86,11 @@ def test_coulomb_friction_keeps_its_finding_and_fits_its_shape(runs):
 def test_recording_without_effect_has_no_finding(runs):
     _, disc = runs["none"]
     assert disc["findings"] == []
+
+
+def test_prove_scores_the_position_force_as_located(runs):
+    from vibro_eval.truth import score_case
+
+    truth, disc = runs["position"]
+    sc = score_case(disc, truth)
+    assert sc["correct"] == ["position_force"] and sc["located"]["position_force"] is True

@@ -18,8 +18,10 @@ cor_parity             out of the catalogue: the lower plate's COR alternates be
 control                a regular recording without effect, COR scatter 0.01 .. 0.02
 =====================  =====================================================================================
 
-Read noise 1 .. 3 gray levels on every case. The generator knows the truth (it places the drops where the
-truth has impacts or none); ``vibro analyze`` runs on the recording directory alone, in a separate process.
+Read noise 1 .. 4 gray levels on every case, motion blur (0.5 ms exposure) on every other case of a family
+(of the drops families: on all but the first, so that one case has both accelerometers and blur). The generator
+knows the truth (it places the drops where the truth has impacts or none); ``vibro analyze`` runs on the
+recording directory alone, in a separate process.
 
 Scored per case (:func:`score_harder`), the criteria of ``HARDER_GOALS``:
 
@@ -27,10 +29,10 @@ Scored per case (:func:`score_harder`), the criteria of ``HARDER_GOALS``:
   *measurable* ones: outside every run of lost frames, with at least 3 frames present inside the flight on
   each side more than 0.3 frame interval from its ends (a frame that close may hold the contact in its
   exposure; short hops included); >= 98 %;
-- ``invented``: reported impacts that match no truth impact (an ``in_gap`` one: of its plate within 3 of its
+- ``invented``: reported impacts that match no truth impact (an ``in_gap`` one: of its plate within 4 of its
   time sigmas); 0;
-- ``gaps``: per run of lost frames, ``found`` (the one impact inside reported ``in_gap`` within 3 time sigmas and
-  its COR within 3 sigmas), ``counted`` (no impact reported there and the identification's gap verdict says it
+- ``gaps``: per run of lost frames, ``found`` (the one impact inside reported ``in_gap`` within 4 time sigmas, its
+  COR within 4 sigmas and 0.002), ``counted`` (no impact reported there and the identification's gap verdict says it
   may hide the true count) or ``lost``; a run inside a flight is ``clean`` when nothing is invented there and
   its verdict (if any) admits 0. Passes with no ``lost`` and no miscount;
 - ``cor``: mean |COR - true COR| over the matched impacts with a COR; <= 0.002;
@@ -67,7 +69,10 @@ CRITERIA = ("recall", "invented", "gaps", "cor", "findings", "improved")
 
 MARGIN = 0.3           # frame intervals: a frame this close to an impact may hold the contact
 MIN_FRAMES = 3         # frames inside a flight for its impacts to be measurable
-GAP_SIGMAS = 3.0       # an in-gap impact's time and COR agree with the truth within this many of its sigmas
+# an in-gap impact's time and COR agree with the truth within this many of its sigmas: the gap test's own agreement
+# level (vibro_fit.gaps.K_SIGMA); a whole set scores ~20 gaps x 2 quantities, at 3 sigmas an honest sigma would
+# fail one run in twenty
+GAP_SIGMAS = 4.0
 DROP_SPACING = 30      # frames between two runs of drops and from the recording's ends
 
 
@@ -84,6 +89,7 @@ class HarderSpec:
     cor_scatter: float = 0.0
     effects: dict = field(default_factory=dict)
     accel: bool = False
+    blur: bool = False
     drops: int = 0        # runs of lost frames to place (the frames themselves: after the synthesis)
 
 
@@ -114,14 +120,15 @@ def draw_harder(seed: int, frames: int, cases: int | None = None) -> list[Harder
         k = k_of.get(fam, 0)
         k_of[fam] = k + 1
         u = (k + float(rng.uniform())) / n_of[fam]      # stratified over the family's cases
-        noise = float(rng.uniform(1.0, 3.0))
+        noise = float(rng.uniform(1.0, 4.0))
         s = HarderSpec(i, fam, int(rng.integers(0, 2 ** 31 - 1)), frames, float(rng.uniform(20.0, 24.0)),
-                       float(rng.uniform(25.0, 32.0)), noise, cor_scatter=float(rng.uniform(0.01, 0.02)))
+                       float(rng.uniform(25.0, 32.0)), noise, cor_scatter=float(rng.uniform(0.01, 0.02)),
+                       blur=k % 2 == 1)
         if fam == "sticking":
             s.cor, s.cor_scatter = 0.40 + 0.20 * u, 0.01
             s.frequency_hz, s.accel_mps2 = float(rng.uniform(9.0, 11.0)), float(rng.uniform(12.0, 14.0))
         elif fam.startswith("drops"):
-            s.drops, s.accel = 3, k % 2 == 0
+            s.drops, s.accel, s.blur = 3, k % 2 == 0, k >= 1
             if fam.endswith("coulomb_friction"):
                 s.effects = {"coulomb_friction": {"force_n": float(math.exp(math.log(1e-4) + u * math.log(3.0)))}}
         elif fam == "position_force":
@@ -261,8 +268,9 @@ def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth
             ok_found = False
             if len(inside) == 1 and len(in_gap) == 1 and matched.get(inside[0]) is in_gap[0]:
                 x, j = in_gap[0], inside[0]
-                cor_ok = (x.get("cor") is not None and x.get("cor_std")
-                          and abs(float(x["cor"]) - float(imps[j]["cor"])) <= GAP_SIGMAS * float(x["cor_std"]))
+                err = None if x.get("cor") is None else abs(float(x["cor"]) - float(imps[j]["cor"]))
+                cor_ok = (err is not None and x.get("cor_std") and err <= GAP_SIGMAS * float(x["cor_std"])
+                          and err <= HARDER_GOALS["cor_error_mean"])
                 ok_found = bool(cor_ok)
                 row.update(t_error_s=float(x["t"]) - float(tt[j]), t_std_s=x.get("t_std"),
                            cor_error=None if x.get("cor") is None else float(x["cor"]) - float(imps[j]["cor"]),
@@ -330,7 +338,7 @@ def run_harder_case(spec: HarderSpec, work: Path, sindy: bool = True) -> dict:
     out = work / f"hard{spec.index:03d}_out"
     cfg = SynthConfig(effects=spec.effects, seed=spec.seed, frequency_hz=spec.frequency_hz, cor=spec.cor,
                       accel_mps2=spec.accel_mps2, noise_gray=spec.noise_gray, frames=spec.frames, accel=spec.accel,
-                      cor_scatter=spec.cor_scatter)
+                      cor_scatter=spec.cor_scatter, blur=spec.blur)
     t0 = time.perf_counter()
     synthesize(rec, cfg, overwrite=True, progress=False)
     truth = json.loads(truth_path(rec).read_text())
@@ -365,13 +373,18 @@ def run_harder_case(spec: HarderSpec, work: Path, sindy: bool = True) -> dict:
     return row
 
 
+def _ab(spec: dict) -> str:
+    """Accelerometers (a) and blur (b) of a case, '-' for neither."""
+    return ("a" if spec.get("accel") else "") + ("b" if spec.get("blur") else "") or "-"
+
+
 def _mark(v) -> str:
     return "-" if v is None else ("pass" if v else "FAIL")
 
 
 def format_harder_table(rows: list[dict]) -> str:
     """One line per case: its numbers and pass/FAIL per criterion ('-': does not apply)."""
-    head = (f"{'case':>4} {'family':22} {'acc':>3} {'drops':>11} {'recall':>11} {'R':>4} {'inv':>3} {'I':>4} "
+    head = (f"{'case':>4} {'family':22} {'nz':>3} {'a/b':>3} {'drops':>11} {'recall':>11} {'R':>4} {'inv':>3} {'I':>4} "
             f"{'gaps F/C/K/L':>12} {'G':>4} {'COR e-3':>7} {'C':>4} {'findings':28} {'Fd':>4} {'Dr':>4} {'pass':>4}"
             f"  sindy")
     lines = [head]
@@ -379,7 +392,7 @@ def format_harder_table(rows: list[dict]) -> str:
         sp = r["spec"]
         drops = ",".join(str(c) for _, c in r.get("dropped", [])) or "-"
         if "error" in r:
-            lines.append(f"{r['case']:>4} {r['family'][:22]:22} {'y' if sp['accel'] else 'n':>3} {drops:>11}  "
+            lines.append(f"{r['case']:>4} {r['family'][:22]:22} {sp['noise_gray']:>3.1f} {_ab(sp):>3} {drops:>11}  "
                          f"analyze failed: {r['error']}")
             continue
         c = r["criteria"]
@@ -392,12 +405,15 @@ def format_harder_table(rows: list[dict]) -> str:
             or "none"
         sindy = r.get("sindy", {})
         sfound = ",".join(sindy.get("found", [])) or ("error" if "error" in sindy else ("none" if sindy else "n/a"))
-        lines.append(f"{r['case']:>4} {r['family'][:22]:22} {'y' if sp['accel'] else 'n':>3} {drops:>11} {rec:>11} "
+        lines.append(f"{r['case']:>4} {r['family'][:22]:22} {sp['noise_gray']:>3.1f} {_ab(sp):>3} {drops:>11} "
+                     f"{rec:>11} "
                      f"{_mark(c['recall']):>4} {len(r['invented_t']):>3} {_mark(c['invented']):>4} {gfc:>12} "
                      f"{_mark(c['gaps'] if g else None):>4} {cor:>7} {_mark(c['cor']):>4} {found[:28]:28} "
                      f"{_mark(c['findings']):>4} {_mark(c['improved']):>4} {_mark(r['pass']):>4}  {sfound}")
     n_pass = sum(bool(r.get("pass")) for r in rows)
-    lines.append(f"{n_pass}/{len(rows)} cases pass (R recall >= {100 * HARDER_GOALS['recall']:.0f} %, I no invented "
+    lines.append(f"{n_pass}/{len(rows)} cases pass (nz: read noise, gray levels; a/b: accelerometers, blur; "
+                 "drops: lengths of the runs of lost frames; "
+                 f"R recall >= {100 * HARDER_GOALS['recall']:.0f} %, I no invented "
                  f"impact, G every gap's impact found (F) or counted (C), a gap in a flight clean (K), none lost (L), "
                  f"C mean |COR error| <= {HARDER_GOALS['cor_error_mean']}, "
                  "Fd findings vs truth, Dr D_r lowered by every correct catalogue finding)")

@@ -137,8 +137,17 @@ def located_right(finding: Mapping[str, Any], effect: str, truth: Mapping[str, A
     """Whether an ``unexplained`` finding's mismatches place the invented ``effect`` where the truth has
     it: ``cor_drift`` a COR trend of the drift's sign; ``structure_tone`` a periodic structure mismatch
     within half a periodogram bin (1 / 2T, T the span tested) of the tone's frequency; ``plate_step`` a
-    step of the top plate's contact level whose bracketing impacts hold the true step time."""
+    step of the top plate's contact level whose bracketing impacts hold the true step time; ``cor_parity`` the
+    lower plate's COR alternating (a ``parity`` COR mismatch on the bottom plate; which impact the analysis
+    counts first is its own, so the jump's size within half of the true |cor_even - cor_odd|, its sign free);
+    ``position_force`` a structured flight shape (``shape``) pulling towards the lower plate, strongest nearest to
+    it, independent of the direction of motion."""
     params = true_effects(truth).get(effect, {})
+    if effect == "position_force":
+        sh = finding.get("shape") or {}
+        acc = sh.get("accel_even_mps2") or []
+        return bool(sh.get("structured") and acc and acc[0] < 0 and abs(acc[0]) >= abs(acc[-1])
+                    and not sh.get("direction_dependent"))
     for m in finding.get("mismatches") or []:
         span = float(m.get("t_to_s") or 0.0) - float(m.get("t_from_s") or 0.0)
         if effect == "cor_drift" and m.get("series") == "cor" and m.get("shape") == "trend":
@@ -147,6 +156,10 @@ def located_right(finding: Mapping[str, Any], effect: str, truth: Mapping[str, A
         elif effect == "structure_tone" and m.get("series") == "structure" and m.get("shape") == "periodic":
             f = m.get("frequency_hz")
             if f is not None and span > 0 and abs(f - params["tone_frequency_hz"]) < 0.5 / span:
+                return True
+        elif effect == "cor_parity" and m.get("series") == "cor" and m.get("shape") == "parity":
+            true_jump = abs(params.get("cor_even", 0.0) - params.get("cor_odd", 0.0))
+            if m.get("plate") == "bottom" and abs(abs(m.get("size") or 0.0) - true_jump) <= 0.5 * true_jump:
                 return True
         elif (effect == "plate_step" and m.get("series") == "contact_level" and m.get("plate") == "top"
               and m.get("shape") == "step"):
