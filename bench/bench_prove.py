@@ -2,11 +2,11 @@
 
 One ``vibro prove --evidence`` run (vibro_eval/prove.py: ``EVIDENCE``): per-impact COR scatter 0.01-0.02
 on every case, read noise 1-3 gray levels, motion blur (0.5 ms exposure) on about half the cases, each of
-the 7 catalogue effects at two magnitudes (weaker and stronger half of its documented range), the three
-out-of-catalogue effects of the synthetic rig (cor_drift, structure_tone, plate_step) at two magnitudes,
-and 3 controls: 23 recordings. ``vibro analyze`` runs on each recording directory alone; the truth is read
-only to score. Goals: effects identified >= 95 % (out-of-catalogue only as ``unexplained``
-with a location), no finding on a control, every correct finding improving the model (restarted
+the 7 catalogue effects at two magnitudes (weaker and stronger half of its documented range), the five
+out-of-catalogue effects of the synthetic rig (cor_drift, structure_tone, plate_step, position_force,
+cor_parity) at two magnitudes, and 3 controls: 27 recordings. ``vibro analyze`` runs on each recording
+directory alone; the truth is read only to score. Goals: effects identified >= 95 % (out-of-catalogue only
+as ``unexplained`` with a location), no finding on a control, every correct finding improving the model (restarted
 deviation D_r lower; a COR law, which D_r cannot see: COR variance explained above chance),
 per-impact COR error vs the truth <= 0.002 with an effect and <= 0.001 without; the paper's D beside D_r.
 
