@@ -99,3 +99,88 @@ def test_no_import_loops_among_vibros_modules() -> None:
     graph = {name: imported(name, path, modules) for name, path in modules.items()}
     assert "vibro_io.frames_source" in graph["vibro_io.rig"]  # the reader is seen through its imports
     assert cycles(graph) == []
+
+
+HEAVY_PACKAGES = frozenset({"rclpy", "matplotlib", "dask", "distributed", "foxglove_websocket", "cv2",
+                            "scipy.optimize", "scipy.stats", "scipy.signal", "scipy.ndimage", "scipy.interpolate",
+                            "scipy.integrate", "scipy.sparse", "scipy.spatial",
+                            "numba", "rosbags", "mcap", "mcap_ros2", "pyMRAW", "pysindy", "sklearn", "tifffile",
+                            "PIL", "launch", "launch_ros", "vibro_msgs", "rosbag2_py", "tqdm"})
+
+
+def _package(module: str, names) -> str:
+    """The third-party unit a statement loads: the top package, or scipy's subpackage (``from scipy import
+    optimize`` and ``import scipy.optimize`` both load scipy.optimize)."""
+    parts = module.split(".")
+    if parts[0] != "scipy":
+        return parts[0]
+    if len(parts) > 1:
+        return ".".join(parts[:2])
+    return next((f"scipy.{a.name}" for a in names), "scipy")
+
+
+def module_level_imports(name: str, path: Path, modules: dict[str, Path]) -> tuple[set[str], set[str]]:
+    """(own modules, heavy third-party packages) that module ``name`` imports when it is imported: its
+    statements outside functions and classes' methods (``if TYPE_CHECKING`` blocks excluded), plus its
+    packages' ``__init__``."""
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    own, heavy = set(), set()
+
+    def visit(statements: list[ast.stmt]) -> None:
+        for node in statements:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                continue
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                visit(node.orelse)
+                continue
+            if isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
+                for alias in node.names:
+                    target = f"{base}.{alias.name}"
+                    own.add(target if target in modules else base)
+                heavy.add(_package(base, node.names))
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    own.add(alias.name)
+                    heavy.add(_package(alias.name, ()))
+            for field in ("body", "orelse", "finalbody", "handlers"):
+                children = getattr(node, field, None)
+                if isinstance(children, list) and not isinstance(node, ast.ClassDef | ast.FunctionDef):
+                    visit([c for c in children if isinstance(c, ast.stmt)] or
+                          [s for h in children if isinstance(h, ast.ExceptHandler) for s in h.body])
+            if isinstance(node, ast.ClassDef):
+                visit([s for s in node.body if not isinstance(s, (ast.FunctionDef, ast.AsyncFunctionDef))])
+
+    visit(ast.parse(path.read_text(encoding="utf-8")).body)
+    parents = {".".join(name.split(".")[:i]) for i in range(1, len(name.split(".")))}
+    own |= {p for p in parents if p in modules}
+    return {m for m in own if m in modules and m != name}, heavy & HEAVY_PACKAGES
+
+
+def test_own_modules_are_imported_at_module_level_unless_that_spares_a_heavy_package() -> None:
+    """A function-level import of one of vibro's modules is kept only where importing it at the top would load
+    a heavy package (rclpy, matplotlib, dask, scipy, ...) that the importing module does not load already: the
+    start-up of the CLI and of the nodes (tests/test_startup_imports.py) is what such an import protects."""
+    modules = own_modules()
+    direct = {name: module_level_imports(name, path, modules) for name, path in modules.items()}
+
+    def heavy_closure(name: str) -> set[str]:
+        seen, stack, heavy = set(), [name], set()
+        while stack:
+            m = stack.pop()
+            if m in seen:
+                continue
+            seen.add(m)
+            own, h = direct[m]
+            heavy |= h
+            stack.extend(own)
+        return heavy
+
+    needless = []
+    for name, path in modules.items():
+        for target in imported(name, path, modules) - direct[name][0]:
+            if not heavy_closure(target) - heavy_closure(name):
+                needless.append(f"{path.relative_to(SRC)}: {target}")
+    assert needless == [], "\n".join(sorted(needless))

@@ -18,6 +18,7 @@ from sensor_msgs.msg import Image
 
 from vibro_io.frames import Frame
 from vibro_io.recording import open_recording
+from vibro_model.errors import RecordingError
 from vibro_msgs.msg import DicFrame
 from vibro_ros import topics
 from vibro_ros.guard import InputGuard
@@ -58,7 +59,6 @@ class FrameSource(Node):
         self.time_origin_ns = time_origin_parameter(self)
         self.linger_s = float(declare(self, "linger_s", 3.0,
                                       "seconds to wait for the last acknowledgements before exiting"))
-        from vibro_model.errors import RecordingError
 
         if not path:
             raise RecordingError("frame_source: parameter 'recording' is required")

@@ -38,6 +38,7 @@ from vibro_discrepancy.library import FLIGHT_TERMS, CandidateLibrary, FlightTerm
 from vibro_discrepancy.model import COR_TERMS
 from vibro_model.codec import json_number as _f
 from vibro_model.tail_probability import chi2_sf, f_sf
+from vibro_sim.deviation import cor_variance_share
 
 ALPHA = 1e-6                 # flights / structure: chi^2 tail probability for a term to count
 ALPHA_COR = 1e-3             # CORs: F-test (few impacts, scatter estimated from the data)
@@ -244,8 +245,6 @@ def select_cor(impacts: ImpactSet, cor_noise: float) -> tuple[str, dict, StageRe
 def law_variance_share(impacts: ImpactSet, fit) -> float | None:
     """Share of the per-impact COR variance the fitted law ``fit`` explains beyond the COR measurement
     noise (mean cor_std^2 of the impacts): :func:`vibro_sim.deviation.cor_variance_share`."""
-    from vibro_sim.deviation import cor_variance_share
-
     if impacts.cor.size == 0:
         return None
     stds = np.asarray(impacts.cor_std, dtype=float)

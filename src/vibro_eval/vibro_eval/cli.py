@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from vibro_model.errors import RecordingError
+
 
 def register(sub) -> None:
     """Add the ``prove`` subcommand to the ``vibro`` subparsers."""
@@ -52,7 +54,6 @@ def register(sub) -> None:
 
 
 def _range(text: str | None, option: str, default: tuple[float, float]) -> tuple[float, float]:
-    from vibro_model.errors import RecordingError
 
     if text is None:
         return default
@@ -69,8 +70,6 @@ def _range(text: str | None, option: str, default: tuple[float, float]) -> tuple
 
 def draws_of(args: argparse.Namespace):
     """The :class:`~vibro_eval.prove.Draws` of the command line (``--evidence`` fills what is not given)."""
-    from vibro_model.errors import RecordingError
-
     from .prove import EVIDENCE, INVENTED, Draws
 
     base = EVIDENCE if args.evidence else Draws()
@@ -87,7 +86,6 @@ def draws_of(args: argparse.Namespace):
 
 
 def run_harder(args: argparse.Namespace) -> int:
-    from vibro_model.errors import RecordingError
 
     from .harder import prove_harder
 
@@ -111,7 +109,6 @@ def run(args: argparse.Namespace) -> int:
         return run_harder(args)
 
     if not 0.0 <= args.pairs <= 1.0:
-        from vibro_model.errors import RecordingError
 
         raise RecordingError(f"--pairs must be in [0, 1], got {args.pairs}")
     draws = draws_of(args)

@@ -56,7 +56,14 @@ from typing import Any
 import numpy as np
 
 from vibro_discrepancy.library import EFFECTS
+from vibro_io.dictrack import read_dic_csv
+from vibro_io.rig import load_rig
 from vibro_model.errors import RecordingError
+from vibro_sim.synth import SynthConfig, synthesize, truth_path
+
+from .prove import _vibro_command, paper_measured
+from .sindy_baseline import available, sindy_discrepancy
+from .truth import finding_deviations
 
 HARDER_FAMILIES = ("sticking", "drops", "drops+coulomb_friction", "position_force", "cor_parity", "control")
 #: the default set: how many cases of each family
@@ -230,8 +237,6 @@ def _catalogue(found: list[str]) -> list[str]:
 
 def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth: dict, fps: float) -> dict:
     """The case's criteria (module docstring) from results.json ``doc`` and the truth."""
-    from .truth import finding_deviations
-
     lost = {k for a, c in runs for k in range(a, a + c)}
     imps = truth["impacts"]
     tt = np.array([float(i["t"]) for i in imps])
@@ -330,10 +335,6 @@ def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth
 # ---------------------------------------------------------------- running
 def run_harder_case(spec: HarderSpec, work: Path, sindy: bool = True) -> dict:
     """Synthesize, drop frames, analyze (CLI, recording only), score. One row of the proof."""
-    from vibro_sim.synth import SynthConfig, synthesize, truth_path
-
-    from .prove import _vibro_command
-
     rec = work / f"hard{spec.index:03d}"
     out = work / f"hard{spec.index:03d}_out"
     cfg = SynthConfig(effects=spec.effects, seed=spec.seed, frequency_hz=spec.frequency_hz, cor=spec.cor,
@@ -358,11 +359,7 @@ def run_harder_case(spec: HarderSpec, work: Path, sindy: bool = True) -> dict:
     doc = json.loads((out / "results.json").read_text())
     row.update(score_harder(spec, runs, doc, truth, cfg.fps))
     if sindy:
-        from vibro_io.dictrack import read_dic_csv
-        from vibro_io.rig import load_rig
 
-        from .prove import paper_measured
-        from .sindy_baseline import available, sindy_discrepancy
 
         if available():
             try:

@@ -92,9 +92,26 @@ from typing import Any
 
 import numpy as np
 
+from vibro_discrepancy.data import measured_from_document
 from vibro_discrepancy.library import EFFECTS
+from vibro_fit.identify import identify
+from vibro_fit.results import results_model
+from vibro_io.dictrack import read_dic_csv
+from vibro_io.rig import load_rig
 from vibro_model.errors import RecordingError
+from vibro_sim.synth import SynthConfig, synthesize, truth_path
 from vibro_sim.synth.invented import INVENTED_EFFECTS
+
+from .sindy_baseline import available, sindy_discrepancy
+from .truth import (
+    cor_errors,
+    finding_deviations,
+    relative,
+    score_case,
+    true_model_measured_run,
+    true_model_restarted_run,
+    true_model_run,
+)
 
 CONTROL = "none"
 FAMILIES = EFFECTS + (CONTROL,)
@@ -301,10 +318,6 @@ def paper_measured(track, rig):
     """What the discrepancy analysis saw: the identification's (paper Eq. 15-16) results of ``track``,
     before the re-identification with the final model replaced the impacts in results.json. PySINDy and
     the true model are given this, as the analysis was (not the analysis' own corrected impacts)."""
-    from vibro_discrepancy.data import measured_from_document
-    from vibro_fit.identify import identify
-    from vibro_fit.results import results_model
-
     return measured_from_document(results_model(identify(track, rig), "prove"), track, rig)
 
 
@@ -319,20 +332,6 @@ def _contact_scatter(disc: dict, spec: CaseSpec) -> dict:
 
 def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     """Synthesize, analyze (CLI, recording only), score. Returns one row of the proof."""
-    from vibro_io.dictrack import read_dic_csv
-    from vibro_io.rig import load_rig
-    from vibro_sim.synth import SynthConfig, synthesize, truth_path
-
-    from .truth import (
-        cor_errors,
-        finding_deviations,
-        relative,
-        score_case,
-        true_model_measured_run,
-        true_model_restarted_run,
-        true_model_run,
-    )
-
     rec = work / f"case{spec.index:03d}"
     out = work / f"case{spec.index:03d}_out"
     cfg = SynthConfig(effects=spec.effects, seed=spec.seed, frequency_hz=spec.frequency_hz, accel_mps2=spec.accel_mps2,
@@ -384,7 +383,6 @@ def run_case(spec: CaseSpec, work: Path, sindy: bool = True) -> dict:
     if "error" in disc:
         row["analysis_error"] = disc["error"]
     if sindy:
-        from .sindy_baseline import available, sindy_discrepancy
 
         if available():
             try:
@@ -612,7 +610,6 @@ def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: 
     rows = []
     for spec in tqdm(specs, desc="prove", unit="case", disable=not progress, file=sys.stderr):
         rows.append(run_case(spec, work, sindy))
-    from .sindy_baseline import available
 
     result = {"settings": {"cases": len(specs), "seed": seed, "frames": frames, "pairs": pairs, "work_dir": str(work),
                            "only": None if only is None else sorted(only),

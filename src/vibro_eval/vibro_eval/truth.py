@@ -12,6 +12,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from vibro_discrepancy.data import Measured
+from vibro_discrepancy.fitting import CorModelFit, fit_flights, fit_structure_harmonics, recompute_impacts
+from vibro_discrepancy.library import FLIGHT_TERMS
+from vibro_discrepancy.model import FittedModel
+from vibro_discrepancy.runs import full_run, restarted_run
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.params import BallCavity
@@ -76,10 +80,6 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     """The true model (laws and parameters of the truth, COR scatter left out, true structure motion in
     the DIC frame) with the flight states and plate levels measured from the recording the same way the
     analysis measures them: each flight fitted with the true force law (coefficients fixed)."""
-    from vibro_discrepancy.fitting import CorModelFit, fit_flights, fit_structure_harmonics, recompute_impacts
-    from vibro_discrepancy.library import FLIGHT_TERMS
-    from vibro_discrepancy.model import FittedModel
-
     eff = true_effects(truth)
     S = true_structure(truth)
     g = float(truth.get("gravity_ms2", meas.g_mps2))
@@ -112,8 +112,6 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
 def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
     """Full run of :func:`true_fitted_model` exactly as the analysis replays its own model: D of the true
     model on the same noisy data (the goal's reference)."""
-    from vibro_discrepancy.runs import full_run
-
     return full_run(meas, true_fitted_model(meas, truth))
 
 
@@ -284,6 +282,4 @@ def relative(a: float | None, b: float | None) -> float | None:
 def true_model_restarted_run(meas: Measured, truth: Mapping[str, Any]):
     """Restarted run (D_r) of :func:`true_fitted_model`, exactly as the analysis scores its own model
     (:func:`vibro_discrepancy.engine.restarted_run`): the D_r the true model reaches on the data."""
-    from vibro_discrepancy.runs import restarted_run
-
     return restarted_run(meas, true_fitted_model(meas, truth))

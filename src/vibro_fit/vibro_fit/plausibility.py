@@ -31,6 +31,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from vibro_model.constants import G_MPS2
+from vibro_model.results import CorSummary
 
 #: family-wise probability of a false alarm of one test family (impacts, plates, all)
 FALSE_ALARM = 1e-3
@@ -305,7 +306,6 @@ def withhold_results(document, findings: Sequence[Finding]) -> None:
     that is wrong."""
     from dataclasses import replace
 
-    from vibro_model.results import CorSummary
 
     document.impacts = []
     document.cor_summary = CorSummary.of([])

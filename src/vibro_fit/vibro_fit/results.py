@@ -20,6 +20,7 @@ from vibro_model.codec import json_number, json_value
 from vibro_model.results import ResultsDocument, Simulation
 
 from .identify import Identification
+from .statistics import normal_check
 
 RESULTS_JSON = "results.json"
 CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in this order
@@ -28,8 +29,6 @@ CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in t
 def cor_statistics_section(impacts: Iterable) -> dict:
     """Per plate (n >= 3): histogram (counts, edges) and normal Q-Q slope, intercept and correlation r of
     the CORs of ``impacts`` (anything with ``plate`` and ``cor``)."""
-    from .statistics import normal_check
-
     impacts = list(impacts)
     out = {}
     for plate in ("top", "bottom"):

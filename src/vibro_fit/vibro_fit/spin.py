@@ -24,6 +24,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from vibro_model.tail_probability import chi2_sf
+
 MIN_FLIGHT_FRAMES = 5
 MIN_IMPACTS_FOR_CORRELATION = 6
 SPIN_ALPHA = 0.01
@@ -109,8 +111,6 @@ def _cor_residuals(impacts: Sequence) -> np.ndarray:
 def ball_spin_section(track, flights: Iterable, impacts: Iterable) -> dict[str, Any]:
     """results.json's ``ball_spin`` section (rad, rad/s, s) from a DicTrack, the flights and impacts
     (:class:`vibro_model.results.Flight`/``Impact``, final CORs)."""
-    from vibro_model.tail_probability import chi2_sf
-
     t = np.asarray(track.t_s, dtype=float)
     good = np.asarray(track.good, dtype=bool)
     rot = np.where(good, np.asarray(track.ball_rot_rad, dtype=float), np.nan)

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
+from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack
+from vibro_io.rig import parse_rig
 from vibro_model.constants import G_MPS2
 from vibro_model.results import Impact, StructureMotion
 from vibro_model.units import m_to_mm
@@ -115,8 +117,6 @@ def sample_track(truth: Truth, fps: float = 1000.0, n_frames: int = 1500, t0_s: 
 
 def paper_rig(frequency_hz: float = 22.0, fps: float = 1000.0, accelerometers: bool = False):
     """A RigConfig with the paper's ball and gap (b = 5.915 mm), for tests and benchmarks."""
-    from vibro_io.rig import parse_rig
-
     data = {
         "camera": {"fps": fps, "t0_s": 0.0, "mm_per_px": 0.05},
         "ball": {"mass_kg": 1.82e-4, "diameter_mm": 4.77, "youngs_modulus_pa": 3.1e11, "poisson_ratio": 0.27},
@@ -137,8 +137,6 @@ def accel_signals(truth: Truth, fs_hz: float = 50_000.0, duration_s: float = 1.5
     """Synthetic accelerometer samples (vibro_io AccelData): structure acceleration + a decaying two-mode
     ringing starting at each impact (stronger on the channel of the plate hit: x1 vs x0.3) + white noise.
     DAQ clock = camera clock + ``offset_s``."""
-    from vibro_io.accel import AccelData
-
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration_s * fs_hz)) / fs_hz + offset_s
     tc = t - offset_s

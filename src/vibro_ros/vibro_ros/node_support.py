@@ -18,10 +18,13 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Header
 
+from vibro_model.errors import RecordingError
 from vibro_msgs.msg import StreamStatus
 
 from . import topics
+from .dds_profile import use_vibro_dds_profile
 from .lab_clock import TIME_ORIGIN_PARAMETER
+from .node_help import handle_command_line, parameter_type_name
 
 #: Data streams: reliable, deep queue; senders also apply credit-based flow control
 #: (frame_source waits for the tracker's acknowledgements), so nothing is dropped.
@@ -78,10 +81,6 @@ def declare(node: Node, name: str, default: Any, description: str, read_only: bo
 def parameter_of_type(node_name: str, name: str, value: Any, default: Any) -> Any:
     """``value`` of parameter ``name`` as the type of its ``default`` (see :func:`declare`), or RecordingError
     naming the types as ``--help`` does (:func:`vibro_ros.node_help.parameter_type_name`)."""
-    from vibro_model.errors import RecordingError
-
-    from .node_help import parameter_type_name
-
     def refuse(hint: str = "") -> RecordingError:
         got = "no value" if value is None else f"{value!r} ({parameter_type_name(value)})"
         wanted = parameter_type_name(default)
@@ -131,8 +130,6 @@ def run_id_parameter(node: Node) -> str:
 def history_depth_parameter(node: Node) -> int:
     """The node's ``history_depth`` parameter (declared on first use): items kept by the latched histories of
     vibro/dic and vibro/accel (:func:`history_qos`); RecordingError unless >= 1."""
-    from vibro_model.errors import RecordingError
-
     if not node.has_parameter("history_depth"):
         declare(node, "history_depth", HISTORY_DEPTH,
                 "items the latched histories of vibro/dic and vibro/accel keep for a node restarted mid-run "
@@ -148,8 +145,6 @@ def time_origin_parameter(node: Node) -> int:
     header stamps (:mod:`vibro_ros.lab_clock`: stamp = origin + data time, ns since the Unix epoch).
     ``vibro graph``/``vibro replay`` set it for every node; 0 (a node started by hand without it) keeps
     stamps on the data clock, which the node says once in its log. RecordingError when negative."""
-    from vibro_model.errors import RecordingError
-
     if not node.has_parameter(TIME_ORIGIN_PARAMETER):
         declare(node, TIME_ORIGIN_PARAMETER, 0,
                 "wall time (ns since the Unix epoch) of data time 0: header stamps = it + camera/DAQ time "
@@ -338,8 +333,6 @@ EXECUTORS = ("events", "single")
 def make_executor(default: str = "events"):
     """The executor named by ``VIBRO_EXECUTOR``, else ``default`` (a node class's ``EXECUTOR``);
     RecordingError for an unknown name."""
-    from vibro_model.errors import RecordingError
-
     kind = os.environ.get("VIBRO_EXECUTOR", "") or default
     if kind == "events":
         from rclpy.experimental import EventsExecutor
@@ -395,10 +388,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
 
     from rclpy.signals import SignalHandlerOptions
 
-    from vibro_model.errors import RecordingError
 
-    from .dds_profile import use_vibro_dds_profile
-    from .node_help import handle_command_line
 
     argv = list(sys.argv if args is None else args)
     handled = handle_command_line(factory, argv) if isinstance(factory, type) else None

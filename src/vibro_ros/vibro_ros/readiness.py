@@ -39,9 +39,12 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.task import Future
 
+from vibro_model.errors import RecordingError
 from vibro_msgs.msg import StreamStatus
 
 from . import topics
+from .adaptive_qos import results_subscription
+from .node_support import declare, run_id_parameter, stop_requested
 
 #: Parameter names, one definition for the nodes and the node table.
 READERS = "readers"
@@ -53,8 +56,6 @@ EXIT_WHEN_DONE = "exit_when_done"
 def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()) -> tuple[list[str], float, bool]:
     """Declare ``readers`` (default ``default_readers``), ``wait_for_readers_s`` and ``exit_when_done``;
     return their values."""
-    from .node_support import declare
-
     readers = declare(node, READERS, list(default_readers) or [""],
                       "node names (in this node's namespace) that read its outputs: its data waits until all "
                       "have matched, and it exits only once they acknowledged")
@@ -62,7 +63,6 @@ def declare_readiness_parameters(node: Node, default_readers: Sequence[str] = ()
                                                      "readers are still missing after this long (s)"))
     exit_when_done = bool(declare(node, EXIT_WHEN_DONE, True, "exit once the inputs have ended and the final outputs "
                                                         "are acknowledged (false: stay up, live graph)"))
-    from vibro_model.errors import RecordingError
 
     names = [str(r).strip() for r in readers if str(r).strip()]
     bad = [r for r in names if "/" in r or " " in r]
@@ -77,10 +77,6 @@ def declare_reader_topics(node: Node, readers: Sequence[str]) -> dict[str, set[s
     """Declare ``reader_topics`` (``reader=topic`` pairs: the topics of this node each declared reader must be
     matched on) and return reader -> fully qualified topic names. Refuses a malformed pair; pairs of a reader
     not in ``readers`` are ignored with a warning."""
-    from vibro_model.errors import RecordingError
-
-    from .node_support import declare
-
     values = declare(node, READER_TOPICS, [""],
                      "reader=topic pairs: a declared reader counts as matched only once it is matched on each topic "
                      "listed for it (readers without a pair: on any of this node's topics)")
@@ -102,15 +98,12 @@ def declare_reader_topics(node: Node, readers: Sequence[str]) -> dict[str, set[s
 
 def declare_keep_history_until(node: Node) -> list[str]:
     """Declare ``keep_history_until`` (see the module doc) and return its stream names."""
-    from .node_support import declare
-
     values = declare(node, "keep_history_until", [""],
                      "end-of-stream statuses (vibro/status stream names) to wait for before exiting, keeping this "
                      "node's latched history for a reader restarted mid-run")
     names = sorted({str(v).strip() for v in values if str(v).strip()})
     unknown = [n for n in names if n not in topics.STATUS_STREAMS]
     if unknown:  # a typo would keep the node waiting for a status that never comes, until the run's timeout
-        from vibro_model.errors import RecordingError
 
         raise RecordingError(f"{node.get_name()}: parameter 'keep_history_until' names unknown streams {unknown}; "
                              f"known: {', '.join(topics.STATUS_STREAMS)}")
@@ -134,7 +127,6 @@ class ReaderGate:
         self.keep_until = declare_keep_history_until(node)
         self.streams_ended: set[str] = set()
         if self.keep_until:
-            from .adaptive_qos import results_subscription
 
             results_subscription(node, StreamStatus, topics.STATUS.name,
                                  lambda m: self.streams_ended.add(m.stream) if m.finished else None)
@@ -199,7 +191,6 @@ class ReaderGate:
         published = {p.topic_name for p in self.publishers}
         unknown = sorted({t for ts in self.reader_topics.values() for t in ts} - published)
         if unknown:
-            from vibro_model.errors import RecordingError
 
             self.done.set_exception(RecordingError(
                 f"{self.node.get_name()}: parameter '{READER_TOPICS}' names topics this node does not publish: "
@@ -220,7 +211,6 @@ class ReaderGate:
         (launch escalated to SIGKILL)."""
         from rclpy.duration import Duration
 
-        from .node_support import stop_requested
 
         if stop_requested():
             return False
@@ -235,7 +225,6 @@ class ReaderGate:
         return True
 
     def _poll(self) -> None:
-        from .node_support import stop_requested
 
         if self.done.done() or stop_requested() or (not self._checked_topics and not self._check_reader_topics()):
             return
@@ -317,7 +306,6 @@ class WriterWatch:
     def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5,
                  stale_after_s: float = 15.0, received: Callable[[str], int | None] | None = None,
                  grace_s: float = 5.0):
-        from .node_support import declare, run_id_parameter
 
         writers = declare(node, "writers", [""], "node names whose outputs this node takes; it exits once all "
                           "have come and gone (with exit_when_done)")
@@ -327,7 +315,6 @@ class WriterWatch:
             "items received) after which writers still listed in the ROS graph are taken as gone (a stale "
             "discovery view)"))
         if not self.stale_after_s > 0:
-            from vibro_model.errors import RecordingError
 
             raise RecordingError(f"{node.get_name()}: parameter 'stale_listing_s' must be > 0 s, "
                                  f"got {self.stale_after_s}")
@@ -350,7 +337,6 @@ class WriterWatch:
         self._last_report: float | None = None
         self._stale_logged = False
         if self.writers and self.exit_when_done:
-            from .adaptive_qos import results_subscription
 
             results_subscription(node, StreamStatus, topics.STATUS.name, self._on_status)
             node.create_timer(poll_s, self._poll)

@@ -32,6 +32,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+from vibro_model.constants import G_MPS2
+
 from ..forces import ForceLaw, NoForce
 from ..restitution import RestitutionLaw
 from ..structure import StructureKinematics, StructureWithTone  # noqa: F401 - StructureWithTone: its home was here
@@ -182,7 +184,5 @@ class PositionForce(ForceLaw):
 def position_force(structure: StructureKinematics, cavity, base: ForceLaw, params: dict[str, float]) -> PositionForce:
     """``position_force`` in the cavity ``cavity`` (its free play, ball mass) around the structure motion,
     added to the catalogue force ``base``; the weight is m g with the standard g."""
-    from vibro_model.constants import G_MPS2
-
     return PositionForce(structure, cavity.free_play_m, cavity.mass_kg, G_MPS2, params["weight_fraction"],
                          params["decay_mm"], base)
