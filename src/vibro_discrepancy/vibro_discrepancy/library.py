@@ -46,7 +46,7 @@ class FlightTerm(Term):
     unit = ""
 
     def basis(self, v_mps: np.ndarray, mass_kg: float) -> np.ndarray:
-        """Acceleration (m/s^2) per unit coefficient at ball velocity ``v_ms``."""
+        """Acceleration (m/s^2) per unit coefficient at ball velocity ``v_mps``."""
         raise NotImplementedError
 
     def contract_parameters(self, coef: float, std: float, mass_kg: float, g_mps2: float) -> tuple[dict, dict]:

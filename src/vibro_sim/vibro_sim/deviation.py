@@ -43,7 +43,7 @@ def deviation(t_s, y_sim, y_exp) -> float:
 @dataclass(frozen=True)
 class Restart:
     """One restarted flight (SI, the frame of the measured positions): the measured ball position
-    ``y_m`` and velocity ``v_ms`` just after the impact at ``t_start_s`` that opens the flight; the
+    ``y_m`` and velocity ``v_mps`` just after the impact at ``t_start_s`` that opens the flight; the
     flight is compared with the measurement on the frames in [t_start_s, t_end_s] (t_end_s: the
     measured impact that closes it, or its last frame)."""
 

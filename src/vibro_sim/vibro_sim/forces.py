@@ -1,6 +1,6 @@
 """Force laws acting on the ball during free flight (N, positive up).
 
-Each law has ``force_n(v_ms, flight_index) -> float`` where ``v_ms`` is the ball's
+Each law has ``force_n(v_mps, flight_index) -> float`` where ``v_mps`` is the ball's
 velocity in the lab frame (m/s, positive up) and ``flight_index`` counts the free
 flights from 0 (flight i ends with impact i). The ball's equation of motion is
 m y'' = -m g cos(tilt) + F(v)   (paper Eq. 4 with F_friction = F).

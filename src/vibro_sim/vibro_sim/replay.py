@@ -35,7 +35,7 @@ class ReplayInputs:
                      flight i ends with impact i, flight len(impacts) follows the last
                      one. Missing entries count as 0 N.
     t_start_s        where the simulation starts (e.g. the first frame's time).
-    y_rel_m, v_rel_ms  ball position minus cavity centre (m) and ball velocity minus
+    y_rel_m, v_rel_mps ball position minus cavity centre (m) and ball velocity minus
                      structure velocity (m/s) at t_start_s; |y_rel_m| <= b.
     t_end_s          where it stops.
     Only impacts after t_start_s (and the flights from the one in progress at

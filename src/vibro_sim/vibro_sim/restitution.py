@@ -1,7 +1,7 @@
 """Coefficient-of-restitution laws (paper Eq. 5).
 
-Each law has ``cor(plate, v_rel_ms, impact_index) -> e`` with ``plate`` ``"top"`` or
-``"bottom"``, ``v_rel_ms`` the ball's velocity relative to the structure just before
+Each law has ``cor(plate, v_rel_mps, impact_index) -> e`` with ``plate`` ``"top"`` or
+``"bottom"``, ``v_rel_mps`` the ball's velocity relative to the structure just before
 the impact (m/s, signed, positive up) and ``impact_index`` counting impacts from 0.
 After the impact: v_b+ - v_s = -e (v_b- - v_s).
 """
