@@ -48,7 +48,7 @@ def synthesize(root: Path, runs: int, frames: int, long_frames: int, parallel: i
     for i in range(runs):
         accel = "27" if i % 2 == 0 else "30"
         jobs.append([VIBRO, "synth", "--out", str(root / "sweep" / f"run{i:02d}"), "--frames", str(frames),
-                     "--seed", str(100 + i), "--accel-ms2", accel, "--cor-scatter", "0.01", "--no-progress"])
+                     "--seed", str(100 + i), "--accel-mps2", accel, "--cor-scatter", "0.01", "--no-progress"])
     jobs.append([VIBRO, "synth", "--out", str(root / "long"), "--frames", str(long_frames), "--seed", "7",
                  "--no-progress"])
     running: list[subprocess.Popen] = []

@@ -21,7 +21,7 @@ from vibro_io.recording import open_recording
 from vibro_io.rig import AccelConfig, AccelSensitivity, load_rig, parse_rig
 from vibro_model.errors import AccelError, RigError
 
-G_MS2 = 9.80665  # standard gravity (m/s^2), exact by definition
+G_MPS2 = 9.80665  # standard gravity (m/s^2), exact by definition
 #: The conversions below take a few float operations, each off by at most half an ulp (eps / 2):
 #: eight eps bounds the relative difference between two orders of evaluation.
 RTOL_ROUNDING = 8 * np.finfo(float).eps
@@ -94,26 +94,26 @@ def _one_line_error(capsys) -> str:
 @pytest.mark.parametrize("unit, mv_per_unit", [("Volts", 1000.0), ("V", 1000.0), ("mV", 1.0), ("millivolts", 1.0)])
 def test_tdms_in_volts_is_converted_with_the_sensitivity(synth, table, tmp_path, unit, mv_per_unit) -> None:
     sens = 100.0  # mV per g, a typical IEPE accelerometer
-    recorded = table[:, 1:] / G_MS2 * sens / mv_per_unit  # what the DAQ recorded, in `unit`
+    recorded = table[:, 1:] / G_MPS2 * sens / mv_per_unit  # what the DAQ recorded, in `unit`
     rec = _tdms_recording(synth, tmp_path / "rec", recorded[:, 0], recorded[:, 1], (unit, unit),
                           sensitivity_mv_per_g=sens)
     accel = open_recording(rec).load_accel()
-    expected = recorded * mv_per_unit / sens * G_MS2
+    expected = recorded * mv_per_unit / sens * G_MPS2
     np.testing.assert_allclose(accel.upper_ms2, expected[:, 0], rtol=RTOL_ROUNDING, atol=0)
     np.testing.assert_allclose(accel.lower_ms2, expected[:, 1], rtol=RTOL_ROUNDING, atol=0)
     np.testing.assert_allclose(accel.upper_ms2, table[:, 1], rtol=RTOL_ROUNDING, atol=0)
     assert accel.source_unit == unit and accel.unit_source == "unit_string"
-    assert accel.ms2_per_source_unit == pytest.approx((mv_per_unit / sens * G_MS2,) * 2, rel=RTOL_ROUNDING)
+    assert accel.mps2_per_source_unit == pytest.approx((mv_per_unit / sens * G_MPS2,) * 2, rel=RTOL_ROUNDING)
 
 
 @pytest.mark.parametrize("unit", ["g", "G", "g0", "gn"])
 def test_tdms_in_g_is_multiplied_by_standard_gravity(synth, table, tmp_path, unit) -> None:
-    in_g = table[:, 1:] / G_MS2
+    in_g = table[:, 1:] / G_MPS2
     rec = _tdms_recording(synth, tmp_path / "rec", in_g[:, 0], in_g[:, 1], (unit, unit))
     accel = open_recording(rec).load_accel()
-    np.testing.assert_allclose(accel.upper_ms2, in_g[:, 0] * G_MS2, rtol=RTOL_ROUNDING, atol=0)
-    np.testing.assert_allclose(accel.lower_ms2, in_g[:, 1] * G_MS2, rtol=RTOL_ROUNDING, atol=0)
-    assert accel.source_unit == unit and accel.ms2_per_source_unit == (G_MS2, G_MS2)
+    np.testing.assert_allclose(accel.upper_ms2, in_g[:, 0] * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.lower_ms2, in_g[:, 1] * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
+    assert accel.source_unit == unit and accel.mps2_per_source_unit == (G_MPS2, G_MPS2)
 
 
 @pytest.mark.parametrize("unit", ["m/s^2", "m/s\u00b2", "M/S2", "m s^-2", "m/(s^2)"])
@@ -122,18 +122,18 @@ def test_tdms_in_metres_per_second_squared_is_taken_as_is(synth, table, tmp_path
     accel = open_recording(rec).load_accel()
     np.testing.assert_array_equal(accel.upper_ms2, table[:, 1])
     np.testing.assert_array_equal(accel.lower_ms2, table[:, 2])
-    assert accel.source_unit == unit and accel.ms2_per_source_unit == (1.0, 1.0)
+    assert accel.source_unit == unit and accel.mps2_per_source_unit == (1.0, 1.0)
 
 
 def test_per_channel_sensitivities_and_units(synth, table, tmp_path) -> None:
     # upper sensor 100 mV/g recorded in V, lower sensor 10.2 mV/g recorded in mV
-    upper_v = table[:, 1] / G_MS2 * 100.0 / 1000.0
-    lower_mv = table[:, 2] / G_MS2 * 10.2
+    upper_v = table[:, 1] / G_MPS2 * 100.0 / 1000.0
+    lower_mv = table[:, 2] / G_MPS2 * 10.2
     rec = _tdms_recording(synth, tmp_path / "rec", upper_v, lower_mv, ("Volts", "mV"),
                           sensitivity_mv_per_g={"upper": 100.0, "lower": 10.2})
     accel = open_recording(rec).load_accel()
-    np.testing.assert_allclose(accel.upper_ms2, upper_v * 1000.0 / 100.0 * G_MS2, rtol=RTOL_ROUNDING, atol=0)
-    np.testing.assert_allclose(accel.lower_ms2, lower_mv / 10.2 * G_MS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.upper_ms2, upper_v * 1000.0 / 100.0 * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.lower_ms2, lower_mv / 10.2 * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
     assert accel.source_units == ("Volts", "mV") and accel.source_unit == "upper: Volts, lower: mV"
 
 
@@ -157,11 +157,11 @@ def test_an_unknown_unit_is_refused_naming_it(synth, table, tmp_path, capsys) ->
 
 
 def test_ni_unit_description_is_read_and_contradicting_unit_properties_refused(synth, table, tmp_path) -> None:
-    in_g = table[:, 1:] / G_MS2
+    in_g = table[:, 1:] / G_MPS2
     rec = _tdms_recording(synth, tmp_path / "desc", in_g[:, 0], in_g[:, 1], ("g", "g"),
                           unit_property="NI_UnitDescription")
     accel = open_recording(rec).load_accel()
-    np.testing.assert_allclose(accel.upper_ms2, in_g[:, 0] * G_MS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.upper_ms2, in_g[:, 0] * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
     assert accel.unit_source == "NI_UnitDescription"
 
     rec = _tdms_recording(synth, tmp_path / "clash", in_g[:, 0], in_g[:, 1], ("g", "g"),
@@ -182,10 +182,10 @@ def test_channels_without_a_unit_are_taken_as_m_s2_with_one_warning(synth, table
 
 
 def test_rig_unit_fills_in_for_a_tdms_without_one_and_must_agree_with_one(synth, table, tmp_path) -> None:
-    in_g = table[:, 1:] / G_MS2
+    in_g = table[:, 1:] / G_MPS2
     rec = _tdms_recording(synth, tmp_path / "fill", in_g[:, 0], in_g[:, 1], (None, None), unit="g")
     accel = open_recording(rec).load_accel()
-    np.testing.assert_allclose(accel.lower_ms2, in_g[:, 1] * G_MS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.lower_ms2, in_g[:, 1] * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
     assert accel.unit_source == "accelerometers.unit" and accel.source_unit == "g"
 
     rec = _tdms_recording(synth, tmp_path / "clash", in_g[:, 0], in_g[:, 1], ("g", "g"), unit="V",
@@ -217,8 +217,8 @@ def _csv_block(**keys: object) -> dict:
 def test_csv_in_g_is_converted(synth, table, tmp_path) -> None:
     rec = _recording(synth, tmp_path / "rec", _csv_block(unit="g"))
     accel = open_recording(rec).load_accel()
-    np.testing.assert_allclose(accel.upper_ms2, table[:, 1] * G_MS2, rtol=RTOL_ROUNDING, atol=0)
-    np.testing.assert_allclose(accel.lower_ms2, table[:, 2] * G_MS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.upper_ms2, table[:, 1] * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.lower_ms2, table[:, 2] * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
     assert accel.source_unit == "g" and accel.unit_source == "accelerometers.unit"
     np.testing.assert_array_equal(accel.t_s, table[:, 0])
 
@@ -226,8 +226,8 @@ def test_csv_in_g_is_converted(synth, table, tmp_path) -> None:
 def test_csv_in_millivolts_uses_each_sensors_sensitivity(synth, table, tmp_path) -> None:
     rec = _recording(synth, tmp_path / "rec", _csv_block(unit="mV", sensitivity_mv_per_g={"upper": 50, "lower": 20}))
     accel = open_recording(rec).load_accel()
-    np.testing.assert_allclose(accel.upper_ms2, table[:, 1] / 50 * G_MS2, rtol=RTOL_ROUNDING, atol=0)
-    np.testing.assert_allclose(accel.lower_ms2, table[:, 2] / 20 * G_MS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.upper_ms2, table[:, 1] / 50 * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
+    np.testing.assert_allclose(accel.lower_ms2, table[:, 2] / 20 * G_MPS2, rtol=RTOL_ROUNDING, atol=0)
 
 
 def test_csv_without_unit_is_m_s2_by_default(synth, table, tmp_path) -> None:
@@ -243,7 +243,7 @@ def test_write_accel_writes_in_the_configured_unit_and_reads_back(tmp_path) -> N
                        sensitivity_mv_per_g=AccelSensitivity(100.0, 10.0))
     write_accel(tmp_path / "a.csv", data, cols)
     raw = np.loadtxt(tmp_path / "a.csv", delimiter=",", skiprows=1)
-    np.testing.assert_allclose(raw[:, 1], data.upper_ms2 / G_MS2 * 100.0 / 1000.0, rtol=RTOL_SIX_DIGITS, atol=0)
+    np.testing.assert_allclose(raw[:, 1], data.upper_ms2 / G_MPS2 * 100.0 / 1000.0, rtol=RTOL_SIX_DIGITS, atol=0)
     back = load_accel(tmp_path / "a.csv", cols)
     np.testing.assert_allclose(back.upper_ms2, data.upper_ms2, rtol=RTOL_SIX_DIGITS, atol=0)
     np.testing.assert_allclose(back.lower_ms2, data.lower_ms2, rtol=RTOL_SIX_DIGITS, atol=0)

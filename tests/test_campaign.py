@@ -177,7 +177,7 @@ def test_campaign_rows_against_truth(campaign, recordings: Path) -> None:
     for name in ("effect", "control"):
         row = _row(doc, name)
         assert row["status"] == "ok" and not row["resumed"]
-        assert row["excitation"] == {"frequency_hz": 22.0, "acceleration_ms2": 27.0}  # synth's defaults, rig.yaml
+        assert row["excitation"] == {"frequency_hz": 22.0, "acceleration_mps2": 27.0}  # synth's defaults, rig.yaml
         results = json.loads((out / name / "results.json").read_text())
         assert row["n_impacts"] == len(results["impacts"])
         # every true impact with a whole flight (~22 ms: 2 impacts per 45 ms cycle) on both sides inside the
@@ -278,7 +278,7 @@ def test_list_file_missing_recording_and_bad_input(campaign, recordings: Path, t
 
 def _row_dict(mean: float, std: float, n: int, freq: float = 22.0, accel: float = 27.0) -> dict:
     cor = {"mean": mean, "std": std, "n": n}
-    return {"status": "ok", "excitation": {"frequency_hz": freq, "acceleration_ms2": accel},
+    return {"status": "ok", "excitation": {"frequency_hz": freq, "acceleration_mps2": accel},
             "cor": {"top": cor, "bottom": dict(cor)}, "flags": []}
 
 

@@ -115,3 +115,30 @@ def test_write_then_read_round_trip(tiny_recording: Path, tmp_path: Path) -> Non
     write_rig(rig, tmp_path / "rig.yaml")
     again = load_rig(tmp_path / "rig.yaml")
     assert again.to_dict() == rig.to_dict()
+
+
+def test_old_acceleration_key_still_reads(rig_data: dict, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    # rig.yaml files written before the unit rename spell the nominal drive excitation.acceleration_ms2
+    old, new = copy.deepcopy(rig_data), copy.deepcopy(rig_data)
+    old["excitation"]["acceleration_ms2"] = 27.5
+    new["excitation"]["acceleration_mps2"] = 27.5
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(old, sort_keys=False), encoding="utf-8")
+    with caplog.at_level(logging.WARNING):
+        rig = load_rig(tmp_path / "rig.yaml")
+    assert rig.excitation.acceleration_mps2 == 27.5
+    assert "unknown key" not in caplog.text
+    assert rig.excitation == parse_rig(new, "r.yaml").excitation
+    write_rig(rig, tmp_path / "rewritten.yaml")
+    written = load_yaml(tmp_path / "rewritten.yaml")["excitation"]
+    assert written == {"frequency_hz": rig.excitation.frequency_hz, "acceleration_mps2": 27.5}
+    with pytest.raises(RigError, match=r"excitation\.acceleration_ms2"):
+        old["excitation"]["acceleration_ms2"] = -1.0
+        parse_rig(old, "r.yaml")
+
+
+def test_old_and_new_acceleration_keys_together_are_refused(rig_data: dict) -> None:
+    data = copy.deepcopy(rig_data)
+    data["excitation"].update(acceleration_ms2=27.0, acceleration_mps2=27.0)
+    with pytest.raises(RigError, match=r"r\.yaml: keys 'excitation\.acceleration_ms2' and "
+                                       r"'excitation\.acceleration_mps2' both given"):
+        parse_rig(data, "r.yaml")

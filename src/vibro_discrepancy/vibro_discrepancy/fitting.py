@@ -129,7 +129,7 @@ def _grid(fl: FlightSamples, extend_s: float = 0.0) -> np.ndarray:
 
 def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = FIXED_POINT_PASSES,
                 g_mps2: float | None = None, fixed_coefs: Sequence[float] | None = None) -> FlightModelFit:
-    """Fit the flights with gravity (``g_ms2``, default the measured data's g) plus ``terms``;
+    """Fit the flights with gravity (``g_mps2``, default the measured data's g) plus ``terms``;
     ``fixed_coefs`` imposes the terms' coefficients (only the flight states are fitted then)."""
     g = meas.g_mps2 if g_mps2 is None else g_mps2
     terms = tuple(terms)

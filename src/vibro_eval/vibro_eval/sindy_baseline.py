@@ -30,7 +30,7 @@ from vibro_discrepancy.model import FittedModel, fit_model
 from vibro_discrepancy.runs import full_run
 from vibro_model.codec import json_value as jsonable
 
-THRESHOLDS = {"flight_ms2": 0.7, "cor": 0.11, "harmonic_m": 5e-8}  # calibrate() on 4 controls
+THRESHOLDS = {"flight_mps2": 0.7, "cor": 0.11, "harmonic_m": 5e-8}  # calibrate() on 4 controls
 SAVGOL = {"window_length": 7, "polyorder": 3}
 
 
@@ -53,7 +53,7 @@ def _stlsq(X: np.ndarray, y: np.ndarray, threshold: float) -> np.ndarray:
     return np.asarray(opt.coef_, dtype=float).ravel()
 
 
-def sindy_flights(meas: Measured, threshold: float = THRESHOLDS["flight_ms2"]) -> dict:
+def sindy_flights(meas: Measured, threshold: float = THRESHOLDS["flight_mps2"]) -> dict:
     """dv/dt = xi_0 + xi_1 sign(v) + xi_2 v + xi_3 v|v| by PySINDy over all free flights."""
     import pysindy as ps
 
@@ -168,14 +168,14 @@ def sindy_discrepancy(meas: Measured) -> dict:
 
 def calibrate(controls: list[Measured]) -> dict:
     """Smallest thresholds (on a log grid) that give no finding on any of the control recordings."""
-    grids = {"flight_ms2": np.geomspace(0.05, 30.0, 48), "cor": np.geomspace(0.002, 0.5, 40),
+    grids = {"flight_mps2": np.geomspace(0.05, 30.0, 48), "cor": np.geomspace(0.002, 0.5, 40),
              "harmonic_m": np.geomspace(1e-8, 1e-4, 33)}
     out = {}
     for key, grid in grids.items():
         best = grid[0]
         for meas in controls:
             for lam in grid:
-                if key == "flight_ms2":
+                if key == "flight_mps2":
                     r = sindy_flights(meas, lam)
                     clean = not r["terms"] and not r["unphysical"]
                 elif key == "cor":

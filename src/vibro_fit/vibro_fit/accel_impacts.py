@@ -28,7 +28,7 @@ from vibro_model.errors import AccelError
 @dataclass
 class AccelImpact:
     """One accelerometer impact. Energies are sum(a^2) dt of the high-passed signal over the attribution
-    window (m^2/s^3); ``peak_ms2`` is the peak |high-passed acceleration| on the attributed channel;
+    window (m^2/s^3); ``peak_mps2`` is the peak |high-passed acceleration| on the attributed channel;
     ``dominant_frequencies_hz`` the main peaks of that channel's spectrum over the isolated segment;
     ``clipped`` when the raw signal of a channel sits at its extreme value for >= 3 consecutive samples
     inside the attribution window."""
@@ -37,7 +37,7 @@ class AccelImpact:
     plate: str              # "top" | "bottom" (channel with the larger energy)
     energy_upper: float
     energy_lower: float
-    peak_ms2: float
+    peak_mps2: float
     dominant_frequencies_hz: list[float] = field(default_factory=list)
     clipped: bool = False
 

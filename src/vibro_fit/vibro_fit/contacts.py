@@ -132,7 +132,7 @@ def contact_frames(contacts: list[ContactPhase], good: np.ndarray) -> set[int]:
 def refine_contacts(contacts: list[ContactPhase], chains, structure, free_accel_mps2: float | None,
                     frame_dt_s: float) -> list[ContactPhase]:
     """Physical start and end of each contact phase (rule 4). ``chains``: :class:`vibro_fit.hops.HopChain`
-    list; ``structure``: a fit with ``acceleration_ms2(t)``; ``free_accel_mps2``: the ball's acceleration
+    list; ``structure``: a fit with ``acceleration_mps2(t)``; ``free_accel_mps2``: the ball's acceleration
     in free flight (None: the end stays the last frame)."""
     out = []
     for c in contacts:
@@ -151,7 +151,7 @@ def refine_contacts(contacts: list[ContactPhase], chains, structure, free_accel_
         if free_accel_mps2 is not None and np.isfinite(free_accel_mps2):
             sgn = 1.0 if c.plate == "bottom" else -1.0
             grid = np.linspace(c.last_frame_s - 8 * frame_dt_s, c.last_frame_s + frame_dt_s, 400)
-            f = sgn * (np.asarray(structure.acceleration_ms2(grid), float) - free_accel_mps2)
+            f = sgn * (np.asarray(structure.acceleration_mps2(grid), float) - free_accel_mps2)
             cross = np.flatnonzero((f[:-1] > 0) & (f[1:] <= 0))
             if cross.size:
                 j = int(cross[-1])

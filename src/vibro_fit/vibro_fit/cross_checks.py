@@ -194,7 +194,7 @@ def accel_drive_tone(accel, structure, clock_offset_s: float | None, rig=None) -
     sa, sf = (float(x) if np.isfinite(x) else 0.0 for x in structure.std[:2])
     rel_dic = math.hypot(sa / a_mm if a_mm else 0.0, 2.0 * sf / f if f else 0.0)
     units = getattr(accel, "source_units", ("m/s^2", "m/s^2"))
-    factors = getattr(accel, "ms2_per_source_unit", (1.0, 1.0))
+    factors = getattr(accel, "mps2_per_source_unit", (1.0, 1.0))
     unit_source = getattr(accel, "unit_source", "default")
     findings: list[Finding] = []
     evidence: dict = {}
@@ -204,9 +204,9 @@ def accel_drive_tone(accel, structure, clock_offset_s: float | None, rig=None) -
         mag = abs(ratio)
         sd_mag = math.hypot(sd / abs(dic), mag * rel_dic)
         phase = float(np.angle(ratio))
-        evidence[name] = {"drive_tone_ms2": abs(tone), "dic_acceleration_ms2": abs(dic), "ratio": mag,
+        evidence[name] = {"drive_tone_mps2": abs(tone), "dic_acceleration_mps2": abs(dic), "ratio": mag,
                           "ratio_std": sd_mag, "phase_rad": phase if clock_offset_s is not None else None,
-                          "unit_as_read": units[k], "ms2_per_unit": factors[k]}
+                          "unit_as_read": units[k], "mps2_per_unit": factors[k]}
         tol = AMPLITUDE_TOL + 3.0 * sd_mag
         if abs(mag - 1.0) > tol:
             findings.append(_unit_finding(name, mag, sd_mag, abs(tone), abs(dic), units[k], factors[k], unit_source,
@@ -232,7 +232,7 @@ def _channel_key(rig, name: str) -> str:
 def _unit_finding(name: str, mag: float, sd: float, tone: float, dic: float, unit: str, factor: float,
                   unit_source: str, rig) -> Finding:
     """The accelerometer amplitude finding, naming the key (unit or sensitivity) the ratio points to."""
-    ev = {"channel": name, "ratio": mag, "ratio_std": sd, "drive_tone_ms2": tone, "dic_acceleration_ms2": dic,
+    ev = {"channel": name, "ratio": mag, "ratio_std": sd, "drive_tone_mps2": tone, "dic_acceleration_mps2": dic,
           "unit_as_read": unit, "unit_source": unit_source}
     head = (f"accelerometer {name} channel: its drive tone is {tone:.3g} m/s^2 as read ({unit}), the structure's "
             f"acceleration by DIC A (2 pi f)^2 = {dic:.3g} m/s^2 (ratio {mag:.3f} +- {sd:.3f})")

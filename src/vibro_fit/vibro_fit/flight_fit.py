@@ -50,7 +50,7 @@ class FlightFit:
         return mm_to_m(2.0 * self.coef[0] * tc + self.coef[1])
 
     @property
-    def acceleration_ms2(self) -> float:
+    def acceleration_mps2(self) -> float:
         return 2.0 * mm_to_m(float(self.coef[0]))
 
     @property
@@ -59,7 +59,7 @@ class FlightFit:
 
     def friction_n(self, mass_kg: float, g_mps2: float = G_MPS2) -> tuple[float, float]:
         """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N)."""
-        return mass_kg * (self.acceleration_ms2 + g_mps2), mass_kg * self.acceleration_std_mps2
+        return mass_kg * (self.acceleration_mps2 + g_mps2), mass_kg * self.acceleration_std_mps2
 
     def abs_coefficients(self) -> tuple[float, float, float]:
         """(a, b, c) for Y[mm] = a t^2 + b t + c, t absolute camera time (s)."""

@@ -49,7 +49,7 @@ from .live_accel import AccelStreamRefused, BlockCheck
 
 def impact_message(index: int, impact: Impact, origin_ns: int = 0) -> AccelImpact:
     """The AccelImpact of ``impact``: ``t_s`` DAQ time, the header stamped with it on the lab clock of ``origin_ns``."""
-    msg = AccelImpact(index=index, t_s=impact.t_s, plate=impact.plate, peak_ms2=impact.peak_ms2,
+    msg = AccelImpact(index=index, t_s=impact.t_s, plate=impact.plate, peak_ms2=impact.peak_mps2,
                       upper_energy_m2s3=impact.energy_upper, lower_energy_m2s3=impact.energy_lower,
                       clipped=impact.clipped)
     msg.dominant_frequencies_hz = [float(f) for f in impact.dominant_frequencies_hz]

@@ -208,7 +208,7 @@ def joint_impact(est: ImpactFit, p: FlightFit, q: FlightFit, t_s: np.ndarray, y_
     vs = float(s_fit.velocity_mps(t_i))
     e = -(vp - vs) / (vm - vs)
     # gradient of e over theta (t_i enters through v_s only; v-, v+ are the values at t_i)
-    dvs_dt = float(s_fit.acceleration_ms2(t_i))
+    dvs_dt = float(s_fit.acceleration_mps2(t_i))
     de_dvs = (vm - vp) / (vm - vs) ** 2
     g_th = np.zeros(5)
     g_th[0] = de_dvs * dvs_dt

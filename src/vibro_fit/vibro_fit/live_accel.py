@@ -60,13 +60,13 @@ class BlockCheck:
     """Checks a live AccelBlock stream block by block (see the module doc).
 
     ``expected_rate_hz``: the rate the DAQ is set to (0: the first block's rate, which every later block must
-    keep); ``origin_ns``: the lab-clock origin of the camera time (``time_origin_unix_ns``); ``full_scale_ms2``:
+    keep); ``origin_ns``: the lab-clock origin of the camera time (``time_origin_unix_ns``); ``full_scale_mps2``:
     the sensors' range (0: unknown, no clipping check here; the detector still flags an impact whose peak sits
     flat at its extreme); ``max_stamp_jitter_s``: a block stamped further than this from the stamps' running
     offset is reported (the stamps then do not give the clock offset to better than that).
     """
 
-    def __init__(self, expected_rate_hz: float = 0.0, origin_ns: int = 0, full_scale_ms2: float = 0.0,
+    def __init__(self, expected_rate_hz: float = 0.0, origin_ns: int = 0, full_scale_mps2: float = 0.0,
                  max_stamp_jitter_s: float = 0.002) -> None:
         if not (math.isfinite(expected_rate_hz) and expected_rate_hz >= 0):
             raise AccelStreamRefused(f"accel_rate_hz must be a rate in Hz >= 0 (0 = the stream's), "
@@ -76,7 +76,7 @@ class BlockCheck:
                                      "ringing cannot be detected and timed at that rate")
         self.expected_rate_hz = float(expected_rate_hz)
         self.origin_ns = int(origin_ns)
-        self.full_scale_ms2 = float(full_scale_ms2)
+        self.full_scale_mps2 = float(full_scale_mps2)
         self.max_stamp_jitter_s = float(max_stamp_jitter_s)
         self.rate_hz: float | None = None
         self.block_n: int | None = None
@@ -176,13 +176,13 @@ class BlockCheck:
                                 "stamp the time of the block's first sample, on the lab clock?")
         self._offsets.append(offset)
         out.stamp_offset_s = offset
-        if self.full_scale_ms2 > 0:
+        if self.full_scale_mps2 > 0:
             for name, x in (("upper", upper_ms2), ("lower", lower_ms2)):
-                k = int(np.count_nonzero(np.abs(np.asarray(x, float)) >= self.full_scale_ms2))
+                k = int(np.count_nonzero(np.abs(np.asarray(x, float)) >= self.full_scale_mps2))
                 if k:
                     out.clipped_samples[name] = k
                     out.warnings.append(f"the {name} plate's accelerometer clipped: {k} sample(s) at or beyond its "
-                                        f"full scale {self.full_scale_ms2:g} m/s^2 in block {block_index} "
+                                        f"full scale {self.full_scale_mps2:g} m/s^2 in block {block_index} "
                                         f"(t = {t_start_s:.5f} s DAQ time): peaks and energies there are not "
                                         "trustworthy")
         return out

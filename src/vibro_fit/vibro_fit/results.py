@@ -62,7 +62,7 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
     if ident.accel is not None:
         acc, off = ident.accel, ident.clock_offset
         out["accelerometers"] = {
-            "n_impacts": len(acc.impacts), "threshold_ms2": acc.threshold, "spectrum_peaks_hz": list(acc.peaks_hz),
+            "n_impacts": len(acc.impacts), "threshold_mps2": acc.threshold, "spectrum_peaks_hz": list(acc.peaks_hz),
             "clipping": acc.clipping,
             "clock_offset_s": off.known_offset_s if off else None,
             "clock_offset_matched": off.n_matched if off else 0,
@@ -71,7 +71,7 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
                 "determined": False, "offset_s": None, "reason": "no accelerometer impact near a DIC impact",
                 "n_matched": 0, "message": "clock offset not determined: no accelerometer impact near a DIC impact"},
             "impacts_not_seen_by_camera_s": None if ident.accel_unseen_s is None else list(ident.accel_unseen_s),
-            "impacts": [{"t_daq": i.t_s, "plate": i.plate, "peak_ms2": i.peak_ms2,
+            "impacts": [{"t_daq": i.t_s, "plate": i.plate, "peak_mps2": i.peak_mps2,
                          "upper_energy_m2s3": i.energy_upper, "lower_energy_m2s3": i.energy_lower,
                          "dominant_frequencies_hz": list(i.dominant_frequencies_hz), "clipped": bool(i.clipped)}
                         for i in acc.impacts],

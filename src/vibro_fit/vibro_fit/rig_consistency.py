@@ -74,7 +74,7 @@ def fall_ratio(flights, g_mps2: float) -> tuple[float, float, int] | None:
     meds, vars_ = [], []
     n = 0
     for d in ("up", "down"):
-        a = np.array([f.acceleration_ms2 for f in flights if f.is_free and f.direction == d])
+        a = np.array([f.acceleration_mps2 for f in flights if f.is_free and f.direction == d])
         if a.size == 0:
             continue
         n += a.size
@@ -161,7 +161,7 @@ def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm:
                     f"{' / '.join(keys)}: the structure moves at {f_cam:.3f} Hz on the camera clock vs "
                     f"excitation.frequency_hz {f_nom:g} Hz{ratio_words}{fall_words}: {what}",
                     {"structure_frequency_hz": f_cam, "frequency_ratio": r_nom,
-                     **({"fall_acceleration_ms2": fall[0] * g_mps2} if fall else {})},
+                     **({"fall_acceleration_mps2": fall[0] * g_mps2} if fall else {})},
                     {"camera.fps": fps / r_nom}))
     if time_scale is not None:
         return out  # every length-per-time ratio below is scaled by the wrong clock: no further test
@@ -183,7 +183,7 @@ def check_rig(rig, structure, structure_moves: bool, impacts, flights, noise_mm:
             measured))
         return out
     ka, ska, _ = fall
-    measured.update({"fall_acceleration_ms2": ka * g_mps2, "fall_ratio": ka})
+    measured.update({"fall_acceleration_mps2": ka * g_mps2, "fall_ratio": ka})
     fall_words = f"flights fall at {ka * g_mps2:.2f} m/s^2 ({ka:.3f} g)"
     if abs(ka - kb) <= N_SIGMA * math.hypot(ska, skb) + ACCEL_TOL + GEOMETRY_TOL:
         k = (ka / ska ** 2 + kb / skb ** 2) / (1 / ska ** 2 + 1 / skb ** 2) if ska > 0 and skb > 0 else kb

@@ -298,9 +298,9 @@ class StreamingFitter:
         if fl.rms_residual_mm > limit:
             fl.is_free = False
             fl.reason = f"residual {fl.rms_residual_mm:.4f} mm > {limit:.4f} mm: not a parabola (contact?)"
-        elif abs(fl.acceleration_ms2 + c.g_mps2) > c.max_friction_g * c.g_mps2:
+        elif abs(fl.acceleration_mps2 + c.g_mps2) > c.max_friction_g * c.g_mps2:
             fl.is_free = False
-            fl.reason = (f"acceleration {fl.acceleration_ms2:.2f} m/s^2 too far from -g: not a free flight")
+            fl.reason = (f"acceleration {fl.acceleration_mps2:.2f} m/s^2 too far from -g: not a free flight")
 
     def _structure_window(self, p: FlightFit, q: FlightFit):
         # good frames with t in [t_start(p) - history_s, t_end(q)], found backwards from the end

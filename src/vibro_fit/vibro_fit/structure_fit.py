@@ -49,7 +49,7 @@ class StructureFit:
         w = 2.0 * np.pi * f
         return mm_to_m(a * w * np.cos(w * (np.asarray(t_s) - self.t_ref_s) + psi))
 
-    def acceleration_ms2(self, t_s: np.ndarray | float) -> np.ndarray | float:
+    def acceleration_mps2(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """d2Y_s/dt2 in m/s^2."""
         a, f, psi, _ = self.params_ref
         w = 2.0 * np.pi * f

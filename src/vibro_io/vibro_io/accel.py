@@ -138,7 +138,7 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
     scales = (csv_mps2_per_unit(columns, "upper", path), csv_mps2_per_unit(columns, "lower", path))
     unit = columns.unit or MS2
     return AccelData(t_s=data[:, 0], upper_ms2=data[:, 1] * scales[0], lower_ms2=data[:, 2] * scales[1],
-                     source_units=(unit, unit), ms2_per_source_unit=scales,
+                     source_units=(unit, unit), mps2_per_source_unit=scales,
                      unit_source="accelerometers.unit" if columns.unit else "default")
 
 

@@ -87,7 +87,7 @@ class AccelData:
 
     - ``source_units``: the upper and lower channel's unit as recorded, verbatim (a TDMS
       channel's unit string, e.g. ``Volts``; rig.yaml's ``accelerometers.unit`` for accel.csv);
-    - ``ms2_per_source_unit``: the factor (m/s^2 per source unit) applied to each channel,
+    - ``mps2_per_source_unit``: the factor (m/s^2 per source unit) applied to each channel,
       1 for m/s^2, 9.80665 for g, ``1000 / sensitivity_mv_per_g * 9.80665`` for V;
     - ``unit_source``: where the unit was read: the TDMS property (``unit_string``,
       ``NI_UnitDescription`` or ``unit``), ``accelerometers.unit`` (rig.yaml), ``default``
@@ -99,7 +99,7 @@ class AccelData:
     upper_ms2: np.ndarray
     lower_ms2: np.ndarray
     source_units: tuple[str, str] = (MS2, MS2)
-    ms2_per_source_unit: tuple[float, float] = (1.0, 1.0)
+    mps2_per_source_unit: tuple[float, float] = (1.0, 1.0)
     unit_source: str = "default"
 
     @property

@@ -73,7 +73,7 @@ class ExcitationConfig:
     frequency_hz: float
     #: nominal shaker acceleration amplitude (m/s^2), when rig.yaml gives it (optional): what a campaign
     #: sweeps beside the frequency; vibro identifies the structure's actual motion itself
-    acceleration_ms2: float | None = None
+    acceleration_mps2: float | None = None
 
 
 #: how the ball is tracked (rig.yaml ``dic.ball_method``): ``mesh``, the DIC mesh of subsets on a speckled
@@ -172,8 +172,8 @@ class RigConfig:
             out["accelerometers"] = self.accelerometers.to_dict()
         if self.camera.start_time_unix_s is None:
             out["camera"].pop("start_time_unix_s")
-        if self.excitation.acceleration_ms2 is None:
-            out["excitation"].pop("acceleration_ms2")
+        if self.excitation.acceleration_mps2 is None:
+            out["excitation"].pop("acceleration_mps2")
         return out
 
 
@@ -332,8 +332,11 @@ def _check(value: Any, kind: str, where: str) -> Any:
 
 #: Optional keys per section (kind, as in _SCHEMA): absent = None.
 _OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time"},
-                                        "excitation": {"acceleration_ms2": "pos"},
+                                        "excitation": {"acceleration_mps2": "pos"},
                                         "dic": {"ball_method": "ball_method"}}
+#: Keys renamed in vibro's own rig.yaml vocabulary, per section: old spelling -> new. A rig.yaml with the old
+#: spelling still reads (files are written with the new one); one that gives both is refused.
+_RENAMED: dict[str, dict[str, str]] = {"excitation": {"acceleration_ms2": "acceleration_mps2"}}
 #: 2000-01-01T00:00:00Z: an earlier recording start is a wrong unit or a camera clock, not a date.
 _EARLIEST_UNIX_S = 946684800.0
 
@@ -356,6 +359,14 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
     block = data[name]
     if not isinstance(block, Mapping):
         raise RigError(f"{src}: key '{name}' must be a mapping, got {block!r}")
+    spelled: dict[str, str] = {}  # new key -> the old spelling this file used
+    for was, now in _RENAMED.get(name, {}).items():
+        if was in block:
+            if now in block:
+                raise RigError(f"{src}: keys '{name}.{was}' and '{name}.{now}' both given: '{was}' is the old name "
+                               f"of '{now}'; keep one")
+            block = {(now if k == was else k): v for k, v in block.items()}
+            spelled[now] = was
     out = {}
     for key, kind in schema.items():
         if key not in block:
@@ -363,7 +374,7 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
         out[key] = _check(block[key], kind, f"{src}: key '{name}.{key}'")
     for key, kind in _OPTIONAL.get(name, {}).items():
         if key in block and block[key] is not None:
-            where = f"{src}: key '{name}.{key}'"
+            where = f"{src}: key '{name}.{spelled.get(key, key)}'"
             out[key] = _check_unix_time(block[key], where) if kind == "unix_time" else _check(block[key], kind, where)
     for key in block:
         if key not in schema and key not in _OPTIONAL.get(name, {}):

@@ -246,5 +246,5 @@ def load_tdms_accel(path: str | Path, cfg: AccelConfig, camera: CameraConfig | N
     if camera is not None and camera.start_time_unix_s is not None and starts[0] is not None:
         t_s = t_s + camera.t0_s + (starts[0] - camera.start_time_unix_s)
     return AccelData(t_s=t_s, upper_ms2=upper * scales[0][1], lower_ms2=lower * scales[1][1],
-                     source_units=(scales[0][0], scales[1][0]), ms2_per_source_unit=(scales[0][1], scales[1][1]),
+                     source_units=(scales[0][0], scales[1][0]), mps2_per_source_unit=(scales[0][1], scales[1][1]),
                      unit_source=_unit_source([s[2] for s in scales]))

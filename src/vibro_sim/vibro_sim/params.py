@@ -48,7 +48,7 @@ class BallCavity:
             if not -1.0 < getattr(self, name) < 0.5:
                 raise ValueError(f"BallCavity.{name} must be in (-1, 0.5), got {getattr(self, name)}")
         if self.gravity_mps2 < 0:
-            raise ValueError(f"BallCavity.gravity_ms2 must be >= 0, got {self.gravity_ms2}")
+            raise ValueError(f"BallCavity.gravity_mps2 must be >= 0, got {self.gravity_mps2}")
         if not -90.0 <= self.tilt_deg <= 90.0:
             raise ValueError(f"BallCavity.tilt_deg must be in [-90, 90], got {self.tilt_deg}")
 

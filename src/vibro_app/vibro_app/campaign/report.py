@@ -22,11 +22,11 @@ CAMPAIGN_CSV = "campaign.csv"
 REPORT_HTML = "report.html"
 FIGURES = {"cor_vs_speed": "cor_vs_speed.png", "cor_vs_excitation": "cor_vs_excitation.png"}
 SCHEMA = "vibro.campaign/1"
-FLAG_RULE = (f"per plate, among runs of the same nominal excitation (rig.yaml frequency_hz and acceleration_ms2; "
+FLAG_RULE = (f"per plate, among runs of the same nominal excitation (rig.yaml frequency_hz and acceleration_mps2; "
              f"groups of at least {MIN_GROUP} runs): z = (run's mean COR - group median) / max(1.4826 x MAD, "
              f"median standard error sigma/sqrt(n) of the group's runs); |z| > {Z_FLAG:g} flags the run")
 
-CSV_COLUMNS = ("run", "status", "reason", "resumed", "excitation_frequency_hz", "excitation_acceleration_ms2",
+CSV_COLUMNS = ("run", "status", "reason", "resumed", "excitation_frequency_hz", "excitation_acceleration_mps2",
                "structure_amplitude_mm", "structure_frequency_hz", "n_impacts",
                "cor_top_mean", "cor_top_std", "cor_top_n", "cor_bottom_mean", "cor_bottom_std", "cor_bottom_n",
                "flagged", "findings", "findings_where", "outputs")
@@ -63,7 +63,7 @@ def write_campaign_csv(out: Path, rows: list[dict]) -> Path:
             c = r["cor"]
             writer.writerow([
                 r["name"], r["status"], r["reason"], int(bool(r.get("resumed"))),
-                _fmt(r["excitation"]["frequency_hz"]), _fmt(r["excitation"]["acceleration_ms2"]),
+                _fmt(r["excitation"]["frequency_hz"]), _fmt(r["excitation"]["acceleration_mps2"]),
                 _fmt(r["structure"].get("amplitude_mm")), _fmt(r["structure"].get("frequency_hz")),
                 "" if r["n_impacts"] is None else r["n_impacts"],
                 _fmt(c["top"]["mean"]), _fmt(c["top"]["std"]), c["top"]["n"],

@@ -1,7 +1,7 @@
 """One row per campaign run (from its results.json and rig.yaml), and the runs that disagree with the rest.
 
 Disagreement rule (per plate, top and bottom): runs are grouped by their nominal excitation (rig.yaml's
-``excitation.frequency_hz`` and ``excitation.acceleration_ms2``, when given); in a group of at least
+``excitation.frequency_hz`` and ``excitation.acceleration_mps2``, when given); in a group of at least
 :data:`MIN_GROUP` runs with a COR on that plate, a run's robust z-score is
 ``z = (mean COR - median of the group) / scale`` with ``scale = max(1.4826 x MAD, median of the runs'
 standard errors sigma/sqrt(n))`` (MAD: median absolute deviation from the group median; the floor keeps runs
@@ -39,13 +39,13 @@ def run_summary(record: dict, run_dir: Path) -> dict:
     excitation (rig.yaml), the identified structure motion, impacts, COR per plate and the findings read
     from ``run_dir/results.json``. A run whose results cannot be read becomes failed, saying why."""
     row = dict(record)
-    row.update(excitation={"frequency_hz": None, "acceleration_ms2": None}, structure={}, n_impacts=None,
+    row.update(excitation={"frequency_hz": None, "acceleration_mps2": None}, structure={}, n_impacts=None,
                cor={p: {"mean": None, "std": None, "n": 0} for p in PLATES}, impacts=[], findings=[],
                flags=[], outputs=None)
     try:
         rig = load_rig(Path(record["recording"]) / "rig.yaml")
         row["excitation"] = {"frequency_hz": rig.excitation.frequency_hz,
-                             "acceleration_ms2": rig.excitation.acceleration_ms2}
+                             "acceleration_mps2": rig.excitation.acceleration_mps2}
     except RecordingError:
         pass  # a failed run's rig.yaml may be what failed; its reason says so
     if row["status"] != "ok":
@@ -82,7 +82,7 @@ def run_summary(record: dict, run_dir: Path) -> dict:
 def excitation_key(row: dict) -> tuple:
     """The group of a run: its nominal (frequency Hz, acceleration m/s^2 or None), rounded to 6 digits."""
     e = row["excitation"]
-    return tuple(None if e.get(k) is None else float(f"{e[k]:.6g}") for k in ("frequency_hz", "acceleration_ms2"))
+    return tuple(None if e.get(k) is None else float(f"{e[k]:.6g}") for k in ("frequency_hz", "acceleration_mps2"))
 
 
 def excitation_label(key: tuple) -> str:

@@ -5,7 +5,7 @@ options and effects, :mod:`.trajectory` (physics), :mod:`.render` (images),
 :mod:`.accel` (50 kHz signals) and :mod:`.write` (files).
 """
 
-from .scenario import DEFAULT_ACCEL_MS2, EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args
+from .scenario import DEFAULT_ACCEL_MPS2, EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args
 
 
 def __getattr__(name: str):
@@ -18,5 +18,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["DEFAULT_ACCEL_MS2", "EFFECT_NAMES", "EFFECTS", "SynthConfig", "SynthError",
+__all__ = ["DEFAULT_ACCEL_MPS2", "EFFECT_NAMES", "EFFECTS", "SynthConfig", "SynthError",
            "parse_effect_args", "synthesize", "truth_path"]

@@ -70,7 +70,7 @@ _FORCES = ("coulomb_friction", "viscous_drag", "quadratic_drag")
 # scan (4 seeds each) holds from 24 to 36 m/s^2; 20 loses it with Coulomb friction and
 # 40 with the harmonics. At 27 the impact phases also repeat cycle to cycle (period 1,
 # spread < 0.05 rad without COR scatter). A = 27 / (2 pi 22)^2 = 1.41 mm.
-DEFAULT_ACCEL_MS2 = 27.0
+DEFAULT_ACCEL_MPS2 = 27.0
 
 
 @dataclass
@@ -85,7 +85,7 @@ class SynthConfig:
                    with a drive near g (e.g. cor 0.5, accel_mps2 13 at 10 Hz) gives chatter with sticking:
                    each cycle a flight, hops decaying on the lower plate, then the ball rides the plate
                    until its downward acceleration exceeds g (truth ``contacts``).
-    accel_ms2      shaker acceleration amplitude A w^2 (27 m/s^2: two impacts/cycle).
+    accel_mps2     shaker acceleration amplitude A w^2 (27 m/s^2: two impacts/cycle).
     phase_rad      structure phase at camera time 0; None = drawn from the seed.
     seed           seeds every random draw (phase, speckle, noise, COR scatter).
     frames         number of frames (1500 = 1.5 s at 1000 fps).
@@ -104,7 +104,7 @@ class SynthConfig:
     mm_per_px      image scale; None = 0.06 or larger if the motion needs it.
     accel          write accel.csv (50 kHz) and the rig's accelerometers block.
     accel_rate_hz  accelerometer sample rate (50 kHz).
-    accel_noise_ms2  accelerometer noise sigma (m/s^2).
+    accel_noise_mps2  accelerometer noise sigma (m/s^2).
     cor_scatter    per-impact COR scatter of every scenario (dimensionless): impact i's COR
                    is the law's value + cor_scatter z_i, z_i ~ N(0, 1) from the seed, clipped
                    to [0, 1] (0 = none; the paper's Fig. 14-16 show 0.01-0.02). With
@@ -132,7 +132,7 @@ class SynthConfig:
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     frequency_hz: float = 22.0
     cor: float = BASELINE_COR
-    accel_mps2: float = DEFAULT_ACCEL_MS2
+    accel_mps2: float = DEFAULT_ACCEL_MPS2
     phase_rad: float | None = None
     seed: int = 0
     frames: int = 1500

@@ -118,7 +118,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
                                   youngs_modulus_pa=models.cavity.plate_E_pa,
                                   poisson_ratio=models.cavity.plate_nu),
         excitation=ExcitationConfig(frequency_hz=cfg.frequency_hz,
-                                    acceleration_ms2=None if cfg.still or cfg.accel_mps2 <= 0 else cfg.accel_mps2),
+                                    acceleration_mps2=None if cfg.still or cfg.accel_mps2 <= 0 else cfg.accel_mps2),
         dic=_dic_config(cfg, renderer, ball_mm[0] + drift[0], struct_mm[0] + drift[0]),
         accelerometers=ACCEL_COLUMNS if cfg.accel else None,
         path=str(out_dir / "rig.yaml"),
