@@ -65,6 +65,11 @@ def main() -> int:
                 pub.publish(make(n))
                 next_t += 0.2
         print(json.dumps({"published": n + 1}), flush=True)
+        # a driver outlives its last message: leaving at once can free a best-effort sample (shared-memory
+        # transport) before a busy reader has taken it, which loses the last frame on a loaded machine
+        linger = time.monotonic() + 1.0
+        while time.monotonic() < linger:
+            rclpy.spin_once(node, timeout_sec=0.05)
     else:
         from rclpy.task import Future
 
