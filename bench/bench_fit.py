@@ -38,11 +38,11 @@ SEEDS = (1, 2, 3)
 
 
 def scenario_per_flight(seed: int, noise: float):
+    from vibro_model.kinematics import StructureKinematics
     from vibro_sim.cor_model import simulate_cor
     from vibro_sim.forces import PerFlight
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import PerPlate, Scattered
-    from vibro_sim.structure import StructureKinematics
 
     rng = np.random.default_rng(100 + seed)
     forces = tuple(M_KG * G * rng.uniform(-0.08, 0.08, 400))

@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from vibro_model.kinematics import StructureKinematics
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.hertz_model import hertz_effective_cor, simulate_hertz, undamped_max_penetration
 from vibro_sim.params import BallCavity
 from vibro_sim.restitution import PerPlate, Scattered
-from vibro_sim.structure import StructureKinematics
 from vibro_sim.synth import SynthConfig, synthesize
 from vibro_sim.synth.render import Renderer, choose_layout
 from vibro_sim.synth.scenario import EFFECTS, build_models

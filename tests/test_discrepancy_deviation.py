@@ -123,10 +123,10 @@ def test_control_cor_laws_explain_nothing(analysed):
 
 def test_restarted_deviation_shares_eq18_scale():
     # one window covering everything, the model started exactly on the measured trajectory: D_r == D
+    from vibro_model.kinematics import StructureKinematics
     from vibro_sim.deviation import Restart, restarted_deviation
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import Constant
-    from vibro_sim.structure import StructureKinematics
 
     S = StructureKinematics(0.0, 22.0, 0.0, 0.0)   # still structure
     cav = BallCavity()

@@ -20,11 +20,11 @@ FPS = 1000.0
 def sim_track(noise_mm: float, n_frames: int = 400, seed: int = 1, sim_seed: int = 7):
     """vibro_sim exact COR model (per-plate COR with scatter, a random constant force per flight),
     sampled at 1000 fps + white noise; returns (track, SimResult)."""
+    from vibro_model.kinematics import StructureKinematics
     from vibro_sim.cor_model import simulate_cor
     from vibro_sim.forces import PerFlight
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import PerPlate, Scattered
-    from vibro_sim.structure import StructureKinematics
 
     rng = np.random.default_rng(sim_seed)
     forces = tuple(M_KG * G * rng.uniform(-0.08, 0.08, 400))

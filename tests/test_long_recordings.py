@@ -210,11 +210,11 @@ def test_hertz_replay_keeps_no_dense_contact_solutions() -> None:
     (~5 kB: the closures, impacts and flight segments; was 95 kB), after a first run (imports, caches); a
     contact sampled later gives its dense solution then (the ball at the plate at contact entry, inside
     the plate during it)."""
+    from vibro_model.kinematics import StructureKinematics
     from vibro_sim.forces import NoForce
     from vibro_sim.hertz_model import ContactSegment, simulate_hertz
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import Constant
-    from vibro_sim.structure import StructureKinematics
 
     S, cav = StructureKinematics(1.4e-3, 22.0, 0.3, 0.0), BallCavity()
     simulate_hertz(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.1, delta_a="calibrated")

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from vibro_model.kinematics import StructureKinematics
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.forces import PerFlight
@@ -14,7 +15,6 @@ from vibro_sim.hertz_model import hertz_contact_time, hertz_single_impact, simul
 from vibro_sim.params import BallCavity
 from vibro_sim.replay import ReplayInputs, compare_models, simulate_measured
 from vibro_sim.restitution import PerPlate, Scattered
-from vibro_sim.structure import StructureKinematics
 
 CAV = BallCavity()
 S = StructureKinematics(27.0 / (2 * math.pi * 22.0) ** 2, 22.0, phase_rad=0.3)

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from vibro_model.kinematics import StructureKinematics
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.forces import Coulomb, NoForce, PerFlight, Quadratic, Viscous
 from vibro_sim.params import BallCavity
 from vibro_sim.restitution import Constant, PerImpact, PerPlate, Scattered, VelocityDependent
-from vibro_sim.structure import StructureKinematics
 
 F_HZ = 22.0
 W = 2 * math.pi * F_HZ

@@ -31,7 +31,7 @@ from scipy.optimize import minimize_scalar, nnls
 from vibro_discrepancy.data import FlightSamples, Measured
 from vibro_discrepancy.library import FlightTerm, ImpactTerm
 from vibro_model.constants import G_MPS2
-from vibro_sim.structure import StructureKinematics
+from vibro_model.kinematics import StructureKinematics
 
 GRID_STEP_S = 2e-5
 FIXED_POINT_PASSES = 3

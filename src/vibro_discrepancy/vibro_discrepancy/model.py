@@ -32,8 +32,8 @@ from vibro_discrepancy.library import (
     force_law,
     restitution_law,
 )
+from vibro_model.kinematics import StructureKinematics
 from vibro_sim.params import BallCavity
-from vibro_sim.structure import StructureKinematics
 
 COR_TERMS = {"none": ConstantRestitution(), "asymmetric_restitution": AsymmetricRestitution(),
              "velocity_dependent_restitution": VelocityDependentRestitution(), "plate_and_speed": PlateAndSpeed()}

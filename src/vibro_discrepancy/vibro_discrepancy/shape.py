@@ -34,8 +34,8 @@ from vibro_discrepancy.data import Measured
 from vibro_discrepancy.fitting import FlightModelFit, _cumtrapz
 from vibro_discrepancy.select import ALPHA, MIN_EXPLAINED_SIGMA
 from vibro_model.constants import G_MPS2
+from vibro_model.kinematics import StructureKinematics
 from vibro_model.tail_probability import chi2_sf
-from vibro_sim.structure import StructureKinematics
 
 N_BINS = 4
 DECAYS_MM = tuple(float(x) for x in np.geomspace(0.3, 30.0, 25))   # exponential decay lengths tried

@@ -35,8 +35,8 @@ from vibro_discrepancy.data import Measured
 from vibro_discrepancy.fitting import StructureModelFit, _design
 from vibro_discrepancy.systematic import ALPHA_FAMILY, Mismatch
 from vibro_model.codec import json_number as _num
+from vibro_model.kinematics import StructureWithTone
 from vibro_model.tail_probability import f_sf
-from vibro_sim.structure import StructureWithTone
 
 #: the name of the modelled tone (the synthetic rig's invented effect of the same physics), used as the
 #: impacts' ``cor_method`` part when it corrects them

@@ -7,6 +7,7 @@ analysis has written its results.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -16,10 +17,11 @@ from vibro_discrepancy.fitting import CorModelFit, fit_flights, fit_structure_ha
 from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.runs import full_run, restarted_run
+from vibro_model.kinematics import StructureKinematics
+from vibro_model.units import mm_to_m
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import deviation
 from vibro_sim.params import BallCavity
-from vibro_sim.structure import StructureKinematics
 from vibro_sim.synth.scenario import BASELINE_COR, effect_laws
 
 # effect -> its main parameter (scored against the 15 % goal)
@@ -43,11 +45,8 @@ def main_parameter(effect: str, params: Mapping[str, float]) -> str:
 
 def true_structure(truth: Mapping[str, Any]) -> StructureKinematics:
     """The truth's structure motion (m, s) in the DIC frame: displacement since frame 0."""
-    st = truth["structure"]
-    y_s0 = float(truth["frames"]["structure_mm"][0]) * 1e-3
-    return StructureKinematics(st["amplitude_mm"] * 1e-3, st["frequency_hz"], st["phase_rad"],
-                           st.get("offset_mm", 0.0) * 1e-3 - y_s0, st.get("h2_ratio", 0.0), st.get("h3_ratio", 0.0),
-                           st.get("h2_phase_rad", 0.0), st.get("h3_phase_rad", 0.0))
+    S = StructureKinematics.from_mm(truth["structure"])
+    return replace(S, offset_m=S.offset_m - mm_to_m(float(truth["frames"]["structure_mm"][0])))
 
 
 def true_model_run(meas: Measured, truth: Mapping[str, Any], t0_s: float, t_end_s: float | None = None):

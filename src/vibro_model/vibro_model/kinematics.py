@@ -1,4 +1,6 @@
-"""Prescribed motion of the structure (the cavity centre), SI units, positive up.
+"""Prescribed motion of the structure (the cavity centre), SI units, positive up: the one kinematic type
+that the simulator, the fit results (:meth:`vibro_model.results.StructureMotion.kinematics`), the synthetic
+rig's truth (:meth:`StructureKinematics.from_mm`) and the discrepancy analysis share.
 
 Paper Eq. 2: Y_s(t) = A sin(w t + phi) + B, optionally with 2nd/3rd harmonics:
 
@@ -17,8 +19,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
+
+from vibro_model.units import mm_to_m
 
 ArrayLike = "float | np.ndarray"
 
@@ -46,6 +51,15 @@ class StructureKinematics:
             raise ValueError(f"StructureKinematics.frequency_hz must be > 0, got {self.frequency_hz}")
         if self.amplitude_m < 0:
             raise ValueError(f"StructureKinematics.amplitude_m must be >= 0, got {self.amplitude_m}")
+
+    @classmethod
+    def from_mm(cls, structure: Mapping[str, Any]) -> "StructureKinematics":
+        """The motion a contract mapping in mm describes (a truth file's ``structure``: ``amplitude_mm``,
+        ``frequency_hz``, ``phase_rad``, optional ``offset_mm`` (0), ``h2_ratio``, ``h3_ratio``,
+        ``h2_phase_rad``, ``h3_phase_rad`` (0)), lengths converted to m."""
+        harmonics = {k: float(structure.get(k, 0.0)) for k in ("h2_ratio", "h3_ratio", "h2_phase_rad", "h3_phase_rad")}
+        return cls(mm_to_m(float(structure["amplitude_mm"])), float(structure["frequency_hz"]),
+                   float(structure["phase_rad"]), mm_to_m(float(structure.get("offset_mm", 0.0))), **harmonics)
 
     @property
     def omega_rad_s(self) -> float:

@@ -17,6 +17,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from vibro_model.codec import SCHEMA, Fields, ResultsError, json_number, json_value
+from vibro_model.kinematics import StructureKinematics
 from vibro_model.units import m_to_mm, mm_to_m
 
 PLATES = ("top", "bottom")
@@ -59,6 +60,14 @@ class StructureMotion:
         if self.note:
             out["note"] = self.note
         return out
+
+    def kinematics(self) -> StructureKinematics:
+        """The identified sine Y_s(t) = A sin(2 pi f t + phi) + B as the structure motion the simulator and
+        the discrepancy analysis use (m, s; DIC frame); ValueError when a parameter is unknown."""
+        values = (self.amplitude_m, self.frequency_hz, self.phase_rad, self.offset_m)
+        if any(v is None for v in values):
+            raise ValueError("the structure sine is not known (amplitude, frequency, phase or offset missing)")
+        return StructureKinematics(*values)
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "structure") -> "StructureMotion":

@@ -3,7 +3,7 @@ with ground truth.
 
 Core API (SI units, lab frame, positive up; no rclpy needed):
 
-- :class:`~vibro_sim.structure.StructureKinematics`, :class:`~vibro_sim.params.BallCavity`
+- :class:`~vibro_model.kinematics.StructureKinematics`, :class:`~vibro_sim.params.BallCavity`
 - force laws (:mod:`vibro_sim.forces`): NoForce, Coulomb, Viscous, Quadratic, PerFlight
 - COR laws (:mod:`vibro_sim.restitution`): Constant, PerPlate, VelocityDependent, PerImpact, Scattered
 - :func:`~vibro_sim.cor_model.simulate_cor` -> :class:`~vibro_sim.cor_model.SimResult`

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vibro_model.kinematics import StructureKinematics
 from vibro_model.results import Impact
 
 from .events import first_root
@@ -29,7 +30,6 @@ from .flight import Segment, Stuck, make_flight_segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
 from .restitution import RestitutionLaw
-from .structure import StructureKinematics
 
 log = logging.getLogger(__name__)
 

@@ -10,10 +10,11 @@ from typing import Sequence
 
 import numpy as np
 
+from vibro_model.kinematics import StructureKinematics
+
 from .forces import ForceLaw
 from .params import BallCavity
 from .restitution import RestitutionLaw
-from .structure import StructureKinematics
 
 
 def deviation(t_s, y_sim, y_exp) -> float:

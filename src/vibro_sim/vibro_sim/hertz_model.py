@@ -37,12 +37,13 @@ import math
 import numpy as np
 from scipy.integrate import OdeSolution, solve_ivp
 
+from vibro_model.kinematics import StructureKinematics
+
 from .cor_model import SimResult, _Simulator, sim_impact
 from .flight import Segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
 from .restitution import Constant, RestitutionLaw
-from .structure import StructureKinematics
 
 E_MIN = 1e-3  # e -> 0 would need infinite damping
 NO_TENSION = True  # clip the contact force so that the plate never pulls the ball

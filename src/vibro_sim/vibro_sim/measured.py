@@ -21,15 +21,6 @@ from vibro_model.results import Flight, Impact, SimulationRun, StructureMotion
 from .deviation import deviation
 from .params import BallCavity
 from .replay import ReplayInputs, simulate_measured
-from .structure import StructureKinematics
-
-
-def structure_kinematics(structure: StructureMotion) -> StructureKinematics:
-    """The identified sine Y_s(t) = A sin(2 pi f t + phi) + B as the simulator's structure motion."""
-    values = (structure.amplitude_m, structure.frequency_hz, structure.phase_rad, structure.offset_m)
-    if any(v is None for v in values):
-        raise ValueError("the structure sine is not known (amplitude, frequency, phase or offset missing)")
-    return StructureKinematics(*values)
 
 
 def _flight_state(flight: Flight, t_s: float) -> tuple[float, float]:
@@ -49,7 +40,7 @@ def replay_inputs(structure: StructureMotion, flights: Sequence[Flight], impacts
         raise ValueError("no impact: nothing to replay")
     offset_m = structure.ball_offset_m if ball_offset_m is None else ball_offset_m
     t0 = nan_if_none(free[0].t_first_frame_s)
-    motion = structure_kinematics(structure)
+    motion = structure.kinematics()
     y_m, v_mps = _flight_state(free[0], t0)
     y_rel_m = float(np.clip(y_m + nan_if_none(offset_m) - float(motion.position(t0)),
                             -0.999 * free_play_m, 0.999 * free_play_m))

@@ -14,13 +14,14 @@ from typing import Sequence
 
 import numpy as np
 
+from vibro_model.kinematics import StructureKinematics
+
 from .cor_model import SimResult, simulate_cor
 from .deviation import deviation
 from .forces import PerFlight
 from .hertz_model import simulate_hertz
 from .params import BallCavity
 from .restitution import PLATES, RestitutionLaw
-from .structure import StructureKinematics
 
 
 @dataclass(frozen=True, kw_only=True)

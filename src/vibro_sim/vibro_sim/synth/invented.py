@@ -33,10 +33,10 @@ import math
 from dataclasses import dataclass, replace
 
 from vibro_model.constants import G_MPS2
+from vibro_model.kinematics import StructureKinematics, StructureWithTone
 
 from ..forces import ForceLaw, NoForce
 from ..restitution import RestitutionLaw
-from ..structure import StructureKinematics, StructureWithTone  # noqa: F401 - StructureWithTone: its home was here
 
 INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "cor_drift": {"drift_per_s": (-0.2, -2.0, 2.0)},

@@ -16,12 +16,12 @@ from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any, Mapping
 
 from vibro_model.errors import RecordingError
+from vibro_model.kinematics import StructureKinematics
 from vibro_model.units import m_to_mm, mm_to_m
 
 from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
-from ..structure import StructureKinematics
 from .invented import (
     INVENTED_EFFECTS,
     DriftingCOR,
