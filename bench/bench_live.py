@@ -67,6 +67,8 @@ GOAL_RATE_HZ = 1000.0
 GOAL_EXCESS_S = 0.005
 #: give dic_tracker frame 0 as its reference file (built before the camera starts); --first-image-reference: not
 WITH_REFERENCE = "--first-image-reference" not in sys.argv
+#: dic_tracker parameters set from the command line (--catch-up-ms), on top of the launch file's
+TRACKER_PARAMETERS: dict[str, float] = {}
 #: DAQ of the synthetic rig (vibro synth: 50 kHz), block of 20 ms
 ACCEL_RATE_HZ = 50_000.0
 BLOCK_SAMPLES = 1000
@@ -115,6 +117,8 @@ def start_nodes(rec: Path, folder: Path, env: dict[str, str], accel: bool
     if len(origins) != 1:
         raise SystemExit(f"the live nodes were given {len(origins)} lab-clock origins: {sorted(origins)}")
     for n in nodes:
+        if n.spec.name == "dic_tracker":
+            n.parameters.update(TRACKER_PARAMETERS)
         params = folder / f"{n.spec.name}.params.yaml"
         params.write_text(yaml.safe_dump({"/**": {"ros__parameters": n.parameters}}))
         with (folder / f"{n.spec.name}.log").open("w") as log:
@@ -361,11 +365,16 @@ def main() -> int:
     parser.add_argument("--hog", default="", help="START_S,DURATION_S: a CPU hog on core 0 from START_S after the "
                                                   "camera's first frame, for DURATION_S")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "live.json")
+    parser.add_argument("--catch-up-ms", type=float, default=None,
+                        help="dic_tracker's catch_up_ms (default: the node's): how far it may fall behind and still "
+                             "track every image (0: always jump to the newest)")
     parser.add_argument("--first-image-reference", action="store_true",
                         help="give dic_tracker no reference file: it builds its tracker on the first image (A/B of "
                              "the start-up)")
     args = parser.parse_args()
     rates = [float(r) for r in args.rates.split(",")]
+    if args.catch_up_ms is not None:
+        TRACKER_PARAMETERS["catch_up_ms"] = float(args.catch_up_ms)
     from vibro_io.rig import load_rig
 
     accel = not args.no_accel
@@ -380,7 +389,8 @@ def main() -> int:
                     "recording": f"vibro synth {'' if accel else '--no-accel '}--frames {args.frames} --seed {SEED}",
                     "accelerometers": f"daq_peer {ACCEL_RATE_HZ:g} Hz, {BLOCK_SAMPLES} samples a block" if accel
                     else None, "hog": {"start_s": hog_window[0], "duration_s": hog_window[1], "core": 0}
-                    if hog_window else None, "command": " ".join(sys.argv)}
+                    if hog_window else None, "command": " ".join(sys.argv),
+                    "dic_tracker_parameters": dict(TRACKER_PARAMETERS)}
     result["tracker_in_process_ms_per_frame"] = tracker_cost_ms(rec)
     one_core = 1e3 / sum(result["tracker_in_process_ms_per_frame"].values())
     result["tracker_one_core_ceiling_frames_per_s"] = one_core

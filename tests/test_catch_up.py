@@ -1,12 +1,13 @@
-"""The live tracker's catch-up policy (vibro_dic.catch_up): after a stall it jumps to the newest image, reports the
-ones passed over, and is back at the camera's rate one frame's work after the stall; run on schedules, no ROS."""
+"""The live tracker's catch-up policy (vibro_dic.catch_up): a backlog within its bound is tracked oldest first (a
+short stall costs no image), beyond it the oldest images are skipped and reported (a long stall is one block, the
+lag stays bounded); with no bound it jumps to the newest image at once; run on schedules, no ROS."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from vibro_dic.catch_up import Choice, cdr_stamp_ns, choose, simulate
+from vibro_dic.catch_up import Choice, cdr_stamp_ns, choose, frames_behind, simulate
 
 PERIOD_S = 0.001  # a 1000 Hz camera
 
@@ -20,6 +21,65 @@ def test_the_newest_waiting_image_is_tracked_and_the_rest_skipped() -> None:
     assert choose([3, 4, 5, 6]) == Choice(6, [3, 4, 5])
     with pytest.raises(ValueError):
         choose([])
+
+
+def test_within_the_bound_the_oldest_is_tracked_and_beyond_it_the_oldest_are_skipped() -> None:
+    assert choose([3, 4], max_behind=5) == Choice(3, [], [4])
+    assert choose([3, 4, 5, 6, 7], max_behind=2) == Choice(5, [3, 4], [6, 7])
+    assert frames_behind(10.0, 1000.0) == 10 and frames_behind(10.0, 2000.0) == 20 and frames_behind(0.0, 1e3) == 0
+    with pytest.raises(ValueError):
+        choose([1], max_behind=-1)
+    with pytest.raises(ValueError):
+        frames_behind(float("nan"), 1000.0)
+
+
+def _jittery_stalls(n: int, every_s: float, length_s: float) -> list[tuple[float, float]]:
+    return [(t, t + length_s) for t in np.arange(0.0105, n * PERIOD_S, every_s)]
+
+
+def test_short_stalls_cost_no_image_within_the_bound_and_one_each_without_it() -> None:
+    # a tracker that keeps up on average (0.7 ms of work per 1 ms frame) on a machine that takes its core for
+    # 1.5 ms every 20 ms (other processes): two images wait after each such stall
+    n, cost = 1000, 0.0007
+    stalls = _jittery_stalls(n, 0.02, 0.0015)
+    bounded = simulate(_arrivals(n), lambda k, gap: cost, stalls=stalls, max_behind=10)
+    assert bounded.tracked == list(range(n)) and not bounded.skipped and not bounded.dropped
+    lag = np.array(bounded.finished_s) - np.array(_arrivals(n))
+    # behind by at most the stall plus the frames that came during it, caught up before the next stall
+    assert lag.max() <= 0.0015 + 2 * cost + 1e-12
+    jump = simulate(_arrivals(n), lambda k, gap: cost, stalls=stalls, max_behind=0)
+    assert jump.skipped  # the pure jump loses images after the stalls that leave two waiting
+
+
+def test_a_long_stall_is_one_block_and_the_lag_after_it_is_bounded_by_the_backlog() -> None:
+    n, cost, bound = 600, 0.00075, 10
+    queue_depth = 30  # a reader queue deeper than the bound: the bound, not the queue, decides what is skipped
+    for stall_s in (0.01, 0.05, 0.2):
+        stall = (0.1005, 0.1005 + stall_s)
+        sim = simulate(_arrivals(n), lambda k, gap: cost, stalls=[stall], queue_depth=queue_depth, max_behind=bound)
+        assert set(sim.tracked) | set(sim.skipped) | set(sim.dropped) == set(range(n))
+        lost = sorted(sim.skipped + sim.dropped)
+        if lost:
+            assert lost == list(range(lost[0], lost[-1] + 1))  # one block
+        # the backlog left after the stall is at most bound + 1 images, worked through oldest first: the first
+        # image that arrived after the stall is done within bound + 2 frames' work
+        assert sim.recovery_s[0] <= (bound + 2) * cost + 1e-12
+        lag = np.array(sim.finished_s) - np.array([k * PERIOD_S for k in sim.tracked])
+        after = np.array([k * PERIOD_S for k in sim.tracked]) >= stall[1]
+        assert lag[after].max() <= (bound + 2) * cost + 1e-12
+
+
+def test_a_slower_tracker_with_a_bound_tracks_at_its_own_rate_with_spread_losses() -> None:
+    period, cost, n = 0.0005, 0.0007, 2000  # a 2000 Hz camera, 0.7 ms a frame
+    sim = simulate(_arrivals(n, period), lambda k, gap: cost, max_behind=20, queue_depth=5)
+    span = sim.finished_s[-1] - sim.finished_s[0]
+    assert (len(sim.tracked) - 1) / span == pytest.approx(1 / cost, rel=0.01)
+    lost = np.array(sorted(sim.skipped + sim.dropped))
+    runs = np.split(lost, np.flatnonzero(np.diff(lost) > 1) + 1)
+    assert max(len(r) for r in runs) <= int(np.ceil(cost / period))
+    lag = np.array(sim.finished_s) - np.array([k * period for k in sim.tracked])
+    # an image waits behind at most bound + 1 others, each a frame's work: the lag never grows past that
+    assert lag.max() <= 22 * cost + 1e-12
 
 
 def test_a_stall_is_one_jump_every_image_accounted_for_and_recovery_is_one_frame() -> None:

@@ -93,8 +93,11 @@ def test_from_a_recording_no_ready_flag_and_no_leading_slots(tiny_recording: Pat
     assert [int(m.frame_index) for m in node._held] == [3]
 
 
-def test_images_waiting_behind_the_one_handed_over_are_skipped_and_the_newest_tracked(tiny_recording: Path,
-                                                                                     close_rclpy, ros_domain) -> None:
+@pytest.mark.parametrize("catch_up", ["0", "default"])
+def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_and_skipped_beyond(
+        tiny_recording: Path, close_rclpy, ros_domain, catch_up: str) -> None:
+    """Four images queued behind a stalled tracker: with catch_up_ms 0 the newest is tracked across the gap and the
+    three older ones are skipped; with the default bound (several frames) all four are tracked, oldest first."""
     import time
 
     import rclpy
@@ -103,9 +106,11 @@ def test_images_waiting_behind_the_one_handed_over_are_skipped_and_the_newest_tr
 
     from vibro_dic.catch_up import SKIPPED
 
+    extra = ["-p", "catch_up_ms:=0.0"] if catch_up == "0" else []
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
-                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}")
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
     close_rclpy.append(node)
+    assert (node.max_behind == 0) == (catch_up == "0") and (catch_up == "0" or node.max_behind >= 3)
     camera = rclpy.create_node("camera_driver")
     close_rclpy.append(camera)
     pub = camera.create_publisher(Image, "vibro/frames", qos_profile_sensor_data)
@@ -124,7 +129,10 @@ def test_images_waiting_behind_the_one_handed_over_are_skipped_and_the_newest_tr
     node._on_image(got[0])
     rows = {int(m.frame_index): m for m in node._held}
     assert sorted(rows) == [0, 1, 2, 3]
-    for k in (0, 1, 2):
-        assert rows[k].lost and rows[k].status == SKIPPED
-    assert not rows[3].lost and abs(rows[3].ball_mm - (-0.3)) < 1e-3  # tracked across the gap from frame 0
-    assert node.health.counters["skipped"] == 3 and node.health.values["catch_up_last"] == "frames 0..2"
+    if catch_up == "0":
+        for k in (0, 1, 2):
+            assert rows[k].lost and rows[k].status == SKIPPED
+        assert node.health.counters["skipped"] == 3 and node.health.values["catch_up_last"] == "frames 0..2"
+    else:
+        assert not any(rows[k].lost for k in (0, 1, 2)) and "skipped" not in node.health.counters
+    assert not rows[3].lost and abs(rows[3].ball_mm - (-0.3)) < 1e-3  # frame 3's displacement, either way

@@ -12,11 +12,12 @@ vibro/dic is a latched history (``history_depth`` frames, transient local): a fi
 discrepancy node restarted mid-run receives every DicFrame again. Frames from a second publisher,
 repeated or going back, and statuses of another run stop the node (vibro_ros.guard).
 
-Live (``live_camera``), a tracker that falls behind jumps to the newest image (:mod:`vibro_dic.catch_up`): each
-time it is handed an image it first takes every image waiting in its queue (only their stamps are read), tracks
-the newest across the gap from the motion prediction, and answers the others with lost DicFrames whose status is
-:data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``, ``catch_up_episodes``,
-``catch_up_largest``, ``catch_up_last``).
+Live (``live_camera``), a tracker that falls behind catches up within a bound (:mod:`vibro_dic.catch_up`): each
+time it is handed an image it first takes every image waiting in its queue (only their stamps are read) into its
+backlog and tracks it oldest first while it is at most ``catch_up_ms`` of camera time behind; images beyond that
+are passed over (tracking resumes from the motion prediction across the gap) and answered with lost DicFrames
+whose status is :data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``,
+``catch_up_episodes``, ``catch_up_largest``, ``catch_up_last``).
 """
 
 from __future__ import annotations
@@ -55,13 +56,15 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
-from .catch_up import SKIPPED, CatchUpStats, cdr_stamp_ns, choose
+from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpStats, cdr_stamp_ns, choose, frames_behind
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
 from .tracker import METHODS, DicTracker
 
 #: Longest run (s of camera time) a frame stamp may lie after the time origin.
 MAX_RUN_S = 86400.0
+#: (s) the longest a live tracker works through its backlog in one callback before its timers get a turn
+WORK_SLICE_S = 0.02
 _DTYPES = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16}
 
 
@@ -93,6 +96,7 @@ def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "",
 LEADING_SLOTS_S = 0.5
 
 
+
 class DicTrackerNode(Node):
     def __init__(self) -> None:
         super().__init__("dic_tracker")
@@ -102,6 +106,10 @@ class DicTrackerNode(Node):
         live = bool(declare(self, "live_camera", False,
                             "true: best-effort sensor QoS for a camera driver's image_raw"))
         self.live_camera = live
+        catch_up_ms = float(declare(
+            self, "catch_up_ms", DEFAULT_CATCH_UP_MS, "live: how far (ms of camera time) the tracker may fall behind "
+            "and still track every image, oldest first; images beyond it are skipped (reported lost), so the lag "
+            "stays bounded. 0 = always jump to the newest image"))
         self.end_wait_s = float(declare(
             self, "end_wait_s", 5.0, "once the frame source has ended, finish after this long without an image (s): "
             "a tracker restarted after the last frame gets none; the slots it never answered count as lost downstream"))
@@ -123,6 +131,10 @@ class DicTrackerNode(Node):
         if self.method not in METHODS:
             raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
         self.rig = load_rig(rig_file)
+        try:
+            self.max_behind = frames_behind(catch_up_ms, self.rig.camera.fps)
+        except ValueError as exc:
+            raise RecordingError(f"dic_tracker: parameter 'catch_up_ms': {exc}") from None
         self.time_origin_ns = time_origin_parameter(self)
         self.reference_file = str(reference)
         self.reference: np.ndarray | None = None
@@ -150,9 +162,12 @@ class DicTrackerNode(Node):
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.catch_up = CatchUpStats()
         self._skipped: set[int] = set()  # frame indices received and passed over for a newer image (live)
+        self._backlog: list[tuple[int, Image | bytes]] = []  # live: images taken, not yet tracked (oldest first)
         self._image_sub = self.create_subscription(Image, topics.FRAMES.name, self._on_image,
                                                    SENSOR_QOS if live else STREAM_QOS)
         self.create_timer(1.0, self._report)
+        if live:  # a backlog left when a work slice ended and no image came after it (the end of the stream)
+            self.create_timer(WORK_SLICE_S / 4, self._resume_backlog)
         self._held: list[DicFrame] = []  # results kept back until every declared reader of vibro/dic matched
         # readers (the fitter, simulator, discrepancy, recorder, the frame source's acknowledgements) by name;
         # the node exits once they have acknowledged everything (file mode)
@@ -234,40 +249,60 @@ class DicTrackerNode(Node):
         return int(round(((stamp - self.time_origin_ns) / 1e9 - cam.t0_s) * cam.fps))
 
     def _on_image(self, msg: Image) -> None:
-        """An image from the frame topic; live, with every image already waiting behind it: the newest is
-        tracked, the others are answered as skipped (:mod:`vibro_dic.catch_up`)."""
+        """An image from the frame topic; live, it joins the backlog with every image already waiting behind it,
+        which is tracked oldest first within ``catch_up_ms`` (:mod:`vibro_dic.catch_up`)."""
         if not self.live_camera:
             self._take(msg)
             return
-        waiting: list[tuple[int, Image | bytes]] = [(self._index_of(msg), msg)]
-        while True:  # the images queued meanwhile, serialized: only their stamps are read
+        self._backlog.append((self._index_of(msg), msg))
+        self._work_backlog()
+
+    def _resume_backlog(self) -> None:
+        if self._backlog:
+            self._work_backlog()
+
+    def _take_waiting(self) -> None:
+        """The images queued in the subscription meanwhile, serialized, into the backlog: only their stamps are
+        read."""
+        while True:
             got = self._image_sub.handle.take_message(Image, True)
             if got is None:
-                break
+                return
             try:
-                waiting.append((self._index_of_ns(cdr_stamp_ns(got[0])), got[0]))
+                self._backlog.append((self._index_of_ns(cdr_stamp_ns(got[0])), got[0]))
             except ValueError:
                 continue
-        if len(waiting) == 1:
-            self._take(msg)
-            return
-        choice = choose([k for k, _ in waiting])
-        for k in choice.skipped:  # in arrival order: a stamp repeated or going back stops the node as before
-            if k < 0 or not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
-                if k < 0:  # a stamp before the origin: let the newest image's checks name it
-                    continue
+
+    def _work_backlog(self) -> None:
+        """Track the backlog oldest first, skipping the images beyond ``max_behind`` (reported lost as skipped),
+        for at most :data:`WORK_SLICE_S` per call so that the node's timers and status still run; the next image
+        or the resume timer goes on."""
+        started = time.monotonic()
+        while True:
+            self._take_waiting()
+            if not self._backlog:
                 return
-        self._skipped.update(k for k in choice.skipped if k >= 0)
-        self.received += len(choice.skipped)
-        self.catch_up.add(choice)
-        self.health.count("skipped", len(choice.skipped))
-        self.health.values["catch_up_episodes"] = self.catch_up.episodes
-        self.health.values["catch_up_largest"] = self.catch_up.largest
-        self.health.values["catch_up_last"] = f"frames {self.catch_up.last[0]}..{self.catch_up.last[1]}"
-        newest = waiting[-1][1]
-        if isinstance(newest, bytes):
-            newest = deserialize_message(newest, Image)
-        self._take(newest)
+            choice = choose([k for k, _ in self._backlog], self.max_behind)
+            n_skip = len(choice.skipped)
+            if n_skip:
+                for k in choice.skipped:  # in arrival order: a stamp repeated or going back stops the node as before
+                    if k < 0 or not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
+                        if k < 0:  # a stamp before the origin: let the tracked image's checks name it
+                            continue
+                        self._backlog.clear()
+                        return
+                self._skipped.update(k for k in choice.skipped if k >= 0)
+                self.received += n_skip
+                self.catch_up.add(choice)
+                self.health.count("skipped", n_skip)
+                self.health.values["catch_up_episodes"] = self.catch_up.episodes
+                self.health.values["catch_up_largest"] = self.catch_up.largest
+                self.health.values["catch_up_last"] = f"frames {self.catch_up.last[0]}..{self.catch_up.last[1]}"
+            image = self._backlog[n_skip][1]
+            del self._backlog[:n_skip + 1]
+            self._take(image if isinstance(image, Image) else deserialize_message(image, Image))
+            if time.monotonic() - started > WORK_SLICE_S:
+                return
 
     def _plausible(self, k: int, msg: Image) -> bool:
         """False (and the node stops, exit code 2) for a frame whose stamp is not within a day after the
