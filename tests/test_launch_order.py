@@ -59,6 +59,11 @@ def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, t
     for name in ("trajectory_fitter", "impact_detector"):
         assert daq[name].parameters["live_accel"] is True and daq[name].parameters["accel_rate_hz"] == 50_000.0
         assert ("vibro/accel", "/daq/accel") in daq[name].remappings
+    # live, the buffered readers give way to the tracker (its best-effort images are the only ones lost by waiting);
+    # from a recording every node keeps its priority
+    assert {name: n.parameters.get("cpu_nice", 0) for name, n in daq.items()} == {
+        "dic_tracker": 0, "trajectory_fitter": 5, "impact_detector": 5}
+    assert all("cpu_nice" not in n.parameters for n in nodes)
     assert daq["trajectory_fitter"].parameters["use_accelerometers"] is True
 
 
@@ -260,3 +265,22 @@ def test_reader_topics_must_name_a_topic_the_node_publishes(tiny_recording: Path
                          timeout=60)
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stdout + res.stderr
     assert "reader_topics" in res.stderr and "/vibro/frame " in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("nice, expect", [(3, "raised by 3"), (25, "must be 0 to 19, got 25")])
+def test_cpu_nice_lowers_the_nodes_own_priority_or_is_refused(nice: int, expect: str, ros_domain: str) -> None:
+    code = ("import os, rclpy\n"
+            "from vibro_model.errors import RecordingError\n"
+            "from vibro_ros.node_support import cpu_nice_parameter\n"
+            "rclpy.init()\n"
+            "from rclpy.parameter import Parameter\n"
+            f"node = rclpy.create_node('n', parameter_overrides=[Parameter('cpu_nice', value={nice})])\n"
+            "before = os.nice(0)\n"
+            "try:\n"
+            "    cpu_nice_parameter(node)\n"
+            "    print('raised by', os.nice(0) - before)\n"
+            "except RecordingError as exc:\n"
+            "    print(exc)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert expect in out.stdout

@@ -371,6 +371,12 @@ class LaunchNode:
     respawn_delay_s: float
 
 
+#: live: the nodes that lower their priority (parameter cpu_nice) so that dic_tracker gets a core when it needs one
+LIVE_YIELDING_NODES = ("trajectory_fitter", "impact_detector")
+#: their nice increment: CFS then weighs them about 1/3 of the tracker (335 against 1024) when they contend
+LIVE_NICE = 5
+
+
 def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = False,
                  camera_topic: str = T.FRAMES.name, base: str | Path | None = None,
                  reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0,
@@ -410,6 +416,10 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
     params = node_parameters(rec.path, bag, base, with_accel, reference, nodes=nodes, live=live, foxglove=foxglove,
                              time_origin_ns=time_origin_ns)
     params["dic_tracker"]["live_camera"] = live
+    if live:  # the buffered readers give way to the tracker, whose best-effort images are lost while it waits
+        for name in LIVE_YIELDING_NODES:
+            if name in params:
+                params[name]["cpu_nice"] = LIVE_NICE
     remap = ((T.FRAMES.name, camera_topic),) if camera_topic != T.FRAMES.name else ()
     if live_accel:
         for name in ("impact_detector", "trajectory_fitter"):

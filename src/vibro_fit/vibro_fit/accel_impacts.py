@@ -17,6 +17,7 @@ reported with the channel name and time.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -148,19 +149,47 @@ class ClockOffset:
 MIN_MATCHED_IMPACTS = 4
 
 
+@functools.lru_cache(maxsize=8)
+def _highpass_sos(order: int, cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """Second-order sections of the Butterworth high-pass (designed once per order, cut-off and rate: a live
+    detector filters every block with the same design)."""
+    from scipy.signal import butter  # here, not at import (node start-up time)
+
+    return butter(order, cutoff_hz, btype="highpass", fs=fs_hz, output="sos")
+
+
 def highpass(x: np.ndarray, fs_hz: float, cutoff_hz: float = 100.0, order: int = 4) -> np.ndarray:
     """Zero-phase Butterworth high-pass (sosfiltfilt)."""
     if not 0 < cutoff_hz < 0.5 * fs_hz:
         raise AccelError(f"high-pass cut-off {cutoff_hz} Hz must be in (0, {0.5 * fs_hz:g}) Hz (Nyquist)")
-    from scipy.signal import butter, sosfiltfilt  # here, not at import (node start-up time)
+    from scipy.signal import sosfiltfilt  # here, not at import (node start-up time)
 
-    sos = butter(order, cutoff_hz, btype="highpass", fs=fs_hz, output="sos")
+    sos = _highpass_sos(int(order), float(cutoff_hz), float(fs_hz))
     x = np.asarray(x, float)
     pad = 3 * (2 * len(sos) + 1)
     if x.size <= pad:
         raise AccelError(f"accelerometer signal of {x.size} samples is too short for the zero-phase "
                          f"high-pass (needs more than {pad})")
     return sosfiltfilt(sos, x)
+
+
+def warm_up(sample_rate_hz: float, highpass_hz: float = 100.0) -> None:
+    """Load and run the detection's numerics once (scipy.signal: about a second of CPU to import, the filter's
+    design) so that a live node pays it before its first block, not while the stream runs and the other nodes
+    need the cores. Raises :class:`AccelError` for a cut-off the rate cannot carry, as the first block would.
+
+    Parameters
+    ----------
+    sample_rate_hz
+        The DAQ's sample rate (Hz) the blocks will come at.
+    highpass_hz
+        The high-pass cut-off (Hz) the detection will use.
+    """
+    from scipy.signal import find_peaks
+
+    t = np.arange(4096) / sample_rate_hz
+    x = np.sin(2 * np.pi * 0.25 * sample_rate_hz * t)
+    find_peaks(np.abs(highpass(x, sample_rate_hz, highpass_hz)))
 
 
 def find_clipping(t_s: np.ndarray, x: np.ndarray, channel: str, min_run: int = 3) -> list[dict]:

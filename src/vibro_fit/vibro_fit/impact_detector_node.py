@@ -32,6 +32,7 @@ from vibro_ros.node_support import (
     RESULTS_QOS,
     Health,
     StatusPublisher,
+    cpu_nice_parameter,
     declare,
     history_depth_parameter,
     history_qos,
@@ -43,8 +44,8 @@ from vibro_ros.node_support import (
 from vibro_ros.readiness import ReaderGate
 
 from .accel_impacts import AccelImpact as Impact
-from .accel_impacts import AccelImpactDetector
-from .live_accel import AccelStreamRefused, BlockCheck
+from .accel_impacts import AccelImpactDetector, warm_up
+from .live_accel import LIVE_RATE_GUESS_HZ, AccelStreamRefused, BlockCheck
 
 
 def impact_message(index: int, impact: Impact, origin_ns: int = 0) -> AccelImpact:
@@ -79,7 +80,10 @@ class ImpactDetector(Node):
                                                                      "(0 = not checked)"))
         self.frequency_hz = load_rig(rig_file).excitation.frequency_hz
         self.time_origin_ns = time_origin_parameter(self)
+        cpu_nice_parameter(self)
         self.check = BlockCheck(rate, self.time_origin_ns, full_scale) if self.live else None
+        if self.live:  # before the subscriptions: a driver that sees this reader matched finds it warm
+            warm_up(rate or LIVE_RATE_GUESS_HZ, self.highpass_hz)
         self.detector: AccelImpactDetector | None = None
         self.next_block = 0
         self.sent = 0

@@ -34,6 +34,8 @@ MIN_RATE_HZ = 10_000.0
 CONTINUITY_SAMPLES = 0.5
 #: blocks whose stamp offsets give the stamp-based clock offset (their median)
 STAMP_WINDOW = 256
+#: (Hz) the rate a live node warms its detection for when accel_rate_hz is not given (the recommended DAQ rate)
+LIVE_RATE_GUESS_HZ = 50_000.0
 
 
 class AccelStreamRefused(ValueError):

@@ -58,6 +58,7 @@ from vibro_ros.node_support import (
     RESULTS_QOS,
     Health,
     StatusPublisher,
+    cpu_nice_parameter,
     declare,
     history_depth_parameter,
     history_qos,
@@ -67,12 +68,12 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
-from .accel_impacts import AccelImpactDetector
+from .accel_impacts import AccelImpactDetector, warm_up
 from .cross_checks import consistency_checks, consistency_section
 from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactFit
-from .live_accel import AccelStreamRefused, BlockCheck, LiveClockOffset
+from .live_accel import LIVE_RATE_GUESS_HZ, AccelStreamRefused, BlockCheck, LiveClockOffset
 from .plausibility import friction_withheld
 from .streaming import StreamingFitter
 
@@ -117,7 +118,10 @@ class TrajectoryFitter(Node):
         self.weights = None if weights == "none" else weights
         self.rig = load_rig(rig_file)
         self.time_origin_ns = time_origin_parameter(self)
+        cpu_nice_parameter(self)
         self.block_check = BlockCheck(accel_rate, self.time_origin_ns) if self.live_accel and self.use_accel else None
+        if self.block_check is not None:  # before the subscriptions: a driver seeing them matched finds it warm
+            warm_up(accel_rate or LIVE_RATE_GUESS_HZ)
         self.clock = LiveClockOffset(self.offset_tol_s)
         self.accel_detector: AccelImpactDetector | None = None
         self.stream = StreamingFitter(self.rig.excitation.frequency_hz,

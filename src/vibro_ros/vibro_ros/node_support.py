@@ -140,6 +140,20 @@ def history_depth_parameter(node: Node) -> int:
     return depth
 
 
+def cpu_nice_parameter(node: Node) -> int:
+    """Declare ``cpu_nice`` and raise this process's nice value by it (0 = unchanged; at most 19). Any user may
+    lower their own process's priority. Live, the nodes that read reliable, buffered streams (the fitter, the
+    impact detector) give way to dic_tracker: its best-effort camera images are lost while it waits for a core,
+    while theirs only wait in a queue."""
+    nice = int(declare(node, "cpu_nice", 0, "raise this process's nice value by this much at start (0-19; live: "
+                                           "the buffered nodes give the camera's tracker the cores first)"))
+    if not 0 <= nice <= 19:
+        raise RecordingError(f"{node.get_name()}: parameter 'cpu_nice' must be 0 to 19, got {nice}")
+    if nice:
+        os.nice(nice)
+    return nice
+
+
 def time_origin_parameter(node: Node) -> int:
     """The node's ``time_origin_unix_ns`` parameter (declared on first use): the lab-clock origin of its
     header stamps (:mod:`vibro_ros.lab_clock`: stamp = origin + data time, ns since the Unix epoch).
@@ -387,8 +401,6 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     import sys
 
     from rclpy.signals import SignalHandlerOptions
-
-
 
     argv = list(sys.argv if args is None else args)
     handled = handle_command_line(factory, argv) if isinstance(factory, type) else None
