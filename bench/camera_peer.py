@@ -70,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     if start is None:
         time.sleep(args.settle_s)
         start = time.time() + 0.05
-    published_at = []
+    published_at: list[float] = []
+    call_s: list[float] = []  # how long each publish call took (s)
     period_s = 1.0 / args.rate_hz
     for k, msg in enumerate(messages):
         delay = start + k * period_s - time.time()
@@ -78,9 +79,12 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(delay)
         published_at.append(time.time())
         pub.publish(msg)
+        call_s.append(time.time() - published_at[-1])
     time.sleep(0.5)  # let the last best-effort samples leave before the participant goes
+    slow = [(indices[k], round(1e3 * c, 2)) for k, c in enumerate(call_s) if c > 0.005]
     args.out.write_text(json.dumps({"rate_hz": args.rate_hz, "frame_index": indices,
-                                    "published_at_s": published_at}))
+                                    "published_at_s": published_at,
+                                    "publish_calls_over_5_ms": slow}))  # (frame, ms): the driver itself stalled
     node.destroy_node()
     rclpy.shutdown()
     return 0

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vibro_dic.catch_up import Choice, cdr_stamp_ns, choose, frames_behind, simulate
+from vibro_dic.catch_up import CatchUpPolicy, Choice, cdr_stamp_ns, choose, frames_behind, simulate
 
 PERIOD_S = 0.001  # a 1000 Hz camera
 
@@ -67,6 +67,60 @@ def test_a_long_stall_is_one_block_and_the_lag_after_it_is_bounded_by_the_backlo
         lag = np.array(sim.finished_s) - np.array([k * PERIOD_S for k in sim.tracked])
         after = np.array([k * PERIOD_S for k in sim.tracked]) >= stall[1]
         assert lag[after].max() <= (bound + 2) * cost + 1e-12
+
+
+def _hog(start_s: float, end_s: float) -> list[tuple[float, float]]:
+    """Another process on the tracker's core: the tracker gets half of it (2 ms of every 4)."""
+    return [(t, t + 0.002) for t in np.arange(start_s, end_s, 0.004)]
+
+
+def _recovery_s(sim, end_s: float, period_s: float = PERIOD_S, lag_s: float = 0.005) -> float:
+    """From ``end_s`` to the end of the first frame that arrived after it and was done within ``lag_s``."""
+    for k, f in zip(sim.tracked, sim.finished_s):
+        if k * period_s >= end_s and f - k * period_s < lag_s:
+            return f - end_s
+    return float("inf")
+
+
+def test_after_a_sustained_stall_a_tracker_that_can_keep_up_jumps_and_recovers_at_once() -> None:
+    # 300 ms at half a core: the backlog fills to its bound; draining it afterwards on 0.25 ms of spare time per
+    # frame would take (bound x 0.75 / 0.25) ms; the policy, behind for catch_up_ms in a row while its own work
+    # per frame (0.75 ms) is under the period, jumps instead
+    n, cost, bound = 1500, 0.00075, 10
+    hog = _hog(0.5, 0.8)
+    drained = simulate(_arrivals(n), lambda k, gap: cost, stalls=hog, max_behind=bound)
+    policy = simulate(_arrivals(n), lambda k, gap: cost, stalls=hog, max_behind=bound, jump_after_s=0.01)
+    assert _recovery_s(policy, 0.8) <= 2 * PERIOD_S + cost  # one jump
+    assert _recovery_s(drained, 0.8) > 5 * _recovery_s(policy, 0.8)  # draining the bound's backlog instead
+    for sim in (drained, policy):  # every image tracked or reported, the losses inside the hog
+        assert set(sim.tracked) | set(sim.skipped) | set(sim.dropped) == set(range(n))
+        assert all(500 <= k <= 810 for k in sim.skipped + sim.dropped)
+    # and jitter still costs nothing: never behind for 10 ms in a row
+    jitter = simulate(_arrivals(n), lambda k, gap: 0.0007, stalls=_jittery_stalls(n, 0.02, 0.0015), max_behind=bound,
+                      jump_after_s=0.01)
+    assert jitter.tracked == list(range(n))
+
+
+def test_a_tracker_slower_than_its_camera_never_jumps_it_loses_spread_images() -> None:
+    period, cost, n = 0.0005, 0.0007, 2000  # its own work is over the period: it cannot keep up, jumping would
+    sim = simulate(_arrivals(n, period), lambda k, gap: cost, max_behind=20, jump_after_s=0.01)  # only lose blocks
+    lost = np.array(sorted(sim.skipped + sim.dropped))
+    runs = np.split(lost, np.flatnonzero(np.diff(lost) > 1) + 1)
+    assert max(len(r) for r in runs) <= int(np.ceil(cost / period))
+
+
+def test_the_policy_jumps_only_behind_long_enough_and_able_to_keep_up() -> None:
+    p = CatchUpPolicy(max_behind=5, period_s=0.001, jump_after_s=0.01)
+    assert p.choose([1, 2, 3], 0.0) == Choice(1, [], [2, 3])  # no work measured yet: never a jump
+    p.worked(0.0008)
+    assert p.choose([2, 3, 4], 0.005) == Choice(2, [], [3, 4])  # behind since 0.0, for 5 ms only
+    assert p.choose([3, 4, 5, 6], 0.011) == Choice(6, [3, 4, 5], [])  # 11 ms behind, 0.8 ms < 1 ms: jump
+    assert p.jumps == 1 and p.behind_since_s is None
+    assert p.choose([7], 0.012) == Choice(7, [], []) and p.behind_since_s is None  # caught up
+    slow = CatchUpPolicy(max_behind=5, period_s=0.001, jump_after_s=0.01)
+    slow.worked(0.0012)
+    slow.choose([1, 2], 0.0)
+    assert slow.choose([2, 3, 4], 0.02).track == 2  # cannot keep up: the bound, no jump
 
 
 def test_a_slower_tracker_with_a_bound_tracks_at_its_own_rate_with_spread_losses() -> None:

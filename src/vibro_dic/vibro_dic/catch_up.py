@@ -65,6 +65,43 @@ def choose(waiting: Sequence[int], max_behind: int = 0) -> Choice:
     return Choice(keep[0], [int(k) for k in waiting[:n_skip]], keep[1:])
 
 
+@dataclass
+class CatchUpPolicy:
+    """:func:`choose` with a memory: how long the tracker has been behind, and what a frame's own work costs.
+
+    Behind (more than the image about to be tracked waiting) for ``jump_after_s`` of wall time in a row, a
+    tracker whose mean work per frame (``work_s``, its own CPU time: not inflated by the stall) is under the
+    camera's period jumps to the newest image: it can keep up, so the backlog is the stall's, and draining it on
+    the little spare capacity left would keep it behind for many times the stall (recovery in one frame instead).
+    Otherwise the backlog is bounded by ``max_behind`` (a short stall costs nothing; a tracker slower than its
+    camera loses single images, spread).
+    """
+
+    max_behind: int
+    period_s: float
+    jump_after_s: float
+    behind_since_s: float | None = None
+    work_s: float | None = None
+    jumps: int = 0
+
+    def choose(self, waiting: Sequence[int], now_s: float) -> Choice:
+        """The choice for the images ``waiting`` at wall time ``now_s`` (s)."""
+        if len(waiting) <= 1:
+            self.behind_since_s = None
+        elif self.behind_since_s is None:
+            self.behind_since_s = now_s
+        jump = (self.behind_since_s is not None and now_s - self.behind_since_s >= self.jump_after_s
+                and self.work_s is not None and self.work_s < self.period_s)
+        if jump:
+            self.behind_since_s = None
+            self.jumps += 1
+        return choose(waiting, 0 if jump else self.max_behind)
+
+    def worked(self, seconds: float) -> None:
+        """A tracked frame's own work (s): the running mean ``work_s`` (weight 0.1 on the newest)."""
+        self.work_s = seconds if self.work_s is None else 0.9 * self.work_s + 0.1 * seconds
+
+
 def frames_behind(catch_up_ms: float, fps: float) -> int:
     """The backlog bound in frames for ``catch_up_ms`` of camera time at ``fps`` (0 for 0 ms: always the newest)."""
     if not (math.isfinite(catch_up_ms) and catch_up_ms >= 0):
@@ -105,11 +142,12 @@ class Simulation:
 
 def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *,
              stalls: Sequence[tuple[float, float]] = (), queue_depth: int = 5, jump: bool = True,
-             max_behind: int = 0) -> Simulation:
+             max_behind: int = 0, jump_after_s: float | None = None) -> Simulation:
     """Frame k arrives at ``arrivals_s[k]`` into a keep-last queue of ``queue_depth``; the tracker, whenever it is
     free and an image waits, takes what waits (``jump``: all of it into its backlog, then :func:`choose` with
     ``max_behind``; else the oldest only, the queue bounding nothing but itself) and is busy for ``cost_s(k, gap)``
-    (gap: frames since the last one tracked); during a stall (start, end) it does nothing."""
+    (gap: frames since the last one tracked); during a stall (start, end) it does nothing. ``jump_after_s``: the
+    :class:`CatchUpPolicy` with that time, the arrivals' median interval as the period."""
     sim = Simulation()
     queue: list[int] = []
     backlog: list[int] = []  # taken from the queue (jump): the tracker's own, unbounded by queue_depth
@@ -119,6 +157,10 @@ def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *
     n = len(arrivals_s)
     stalls = sorted(stalls)
     pending_stalls = list(stalls)
+    policy = None
+    if jump_after_s is not None:
+        period = sorted(b - a for a, b in zip(arrivals_s, arrivals_s[1:]))[(n - 1) // 2] if n > 1 else math.inf
+        policy = CatchUpPolicy(max_behind, period, jump_after_s)
 
     def arrive_until(t: float) -> None:
         nonlocal nxt
@@ -144,14 +186,17 @@ def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *
         if jump:
             backlog += queue
             queue.clear()
-            choice = choose(backlog, max_behind)
+            choice = policy.choose(backlog, now) if policy is not None else choose(backlog, max_behind)
             backlog[:] = choice.left
         else:
             choice = Choice(queue.pop(0), [])
         sim.skipped += choice.skipped
         k = choice.track
         gap = k - last if last is not None else 1
-        now += cost_s(k, gap)
+        work = cost_s(k, gap)
+        now += work
+        if policy is not None:
+            policy.worked(work)
         sim.tracked.append(k)
         sim.finished_s.append(now)
         last = k

@@ -15,9 +15,11 @@ repeated or going back, and statuses of another run stop the node (vibro_ros.gua
 Live (``live_camera``), a tracker that falls behind catches up within a bound (:mod:`vibro_dic.catch_up`): each
 time it is handed an image it first takes every image waiting in its queue (only their stamps are read) into its
 backlog and tracks it oldest first while it is at most ``catch_up_ms`` of camera time behind; images beyond that
-are passed over (tracking resumes from the motion prediction across the gap) and answered with lost DicFrames
-whose status is :data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``,
-``catch_up_episodes``, ``catch_up_largest``, ``catch_up_last``).
+are passed over (tracking resumes from the motion prediction across the gap), and a tracker behind for
+``catch_up_ms`` in a row that can keep up (after a stall) jumps to the newest image
+(:class:`vibro_dic.catch_up.CatchUpPolicy`). Images passed over are answered with lost DicFrames whose status is
+:data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``, ``catch_up_episodes``,
+``catch_up_largest``, ``catch_up_last``, ``catch_up_jumps``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import sys
 import time
 
 import numpy as np
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image
@@ -56,7 +59,7 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
-from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpStats, cdr_stamp_ns, choose, frames_behind
+from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats, cdr_stamp_ns, frames_behind
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
 from .tracker import METHODS, DicTracker
@@ -109,7 +112,8 @@ class DicTrackerNode(Node):
         catch_up_ms = float(declare(
             self, "catch_up_ms", DEFAULT_CATCH_UP_MS, "live: how far (ms of camera time) the tracker may fall behind "
             "and still track every image, oldest first; images beyond it are skipped (reported lost), so the lag "
-            "stays bounded. 0 = always jump to the newest image"))
+            "stays bounded; behind this long in a row while it can keep up (after a stall), it jumps to the newest "
+            "image. 0 = always jump to the newest image"))
         self.end_wait_s = float(declare(
             self, "end_wait_s", 5.0, "once the frame source has ended, finish after this long without an image (s): "
             "a tracker restarted after the last frame gets none; the slots it never answered count as lost downstream"))
@@ -135,6 +139,7 @@ class DicTrackerNode(Node):
             self.max_behind = frames_behind(catch_up_ms, self.rig.camera.fps)
         except ValueError as exc:
             raise RecordingError(f"dic_tracker: parameter 'catch_up_ms': {exc}") from None
+        self.catch_up_policy = CatchUpPolicy(self.max_behind, 1.0 / self.rig.camera.fps, 1e-3 * catch_up_ms)
         self.time_origin_ns = time_origin_parameter(self)
         self.reference_file = str(reference)
         self.reference: np.ndarray | None = None
@@ -163,8 +168,9 @@ class DicTrackerNode(Node):
         self.catch_up = CatchUpStats()
         self._skipped: set[int] = set()  # frame indices received and passed over for a newer image (live)
         self._backlog: list[tuple[int, Image | bytes]] = []  # live: images taken, not yet tracked (oldest first)
-        self._image_sub = self.create_subscription(Image, topics.FRAMES.name, self._on_image,
-                                                   SENSOR_QOS if live else STREAM_QOS)
+        self._image_sub = self.create_subscription(
+            Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS,
+            event_callbacks=SubscriptionEventCallbacks(matched=self._on_image_publishers))
         self.create_timer(1.0, self._report)
         if live:  # a backlog left when a work slice ended and no image came after it (the end of the stream)
             self.create_timer(WORK_SLICE_S / 4, self._resume_backlog)
@@ -257,6 +263,18 @@ class DicTrackerNode(Node):
         self._backlog.append((self._index_of(msg), msg))
         self._work_backlog()
 
+    def _on_image_publishers(self, info) -> None:
+        """A camera (image publisher) matched or left this reader: logged and on /diagnostics
+        (``image_publishers_matched``). Images sent before the match never arrive: a lab triggers its camera once
+        the tracker says ready and this line shows its driver matched."""
+        self.health.values["image_publishers_matched"] = int(info.current_count)
+        if info.current_count_change > 0:
+            self.get_logger().info(f"image publisher matched on {self._image_sub.topic_name} "
+                                   f"({info.current_count} now)")
+        elif info.current_count_change < 0:
+            self.get_logger().warning(f"image publisher left {self._image_sub.topic_name} "
+                                      f"({info.current_count} now)")
+
     def _resume_backlog(self) -> None:
         if self._backlog:
             self._work_backlog()
@@ -282,7 +300,7 @@ class DicTrackerNode(Node):
             self._take_waiting()
             if not self._backlog:
                 return
-            choice = choose([k for k, _ in self._backlog], self.max_behind)
+            choice = self.catch_up_policy.choose([k for k, _ in self._backlog], time.monotonic())
             n_skip = len(choice.skipped)
             if n_skip:
                 for k in choice.skipped:  # in arrival order: a stamp repeated or going back stops the node as before
@@ -300,7 +318,10 @@ class DicTrackerNode(Node):
                 self.health.values["catch_up_last"] = f"frames {self.catch_up.last[0]}..{self.catch_up.last[1]}"
             image = self._backlog[n_skip][1]
             del self._backlog[:n_skip + 1]
+            work_started = time.thread_time()  # this thread's CPU: a frame's own work, not the time others took
             self._take(image if isinstance(image, Image) else deserialize_message(image, Image))
+            self.catch_up_policy.worked(time.thread_time() - work_started)
+            self.health.values["catch_up_jumps"] = self.catch_up_policy.jumps
             if time.monotonic() - started > WORK_SLICE_S:
                 return
 
