@@ -38,7 +38,6 @@ from vibro_ros.node_support import (
     history_qos,
     run_node,
     stamp_from_seconds,
-    stamp_ns,
     time_origin_parameter,
 )
 from vibro_ros.readiness import ReaderGate
@@ -140,10 +139,7 @@ class ImpactDetector(Node):
     def _on_live_block(self, msg: AccelBlock) -> None:
         """A DAQ driver's block: checked, lost blocks reported, the detection restarted after a discontinuity."""
         try:
-            verdict = self.check.check(block_index=msg.block_index, first_sample_index=msg.first_sample_index,
-                                       sample_rate_hz=msg.sample_rate_hz, t_start_s=msg.t_start_s,
-                                       stamp_ns=stamp_ns(msg.header), upper_ms2=msg.upper_ms2,
-                                       lower_ms2=msg.lower_ms2)
+            verdict = self.check.check_block(msg)
         except AccelStreamRefused as exc:
             self.guard.fail(f"{topics.ACCEL.name}: {exc}")
             return

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -105,6 +106,14 @@ class BlockCheck:
             return math.nan
         a = np.asarray(self._offsets)
         return float(1.4826 * np.median(np.abs(a - np.median(a))))
+
+    def check_block(self, msg: Any) -> BlockVerdict:
+        """:meth:`check` of a ``vibro_msgs/AccelBlock`` message (any object with its fields): its header stamp
+        read as ns on the lab clock."""
+        return self.check(block_index=msg.block_index, first_sample_index=msg.first_sample_index,
+                          sample_rate_hz=msg.sample_rate_hz, t_start_s=msg.t_start_s,
+                          stamp_ns=int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec),
+                          upper_ms2=msg.upper_ms2, lower_ms2=msg.lower_ms2)
 
     def check(self, *, block_index: int, first_sample_index: int, sample_rate_hz: float, t_start_s: float,
               stamp_ns: int, upper_ms2, lower_ms2) -> BlockVerdict:

@@ -63,7 +63,6 @@ from vibro_ros.node_support import (
     history_depth_parameter,
     history_qos,
     run_node,
-    stamp_ns,
     time_origin_parameter,
 )
 from vibro_ros.readiness import ReaderGate
@@ -200,10 +199,7 @@ class TrajectoryFitter(Node):
     def _on_live_block(self, msg: AccelBlock) -> None:
         """A DAQ driver's block: checked, its impacts detected and put on the camera clock for the streaming fit."""
         try:
-            verdict = self.block_check.check(block_index=msg.block_index, first_sample_index=msg.first_sample_index,
-                                             sample_rate_hz=msg.sample_rate_hz, t_start_s=msg.t_start_s,
-                                             stamp_ns=stamp_ns(msg.header), upper_ms2=msg.upper_ms2,
-                                             lower_ms2=msg.lower_ms2)
+            verdict = self.block_check.check_block(msg)
         except AccelStreamRefused as exc:
             self.guard.fail(f"{topics.ACCEL.name}: {exc}")
             return
