@@ -29,13 +29,32 @@ def finding_line(effect: str, parameters: Mapping[str, float], sigmas: Mapping[s
     return f"finding: {effect}{main}; D {100 * deviation_before:.3g} % -> {100 * deviation_after:.3g} %"
 
 
+def shape_model_line(shape_model: Mapping[str, Any]) -> str:
+    """``  shape modelled (<kind>): <name> = <value> +- <sigma>, ...; <measure> <before> % -> <after> %`` for an
+    ``unexplained`` finding's ``shape_model`` (not a catalogue effect; ``not kept`` when its D did not fall)."""
+    p, sd = shape_model.get("parameters") or {}, shape_model.get("parameters_std") or {}
+    names = [k for k in ("weight_fraction", "decay_mm", "cor_bottom_first", "cor_bottom_second", "cor_top_first",
+                         "cor_top_second") if k in p] or list(p)
+    values = ", ".join(f"{k} = {_value(float(p[k]), sd.get(k))}" for k in names if p[k] is not None)
+    dev = shape_model.get("deviation") or {}
+    b, a = dev.get("before"), dev.get("after")
+    d = f"; {dev.get('measure', 'D')} {percent(b)} -> {percent(a)}" if dev else ""
+    kept = "" if shape_model.get("accepted") else " (not kept: D did not fall)"
+    return f"  shape modelled ({shape_model.get('kind', '?')}): {values}{d}{kept}"
+
+
 def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
-    """The lines of results.json's ``discrepancy`` section (``findings: none`` when there are none)."""
+    """The lines of results.json's ``discrepancy`` section (``findings: none`` when there are none); an
+    ``unexplained`` finding whose shape was modelled gets a second line (:func:`shape_model_line`)."""
     if not discrepancy:
         return ["findings: no discrepancy analysis in these results"]
     findings: Iterable[Mapping[str, Any]] = discrepancy.get("findings") or []
-    lines = [finding_line(f["effect"], f.get("parameters") or {}, f.get("parameters_std"),
-                          f["deviation_before"], f["deviation_after"]) for f in findings]
+    lines = []
+    for f in findings:
+        lines.append(finding_line(f["effect"], f.get("parameters") or {}, f.get("parameters_std"),
+                                  f["deviation_before"], f["deviation_after"]))
+        if f.get("shape_model"):
+            lines.append(shape_model_line(f["shape_model"]))
     return lines or ["findings: none (the model explains the recording within its noise)"]
 
 
@@ -45,6 +64,9 @@ EFFECT_LABELS = {
     "asymmetric_restitution": "asymmetric restitution",
     "velocity_dependent_restitution": "velocity-dependent restitution", "gravity_tilt": "a tilted axis",
     "structure_harmonics": "structure harmonics", "unexplained": "an unexplained mismatch", "none": "nothing",
+    # the shape models of an unexplained finding (vibro_discrepancy.shape_model) in a model's label
+    "position_force_shape": "a position-dependent force (shape model)",
+    "cor_parity_shape": "a COR alternating with the impact parity (shape model)",
 }
 
 #: a parameter's words, the unit it is shown in, and the factor from its SI value to that unit
@@ -58,6 +80,15 @@ PARAMETER_LABELS: dict[str, tuple[str, str, float]] = {
     "h2_ratio": ("2nd harmonic ratio", "", 1.0), "h3_ratio": ("3rd harmonic ratio", "", 1.0),
     "tone_frequency_hz": ("tone frequency", "Hz", 1.0), "tone_amplitude_um": ("tone amplitude", "µm", 1.0),
     "tone_phase_rad": ("tone phase", "rad", 1.0),
+    # an unexplained finding's shape model (its shape_model.parameters)
+    "accel_at_contact_mps2": ("acceleration at contact", "m/s²", 1.0),
+    "force_at_contact_n": ("force at contact", "µN", 1e6),
+    "weight_fraction": ("share of the weight at contact", "%", 100.0),
+    "decay_mm": ("decay length", "mm", 1.0),
+    "cor_bottom_first": ("lower plate COR (first of the alternation)", "", 1.0),
+    "cor_bottom_second": ("lower plate COR (second of the alternation)", "", 1.0),
+    "cor_top_first": ("upper plate COR (first of the alternation)", "", 1.0),
+    "cor_top_second": ("upper plate COR (second of the alternation)", "", 1.0),
 }
 
 
@@ -128,6 +159,20 @@ def finding_sentence(finding: Mapping[str, Any]) -> str:
         d = f"D stays at {percent(before)}" + (f" and {evidence}" if evidence else "")
     else:
         d = f"D {'falls' if after < before else 'goes'} from {percent(before)} to {percent(after)}"
+    sm = finding.get("shape_model") if effect == "unexplained" else None
+    if sm:
+        sstd = sm.get("parameters_std") or {}
+        sparams = ", ".join(parameter_text(k, float(v), sstd.get(k)) for k, v in (sm.get("parameters") or {}).items()
+                            if k in PARAMETER_LABELS and v is not None)
+        dev = sm.get("deviation") or {}
+        b, a = dev.get("before"), dev.get("after")
+        measure = " (D through the impacts, with the model's COR)" if dev.get("measure") == "D_i" else ""
+        if sm.get("accepted"):
+            how = f"with it, D{measure} falls from {percent(b)} to {percent(a)}"
+        else:
+            how = f"D{measure} does not fall with it ({percent(b)} to {percent(a)}), so it is not kept"
+        return (f"A mismatch no catalogued effect accounts for remains: its shape, modelled as {sm.get('form', '?')} "
+                f"({sparams}), is not a catalogue effect; {how}.")
     if effect == "unexplained" and not params:
         return f"A mismatch no modelled effect accounts for remains; {d}."
     what = "a structure tone no catalogued effect names" if effect == "unexplained" else effect_label(effect)

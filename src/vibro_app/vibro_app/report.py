@@ -300,6 +300,13 @@ def discrepancy_html(disc: dict) -> str:
         stds = f.get("parameters_std") or {}
         params = "<br>".join(f'<span title="{e(k)}">{e(parameter_text(k, v, stds.get(k)))}</span>'
                              for k, v in f.get("parameters", {}).items()) or "&ndash;"
+        sm = f.get("shape_model")
+        if sm:   # an unexplained finding's shape, modelled: its parameters, never a catalogue effect's
+            sstd = sm.get("parameters_std") or {}
+            params = ("<i>shape model" + ("" if sm.get("accepted") else " (not kept)") + ":</i><br>"
+                      + "<br>".join(f'<span title="shape_model.parameters.{e(k)}">'
+                                    f"{e(parameter_text(k, v, sstd.get(k)))}</span>"
+                                    for k, v in (sm.get("parameters") or {}).items() if v is not None))
         alt = (f"<br><i>indistinguishable here from: {e(', '.join(effect_label(a) for a in f['alternatives']))}</i>"
                if f.get("alternatives") else "")
         rows.append(f'<tr><td><b title="{e(str(f.get("effect", "")))}">{e(effect_label(f.get("effect", "")))}</b>'

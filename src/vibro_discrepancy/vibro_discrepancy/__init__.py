@@ -6,7 +6,8 @@ An estimator split like PySINDy's: :mod:`.library` (candidate terms, :class:`Can
 ``run_discrepancy``) -> a fitted model (:mod:`.model`, :class:`DiscrepancyRun` with typed findings). Around
 them: :mod:`.data` (the measurement from the domain model), :mod:`.fitting` (least squares), :mod:`.runs`
 (D and D_r), :mod:`.onestep` (one-step-ahead errors), :mod:`.locate` (where), :mod:`.systematic`
-(out-of-catalogue mismatches), :mod:`.tone` (a located structure tone, modelled), :mod:`.reidentify`
+(out-of-catalogue mismatches), :mod:`.tone` (a located structure tone, modelled), :mod:`.shape_model` (a
+located position force or COR parity, modelled), :mod:`.reidentify`
 (impacts re-measured under the final model), :mod:`.figures`. No rclpy, no vibro_fit.
 """
 

@@ -32,7 +32,11 @@ findings are added in order (structure, flight terms, COR law); before/after are
 without/with each. What the final model still leaves systematically (:mod:`.systematic`) is reported as
 ``unexplained``; when that holds a structure tone that passes its test (:mod:`.tone`), the tone is
 modelled (the final model's structure fit includes it, so the re-identification uses it) and the
-``unexplained`` entry's before/after are the models without/with it.
+``unexplained`` entry's before/after are the models without/with it. When it holds a shape vibro can
+parametrise (:mod:`.shape_model`: a position-dependent flight force, a COR alternating with the impact parity),
+the shape is fitted and simulated: the finding stays ``unexplained`` without parameters and carries
+``shape_model`` (the deviation with it: D_r for the force, D_i for the parity, which D_r cannot see), and an
+accepted shape model (its D fell) is the final model, on the catalogue terms the data still need beside it.
 """
 
 from __future__ import annotations
@@ -54,12 +58,29 @@ from vibro_discrepancy.onestep import OneStep, one_step
 from vibro_discrepancy.runs import FullRun, full_run, restarted_run
 from vibro_discrepancy.select import UNEXPLAINED_RATIO, StageResult, StagewiseSelector, law_variance_share
 from vibro_discrepancy.shape import ShapeCheck, check_flight_shape
+from vibro_discrepancy.shape_model import (
+    DECAYS_MM,
+    LABELS,
+    PARITY_KIND,
+    POSITION_KIND,
+    cor_share,
+    fit_cor_parity,
+    impact_restarted_run,
+    parity_model,
+    parity_parameters,
+    parity_words,
+    position_model,
+    position_parameters,
+    position_with_terms,
+    position_words,
+)
 from vibro_discrepancy.systematic import Mismatch, contact_scatter, systematic_mismatch
 from vibro_discrepancy.tone import TONE_EFFECT, ToneDecision, model_structure_tone
 from vibro_io.dictrack import DicTrack
 from vibro_io.rig import RigConfig
 from vibro_model.codec import json_number, json_value
 from vibro_model.results import Discrepancy, DiscrepancyFinding, ResultsDocument
+from vibro_model.tail_probability import chi2_sf
 from vibro_model.units import m_to_mm
 
 log = logging.getLogger(__name__)
@@ -317,6 +338,188 @@ def add_structure_tone(chain: FindingChain, tone: ToneDecision) -> ModelStep | N
     return before
 
 
+# ---------------------------------------------------------------- a located shape, modelled
+@dataclass
+class ShapeStep:
+    """A located shape modelled (:mod:`.shape_model`): the model steps without and with it, the deviation that
+    judges it (``measure``: D_r for a flight force, D_i for a COR law) before/after, accepted when it falls."""
+
+    kind: str
+    form: str
+    parameters: dict
+    stds: dict
+    before: ModelStep
+    after: ModelStep
+    measure: str
+    value_before: float | None
+    value_after: float | None
+    sits_on: list[str]
+    not_kept: list[str]
+    extras: dict
+    absorbs: list[Mismatch] = field(default_factory=list)
+
+    @property
+    def accepted(self) -> bool:
+        b, a = self.value_before, self.value_after
+        return a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and a < b
+
+    def clause(self) -> str:
+        """The clause the ``unexplained`` finding's ``where`` ends with."""
+        b, a = _pct(self.value_before), _pct(self.value_after)
+        how = (" (D_i: each flight restarted from the measured state before the impact that opens it, that "
+               "impact's COR from the model; D_r replays the measured CORs and cannot see a COR law)"
+               if self.measure == "D_i" else "")
+        if self.accepted:
+            return f"modelled as {self.form}: D falls from {b} to {a}{how}"
+        return f"modelled as {self.form}: D does not fall ({b} -> {a}){how}, so the model is not kept"
+
+    def to_dict(self) -> dict:
+        b, a = self.before, self.after
+        dev = {"measure": self.measure, "before": self.value_before, "after": self.value_after,
+               "restarted_before": b.restarted.deviation, "restarted_after": a.restarted.deviation,
+               "paper_before": b.run.deviation, "paper_after": a.run.deviation}
+        return {"kind": self.kind, "form": self.form, "parameters": self.parameters, "parameters_std": self.stds,
+                "sits_on": self.sits_on, "not_kept": self.not_kept, "deviation": dev, "accepted": self.accepted,
+                "model": a.model.label(), **self.extras}
+
+
+def _pct(d: float | None) -> str:
+    return "n/a" if d is None else f"{100 * d:.3g} %"
+
+
+def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeStep | None:
+    """The position force the shape check names (structured, an exponential, the same both directions),
+    fitted beside the chain's flight terms (each kept only when the data still need it) on top of the chain's
+    current model; None when the shape is not that."""
+    if shape is None or not shape.structured or shape.direction_dependent or shape.exponential is None:
+        return None
+    meas, floors, before = chain.meas, chain.floors, chain.current
+    terms = tuple(before.model.flights.terms)
+    try:
+        fit, tests = position_with_terms(meas, before.model, terms, floors.ball_m)
+        model = position_model(meas, before.model, fit)
+        cat = fit_flights(meas, fit.terms)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        log.warning("position shape model failed: %s", exc)
+        return None
+    after = evaluate(meas, LABELS[POSITION_KIND], model, floors)
+    params, stds = position_parameters(fit, meas)
+    chi = max(cat.sse - fit.sse, 0.0) / floors.ball_m ** 2
+    kept = [t.effect for t in fit.terms]
+    extras = {"term_tests": [t.to_dict() for t in tests],
+              "fit": {"sse_mm2": fit.sse * 1e6, "dof": fit.dof, "noise_floor_mm": floors.ball_m * 1e3,
+                      "residual_x_noise": math.sqrt(fit.sse / max(fit.flights.n_points, 1)) / floors.ball_m,
+                      "chi2_vs_catalogue": chi, "chi2_dof": 2, "p_value": chi2_sf(chi, 2),
+                      "decay_at_grid_end": fit.at_grid_end, "decay_search_mm": [DECAYS_MM[0], DECAYS_MM[-1]]}}
+    return ShapeStep(POSITION_KIND, position_words(params, stds), params, stds, before, after, "D_r",
+                     before.restarted.deviation, after.restarted.deviation, kept,
+                     [t.effect for t in terms if t.effect not in kept], extras)
+
+
+def parity_shape_step(chain: FindingChain, patterns: list[Mismatch], library: CandidateLibrary
+                      ) -> ShapeStep | None:
+    """The COR parity located on a plate (the strongest ``parity`` COR mismatch), fitted on a COR law the data
+    support beside it, on top of the chain's current model; judged by D_i; None without such a mismatch."""
+    par = [p for p in patterns if p.series == "cor" and p.shape == "parity" and p.plate]
+    if not par:
+        return None
+    meas, floors, before = chain.meas, chain.floors, chain.current
+    pf = fit_cor_parity(before.model.impacts, par[0].plate, meas.frequency_hz, ("none",) + tuple(library.cor_terms))
+    if pf is None:
+        return None
+    model = parity_model(meas, before.model, pf)
+    after = evaluate(meas, LABELS[PARITY_KIND], model, floors)
+    d_b, d_a = impact_restarted_run(meas, before.model), impact_restarted_run(meas, model)
+    params, stds = parity_parameters(pf, model.impacts)
+    kind = before.model.cor.kind
+    extras = {"law_tests": pf.tests, "cor_variance_share": {"before": cor_share(before.model),
+                                                            "after": cor_share(model)},
+              "cor_scatter": {"before": math.sqrt(before.model.cor.sse / max(before.model.cor.dof, 1)),
+                              "after": math.sqrt(pf.fit.sse / max(pf.fit.dof, 1))},
+              "n_impacts": int(pf.fit.n)}
+    for run, key in ((d_b, "before"), (d_a, "after")):
+        if run.error:
+            extras.setdefault("notes", []).append(f"D_i {key}: {run.error}")
+    sits = [] if pf.base_kind == "none" else [pf.base_kind]
+    return ShapeStep(PARITY_KIND, parity_words(pf, params, stds), params, stds, before, after, "D_i",
+                     d_b.deviation, d_a.deviation, sits, [kind] if kind != "none" and kind not in sits else [],
+                     extras, [par[0]])
+
+
+def add_shape_steps(chain: FindingChain, shape: ShapeCheck | None, patterns: list[Mismatch],
+                    library: CandidateLibrary) -> list[ShapeStep]:
+    """The located shapes vibro can parametrise, modelled in turn (a position force, then a COR parity on top
+    of the model so far); an accepted one becomes the chain's final model."""
+    steps = []
+    for make in (lambda: position_shape_step(chain, shape), lambda: parity_shape_step(chain, patterns, library)):
+        step = make()
+        if step is None:
+            continue
+        steps.append(step)
+        if step.accepted:
+            chain.steps.append(step.after)
+    return steps
+
+
+def shape_model_section(steps: list[ShapeStep]) -> dict:
+    """The ``unexplained`` finding's ``shape_model``: the one shape modelled, or both merged (``parts``)."""
+    parts = [s.to_dict() for s in steps]
+    if len(parts) == 1:
+        return parts[0]
+    return {"kind": "+".join(p["kind"] for p in parts), "form": "; and ".join(p["form"] for p in parts),
+            "parameters": {k: v for p in parts for k, v in p["parameters"].items()},
+            "parameters_std": {k: v for p in parts for k, v in p["parameters_std"].items()},
+            "deviation": parts[0]["deviation"], "accepted": all(p["accepted"] for p in parts), "parts": parts}
+
+
+def with_shape_models(leftover: DiscrepancyFinding | None, steps: list[ShapeStep], final: ModelStep
+                      ) -> DiscrepancyFinding | None:
+    """The ``unexplained`` finding with its shapes modelled (``shape_model``, a clause per shape in ``where``);
+    its ``deviation_after`` (and the paper's, the one-step errors after) the final model's D_r when lower."""
+    if leftover is None or not steps:
+        return leftover
+    where = "; ".join([leftover.where] + [s.clause() for s in steps])
+    details = {**(leftover.details or {}), "shape_model": json_value(shape_model_section(steps))}
+    after = leftover.deviation_after
+    d = final.restarted.deviation
+    if any(s.accepted for s in steps) and d is not None and after is not None and d < after:
+        after = json_number(d)
+        details["paper_deviation_after"] = json_number(final.run.deviation)
+        details["one_step_after"] = json_value(final.steps.summary())
+    return replace(leftover, where=where, deviation_after=after, details=details)
+
+
+def mark_catalogue_under_shapes(chain: FindingChain, steps: list[ShapeStep]) -> None:
+    """A catalogue finding a shape model was fitted beside: the test (``shape_model_test``), and where the data
+    do not need it with the shape modelled, ``in_final_model`` false and a clause saying so."""
+    for step in steps:
+        if not step.accepted:
+            continue
+        tests = {t["effect"]: t for t in step.extras.get("term_tests", [])}
+        tests.update({t["law"]: t for t in step.extras.get("law_tests", [])})
+        for k, f in enumerate(chain.findings):
+            extra: dict[str, Any] = {}
+            where = f.where
+            if f.effect in tests:
+                extra["shape_model_test"] = tests[f.effect]
+            if f.effect in step.not_kept:
+                extra["in_final_model"] = False
+                t = tests.get(f.effect)
+                if t is None:
+                    why = ""
+                elif "chi2" in t:
+                    why = (f" (chi2 = {t['chi2']:.3g}, p = {t['p_value']:.2g}, "
+                           f"{t['explained_x_noise']:.2f} noise floors)")
+                else:
+                    why = (f" (F = {t['f_statistic']:.3g}, p = {t['p_value']:.2g}, "
+                           f"explained COR rms {t['explained_rms']:.4f})")
+                what = "position-dependent force" if step.kind == POSITION_KIND else "COR parity"
+                where = (f"{where}; not in the final model: with the {what} of the unexplained finding modelled, the "
+                         f"data do not need it{why}")
+            if extra:
+                chain.findings[k] = replace(f, where=where, details={**(f.details or {}), **json_value(extra)})
+
+
 # ---------------------------------------------------------------- model and show
 def stages_section(*stages: StageResult | None) -> dict:
     """Per stage run: the chosen terms, the residual in noise floors, every candidate tested."""
@@ -399,10 +602,15 @@ class DiscrepancyEstimator:
                                            structure=[p for p in patterns if p.series == "structure"])
         leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone, shape)
         cor_left = cor_shape_left(chain, patterns)
+        shape_steps = add_shape_steps(chain, shape, patterns, self.library) if leftover is not None else []
+        leftover = with_shape_models(leftover, shape_steps, chain.current)
+        mark_catalogue_under_shapes(chain, shape_steps)
+        absorbed = [id(m) for s in shape_steps if s.accepted for m in s.absorbs]
+        left = [p for p in patterns if id(p) not in absorbed]   # the contact scatter: after the final COR law
 
         cur = chain.current
         findings = order_findings(chain.findings, leftover, shape, cor_left)
-        details = run_details(meas, chain, floors, location, stages_section(s_stage, f_stage, c_stage), patterns)
+        details = run_details(meas, chain, floors, location, stages_section(s_stage, f_stage, c_stage), left)
         result = Discrepancy(json_number(base.restarted.deviation), findings, json_number(cur.restarted.deviation),
                              json_value(details))
         return DiscrepancyRun(result, meas, base.model, cur.model, base.run, cur.run, base.steps, cur.steps,

@@ -68,7 +68,18 @@ class FittedModel:
                 out = out + c * t.basis(v, mass_kg)
         return out
 
-    def cor_at(self, plates, speeds_mps) -> np.ndarray:
+    #: the flight force depends on the ball's position (and time), not on its velocity alone: a one-step
+    #: integration must call :meth:`flight_accel`
+    state_dependent = False
+
+    def flight_accel(self, t_s, y_m, v_mps, mass_kg: float) -> np.ndarray:
+        """Free-flight acceleration (m/s^2) at camera time ``t_s``, ball position ``y_m`` (DIC frame) and
+        velocity ``v_mps``; here the velocity law :meth:`accel` (a shape model adds a position force)."""
+        return self.accel(v_mps, mass_kg)
+
+    def cor_at(self, plates, speeds_mps, index=None) -> np.ndarray:
+        """COR of the law at each (plate, |v_rel|); ``index`` (the impacts' indices into
+        :attr:`Measured.impacts`) matters only to a law of the impact count (a parity shape model)."""
         return cor_values(self.cor.kind, self.cor.coefs, plates, speeds_mps)
 
     def force_law(self):

@@ -53,13 +53,29 @@ class OneStep:
         return out
 
 
-def _integrate(model: FittedModel, mass_kg: float, y0: np.ndarray, v0: np.ndarray, n_steps: int):
-    """RK4 of y'' = a(v) for all flights at once; returns (y, v) of shape (n_steps + 1, n_flights)."""
+def _integrate(model: FittedModel, mass_kg: float, y0: np.ndarray, v0: np.ndarray, n_steps: int,
+               t_ref_s: np.ndarray | None = None):
+    """RK4 of y'' = a(v) for all flights at once (a(t, y, v), :meth:`FittedModel.flight_accel`, for a model
+    whose force depends on the ball's position; ``t_ref_s`` the flights' start times); returns (y, v) of shape
+    (n_steps + 1, n_flights)."""
     h = STEP_S
     ys = np.empty((n_steps + 1, y0.size))
     vs = np.empty_like(ys)
     y, v = y0.copy(), v0.copy()
     ys[0], vs[0] = y, v
+    if model.state_dependent:
+        t0 = np.zeros_like(y0) if t_ref_s is None else np.asarray(t_ref_s, dtype=float)
+        a = lambda t, yy, vv: model.flight_accel(t, yy, vv, mass_kg)  # noqa: E731
+        for i in range(n_steps):
+            t = t0 + i * h
+            k1y, k1v = v, a(t, y, v)
+            k2y, k2v = v + 0.5 * h * k1v, a(t + 0.5 * h, y + 0.5 * h * k1y, v + 0.5 * h * k1v)
+            k3y, k3v = v + 0.5 * h * k2v, a(t + 0.5 * h, y + 0.5 * h * k2y, v + 0.5 * h * k2v)
+            k4y, k4v = v + h * k3v, a(t + h, y + h * k3y, v + h * k3v)
+            y = y + h / 6.0 * (k1y + 2 * k2y + 2 * k3y + k4y)
+            v = v + h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+            ys[i + 1], vs[i + 1] = y, v
+        return ys, vs
     acc = lambda vv: model.accel(vv, mass_kg)  # noqa: E731
     for i in range(n_steps):
         k1v = acc(v)
@@ -101,7 +117,8 @@ def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
         ks = np.array([k for k, _ in closing])
         durations = np.array([flights[k].t_end_s - flights[k].t_ref_s for k in ks])
         n_steps = int(np.ceil((durations.max() + EXTRA_S) / STEP_S))
-        ys, vs = _integrate(model, meas.mass_kg, fm.y0[ks], fm.v0[ks], n_steps)
+        ys, vs = _integrate(model, meas.mass_kg, fm.y0[ks], fm.v0[ks], n_steps,
+                            np.array([flights[k].t_ref_s for k in ks]))
         tau = np.arange(n_steps + 1) * STEP_S
         # measured impact quantities under this model (for the COR error)
         e_meas = {int(i): float(e) for i, e in zip(model.impacts.index, model.impacts.cor)}
@@ -130,14 +147,14 @@ def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
             t_pred = t_abs[m - 1] + frac * STEP_S
             vb = vs[m - 1, j] + frac * (vs[m, j] - vs[m - 1, j])
             vsx = float(S.velocity(t_pred))
-            e = float(model.cor_at(np.array([imp.plate]), np.array([abs(vb - vsx)]))[0])
+            e = float(model.cor_at(np.array([imp.plate]), np.array([abs(vb - vsx)]), np.array([ii]))[0])
             va_pred = vsx - e * (vb - vsx)
             dt[ii] = t_pred - t_meas.get(ii, imp.t_s)
             if imp.flight_after is not None and ii in a_meas:
                 dv[ii] = va_pred - a_meas[ii]
                 dv_sig[ii] = v_sigma[imp.flight_after]
             if ii in e_meas:
-                e_model = float(model.cor_at(np.array([imp.plate]), np.array([s_meas[ii]]))[0])
+                e_model = float(model.cor_at(np.array([imp.plate]), np.array([s_meas[ii]]), np.array([ii]))[0])
                 de[ii] = e_meas[ii] - e_model
     return OneStep(flight_t, flight_dir, flight_rms, float(sigma_m), np.arange(n_i),
                    np.array([i.t_s for i in imps]), np.array([i.plate for i in imps], dtype=object), speeds,

@@ -119,8 +119,10 @@ def impact_stds(meas: Measured, model: FittedModel, j: int) -> tuple[float, floa
     vb, va, vs = float(imps.v_before[j]), float(imps.v_after[j]), float(imps.v_structure[j])
     tau_b = t - meas.flights[kb].t_ref_s
     tau_a = t - meas.flights[ka].t_ref_s
-    ab = float(model.accel(np.array([vb]), meas.mass_kg)[0])
-    aa = float(model.accel(np.array([va]), meas.mass_kg)[0])
+    yb = float(model.flights.state(kb, tau_b)[0])
+    ya = float(model.flights.state(ka, tau_a)[0])
+    ab = float(np.asarray(model.flight_accel(np.array([t]), np.array([yb]), np.array([vb]), meas.mass_kg))[0])
+    aa = float(np.asarray(model.flight_accel(np.array([t]), np.array([ya]), np.array([va]), meas.mass_kg))[0])
     motion = model.motion
     a_s = float(motion.acceleration(t))
     # parameters: [y0_b, v0_b, y0_a, v0_a, structure...]
