@@ -38,7 +38,11 @@ Scored per case (:func:`score_harder`), the criteria of ``HARDER_GOALS``:
 - ``cor``: mean |COR - true COR| over the matched impacts with a COR; <= 0.002;
 - ``findings``: a control has no catalogue finding; an out-of-catalogue case has ``unexplained`` and no
   catalogue finding above it; a catalogue case has its effect and no other catalogue finding;
-- ``improved``: on a catalogue effect case, every correct finding lowers D_r (:func:`.truth.finding_deviations`).
+- ``improved``: on a catalogue effect case, every correct finding lowers D_r (:func:`.truth.finding_deviations`);
+  on an out-of-catalogue case, the ``unexplained`` finding on top modelled its shape
+  (:mod:`vibro_discrepancy.shape_model`) and the deviation fell with it (D_r for the position force, D_i for
+  the COR parity). The row's ``shape_fit`` holds the shape model's parameters against the truth
+  (:func:`.truth.shape_fit_vs_truth`: weight fraction and decay; the lower plate's two CORs), not scored.
 
 PySINDy, when installed, gets the same measured data; its findings are shown beside (not scored).
 """
@@ -63,7 +67,7 @@ from vibro_sim.synth import SynthConfig, synthesize, truth_path
 
 from .prove import _vibro_command, paper_measured
 from .sindy_baseline import available, sindy_discrepancy
-from .truth import finding_deviations
+from .truth import finding_deviations, shape_fit_vs_truth
 
 HARDER_FAMILIES = ("sticking", "drops", "drops+coulomb_friction", "position_force", "cor_parity", "control")
 #: the default set: how many cases of each family
@@ -308,10 +312,16 @@ def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth
         findings_ok = sorted(cat) == sorted(true_cat)
     improved = None
     devs = []
+    shape_fit = None
     if true_cat:
         devs = finding_deviations(disc, truth, sum(x.get("cor") is not None for x in found))
         judged = [d for d in devs if d["correct"] and d["measure"] is not None]
         improved = bool(judged) and all(bool(d["lowered"]) for d in judged)
+    elif spec.family in INVENTED_HARDER:
+        devs = finding_deviations(disc, truth, sum(x.get("cor") is not None for x in found))
+        top = (disc.get("findings") or [None])[0]
+        improved = bool(names and names[0] == "unexplained" and devs[0]["lowered"])
+        shape_fit = shape_fit_vs_truth(top, truth)
     recall = len(hit) / len(meas) if meas else None
     mean_err = float(np.mean(errs)) if errs else None
     criteria = {
@@ -320,15 +330,15 @@ def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth
         "gaps": all(g["outcome"] in ("found", "counted", "clean") for g in gaps),
         "cor": mean_err is not None and mean_err <= HARDER_GOALS["cor_error_mean"],
         "findings": findings_ok,
-        "improved": improved,          # None: not an effect case with a catalogue effect
+        "improved": improved,          # None: a control
     }
     return {"measurable": len(meas), "recalled": len(hit), "recall": recall,
             "missed_t": [float(tt[j]) for j in meas if j not in matched], "invented_t": invented,
             "gaps": gaps, "cor_error_mean": mean_err, "cor_error_max": float(max(errs)) if errs else None,
             "cor_n": len(errs), "found": names, "regime": (doc.get("regime") or {}).get("name"),
             "contacts": len(doc.get("contacts") or []), "truth_contacts": len(truth.get("contacts") or []),
-            "finding_deviations": devs, "deviation": {"baseline": disc.get("baseline_deviation"),
-                                                      "final": disc.get("final_deviation")},
+            "finding_deviations": devs, "shape_fit": shape_fit,
+            "deviation": {"baseline": disc.get("baseline_deviation"), "final": disc.get("final_deviation")},
             "criteria": criteria, "pass": all(v is not False for v in criteria.values())}
 
 
@@ -379,11 +389,22 @@ def _mark(v) -> str:
     return "-" if v is None else ("pass" if v else "FAIL")
 
 
+def _shape_text(r: dict) -> str:
+    """The shape model's parameters against the truth, fit/true ('-' without one)."""
+    p = (r.get("shape_fit") or {}).get("parameters") or {}
+    if "weight_fraction" in p:
+        wf, L = p["weight_fraction"], p.get("decay_mm") or {"fit": float("nan"), "true": float("nan")}
+        return f"wf {wf['fit']:.3f}/{wf['true']:.3f} L {L['fit']:.2f}/{L['true']:.2f}"
+    if "cor_low" in p:
+        return "cor " + " ".join(f"{p[k]['fit']:.3f}/{p[k]['true']:.3f}" for k in ("cor_low", "cor_high") if k in p)
+    return "-"
+
+
 def format_harder_table(rows: list[dict]) -> str:
     """One line per case: its numbers and pass/FAIL per criterion ('-': does not apply)."""
     head = (f"{'case':>4} {'family':22} {'nz':>3} {'a/b':>3} {'drops':>11} {'recall':>11} {'R':>4} {'inv':>3} {'I':>4} "
             f"{'gaps F/C/K/L':>12} {'G':>4} {'COR e-3':>7} {'C':>4} {'findings':28} {'Fd':>4} {'Dr':>4} {'pass':>4}"
-            f"  sindy")
+            f"  {'shape fit/true':27} sindy")
     lines = [head]
     for r in rows:
         sp = r["spec"]
@@ -406,14 +427,17 @@ def format_harder_table(rows: list[dict]) -> str:
                      f"{rec:>11} "
                      f"{_mark(c['recall']):>4} {len(r['invented_t']):>3} {_mark(c['invented']):>4} {gfc:>12} "
                      f"{_mark(c['gaps'] if g else None):>4} {cor:>7} {_mark(c['cor']):>4} {found[:28]:28} "
-                     f"{_mark(c['findings']):>4} {_mark(c['improved']):>4} {_mark(r['pass']):>4}  {sfound}")
+                     f"{_mark(c['findings']):>4} {_mark(c['improved']):>4} {_mark(r['pass']):>4}  "
+                     f"{_shape_text(r):27} {sfound}")
     n_pass = sum(bool(r.get("pass")) for r in rows)
     lines.append(f"{n_pass}/{len(rows)} cases pass (nz: read noise, gray levels; a/b: accelerometers, blur; "
                  "drops: lengths of the runs of lost frames; "
                  f"R recall >= {100 * HARDER_GOALS['recall']:.0f} %, I no invented "
                  f"impact, G every gap's impact found (F) or counted (C), a gap in a flight clean (K), none lost (L), "
                  f"C mean |COR error| <= {HARDER_GOALS['cor_error_mean']}, "
-                 "Fd findings vs truth, Dr D_r lowered by every correct catalogue finding)")
+                 "Fd findings vs truth, Dr D_r lowered by every correct catalogue finding, out of the catalogue: "
+                 "D lowered by the unexplained finding's shape model; shape fit/true: its weight fraction wf and "
+                 "decay L (mm), or the lower plate's two CORs, fitted/true)")
     return "\n".join(lines)
 
 

@@ -253,7 +253,9 @@ def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impac
     ``lowered`` is D_r after < before for structure and flight findings; for a COR law (D_r does not see
     it) its ``cor_variance_share`` above what chance gives on ``n_impacts`` CORs
     (:func:`chance_variance_share`). ``unexplained`` has no model, ``lowered`` None, unless it modelled
-    what it located (its ``model`` key: a structure tone), which D_r judges as a structure finding."""
+    what it located: a structure tone (its ``model`` key), which D_r judges as a structure finding, or a shape
+    (its ``shape_model``, :mod:`vibro_discrepancy.shape_model`): judged by the shape model's own measure (D_r
+    for a position force, D_i for a COR parity), ``lowered`` when every part was accepted (its D fell)."""
     expected = expected_findings(truth)
     out = []
     for f in doc.get("findings", []):
@@ -266,10 +268,53 @@ def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impac
             chance = chance_variance_share(COR_LAWS[f["effect"]], n_impacts) if n_impacts else None
             row.update(measure="cor_variance_share", cor_variance_share=share, chance_share=chance,
                        lowered=None if share is None or chance is None else bool(share > chance))
+        elif f["effect"] == UNEXPLAINED and f.get("shape_model"):
+            sm = f["shape_model"]
+            parts = sm.get("parts") or [sm]
+            row.update(measure="+".join(p["deviation"]["measure"] for p in parts),
+                       shape_before=parts[0]["deviation"]["before"], shape_after=parts[-1]["deviation"]["after"],
+                       lowered=all(bool(p.get("accepted")) for p in parts))
         elif f["effect"] == UNEXPLAINED and not f.get("model"):
             row.update(lowered=None, measure=None)
         out.append(row)
     return out
+
+
+def shape_fit_vs_truth(finding: Mapping[str, Any] | None, truth: Mapping[str, Any]) -> dict | None:
+    """An ``unexplained`` finding's ``shape_model`` parameters against the truth's out-of-catalogue effect:
+    ``position_force`` its weight fraction and decay (mm), ``cor_parity`` the lower plate's two CORs (which of
+    the two the analysis counts first is its own: the pairs are compared sorted); per parameter the fit, its
+    std, the truth, the error and the error in stds. None without a shape model or such an effect."""
+    sm = (finding or {}).get("shape_model")
+    if not sm:
+        return None
+    eff = true_effects(truth)
+    p, sd = sm.get("parameters") or {}, sm.get("parameters_std") or {}
+    rows: dict[str, dict] = {}
+
+    def row(name, fit, std, true):
+        if fit is None or true is None:
+            return
+        err = float(fit) - float(true)
+        rows[name] = {"fit": fit, "std": std, "true": true, "error": err,
+                      "error_x_std": abs(err) / std if std else None}
+
+    if "position_force" in eff:
+        t = eff["position_force"]
+        row("weight_fraction", p.get("weight_fraction"), sd.get("weight_fraction"), t.get("weight_fraction"))
+        row("decay_mm", p.get("decay_mm"), sd.get("decay_mm"), t.get("decay_mm"))
+    if "cor_parity" in eff:
+        t = eff["cor_parity"]
+        fit = sorted((p.get("cor_bottom_first"), p.get("cor_bottom_second")),
+                     key=lambda x: -math.inf if x is None else x)
+        std = {p.get("cor_bottom_first"): sd.get("cor_bottom_first"),
+               p.get("cor_bottom_second"): sd.get("cor_bottom_second")}
+        true = sorted((t.get("cor_even"), t.get("cor_odd")))
+        for name, f, tv in zip(("cor_low", "cor_high"), fit, true):
+            row(name, f, std.get(f), tv)
+    if not rows:
+        return None
+    return {"kind": sm.get("kind"), "accepted": sm.get("accepted"), "parameters": rows}
 
 
 def relative(a: float | None, b: float | None) -> float | None:
