@@ -26,12 +26,15 @@ FRAMES = 800
 SCATTER = 0.005
 FRACTION, DECAY_MM = 0.2, 4.0
 EVEN, ODD = 0.62, 0.74
+FORCE_N = 1.5e-4
 FLIGHT_TERMS = ("coulomb_friction", "viscous_drag", "quadratic_drag", "gravity_tilt")
 CASES = {
     "position": ({"position_force": {"weight_fraction": FRACTION, "decay_mm": DECAY_MM}}, 611, FRAMES),
     "parity": ({"cor_parity": {"cor_even": EVEN, "cor_odd": ODD}}, 612, 1000),
     "control": ({}, 613, FRAMES),
     "coulomb": ({"coulomb_friction": {"force_n": 2.0e-4}}, 614, FRAMES),
+    "position+coulomb": ({"position_force": {"weight_fraction": FRACTION, "decay_mm": DECAY_MM},
+                          "coulomb_friction": {"force_n": FORCE_N}}, 615, 1000),
 }
 
 
@@ -91,6 +94,26 @@ def test_catalogue_flight_terms_beside_the_force_are_kept_only_when_needed(analy
         assert name not in doc["model"]
     # the truth has no catalogue force: whatever the chain chose to absorb the shape is not kept
     assert sm["sits_on"] == []
+
+
+def test_a_real_coulomb_friction_beside_the_force_is_kept(analysed):
+    """Position force and Coulomb friction together: the shape check sees a part that changes sign with the
+    direction (the friction) beside the position part; the force is fitted with coulomb_friction beside it,
+    which the data still need, so it stays in the final model with its value beside the shape."""
+    doc, _ = analysed["position+coulomb"]
+    top = _top(doc)
+    sm = top["shape_model"]
+    assert sm["accepted"] and sm["sits_on"] == ["coulomb_friction"] and sm["not_kept"] == [], sm
+    assert sm["form_check"]["ok"] and not sm["form_check"]["direction_part_left"]["significant"]
+    assert top["deviation_after"] <= 0.5 * top["deviation_before"]
+    p, sd = sm["parameters"], sm["parameters_std"]
+    assert abs(p["weight_fraction"] - FRACTION) <= 4 * sd["weight_fraction"], (p, sd)
+    assert abs(p["decay_mm"] - DECAY_MM) <= 4 * sd["decay_mm"], (p, sd)
+    assert abs(p["force_n"] - FORCE_N) <= 4 * sd["force_n"], (p, sd)
+    (f,) = [f for f in doc["findings"] if f["effect"] == "coulomb_friction"]
+    assert f["shape_model_test"]["kept"] and "in_final_model" not in f
+    assert f["with_shape_model"]["parameters"]["force_n"] == pytest.approx(p["force_n"])
+    assert "coulomb_friction" in doc["model"] and "position_force_shape" in doc["model"]
 
 
 def test_cor_parity_is_modelled_and_d_through_the_impacts_falls(analysed):

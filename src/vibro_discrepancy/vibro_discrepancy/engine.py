@@ -69,6 +69,7 @@ from vibro_discrepancy.shape_model import (
     parity_model,
     parity_parameters,
     parity_words,
+    position_form_check,
     position_model,
     position_parameters,
     position_with_terms,
@@ -357,11 +358,16 @@ class ShapeStep:
     not_kept: list[str]
     extras: dict
     absorbs: list[Mismatch] = field(default_factory=list)
+    rejected: str | None = None      # why the fitted form is not the residual's shape (then not kept)
+
+    @property
+    def lowered(self) -> bool:
+        b, a = self.value_before, self.value_after
+        return a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and a < b
 
     @property
     def accepted(self) -> bool:
-        b, a = self.value_before, self.value_after
-        return a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and a < b
+        return self.rejected is None and self.lowered
 
     def clause(self) -> str:
         """The clause the ``unexplained`` finding's ``where`` ends with."""
@@ -371,6 +377,9 @@ class ShapeStep:
                if self.measure == "D_i" else "")
         if self.accepted:
             return f"modelled as {self.form}: D falls from {b} to {a}{how}"
+        if self.rejected:
+            return (f"fitted as {self.form} (D {b} -> {a}{how}) but not kept: that form is not the residual's "
+                    f"shape ({self.rejected})")
         return f"modelled as {self.form}: D does not fall ({b} -> {a}){how}, so the model is not kept"
 
     def to_dict(self) -> dict:
@@ -380,7 +389,7 @@ class ShapeStep:
                "paper_before": b.run.deviation, "paper_after": a.run.deviation}
         return {"kind": self.kind, "form": self.form, "parameters": self.parameters, "parameters_std": self.stds,
                 "sits_on": self.sits_on, "not_kept": self.not_kept, "deviation": dev, "accepted": self.accepted,
-                "model": a.model.label(), **self.extras}
+                "rejected": self.rejected, "model": a.model.label(), **self.extras}
 
 
 def _pct(d: float | None) -> str:
@@ -388,10 +397,11 @@ def _pct(d: float | None) -> str:
 
 
 def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeStep | None:
-    """The position force the shape check names (structured, an exponential, the same both directions),
-    fitted beside the chain's flight terms (each kept only when the data still need it) on top of the chain's
-    current model; None when the shape is not that."""
-    if shape is None or not shape.structured or shape.direction_dependent or shape.exponential is None:
+    """A force that depends on the ball's distance from the lower plate, when the shape check finds the flights'
+    residual beyond the chain's flight terms structured in that coordinate: fitted beside the chain's flight terms
+    (each kept only when the data still need it) on top of the chain's current model, and kept only when that
+    form is the residual's shape (:func:`position_form_check`); None when the residual is not structured so."""
+    if shape is None or not shape.structured or not shape.tests.get("position", {}).get("structured"):
         return None
     meas, floors, before = chain.meas, chain.floors, chain.current
     terms = tuple(before.model.flights.terms)
@@ -399,6 +409,7 @@ def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeS
         fit, tests = position_with_terms(meas, before.model, terms, floors.ball_m)
         model = position_model(meas, before.model, fit)
         cat = fit_flights(meas, fit.terms)
+        form = position_form_check(meas, before.model, fit, floors.ball_m)
     except (ValueError, np.linalg.LinAlgError) as exc:
         log.warning("position shape model failed: %s", exc)
         return None
@@ -406,14 +417,18 @@ def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeS
     params, stds = position_parameters(fit, meas)
     chi = max(cat.sse - fit.sse, 0.0) / floors.ball_m ** 2
     kept = [t.effect for t in fit.terms]
-    extras = {"term_tests": [t.to_dict() for t in tests],
+    term_params = {}
+    for t, c, sd in zip(fit.terms, fit.flights.coefs, fit.term_stds):
+        tp, ts = t.contract_parameters(float(c), float(sd), meas.mass_kg, fit.flights.g_mps2)
+        term_params[t.effect] = {"parameters": tp, "parameters_std": ts}
+    extras = {"term_tests": [t.to_dict() for t in tests], "form_check": form, "term_parameters": term_params,
               "fit": {"sse_mm2": fit.sse * 1e6, "dof": fit.dof, "noise_floor_mm": floors.ball_m * 1e3,
                       "residual_x_noise": math.sqrt(fit.sse / max(fit.flights.n_points, 1)) / floors.ball_m,
                       "chi2_vs_catalogue": chi, "chi2_dof": 2, "p_value": chi2_sf(chi, 2),
                       "decay_at_grid_end": fit.at_grid_end, "decay_search_mm": [DECAYS_MM[0], DECAYS_MM[-1]]}}
     return ShapeStep(POSITION_KIND, position_words(params, stds), params, stds, before, after, "D_r",
                      before.restarted.deviation, after.restarted.deviation, kept,
-                     [t.effect for t in terms if t.effect not in kept], extras)
+                     [t.effect for t in terms if t.effect not in kept], extras, rejected=form["reason"])
 
 
 def parity_shape_step(chain: FindingChain, patterns: list[Mismatch], library: CandidateLibrary
@@ -502,6 +517,8 @@ def mark_catalogue_under_shapes(chain: FindingChain, steps: list[ShapeStep]) -> 
             where = f.where
             if f.effect in tests:
                 extra["shape_model_test"] = tests[f.effect]
+            if f.effect in step.extras.get("term_parameters", {}):   # kept: its values beside the shape
+                extra["with_shape_model"] = step.extras["term_parameters"][f.effect]
             if f.effect in step.not_kept:
                 extra["in_final_model"] = False
                 t = tests.get(f.effect)
