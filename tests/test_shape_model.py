@@ -166,3 +166,7 @@ def test_the_report_text_says_it_is_modelled_not_a_catalogue_effect(analysed):
     assert "share of the weight at contact" in sentence and "decay length" in sentence
     lines = findings_lines(doc)
     assert lines[0].startswith("finding: unexplained;") and lines[1].startswith("  shape modelled (position_force)")
+    for f in doc["findings"][1:]:   # a catalogue finding dropped beside the shape is not said to be in the model
+        if f.get("in_final_model") is False:
+            text = finding_sentence(f)
+            assert "is not in the final model" in text and not text.startswith("The model leaves out"), text

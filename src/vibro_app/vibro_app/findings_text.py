@@ -39,7 +39,9 @@ def shape_model_line(shape_model: Mapping[str, Any]) -> str:
     dev = shape_model.get("deviation") or {}
     b, a = dev.get("before"), dev.get("after")
     d = f"; {dev.get('measure', 'D')} {percent(b)} -> {percent(a)}" if dev else ""
-    kept = "" if shape_model.get("accepted") else " (not kept: D did not fall)"
+    kept = ("" if shape_model.get("accepted") else
+            " (not kept: the form is not the residual's shape)" if shape_model.get("rejected") else
+            " (not kept: D did not fall)")
     return f"  shape modelled ({shape_model.get('kind', '?')}): {values}{d}{kept}"
 
 
@@ -160,20 +162,20 @@ def finding_sentence(finding: Mapping[str, Any]) -> str:
     else:
         d = f"D {'falls' if after < before else 'goes'} from {percent(before)} to {percent(after)}"
     sm = finding.get("shape_model") if effect == "unexplained" else None
-    if sm:
+    if sm and sm.get("accepted"):   # a shape fitted but not kept: the finding reads as before (its 'where' says why)
         sstd = sm.get("parameters_std") or {}
         sparams = ", ".join(parameter_text(k, float(v), sstd.get(k)) for k, v in (sm.get("parameters") or {}).items()
                             if k in PARAMETER_LABELS and v is not None)
         dev = sm.get("deviation") or {}
-        b, a = dev.get("before"), dev.get("after")
         measure = " (D through the impacts, with the model's COR)" if dev.get("measure") == "D_i" else ""
-        if sm.get("accepted"):
-            how = f"with it, D{measure} falls from {percent(b)} to {percent(a)}"
-        else:
-            how = f"D{measure} does not fall with it ({percent(b)} to {percent(a)}), so it is not kept"
         return (f"A mismatch no catalogued effect accounts for remains: its shape, modelled as {sm.get('form', '?')} "
-                f"({sparams}), is not a catalogue effect; {how}.")
+                f"({sparams}), is not a catalogue effect; with it, D{measure} falls from {percent(dev.get('before'))} "
+                f"to {percent(dev.get('after'))}.")
     if effect == "unexplained" and not params:
         return f"A mismatch no modelled effect accounts for remains; {d}."
     what = "a structure tone no catalogued effect names" if effect == "unexplained" else effect_label(effect)
+    if finding.get("in_final_model") is False:   # dropped beside a modelled shape (shape_model of unexplained)
+        return (f"{what[:1].upper() + what[1:]}" + (f" ({params})" if params else "")
+                + f" lowers the catalogue model's deviation ({d}) but is not in the final model: with the "
+                "unexplained shape modelled, the data do not need it.")
     return f"The model leaves out {what}" + (f" ({params})" if params else "") + f"; with it, {d}."

@@ -417,10 +417,10 @@ def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeS
     params, stds = position_parameters(fit, meas)
     chi = max(cat.sse - fit.sse, 0.0) / floors.ball_m ** 2
     kept = [t.effect for t in fit.terms]
-    term_params = {}
+    term_params = []
     for t, c, sd in zip(fit.terms, fit.flights.coefs, fit.term_stds):
         tp, ts = t.contract_parameters(float(c), float(sd), meas.mass_kg, fit.flights.g_mps2)
-        term_params[t.effect] = {"parameters": tp, "parameters_std": ts}
+        term_params.append({"effect": t.effect, "parameters": tp, "parameters_std": ts})
     extras = {"term_tests": [t.to_dict() for t in tests], "form_check": form, "term_parameters": term_params,
               "fit": {"sse_mm2": fit.sse * 1e6, "dof": fit.dof, "noise_floor_mm": floors.ball_m * 1e3,
                       "residual_x_noise": math.sqrt(fit.sse / max(fit.flights.n_points, 1)) / floors.ball_m,
@@ -517,8 +517,9 @@ def mark_catalogue_under_shapes(chain: FindingChain, steps: list[ShapeStep]) -> 
             where = f.where
             if f.effect in tests:
                 extra["shape_model_test"] = tests[f.effect]
-            if f.effect in step.extras.get("term_parameters", {}):   # kept: its values beside the shape
-                extra["with_shape_model"] = step.extras["term_parameters"][f.effect]
+            kept = [t for t in step.extras.get("term_parameters", []) if t["effect"] == f.effect]
+            if kept:   # kept beside the shape: its values in the final model
+                extra["with_shape_model"] = {k: kept[0][k] for k in ("parameters", "parameters_std")}
             if f.effect in step.not_kept:
                 extra["in_final_model"] = False
                 t = tests.get(f.effect)
