@@ -143,10 +143,13 @@ def sindy_discrepancy(meas: Measured) -> dict:
         s_fit = base.structure
     terms = [t for t in FLIGHT_TERMS if t.effect in fl["terms"]]
     coefs = [fl["terms"][t.effect] for t in terms]
-    f_fit = fit_flights(meas, tuple(terms), fixed_coefs=coefs) if terms else base.flights
     for t, c in zip(terms, coefs):
         params, _ = t.contract_parameters(c, 0.0, meas.mass_kg, meas.g_mps2)
         findings.append({"effect": t.effect, "parameters": params})
+    # an unphysical fit (a force term of the wrong sign beside these) is no force law: its terms alone can be
+    # many g (a stiff flight the integrator crawls through for minutes); its findings are shown, not simulated
+    simulated = terms and not fl["unphysical"]
+    f_fit = fit_flights(meas, tuple(terms), fixed_coefs=coefs) if simulated else base.flights
     kind = im["kind"]
     model = fit_model(meas, structure=s_fit, flights=f_fit)
     if kind != "none":
@@ -162,7 +165,8 @@ def sindy_discrepancy(meas: Measured) -> dict:
                              "parameters": {"cor_at_zero": e0, "slope_s_per_m": c[-1]}})
     run = full_run(meas, model)
     return jsonable({"baseline_deviation": base_run.deviation, "findings": findings,
-                     "final_deviation": run.deviation, "raw": {"flights": fl, "impacts": im, "structure": st},
+                     "final_deviation": run.deviation, "flight_terms_simulated": bool(simulated),
+                     "raw": {"flights": fl, "impacts": im, "structure": st},
                      "replay_start_s": float(run.t_s[0]) if run.t_s.size else None})
 
 
