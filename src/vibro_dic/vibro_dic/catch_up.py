@@ -65,20 +65,14 @@ def choose(waiting: Sequence[int], max_behind: int = 0) -> Choice:
     return Choice(keep[0], [int(k) for k in waiting[:n_skip]], keep[1:])
 
 
-#: a tracker can keep up when its own work per frame is under this share of the camera period: the rest is for what
-#: its thread's clock does not see (DDS's threads taking the images, the executor)
-KEEP_UP_SHARE = 0.8
-
-
 @dataclass
 class CatchUpPolicy:
     """:func:`choose` with a memory: how long the tracker has been behind, and what a frame's own work costs.
 
     Behind (more than the image about to be tracked waiting) for ``jump_after_s`` of wall time in a row, a
-    tracker whose mean work per frame (``work_s``, its own CPU time: not inflated by the stall) is under
-    :data:`KEEP_UP_SHARE` of the camera's period jumps to the newest image: it can keep up, so the backlog is
-    the stall's, and draining it on the little spare capacity left would keep it behind for many times the
-    stall (recovery in one frame instead).
+    tracker whose mean work per frame (``work_s``, its own CPU time: not inflated by the stall) is under the
+    camera's period jumps to the newest image: it can keep up, so the backlog is the stall's, and draining it on
+    the little spare capacity left would keep it behind for many times the stall (recovery in one frame instead).
     Otherwise the backlog is bounded by ``max_behind`` (a short stall costs nothing; a tracker slower than its
     camera loses single images, spread).
     """
@@ -97,7 +91,7 @@ class CatchUpPolicy:
         elif self.behind_since_s is None:
             self.behind_since_s = now_s
         jump = (self.behind_since_s is not None and now_s - self.behind_since_s >= self.jump_after_s
-                and self.work_s is not None and self.work_s < KEEP_UP_SHARE * self.period_s)
+                and self.work_s is not None and self.work_s < self.period_s)
         if jump:
             self.behind_since_s = None
             self.jumps += 1
