@@ -390,7 +390,12 @@ class CorModelFit:
 def fit_cor(impacts: ImpactSet, term: ImpactTerm, kind: str) -> CorModelFit:
     """Ordinary least squares of the recomputed CORs with a linear COR law."""
     X = term.columns(impacts.plate, impacts.speed)
-    e = impacts.cor
+    return ols_cor_fit(kind, X, impacts.cor)
+
+
+def ols_cor_fit(kind: str, X: np.ndarray, e: np.ndarray) -> CorModelFit:
+    """Ordinary least squares of the CORs ``e`` on the columns ``X`` (one row per impact): coefficients, their
+    covariance sigma^2 (X^T X)^-1 (infinite when X is singular), residuals."""
     n, p = X.shape
     if n == 0:
         return CorModelFit(kind, np.zeros(p), np.full((p, p), np.inf), 0.0, 0, 1, np.zeros(0))

@@ -167,18 +167,13 @@ def _ols(X: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
     return c, float(res @ res), inv
 
 
-def check_flight_shape(meas: Measured, flights: FlightModelFit, motion: StructureKinematics,
-                       sigma_m: float) -> ShapeCheck | None:
-    """The shape test of the module docstring for the fitted flight model ``flights`` (its terms and
-    velocity histories) around the structure ``motion``; ``sigma_m`` the ball's noise floor per frame.
-    None when there are too few flights or no integration grids."""
-    if len(meas.flights) < 3 or not flights.grids or not sigma_m > 0:
-        return None
-    g, m = flights.g_mps2, meas.mass_kg
-    hist = _relative_histories(meas, flights, motion)
-    lower = _lower_level(meas, flights, motion, hist)
-    span = max(float(max(np.max(r) for _, r, _ in hist)) - lower, 1e-6)
-    edges = lower + span * np.linspace(0.0, 1.0, N_BINS + 1)
+def position_bins(lower_m: float, hist) -> tuple[np.ndarray, list, list]:
+    """``N_BINS`` equal bins of the ball's height above the lower contact level ``lower_m`` (m) up to the highest
+    point of the histories ``hist`` ((t, rel, v) per flight): the bin edges (m) and, per bin, an indicator
+    function of (rel, v) (the first and last bins open-ended) and the same times the sign of v (the part that
+    changes sign with the direction of motion)."""
+    span = max(float(max(np.max(r) for _, r, _ in hist)) - lower_m, 1e-6)
+    edges = lower_m + span * np.linspace(0.0, 1.0, N_BINS + 1)
 
     def in_bin(j):
         lo, hi = edges[j], edges[j + 1]
@@ -191,8 +186,21 @@ def check_flight_shape(meas: Measured, flights: FlightModelFit, motion: Structur
     def odd(f):
         return lambda rel, v: f(rel, v) * np.sign(v)
 
-    even_fns = [in_bin(j) for j in range(N_BINS)]
-    odd_fns = [odd(f) for f in even_fns]
+    even = [in_bin(j) for j in range(N_BINS)]
+    return edges, even, [odd(f) for f in even]
+
+
+def check_flight_shape(meas: Measured, flights: FlightModelFit, motion: StructureKinematics,
+                       sigma_m: float) -> ShapeCheck | None:
+    """The shape test of the module docstring for the fitted flight model ``flights`` (its terms and
+    velocity histories) around the structure ``motion``; ``sigma_m`` the ball's noise floor per frame.
+    None when there are too few flights or no integration grids."""
+    if len(meas.flights) < 3 or not flights.grids or not sigma_m > 0:
+        return None
+    g, m = flights.g_mps2, meas.mass_kg
+    hist = _relative_histories(meas, flights, motion)
+    lower = _lower_level(meas, flights, motion, hist)
+    edges, even_fns, odd_fns = position_bins(lower, hist)
     term_fns = [(lambda t: (lambda rel, v: t.basis(v, m)))(t) for t in flights.terms]
     r = _target(meas, g)
     n = r.size

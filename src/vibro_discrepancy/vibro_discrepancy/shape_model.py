@@ -56,13 +56,14 @@ from vibro_discrepancy.fitting import (
     ImpactSet,
     _cumtrapz,
     fit_cor,
+    ols_cor_fit,
     recompute_impacts,
 )
 from vibro_discrepancy.library import FlightTerm, cor_values, restitution_law
 from vibro_discrepancy.model import COR_TERMS, FittedModel, model_plate_levels
 from vibro_discrepancy.runs import FullRun
 from vibro_discrepancy.select import ALPHA, ALPHA_COR, MIN_COR_RMS, MIN_EXPLAINED_SIGMA, law_variance_share
-from vibro_discrepancy.shape import EXP_SHARE, N_BINS
+from vibro_discrepancy.shape import EXP_SHARE, position_bins
 from vibro_discrepancy.systematic import parity_signs
 from vibro_model.tail_probability import chi2_sf, f_sf
 from vibro_sim.deviation import Restart, restarted_deviation
@@ -427,19 +428,7 @@ def position_form_check(meas: Measured, model: FittedModel, fit: PositionFit, si
     r = np.concatenate([(fl.y_m + 0.5 * g * fl.tau_s ** 2) - Q @ (Q.T @ (fl.y_m + 0.5 * g * fl.tau_s ** 2))
                         for fl, Q in zip(meas.flights, Qs)])
     lower, L = fit.lower_m, fit.decay_m
-    span = max(float(max(np.max(rel) for _, rel, _ in hist)) - lower, 1e-6)
-    edges = lower + span * np.linspace(0.0, 1.0, N_BINS + 1)
-
-    def in_bin(j):
-        lo, hi = edges[j], edges[j + 1]
-        if j == 0:
-            return lambda rel, v: (rel < hi).astype(float)
-        if j == N_BINS - 1:
-            return lambda rel, v: (rel >= lo).astype(float)
-        return lambda rel, v: ((rel >= lo) & (rel < hi)).astype(float)
-
-    even = [in_bin(j) for j in range(N_BINS)]
-    odd = [(lambda f: (lambda rel, v: f(rel, v) * np.sign(v)))(f) for f in even]
+    _, even, odd = position_bins(lower, hist)
     X_t = _project(_blocks(meas, hist, [(lambda t: (lambda rel, v: t.basis(v, m)))(t) for t in fit.terms]), Qs)
     x_p = _project(_blocks(meas, hist, [lambda rel, v: np.exp(-np.clip(rel - lower, 0.0, None) / L)]), Qs)
     X_e = _project(_blocks(meas, hist, even), Qs)
@@ -520,18 +509,8 @@ class ParityFit:
 
 
 def _parity_fit(impacts: ImpactSet, kind: str, x: np.ndarray) -> CorModelFit:
-    X = np.column_stack([COR_TERMS[kind].columns(impacts.plate, impacts.speed), x])
-    e = impacts.cor
-    n, p = X.shape
-    c, *_ = np.linalg.lstsq(X, e, rcond=None)
-    r = e - X @ c
-    sse = float(r @ r)
-    dof = max(n - p, 1)
-    try:
-        cov = (sse / dof) * np.linalg.inv(X.T @ X)
-    except np.linalg.LinAlgError:
-        cov = np.full((p, p), np.inf)
-    return CorModelFit(PARITY_KIND, c, cov, sse, n, dof, r)
+    return ols_cor_fit(PARITY_KIND, np.column_stack([COR_TERMS[kind].columns(impacts.plate, impacts.speed), x]),
+                       impacts.cor)
 
 
 def fit_cor_parity(impacts: ImpactSet, plate: str, f0_hz: float, kinds: Sequence[str]) -> ParityFit | None:
