@@ -20,7 +20,7 @@ catalogue term, no ``parameters``) and carries the fit as ``shape_model``:
   shape in the model (chi^2 against the ball's noise floor at ``select.ALPHA`` and ``MIN_EXPLAINED_SIGMA``
   noise floors per frame explained, the rules every catalogue term passes): a Coulomb friction that only
   absorbed part of the position force is dropped, one that is really there stays. Simulated with
-  :class:`vibro_sim.synth.invented.PositionForce` (the same law class the synthetic rig uses; the fit is
+  :class:`vibro_sim.forces.PositionForce` (the same law class the synthetic rig uses; the fit is
   never told its parameters) on top of the kept catalogue force. Judged by D_r (its flights change).
 - **COR parity** (:func:`fit_cor_parity`): the COR of one plate alternating on its successive impacts
   (:func:`vibro_discrepancy.systematic.parity_signs`), e_i = X_i c + s x_i with x_i = +-1 on that plate's
@@ -67,8 +67,8 @@ from vibro_discrepancy.shape import EXP_SHARE, position_bins
 from vibro_discrepancy.systematic import parity_signs
 from vibro_model.tail_probability import chi2_sf, f_sf
 from vibro_sim.deviation import Restart, restarted_deviation
+from vibro_sim.forces import PositionForce
 from vibro_sim.restitution import RestitutionLaw
-from vibro_sim.synth.invented import PositionForce
 
 PASSES = 3                                                           # fixed point over the flight histories
 DECAYS_MM = tuple(float(x) for x in np.geomspace(0.3, 30.0, 25))     # the decay's grid (as :mod:`.shape`)

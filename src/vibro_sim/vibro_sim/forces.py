@@ -17,6 +17,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
+from vibro_model.kinematics import StructureKinematics
+
 
 def _finite(name: str, value: float, nonneg: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -151,3 +153,40 @@ class PerFlight(ForceLaw):
 
     def force_n(self, v_mps: float = 0.0, flight_index: int = 0) -> float:
         return self.constant_n(flight_index)
+
+
+class PositionForce(ForceLaw):
+    """A force towards the lower plate that decays with the ball's distance from it, on top of a velocity force
+    law ``base`` (N, positive up) (the synthetic rig's out-of-catalogue ``position_force``,
+    :mod:`vibro_sim.synth.invented`, and the discrepancy analysis' model of a located one):
+    F(t, y, v) = base(v) - weight_fraction m g exp(-(y - Y_s(t) + b) / decay), integrated numerically by
+    the COR model (kind "state"). ``force_n(v)`` (used only to decide when a ball riding a plate lifts
+    off) is the force in contact with the lower plate."""
+
+    kind = "state"
+    effect = "position_force"
+
+    def __init__(self, structure: StructureKinematics, free_play_m: float, mass_kg: float, g_mps2: float,
+                 weight_fraction: float, decay_mm: float, base: ForceLaw | None = None):
+        self.S, self.b = structure, float(free_play_m)
+        self.peak_n = float(weight_fraction) * float(mass_kg) * float(g_mps2)
+        self.decay_m = 1e-3 * float(decay_mm)
+        self.weight_fraction, self.decay_mm = float(weight_fraction), float(decay_mm)
+        self.base = base if base is not None else NoForce()
+
+    def __repr__(self) -> str:
+        return (f"PositionForce(weight_fraction={self.weight_fraction!r}, decay_mm={self.decay_mm!r}, "
+                f"base={self.base!r})")
+
+    def attraction_n(self, t_s: float, y_m: float) -> float:
+        d = max(float(y_m) - float(self.S.position(t_s)) + self.b, 0.0)
+        return -self.peak_n * math.exp(-d / self.decay_m)
+
+    def force_state_n(self, t_s: float, y_m: float, v_mps: float) -> float:
+        return self.base.force_n(v_mps, 0) + self.attraction_n(t_s, y_m)
+
+    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
+        return self.base.force_n(v_mps, flight_index) - self.peak_n
+
+    def parameters(self) -> dict:
+        return {"weight_fraction": self.weight_fraction, "decay_mm": self.decay_mm}

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 from vibro_model.constants import G_MPS2
 from vibro_model.kinematics import StructureKinematics, StructureWithTone
 
-from ..forces import ForceLaw, NoForce
+from ..forces import ForceLaw, PositionForce
 from ..restitution import RestitutionLaw
 
 INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
@@ -144,41 +144,6 @@ def stepped_cavity(S: StructureKinematics, cavity, step: dict[str, float]):
     moves up by step/2, so the upper plate is ``step_um`` higher and the lower plate stays."""
     half = 0.5e-6 * step["step_um"]
     return replace(S, offset_m=S.offset_m + half), replace(cavity, free_play_m=cavity.free_play_m + half)
-
-
-class PositionForce(ForceLaw):
-    """``position_force`` (module docstring) on top of a velocity force law ``base`` (N, positive up):
-    F(t, y, v) = base(v) - weight_fraction m g exp(-(y - Y_s(t) + b) / decay), integrated numerically by
-    the COR model (kind "state"). ``force_n(v)`` (used only to decide when a ball riding a plate lifts
-    off) is the force in contact with the lower plate."""
-
-    kind = "state"
-    effect = "position_force"
-
-    def __init__(self, structure: StructureKinematics, free_play_m: float, mass_kg: float, g_mps2: float,
-                 weight_fraction: float, decay_mm: float, base: ForceLaw | None = None):
-        self.S, self.b = structure, float(free_play_m)
-        self.peak_n = float(weight_fraction) * float(mass_kg) * float(g_mps2)
-        self.decay_m = 1e-3 * float(decay_mm)
-        self.weight_fraction, self.decay_mm = float(weight_fraction), float(decay_mm)
-        self.base = base if base is not None else NoForce()
-
-    def __repr__(self) -> str:
-        return (f"PositionForce(weight_fraction={self.weight_fraction!r}, decay_mm={self.decay_mm!r}, "
-                f"base={self.base!r})")
-
-    def attraction_n(self, t_s: float, y_m: float) -> float:
-        d = max(float(y_m) - float(self.S.position(t_s)) + self.b, 0.0)
-        return -self.peak_n * math.exp(-d / self.decay_m)
-
-    def force_state_n(self, t_s: float, y_m: float, v_mps: float) -> float:
-        return self.base.force_n(v_mps, 0) + self.attraction_n(t_s, y_m)
-
-    def force_n(self, v_mps: float, flight_index: int = 0) -> float:
-        return self.base.force_n(v_mps, flight_index) - self.peak_n
-
-    def parameters(self) -> dict:
-        return {"weight_fraction": self.weight_fraction, "decay_mm": self.decay_mm}
 
 
 def position_force(structure: StructureKinematics, cavity, base: ForceLaw, params: dict[str, float]) -> PositionForce:
