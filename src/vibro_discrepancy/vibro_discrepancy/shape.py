@@ -144,7 +144,8 @@ def _target(meas: Measured, g: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def _rank(X: np.ndarray) -> int:
+def column_rank(X: np.ndarray) -> int:
+    """Rank of ``X`` with its columns scaled to unit norm (terms of very different units compare fairly)."""
     if X.shape[1] == 0:
         return 0
     scale = np.sqrt(np.sum(X ** 2, axis=0))
@@ -152,7 +153,9 @@ def _rank(X: np.ndarray) -> int:
     return int(np.linalg.matrix_rank(X / scale, tol=1e-9))
 
 
-def _ols(X: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+def ols_fit(X: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Ordinary least squares of ``r`` on the columns of ``X`` (solved with the columns scaled): coefficients,
+    sum of squared residuals, (X^T X)^-1 (NaN when singular)."""
     if X.shape[1] == 0:
         return np.zeros(0), float(r @ r), np.zeros((0, 0))
     scale = np.sqrt(np.sum(X ** 2, axis=0))
@@ -208,24 +211,24 @@ def check_flight_shape(meas: Measured, flights: FlightModelFit, motion: Structur
     X_t = _columns(meas, flights, hist, term_fns)
     X_e = _columns(meas, flights, hist, even_fns)
     X_o = _columns(meas, flights, hist, odd_fns)
-    _, sse_t, _ = _ols(X_t, r)
+    _, sse_t, _ = ols_fit(X_t, r)
     tests = {}
     structured = False
     for name, X in (("position", X_e), ("position_x_direction", X_o)):
-        _, sse, _ = _ols(np.hstack([X_t, X]), r)
+        _, sse, _ = ols_fit(np.hstack([X_t, X]), r)
         chi = (sse_t - sse) / sig2
-        dof = _rank(np.hstack([X_t, X])) - _rank(X_t)   # a catalogue term the bins span is not counted twice
+        dof = column_rank(np.hstack([X_t, X])) - column_rank(X_t)  # a term the bins span counts once
         p = chi2_sf(max(chi, 0.0), max(dof, 1))
         ex = math.sqrt(max(sse_t - sse, 0.0) / max(n, 1)) / sigma_m
         ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA
         structured |= ok
         tests[name] = {"chi2": chi, "dof": dof, "p_value": p, "explained_x_noise": ex, "structured": ok}
     # the shape itself, free of the catalogue: even and odd bins together
-    c, sse_eo, inv = _ols(np.hstack([X_e, X_o]), r)
+    c, sse_eo, inv = ols_fit(np.hstack([X_e, X_o]), r)
     s2 = sse_eo / max(n - 2 * len(meas.flights) - c.size, 1)
     even, odd_c = c[:N_BINS], c[N_BINS:]
     even_sd = np.sqrt(np.clip(np.diag(inv)[:N_BINS] * s2, 0, None)) if inv.size else np.zeros(N_BINS)
-    _, sse_e_only, _ = _ols(X_e, r)
+    _, sse_e_only, _ = ols_fit(X_e, r)
     chi_odd = (sse_e_only - sse_eo) / sig2
     ex_odd = math.sqrt(max(sse_e_only - sse_eo, 0.0) / max(n, 1)) / sigma_m
     direction_dependent = chi2_sf(max(chi_odd, 0.0), N_BINS) < ALPHA and ex_odd >= MIN_EXPLAINED_SIGMA
@@ -236,7 +239,7 @@ def check_flight_shape(meas: Measured, flights: FlightModelFit, motion: Structur
     for L_mm in DECAYS_MM if structured else ():
         L = 1e-3 * L_mm
         X = _columns(meas, flights, hist, [lambda rel, v, L=L: np.exp(-np.clip(rel - lower, 0, None) / L)])
-        cc, sse, inv1 = _ols(X, r)
+        cc, sse, inv1 = ols_fit(X, r)
         if best is None or sse < best[1]:
             sd = math.sqrt(max(float(inv1[0, 0]) * sse / max(n - 2 * len(meas.flights) - 1, 1), 0.0))
             best = (L_mm, sse, float(cc[0]), sd)

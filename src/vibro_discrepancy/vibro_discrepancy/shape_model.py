@@ -63,7 +63,7 @@ from vibro_discrepancy.library import FlightTerm, cor_values, restitution_law
 from vibro_discrepancy.model import COR_TERMS, FittedModel, model_plate_levels
 from vibro_discrepancy.runs import FullRun
 from vibro_discrepancy.select import ALPHA, ALPHA_COR, MIN_COR_RMS, MIN_EXPLAINED_SIGMA, law_variance_share
-from vibro_discrepancy.shape import EXP_SHARE, position_bins
+from vibro_discrepancy.shape import EXP_SHARE, column_rank, ols_fit, position_bins
 from vibro_discrepancy.systematic import parity_signs
 from vibro_model.tail_probability import chi2_sf, f_sf
 from vibro_sim.deviation import Restart, restarted_deviation
@@ -397,24 +397,6 @@ def position_with_terms(meas: Measured, model: FittedModel, terms: Sequence[Flig
     return fit, [tests[t.effect] for t in terms if t.effect in tests]
 
 
-def _ols_sse(X: np.ndarray, r: np.ndarray) -> float:
-    if X.shape[1] == 0:
-        return float(r @ r)
-    scale = np.sqrt(np.sum(X ** 2, axis=0))
-    scale[scale == 0] = 1.0
-    c, *_ = np.linalg.lstsq(X / scale, r, rcond=None)
-    res = r - (X / scale) @ c
-    return float(res @ res)
-
-
-def _rank(X: np.ndarray) -> int:
-    if X.shape[1] == 0:
-        return 0
-    scale = np.sqrt(np.sum(X ** 2, axis=0))
-    scale[scale == 0] = 1.0
-    return int(np.linalg.matrix_rank(X / scale, tol=1e-9))
-
-
 def position_form_check(meas: Measured, model: FittedModel, fit: PositionFit, sigma_m: float) -> dict:
     """Is the fitted force the shape of the residual? On the fit's own histories, beside its kept catalogue
     terms: the exponential must explain ``EXP_SHARE`` of what ``N_BINS`` free bins of the distance from the
@@ -433,14 +415,14 @@ def position_form_check(meas: Measured, model: FittedModel, fit: PositionFit, si
     x_p = _project(_blocks(meas, hist, [lambda rel, v: np.exp(-np.clip(rel - lower, 0.0, None) / L)]), Qs)
     X_e = _project(_blocks(meas, hist, even), Qs)
     X_o = _project(_blocks(meas, hist, odd), Qs)
-    sse_t = _ols_sse(X_t, r)
-    sse_p = _ols_sse(np.hstack([X_t, x_p]), r)
-    sse_e = _ols_sse(np.hstack([X_t, X_e]), r)
+    sse_t = ols_fit(X_t, r)[1]
+    sse_p = ols_fit(np.hstack([X_t, x_p]), r)[1]
+    sse_e = ols_fit(np.hstack([X_t, X_e]), r)[1]
     share = (sse_t - sse_p) / (sse_t - sse_e) if sse_t > sse_e else float("nan")
     full = np.hstack([X_t, x_p, X_o])
-    sse_o = _ols_sse(full, r)
+    sse_o = ols_fit(full, r)[1]
     chi = max(sse_p - sse_o, 0.0) / sigma_m ** 2
-    dof = max(_rank(full) - _rank(np.hstack([X_t, x_p])), 1)
+    dof = max(column_rank(full) - column_rank(np.hstack([X_t, x_p])), 1)
     p = chi2_sf(chi, dof)
     ex = math.sqrt(max(sse_p - sse_o, 0.0) / max(r.size, 1)) / sigma_m
     odd_left = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA
