@@ -25,6 +25,15 @@ def own_modules() -> dict[str, Path]:
     return out
 
 
+def from_targets(node: ast.ImportFrom, package: list[str], modules: dict[str, Path]) -> tuple[str, set[str]]:
+    """The module a ``from ... import`` statement reads (relative imports resolved) and the own modules it loads
+    (``from pkg.mod import f`` -> pkg.mod, ``from pkg import mod`` -> pkg.mod)."""
+    base = node.module or ""
+    if node.level:
+        base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
+    return base, {f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names}
+
+
 def imported(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     """Own modules that module ``name`` imports anywhere in its source (``from pkg.mod import f`` -> pkg.mod,
     ``from pkg import mod`` -> pkg.mod, relative imports resolved)."""
@@ -32,12 +41,7 @@ def imported(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     found = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
-            for alias in node.names:
-                target = f"{base}.{alias.name}"
-                found.add(target if target in modules else base)
+            found.update(from_targets(node, package, modules)[1])
         elif isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
     return {m for m in found if m in modules and m != name}
@@ -134,12 +138,8 @@ def module_level_imports(name: str, path: Path, modules: dict[str, Path]) -> tup
                 visit(node.orelse)
                 continue
             if isinstance(node, ast.ImportFrom):
-                base = node.module or ""
-                if node.level:
-                    base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
-                for alias in node.names:
-                    target = f"{base}.{alias.name}"
-                    own.add(target if target in modules else base)
+                base, targets = from_targets(node, package, modules)
+                own.update(targets)
                 heavy.add(_package(base, node.names))
             elif isinstance(node, ast.Import):
                 for alias in node.names:
