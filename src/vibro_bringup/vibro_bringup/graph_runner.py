@@ -21,11 +21,12 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 from vibro_bringup.graph_spec import (
     ALL_SPECS,
     MONITOR,
+    VIEWER,
     NodeSpec,
     foxglove_layout_file,
     graph_nodes,
@@ -34,7 +35,7 @@ from vibro_bringup.graph_spec import (
     write_params_file,
 )
 from vibro_bringup.isolation import RunIdentity, new_run_identity
-from vibro_bringup.supervisor import Failure, Supervisor
+from vibro_bringup.supervisor import START_ORDER, Failure, Supervisor
 from vibro_foxglove.view import websocket_url
 from vibro_io.outputs import prepare_output_entries
 from vibro_io.rig import load_rig
@@ -142,6 +143,16 @@ class Monitor:
         while time.monotonic() < end:
             self.executor.spin_once(timeout_sec=0.05)
 
+    def subscribed(self, node_name: str, topic_names: Iterable[str]) -> bool:
+        """Node ``node_name`` of this run's namespace has a subscription on every one of ``topic_names``
+        (relative names, e.g. vibro/dic), as the ROS graph shows it to this node."""
+        namespace = self.node.get_namespace()
+        for topic in topic_names:
+            infos = self.node.get_subscriptions_info_by_topic(self.node.resolve_topic_name(topic))
+            if not any(i.node_name == node_name and i.node_namespace == namespace for i in infos):
+                return False
+        return True
+
     def close(self) -> None:
         import rclpy
 
@@ -210,11 +221,14 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         monitor = None
         try:
             monitor = Monitor(summary, rig_dir, identity)
-            supervisor.start_all()
             deadline = time.monotonic() + timeout_s
+            supervisor.start_all([VIEWER])
+            failures = _wait_for_viewers([s for s in nodes if s.role == VIEWER], supervisor, monitor, deadline)
+            if not failures:
+                supervisor.start_all([r for r in START_ORDER if r != VIEWER])
             while time.monotonic() < deadline:
                 monitor.spin(0.05)
-                failures = supervisor.poll()
+                failures = failures or supervisor.poll()
                 if failures:
                     for f in failures:
                         print(f"vibro graph: {f.describe()}", file=sys.stderr, flush=True)
@@ -238,6 +252,31 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         print("vibro graph: the graph did not finish; nodes not finished: "
               f"{', '.join(waiting) or 'none'}; the bag holds what was recorded", file=sys.stderr)
     return ok and not summary.count_problems, summary, log_dir
+
+
+#: s a viewer may take to subscribe before the run starts without it on its first frames (it then says so)
+VIEWER_READY_S = 60.0
+
+
+def _wait_for_viewers(viewers: list[NodeSpec], supervisor: Supervisor, monitor: Monitor,
+                      deadline: float) -> list[Failure]:
+    """From a recording nothing waits for a viewer (the Foxglove bridge), yet its user wants to watch the run
+    from its first frame: the other nodes start once each viewer subscribes to the streams it shows (vibro/frames,
+    vibro/dic), after at most :data:`VIEWER_READY_S` without it, saying so. Returns the failures of the wait (a
+    viewer that exited meanwhile): the run then ends before it started."""
+    streams = (topics.FRAMES.name, topics.DIC.name)
+    end = min(deadline, time.monotonic() + VIEWER_READY_S)
+    waiting = list(viewers)
+    while waiting and time.monotonic() < end:
+        monitor.spin(0.05)
+        failures = supervisor.poll()
+        if failures:
+            return failures
+        waiting = [v for v in waiting if not monitor.subscribed(v.name, [t for t in streams if t in v.subscribes])]
+    if waiting:
+        print(f"vibro graph: {', '.join(v.name for v in waiting)} did not subscribe within {VIEWER_READY_S:g} s; "
+              "the run starts without waiting for it (it may miss the first frames)", file=sys.stderr, flush=True)
+    return []
 
 
 def describe_origin(origin_ns: int) -> str:

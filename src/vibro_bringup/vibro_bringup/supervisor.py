@@ -71,8 +71,9 @@ class Supervisor:
         self.failures: list[Failure] = []
 
     # ------------------------------------------------------------------ start
-    def start_all(self) -> None:
-        for role in START_ORDER:
+    def start_all(self, roles: Sequence[str] = START_ORDER) -> None:
+        """Start the nodes of ``roles``, role by role in that order."""
+        for role in roles:
             for spec in self.specs.values():
                 if spec.role == role:
                     self.start(spec)
