@@ -17,9 +17,9 @@ PYTEST_ARGS ?=
 # worker fills it.
 TEST_WORKERS ?= 3
 
-.PHONY: setup demo test lint msgs clean bench FORCE
+.PHONY: setup demo test lint msgs kernels clean bench FORCE
 
-setup: $(DEPS_STAMP) $(PTH) msgs
+setup: $(DEPS_STAMP) $(PTH) msgs kernels
 
 $(PY):
 	@$(PYTHON) -c 'import sys; assert sys.version_info[:2] == (3, 11), "vibro needs Python 3.11 (ROS 2 Jazzy wheels are cp311); found " + sys.version' 
@@ -40,6 +40,10 @@ FORCE:
 
 msgs: $(DEPS_STAMP)
 	@scripts/build_msgs.sh
+
+# the DIC tracker's numba kernels, compiled once into their cache (loaded in ~0.3 s by every process after)
+kernels: $(DEPS_STAMP) $(PTH)
+	@$(PY) -c 'from vibro_dic.tracker import compile_kernels; print(f"DIC kernels: ready ({compile_kernels():.1f} s)")'
 
 demo: setup
 	@scripts/demo.sh $(DEMO_DIR)

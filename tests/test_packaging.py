@@ -73,7 +73,8 @@ def test_launch_file_uses_the_shared_graph_definition() -> None:
 
 #: Third-party import name -> rosdep key (keys checked in ros/rosdistro rosdep/python.yaml).
 ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "cv2": "python3-opencv",
-               "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "yaml": "python3-yaml"}
+               "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "yaml": "python3-yaml",
+               "numba": "python3-numba"}
 #: Import name -> pip distribution, for packages rosdep has no key for: requirements.txt pins them and
 #: README lists them under "Python dependencies".
 PIP_ONLY = {"mcap": "mcap", "rosbags": "rosbags", "pysindy": "pysindy",

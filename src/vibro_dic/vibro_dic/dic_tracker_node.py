@@ -62,7 +62,7 @@ from vibro_ros.readiness import ReaderGate
 from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats, cdr_stamp_ns, frames_behind
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
-from .tracker import METHODS, DicTracker
+from .tracker import METHODS, DicTracker, compile_kernels
 
 #: Longest run (s of camera time) a frame stamp may lie after the time origin.
 MAX_RUN_S = 86400.0
@@ -135,6 +135,9 @@ class DicTrackerNode(Node):
         if self.method not in METHODS:
             raise RecordingError(f"dic_tracker: parameter 'method' must be one of {METHODS}, got {self.method!r}")
         self.rig = load_rig(rig_file)
+        # the DIC kernels loaded from numba's cache (compiled on a machine's first run) before any image can
+        # arrive: their first call, ~0.3 s (~5 s uncached), must not fall on the first frame
+        self.get_logger().debug(f"DIC kernels ready in {compile_kernels():.2f} s")
         try:
             self.max_behind = frames_behind(catch_up_ms, self.rig.camera.fps)
         except ValueError as exc:

@@ -24,13 +24,12 @@ that is ~4e-4 px, far below the 0.01 px accuracy goal (checked in the tests).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from .interp import sample_block, sample_blocks, support_inside, support_inside_one
+from .interp import sample_blocks, support_inside
 
 _D4 = np.array([[1.0, -8.0, 0.0, 8.0, -1.0]], dtype=np.float32) / 12.0
 
@@ -107,7 +106,7 @@ class IcgnBlocks:
         by0 = np.einsum("ij,ij->i", self.fy, self.f_tilde, dtype=np.float64)
         # H^-1 [fx.f~, fy.f~]
         self._du_f = np.column_stack([self.ixx * bx0 + self.ixy * by0, self.ixy * bx0 + self.iyy * by0])
-        # block 0's constants as Python floats, for :meth:`step_one`
+        # block 0's constants as Python floats, for one block's compiled IC-GN (vibro_dic.kernels.refine_box)
         self._one = (float(self.df[0]), float(self._du_f[0, 0]), float(self._du_f[0, 1]))
 
     def __len__(self) -> int:
@@ -117,11 +116,6 @@ class IcgnBlocks:
         """Mask of blocks whose interpolation support, displaced by u (N, 2) px, is inside the image."""
         return support_inside(self.corners[:, 0] + u[:, 0], self.corners[:, 1] + u[:, 1],
                               self.size, self.taps, shape)
-
-    def inside_one(self, ux: float, uy: float, shape: tuple[int, int]) -> bool:
-        """:meth:`inside` of block 0 displaced by (ux, uy) px, in Python scalars."""
-        return support_inside_one(float(self.corners[0, 0]) + ux, float(self.corners[0, 1]) + uy, self.size,
-                                  self.taps, shape)
 
     def sample(self, image: np.ndarray, u: np.ndarray) -> np.ndarray:
         """(N, h, w) samples of all blocks displaced by u (N, 2) px (supports must be inside)."""
@@ -145,25 +139,6 @@ class IcgnBlocks:
         du = self._du_f[sl] - (df / dg)[:, None] * sums[:, 2:]
         du[~ok] = 0.0
         return du, zncc, ok
-
-    def step_one(self, g: np.ndarray) -> tuple[float, float, float] | None:
-        """:meth:`step` of block 0 alone (its samples ``g``, h x w), in Python scalars: (dux, duy px to ADD to u,
-        zncc at the current u), or None when the sample has no texture. The per-frame iterations of a mesh's
-        bounding box go through here, where numpy's cost per call would outweigh the arithmetic."""
-        v = g.reshape(-1).astype(np.float64)
-        s_g, f_g, hx_g, hy_g = (self._proj[0] @ v).tolist()
-        df, du_fx, du_fy = self._one
-        dg2 = float(v @ v) - s_g * s_g / v.size
-        if not dg2 > 1e-6:
-            return None
-        dg = math.sqrt(dg2)
-        scale = df / dg
-        return du_fx - scale * hx_g, du_fy - scale * hy_g, f_g / (df * dg)
-
-    def sample_one(self, image: np.ndarray, ux: float, uy: float) -> np.ndarray:
-        """(h, w) samples of block 0 displaced by (ux, uy) px (support inside: :meth:`inside_one`)."""
-        return sample_block(image, float(self.corners[0, 0]) + ux, float(self.corners[0, 1]) + uy, self.size,
-                            self.taps)
 
     def refine(self, image: np.ndarray, u0: np.ndarray, active: np.ndarray | None = None) -> IcgnResult:
         """Refine displacements from the start ``u0`` (N, 2) px on ``image`` (2-D float32).

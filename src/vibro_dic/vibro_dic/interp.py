@@ -61,13 +61,14 @@ def _cubic_in_t(taps: int) -> np.ndarray:
     return np.array(rows)
 
 
-_CUBIC_IN_T = {taps: _cubic_in_t(taps) for taps in KERNEL_TAPS}
+#: per tap count, (taps, 4): each tap's weight as a cubic in the fractional offset t, highest power first
+CUBIC_IN_T = {taps: _cubic_in_t(taps) for taps in KERNEL_TAPS}
 
 
 def kernel_weights_one(t: float, taps: int = 6) -> np.ndarray:
     """(taps,) float32 weights of one fractional offset t in [0, 1): :func:`kernel_weights` of a single
     offset as one product with precomputed cubics in t (the per-frame one-block path)."""
-    return (_CUBIC_IN_T[taps] @ (t * t * t, t * t, t, 1.0)).astype(np.float32)
+    return (CUBIC_IN_T[taps] @ (t * t * t, t * t, t, 1.0)).astype(np.float32)
 
 
 def patch_margin(taps: int) -> tuple[int, int]:

@@ -16,8 +16,8 @@ the field at the subset's gradient-weighted centre, not at its geometric centre:
 subsets of random speckle that centre is off by ~1 px, a 10-20 % error on a lever arm of
 ~7 px (a 2 x 2 mesh of 31 px subsets 10 px apart). :func:`rotation_lever_arms` computes the
 exact first-order lever arm a_i = H_i^-1 sum_j J_j J_j^T (y_j, -x_j) from the reference
-image, so u_i = t + theta a_i, and :func:`fit_rotation` solves that for (t, theta) by least
-squares over the kept points.
+image, so u_i = t + theta a_i, and :func:`vibro_dic.kernels.combine_points` solves that for
+(t, theta) by least squares over the kept points.
 
 Noise: with per-point displacement noise sigma_u (px, per component) the angle's 1-sigma is
 sigma_u / sqrt(sum |a_i - mean a|^2) (about sigma_u / (mesh radius x sqrt(N))); sigma_u is
@@ -25,9 +25,6 @@ estimated from the residuals about the rigid fit with 2N - 3 degrees of freedom.
 """
 
 from __future__ import annotations
-
-import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -59,39 +56,3 @@ def rotation_lever_arms(subsets: IcgnBlocks, centres_px: np.ndarray, subset_px: 
     # an untextured subset has no meaningful inverse Hessian: fall back to its geometric arm
     geo = np.column_stack([rel[:, 1], -rel[:, 0]])
     return np.where(subsets.textured[:, None], arms, geo)
-
-
-@dataclass(frozen=True)
-class RotationFit:
-    """Rigid in-plane rotation of one mesh in one frame (rad, + counter-clockwise on screen)."""
-
-    angle_rad: float
-    std_rad: float            # 1-sigma from the residuals (NaN with 2 points: no degree of freedom for it)
-    point_sigma_px: float     # residual displacement noise per point and component (px)
-    n_points: int
-
-
-NO_ROTATION = RotationFit(math.nan, math.nan, math.nan, 0)
-
-
-def fit_rotation(u_px: np.ndarray, arms_px: np.ndarray) -> RotationFit:
-    """Least-squares (t, theta) of u_i = t + theta a_i over the points given (u (N, 2) px, a (N, 2)).
-
-    NaN angle when fewer than 2 points or the arms do not spread (no rotation can be seen)."""
-    u = np.asarray(u_px, dtype=float).reshape(-1, 2)
-    a = np.asarray(arms_px, dtype=float).reshape(-1, 2)
-    n = len(u)
-    if n < 2:
-        return NO_ROTATION
-    da = a - a.sum(axis=0) / n
-    du = u - u.sum(axis=0) / n
-    spread = float(np.vdot(da, da))
-    if not spread >= MIN_ARM_SPREAD_PX2:
-        return NO_ROTATION
-    theta = float(np.vdot(du, da)) / spread
-    dof = 2 * n - 3
-    if dof < 1:
-        return RotationFit(theta, math.nan, math.nan, n)
-    res = du - theta * da
-    sigma = math.sqrt(float(np.vdot(res, res)) / dof)
-    return RotationFit(theta, sigma / math.sqrt(spread), sigma, n)

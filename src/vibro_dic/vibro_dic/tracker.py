@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
@@ -73,13 +74,15 @@ from vibro_io.frames import Frame
 from vibro_io.rig import DicConfig, Roi, check_rois_in_image
 from vibro_model.errors import FrameError, RecordingError
 
+from . import kernels
 from .icgn import IcgnBlocks, extract_blocks
-from .interp import KERNEL_TAPS, patch_margin
+from .interp import CUBIC_IN_T, KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
 from .outline import OutlineTracker
 from .quality import TrackQuality
-from .rotation import fit_rotation, rotation_lever_arms
+from .rotation import MIN_ARM_SPREAD_PX2, rotation_lever_arms
 from .search import SearchResult, zncc_search
+from .speckle import speckle_pattern
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
 
 log = logging.getLogger(__name__)
@@ -152,11 +155,14 @@ class MeshTracker:
         self.subsets = IcgnBlocks(reference, self.corners, (subset_px, subset_px), taps=taps, tol_px=tol_px,
                                   max_move_px=2.0)
         self.offsets = (self.corners - self.box_corner).astype(np.intp)  # subset corners inside the box
-        # flat indices of every subset's pixels in the (h, w) box: the subsets' samples are one take of the box's
-        span = np.arange(subset_px)
-        self._subset_take = ((self.offsets[:, 1, None, None] + span[None, :, None]) * self.box_size[1]
-                             + self.offsets[:, 0, None, None] + span[None, None, :])
         self.lever_arms = rotation_lever_arms(self.subsets, self.points, subset_px)  # (N, 2) px per rad
+        # the compiled kernels' inputs (vibro_dic.kernels): the box's and subsets' IC-GN constants, contiguous
+        self._cubic = np.ascontiguousarray(CUBIC_IN_T[taps], dtype=np.float64)
+        self._box_proj = np.ascontiguousarray(self.box._proj[0])
+        self._box_g = np.empty(self.box_size, dtype=np.float32)  # the box's samples at its last u
+        self._box_tmp = np.empty((self.box_size[0] + taps - 1, self.box_size[1]), dtype=np.float32)
+        self._subset_proj = np.ascontiguousarray(self.subsets._proj)
+        self._subset_offsets = np.ascontiguousarray(self.offsets)
         if method == "parabolic":
             self.subset_templates = extract_blocks(reference, self.corners[:, 0], self.corners[:, 1],
                                                    (subset_px, subset_px))
@@ -263,32 +269,27 @@ class MeshTracker:
         """IC-GN of the whole bounding box from ``u_start`` (2,) px to a step below BOX_TOL_PX: (u px, the box
         sampled at u, its ZNCC), or None when it leaves the image, moves more than ``max_move_px`` (default the
         box's) from the start, or has not converged in ``max_iter`` iterations (default the box's).
-        One block: Python scalars throughout (:meth:`IcgnBlocks.step_one`)."""
+        One compiled call (:func:`vibro_dic.kernels.refine_box`); the samples returned are overwritten by the
+        next call."""
         box = self.box
-        max_move_px = box.max_move_px if max_move_px is None else max_move_px
-        x_start, y_start = float(u_start[0]), float(u_start[1])
-        ux, uy = x_start, y_start
-        tol2 = box.tol_px ** 2
-        for _ in range(box.max_iter if max_iter is None else max_iter):
-            if abs(ux - x_start) > max_move_px or abs(uy - y_start) > max_move_px \
-                    or not box.inside_one(ux, uy, image.shape):
-                return None
-            g = box.sample_one(image, ux, uy)
-            step = box.step_one(g)
-            if step is None:
-                return None
-            dux, duy, zncc = step
-            if dux * dux + duy * duy <= tol2:
-                return np.array([ux, uy]), g, zncc  # sampled at u; the per-subset steps start from here
-            ux += dux
-            uy += duy
-        return None
+        df, du_fx, du_fy = box._one
+        code, ux, uy, zncc = kernels.refine_box(
+            image, float(self.box_corner[0]), float(self.box_corner[1]), float(u_start[0]), float(u_start[1]),
+            self._box_proj, df, du_fx, du_fy, self._cubic,
+            float(box.max_move_px if max_move_px is None else max_move_px),
+            int(box.max_iter if max_iter is None else max_iter), float(box.tol_px), self._box_g, self._box_tmp)
+        if code != kernels.CONVERGED:
+            return None
+        return np.array([ux, uy]), self._box_g, zncc  # sampled at u; the per-subset steps start from here
 
     def _subset_points(self, image: np.ndarray, u_box: np.ndarray, g_box: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One Gauss-Newton step per subset from the converged box (its samples ``g_box`` at ``u_box``);
         points whose step exceeds tol are iterated on their own."""
-        du, zncc, ok = self.subsets.step(np.take(g_box, self._subset_take))
+        m = len(self.points)
+        du, zncc, ok = np.empty((m, 2)), np.empty(m), np.empty(m, dtype=bool)
+        kernels.subset_steps(g_box, self._subset_offsets, self._subset_proj, self.subsets.df, self.subsets._du_f,
+                             du, zncc, ok)
         pu = u_box + du
         big = np.einsum("ij,ij->i", du, du) > self.subsets.tol_px ** 2
         converged = ok & ~big & self.subsets.textured
@@ -376,34 +377,38 @@ class MeshTracker:
         return out
 
     def _combine(self, u: np.ndarray, zncc: np.ndarray, conv: np.ndarray) -> MeshResult:
+        """The mesh's result from its points (:func:`vibro_dic.kernels.combine_points`: valid points, outliers
+        dropped, the rigid fit with rotation)."""
         n = len(u)
-        # NaN compares False, so a point without a ZNCC is no candidate
-        valid = conv & (zncc >= self.zncc_min) & np.isfinite(u).all(axis=1)
-        m = int(np.count_nonzero(valid))
-        if m:
-            uc = u[valid]
-            srt = np.sort(uc, axis=0)
-            med = 0.5 * (srt[(m - 1) // 2] + srt[m // 2])
-            dev = np.sort(np.abs(uc - med), axis=0)
-            thr = np.maximum((self.outlier_k * 1.4826 * 0.5) * (dev[(m - 1) // 2] + dev[m // 2]),
-                             self.outlier_floor_px)
-            valid &= (np.abs(u - med) <= thr).all(axis=1)
-        nv = int(np.count_nonzero(valid))
+        valid = np.empty(n, dtype=bool)
+        nv, ux, uy, zncc_mean, theta, theta_std, _, arm_x, arm_y = kernels.combine_points(
+            np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(zncc, dtype=np.float64),
+            np.ascontiguousarray(conv, dtype=np.bool_), self.zncc_min, self.outlier_k, self.outlier_floor_px,
+            self.lever_arms, MIN_ARM_SPREAD_PX2, valid)
         if nv < self.min_valid:
             r = self.lost(f"{self.name}: too few valid points ({nv} of {n}, need {self.min_valid})")
             r.point_u_px, r.point_valid, r.point_zncc = u, valid, zncc
             return r
-        u_kept, arms_kept = u[valid], self.lever_arms[valid]
-        rot = fit_rotation(u_kept, arms_kept)
-        mean_u = u_kept.sum(axis=0) / nv
-        if self.rotation_corrected and math.isfinite(rot.angle_rad):
+        mean_u = np.array([ux, uy])
+        if self.rotation_corrected and math.isfinite(theta):
             # the mean of the points' estimates is the displacement of their mean lever arm's point (their
             # gradient-weighted centre, ~1-2 px off the centroid): remove the rotation's share there
-            mean_u -= (rot.angle_rad / nv) * arms_kept.sum(axis=0)
-        return MeshResult(name=self.name, u_px=mean_u, valid=nv, zncc=float(zncc[valid].sum()) / nv, lost=False,
-                          reason="",
-                          point_u_px=u, point_valid=valid, point_zncc=zncc, rot_rad=rot.angle_rad,
-                          rot_std_rad=rot.std_rad)
+            mean_u -= theta * np.array([arm_x, arm_y])
+        return MeshResult(name=self.name, u_px=mean_u, valid=nv, zncc=zncc_mean, lost=False, reason="",
+                          point_u_px=u, point_valid=valid, point_zncc=zncc, rot_rad=theta, rot_std_rad=theta_std)
+
+
+def compile_kernels() -> float:
+    """Compile the tracker's numba kernels (:mod:`vibro_dic.kernels`) for the types it passes, or load them from
+    numba's cache beside the module: a mesh on a synthetic speckle tracked through every per-frame path (search,
+    prediction). ``make setup`` runs it once, so that test processes and nodes load the machine code instead
+    of each compiling it (~5 s). Returns the seconds it took."""
+    t0 = time.perf_counter()
+    pattern = speckle_pattern((80, 80), seed=0)
+    mesh = MeshTracker("ball", pattern.render().astype(np.float32), Roi(20, 20, 40, 40), 31, 9)
+    for k in range(5):
+        mesh.track(pattern.render(0.1 * k, -0.2 * k).astype(np.float32), k)
+    return time.perf_counter() - t0
 
 
 class DicTracker:
