@@ -47,7 +47,7 @@ def stage_costs(rec: Path, n: int = 300) -> dict[str, float]:
 
     from vibro_dic.dic_tracker_node import image_array
     from vibro_dic.frame_source_node import image_message
-    from vibro_dic.tracker import DicTracker
+    from vibro_dic.tracker import DicTracker, compile_kernels
     from vibro_io.recording import open_recording
 
     recording = open_recording(rec)
@@ -60,6 +60,7 @@ def stage_costs(rec: Path, n: int = 300) -> dict[str, float]:
     t = time.perf_counter()
     images = [image_array(deserialize_message(w, Image)) for w in wire]
     de = (time.perf_counter() - t) / n
+    compile_kernels()  # loaded from numba's cache, as dic_tracker does before its first image
     tracker = DicTracker.for_rig(images[0], recording.rig)
     t = time.perf_counter()
     for k, img in enumerate(images):

@@ -136,3 +136,53 @@ def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_
     else:
         assert not any(rows[k].lost for k in (0, 1, 2)) and "skipped" not in node.health.counters
     assert not rows[3].lost and abs(rows[3].ball_mm - (-0.3)) < 1e-3  # frame 3's displacement, either way
+
+
+@pytest.mark.parametrize("depth", [None, 5])
+def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording: Path, close_rclpy, ros_domain,
+                                                                  depth: int | None) -> None:
+    """20 images arrive while the tracker is stalled (its executor not taking them): its best-effort reader keeps
+    the last ``image_queue_depth`` of them. The default (50) keeps all 20, which are tracked (within catch_up_ms,
+    30 frames at 1000 fps); the sensor QoS's usual depth 5 keeps frames 15-19 only, and 0-14 are answered as lost,
+    never received (no image, so not 'skipped')."""
+    import time
+
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    from vibro_dic.catch_up import SKIPPED
+    from vibro_dic.frame_source_node import image_message
+    from vibro_io.frames import Frame
+    from vibro_io.recording import open_recording
+
+    extra = ["-p", f"image_queue_depth:={depth}"] if depth else []
+    node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
+    close_rclpy.append(node)
+    camera = rclpy.create_node("camera_driver")
+    close_rclpy.append(camera)
+    pub = camera.create_publisher(Image, "vibro/frames", qos_profile_sensor_data)
+    deadline = time.monotonic() + 10
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    rec = open_recording(tiny_recording)
+    still = next(iter(rec.frames)).image  # the scene of frame 0 in every image: each tracks to 0 mm
+    n = 20
+    for k in range(n):
+        pub.publish(image_message(Frame(index=k, t_s=rec.rig.camera.frame_time_s(k), image=still, source="test"),
+                                  "camera", ORIGIN_NS))
+    time.sleep(1.0)  # delivered into the reader's queue; the tracker has not looked
+    got = node._image_sub.handle.take_message(Image, False)
+    assert got is not None
+    node._on_image(got[0])
+    while node._backlog:  # what the resume timer does after each work slice (20 ms)
+        node._work_backlog()
+    rows = {int(m.frame_index): m for m in node._held}
+    assert sorted(rows) == list(range(n))
+    kept = n if depth is None else depth
+    for k in range(n - kept, n):
+        assert not rows[k].lost and abs(rows[k].ball_mm) < 1e-3, k
+    for k in range(n - kept):
+        assert rows[k].lost and rows[k].status != SKIPPED and "image" in rows[k].status, (k, rows[k].status)
+    assert "skipped" not in node.health.counters

@@ -45,7 +45,6 @@ from vibro_ros.convert import frame_track_to_message
 from vibro_ros.guard import InputGuard
 from vibro_ros.lab_clock import live_origin_hint
 from vibro_ros.node_support import (
-    SENSOR_QOS,
     STREAM_QOS,
     Health,
     StatusPublisher,
@@ -54,6 +53,7 @@ from vibro_ros.node_support import (
     history_qos,
     run_node,
     seconds_from_stamp,
+    sensor_qos,
     stamp_ns,
     time_origin_parameter,
 )
@@ -93,6 +93,10 @@ def dic_message(row: FrameTrack, mesh_points: tuple[int, int], status: str = "",
     return frame_track_to_message(row, mesh_points, status, reference_frame_index, run_id, origin_ns)
 
 
+#: live: images the best-effort image reader keeps (parameter ``image_queue_depth``). The sensor QoS's 5 lost 4-40
+#: images in a run whenever the tracker waited ~5 ms for a core (bench_live.py, 1000 Hz, 2 cores); 50 lost none.
+DEFAULT_IMAGE_QUEUE_DEPTH = 50
+
 #: live, the first image may come this long (s of camera time) after the reference frame: the slots between are
 #: answered as lost (the session's first images dropped); later, the clock's origin is wrong (the tracker says
 #: which origin makes its first image frame 0) or the tracker was restarted mid-run
@@ -114,6 +118,11 @@ class DicTrackerNode(Node):
             "and still track every image, oldest first; images beyond it are skipped (reported lost), so the lag "
             "stays bounded; behind this long in a row while it can keep up (after a stall), it jumps to the newest "
             "image. 0 = always jump to the newest image"))
+        image_queue_depth = int(declare(
+            self, "image_queue_depth", DEFAULT_IMAGE_QUEUE_DEPTH, "live: images the best-effort reader keeps while the "
+            "tracker is busy or waits for a core (sensor QoS, keep last): a deeper queue loses none in a short stall"))
+        if image_queue_depth < 1:
+            raise RecordingError(f"dic_tracker: parameter 'image_queue_depth' must be >= 1, got {image_queue_depth}")
         self.end_wait_s = float(declare(
             self, "end_wait_s", 5.0, "once the frame source has ended, finish after this long without an image (s): "
             "a tracker restarted after the last frame gets none; the slots it never answered count as lost downstream"))
@@ -172,7 +181,7 @@ class DicTrackerNode(Node):
         self._skipped: set[int] = set()  # frame indices received and passed over for a newer image (live)
         self._backlog: list[tuple[int, Image | bytes]] = []  # live: images taken, not yet tracked (oldest first)
         self._image_sub = self.create_subscription(
-            Image, topics.FRAMES.name, self._on_image, SENSOR_QOS if live else STREAM_QOS,
+            Image, topics.FRAMES.name, self._on_image, sensor_qos(image_queue_depth) if live else STREAM_QOS,
             event_callbacks=SubscriptionEventCallbacks(matched=self._on_image_publishers))
         self.create_timer(1.0, self._report)
         if live:  # a backlog left when a work slice ended and no image came after it (the end of the stream)

@@ -58,6 +58,14 @@ def history_qos(depth: int = HISTORY_DEPTH) -> QoSProfile:
 
 HISTORY_QOS = history_qos()
 
+
+def sensor_qos(depth: int) -> QoSProfile:
+    """The sensor data profile (best effort, volatile, keep last) of a camera's image_raw with a reader queue of
+    ``depth`` items: compatible with any driver's publisher, and holding ``depth`` images while the reader is
+    busy."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(depth), reliability=SENSOR_QOS.reliability,
+                      durability=SENSOR_QOS.durability)
+
 #: ROS defaults (reliable, volatile, depth 10), e.g. /diagnostics as every ROS tool publishes it.
 DEFAULT_QOS = QoSProfile(depth=10)
 
