@@ -42,6 +42,24 @@ def _images(rec: Path) -> dict[int, object]:
     return {f.index: image_message(f, "camera", ORIGIN_NS) for f in open_recording(rec).frames if f.ok}
 
 
+def _camera_matched(close_rclpy) -> tuple[object, float]:
+    """A camera driver's image publisher (sensor QoS) on vibro/frames, once the tracker's reader has matched it, and
+    a deadline (monotonic s) 10 s from its start for what the test waits for next."""
+    import time
+
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    camera = rclpy.create_node("camera_driver")
+    close_rclpy.append(camera)
+    pub = camera.create_publisher(Image, "vibro/frames", qos_profile_sensor_data)
+    deadline = time.monotonic() + 10
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return pub, deadline
+
+
 def test_ready_before_the_first_image_and_the_dropped_first_images_answered(tiny_recording: Path,
                                                                             close_rclpy, ros_domain) -> None:
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
@@ -100,8 +118,6 @@ def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_
     three older ones are skipped; with the default bound (several frames) all four are tracked, oldest first."""
     import time
 
-    import rclpy
-    from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Image
 
     from vibro_dic.catch_up import SKIPPED
@@ -111,12 +127,7 @@ def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_
                  f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
     close_rclpy.append(node)
     assert (node.max_behind == 0) == (catch_up == "0") and (catch_up == "0" or node.max_behind >= 3)
-    camera = rclpy.create_node("camera_driver")
-    close_rclpy.append(camera)
-    pub = camera.create_publisher(Image, "vibro/frames", qos_profile_sensor_data)
-    deadline = time.monotonic() + 10
-    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    pub, deadline = _camera_matched(close_rclpy)
     images = _images(tiny_recording)
     for k in (0, 1, 2, 3):  # a stalled tracker: four images queued before it looks again
         pub.publish(images[k])
@@ -147,8 +158,6 @@ def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording
     never received (no image, so not 'skipped')."""
     import time
 
-    import rclpy
-    from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Image
 
     from vibro_dic.catch_up import SKIPPED
@@ -160,12 +169,7 @@ def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
                  f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
     close_rclpy.append(node)
-    camera = rclpy.create_node("camera_driver")
-    close_rclpy.append(camera)
-    pub = camera.create_publisher(Image, "vibro/frames", qos_profile_sensor_data)
-    deadline = time.monotonic() + 10
-    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    pub, deadline = _camera_matched(close_rclpy)
     rec = open_recording(tiny_recording)
     still = next(iter(rec.frames)).image  # the scene of frame 0 in every image: each tracks to 0 mm
     n = 20
