@@ -153,9 +153,8 @@ def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_
 def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording: Path, close_rclpy, ros_domain,
                                                                   depth: int | None) -> None:
     """20 images arrive while the tracker is stalled (its executor not taking them): its best-effort reader keeps
-    the last ``image_queue_depth`` of them. The default (50) keeps all 20, which are tracked (within catch_up_ms,
-    30 frames at 1000 fps); the sensor QoS's usual depth 5 keeps frames 15-19 only, and 0-14 are answered as lost,
-    never received (no image, so not 'skipped')."""
+    the last ``image_queue_depth`` of them. The default (50) keeps all 20, which are tracked; the sensor QoS's usual
+    depth 5 keeps frames 15-19 only, and 0-14 are answered as lost, never received (no image, so not 'skipped')."""
     import time
 
     from sensor_msgs.msg import Image
@@ -165,9 +164,11 @@ def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording
     from vibro_io.frames import Frame
     from vibro_io.recording import open_recording
 
+    # catch_up_ms far beyond the test's own time: the catch-up policy (its own tests: test_catch_up.py) never passes
+    # an image over, however slowly a loaded machine tracks the 20
     extra = ["-p", f"image_queue_depth:={depth}"] if depth else []
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
-                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", "-p", "catch_up_ms:=5000.0", *extra)
     close_rclpy.append(node)
     pub, deadline = _camera_matched(close_rclpy)
     rec = open_recording(tiny_recording)
