@@ -1,10 +1,13 @@
 """A stand-in for a live dic_tracker in the live accelerometer tests: a recording's DIC rows as DicFrames in real time.
 
-    python tests/live_dic_peer.py RECORDING --start-at-unix-s S [--time-origin-ns NS] --ros-args -r __node:=dic_tracker
+    python tests/live_dic_peer.py RECORDING (--start-at-unix-s S | --ready-file R --start-file F) \
+        [--time-origin-ns NS] --ros-args -r __node:=dic_tracker
 
 Tracks RECORDING offline first (vibro_dic.tracker.track_recording, the tracker's core), then publishes frame k's
 DicFrame on vibro/dic (latched history, as the tracker does) at wall time S + (t_k - t0_s) + one frame (when a
-live tracker has its result), stamped on the lab clock of the origin. Exits 0 after the last frame.
+live tracker has its result), stamped on the lab clock of the origin. Exits 0 after the last frame. With
+``--ready-file`` and ``--start-file`` it touches the first once tracked and publishing, then takes S from the second
+(bench/daq_peer.py's shared start: a loaded machine's slow start cannot push the stream past S).
 """
 
 from __future__ import annotations
@@ -15,6 +18,9 @@ import time
 from pathlib import Path
 
 import rclpy
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from daq_peer import shared_start  # noqa: E402
 
 from vibro_dic.tracker import track_recording
 from vibro_io.recording import open_recording
@@ -27,7 +33,10 @@ from vibro_ros.node_support import history_qos
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("recording", type=Path)
-    parser.add_argument("--start-at-unix-s", type=float, required=True)
+    parser.add_argument("--start-at-unix-s", type=float, default=None)
+    parser.add_argument("--ready-file", type=Path, default=None)
+    parser.add_argument("--start-file", type=Path, default=None)
+    parser.add_argument("--wait-s", type=float, default=60.0, help="give up when no start file after this")
     parser.add_argument("--time-origin-ns", type=int, default=0)
     args = parser.parse_args(rclpy.utilities.remove_ros_args(sys.argv)[1:])
     rec = open_recording(args.recording)
@@ -36,8 +45,11 @@ def main() -> int:
     rclpy.init(args=sys.argv)
     node = rclpy.create_node("dic_tracker")
     pub = node.create_publisher(DicFrame, topics.DIC.name, history_qos(len(rows) + 10))
+    start = shared_start(args)
+    if start is None:
+        parser.error("give --start-at-unix-s, or --ready-file and --start-file")
     for row in rows:
-        delay = args.start_at_unix_s + (row.t_s - cam.t0_s) + 1.0 / cam.fps - time.time()
+        delay = start + (row.t_s - cam.t0_s) + 1.0 / cam.fps - time.time()
         if delay > 0:
             time.sleep(delay)
         pub.publish(frame_track_to_message(row, (1, 1), "", 0, "", args.time_origin_ns))

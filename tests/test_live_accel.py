@@ -43,6 +43,15 @@ def _values(status) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
 
+def _latest(diags: list, name: str) -> dict[str, str]:
+    """The values of the latest status ``name`` among the DiagnosticArrays received so far."""
+    for arr in reversed(diags):
+        for st in arr.status:
+            if st.name == name:
+                return _values(st)
+    return {}
+
+
 def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_reported(recording: Path, tmp_path: Path,
                                                                                      ros_domain: str) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
@@ -61,22 +70,33 @@ def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_report
             impacts = probe.subscribe(AccelImpact, "vibro/accel_impacts", RESULTS_QOS)
             diags = probe.subscribe(DiagnosticArray, "/diagnostics", 100)
             assert probe.wait_for_nodes(["/impact_detector", "/trajectory_fitter"], 60)
-            # both peers on one schedule: camera time t0 at this wall time; the DAQ peer sends nothing before both
-            # nodes' readers have matched it (a reader that matched late would start mid-stream)
-            start = time.time() + 3.0
-            common = ["--time-origin-ns", str(ORIGIN_NS), "--start-at-unix-s", f"{start:.6f}"]
+            # both peers on one schedule: camera time t0 at one wall time, written once both are loaded (tracked,
+            # publishing) and the DAQ peer has both nodes' readers matched (a reader that matched late would start
+            # mid-stream)
+            ready = [tmp_path / "daq.ready", tmp_path / "dic.ready"]
+            start_file = tmp_path / "start"
+            common = ["--time-origin-ns", str(ORIGIN_NS), "--start-file", str(start_file)]
             daq = subprocess.Popen([sys.executable, str(BENCH / "daq_peer.py"), str(recording),
                                     str(tmp_path / "daq.json"), "--block-samples", str(BLOCK), "--drop-blocks",
                                     ",".join(map(str, DROPPED)), "--min-subscribers", "2", *common,
-                                    "--ros-args", "-r", "__node:=daq_driver"],
+                                    "--ready-file", str(ready[0]), "--ros-args", "-r", "__node:=daq_driver"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             dic = subprocess.Popen([sys.executable, str(HERE / "live_dic_peer.py"), str(recording), *common,
-                                    "--ros-args", "-r", "__node:=dic_tracker"],
+                                    "--ready-file", str(ready[1]), "--ros-args", "-r", "__node:=dic_tracker"],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             procs += [daq, dic]
+            assert probe.spin_until(lambda: all(f.exists() for f in ready) or daq.poll() is not None
+                                    or dic.poll() is not None, 120)
+            tmp_start = start_file.with_suffix(".tmp")
+            tmp_start.write_text(f"{time.time() + 1.0:.6f}")
+            tmp_start.rename(start_file)  # whole, as the peers read it
             assert probe.spin_until(lambda: daq.poll() is not None and dic.poll() is not None, 120)
             assert daq.returncode == 0, daq.stderr.read()
             assert dic.returncode == 0, dic.stderr.read()
+            # the fitter has had every frame when its offset comes from the impacts both clocks saw; a loaded
+            # machine gets it there later than the peers end (checked below, whatever happens here)
+            probe.spin_until(lambda: _latest(diags, "/trajectory_fitter").get("clock_offset_source", "")
+                             .startswith("impacts"), 30)
             probe.spin(2.5)  # the last diagnostics (once a second)
     finally:
         for p in procs:
