@@ -43,13 +43,13 @@ def _values(status) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
 
-def _latest(diags: list, name: str) -> dict[str, str]:
-    """The values of the latest status ``name`` among the DiagnosticArrays received so far."""
-    for arr in reversed(diags):
+def _last_statuses(diags: list) -> dict[str, tuple]:
+    """Per status name, the latest status among the DiagnosticArrays received so far and its values."""
+    last = {}
+    for arr in diags:
         for st in arr.status:
-            if st.name == name:
-                return _values(st)
-    return {}
+            last[st.name] = (st, _values(st))
+    return last
 
 
 def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_reported(recording: Path, tmp_path: Path,
@@ -95,8 +95,8 @@ def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_report
             assert dic.returncode == 0, dic.stderr.read()
             # the fitter has had every frame when its offset comes from the impacts both clocks saw; a loaded
             # machine gets it there later than the peers end (checked below, whatever happens here)
-            probe.spin_until(lambda: _latest(diags, "/trajectory_fitter").get("clock_offset_source", "")
-                             .startswith("impacts"), 30)
+            probe.spin_until(lambda: _last_statuses(diags).get("/trajectory_fitter", (None, {}))[1]
+                             .get("clock_offset_source", "").startswith("impacts"), 30)
             probe.spin(2.5)  # the last diagnostics (once a second)
     finally:
         for p in procs:
@@ -111,10 +111,7 @@ def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_report
         err = p.stderr.read()
         assert p.returncode == 0 and "Traceback" not in err, err
 
-    last = {}
-    for arr in diags:
-        for st in arr.status:
-            last[st.name] = (st, _values(st))
+    last = _last_statuses(diags)
     det_status, det = last["/impact_detector"]
     fit_status, fit = last["/trajectory_fitter"]
 

@@ -156,13 +156,10 @@ class MeshTracker:
                                   max_move_px=2.0)
         self.offsets = (self.corners - self.box_corner).astype(np.intp)  # subset corners inside the box
         self.lever_arms = rotation_lever_arms(self.subsets, self.points, subset_px)  # (N, 2) px per rad
-        # the compiled kernels' inputs (vibro_dic.kernels): the box's and subsets' IC-GN constants, contiguous
+        # the compiled kernels' inputs (vibro_dic.kernels) beside the IC-GN constants: interpolation cubics, scratch
         self._cubic = np.ascontiguousarray(CUBIC_IN_T[taps], dtype=np.float64)
-        self._box_proj = np.ascontiguousarray(self.box._proj[0])
         self._box_g = np.empty(self.box_size, dtype=np.float32)  # the box's samples at its last u
         self._box_tmp = np.empty((self.box_size[0] + taps - 1, self.box_size[1]), dtype=np.float32)
-        self._subset_proj = np.ascontiguousarray(self.subsets._proj)
-        self._subset_offsets = np.ascontiguousarray(self.offsets)
         if method == "parabolic":
             self.subset_templates = extract_blocks(reference, self.corners[:, 0], self.corners[:, 1],
                                                    (subset_px, subset_px))
@@ -275,7 +272,7 @@ class MeshTracker:
         df, du_fx, du_fy = box._one
         code, ux, uy, zncc = kernels.refine_box(
             image, float(self.box_corner[0]), float(self.box_corner[1]), float(u_start[0]), float(u_start[1]),
-            self._box_proj, df, du_fx, du_fy, self._cubic,
+            self.box._proj[0], df, du_fx, du_fy, self._cubic,
             float(box.max_move_px if max_move_px is None else max_move_px),
             int(box.max_iter if max_iter is None else max_iter), float(box.tol_px), self._box_g, self._box_tmp)
         if code != kernels.CONVERGED:
@@ -288,7 +285,7 @@ class MeshTracker:
         points whose step exceeds tol are iterated on their own."""
         m = len(self.points)
         du, zncc, ok = np.empty((m, 2)), np.empty(m), np.empty(m, dtype=bool)
-        kernels.subset_steps(g_box, self._subset_offsets, self._subset_proj, self.subsets.df, self.subsets._du_f,
+        kernels.subset_steps(g_box, self.offsets, self.subsets._proj, self.subsets.df, self.subsets._du_f,
                              du, zncc, ok)
         pu = u_box + du
         big = np.einsum("ij,ij->i", du, du) > self.subsets.tol_px ** 2
