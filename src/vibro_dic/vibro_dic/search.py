@@ -2,6 +2,10 @@
 
 ZNCC(u) = sum (f - f_mean)(g(x + u) - g_mean) / (||f - f_mean|| ||g - g_mean||), which is
 OpenCV's TM_CCOEFF_NORMED. Pixel convention: x = column, y = row.
+
+:func:`whole_image_search` finds a template anywhere in the image coarse to fine: the whole image at half
+resolution (``cv2.pyrDown``, 1/16 of the work), then full resolution in a small window around that peak; the full
+search only when that window's peak is not a clear one.
 """
 
 from __future__ import annotations
@@ -57,3 +61,37 @@ def zncc_search(image: np.ndarray, template: np.ndarray, x_lo: int, x_hi: int, y
     on_border = (px == 0 and x_lo > 0) or (px == w - 1 and x_hi < cols - tw) or \
                 (py == 0 and y_lo > 0) or (py == h - 1 and y_hi < rows - th)
     return SearchResult(x_lo + px, y_lo + py, float(peak), sub_dx, sub_dy, bool(on_border))
+
+
+#: (px, full resolution) half-width of the window searched around the half-resolution peak: the peak of a template
+#: at top-left x in the full image is at x/2 +- 0.5 at half resolution, so +-1 px would do; 3 leaves margin
+COARSE_WINDOW_PX = 3
+#: (px) smallest template side searched at half resolution: smaller ones keep too few speckles there
+MIN_COARSE_TEMPLATE_PX = 16
+
+
+def half_resolution(image: np.ndarray) -> np.ndarray:
+    """The image at half resolution (Gaussian 5x5 then every 2nd row and column, ``cv2.pyrDown``)."""
+    return cv2.pyrDown(image)
+
+
+def whole_image_search(image: np.ndarray, template: np.ndarray, half_template: np.ndarray | None,
+                       zncc_min: float, half_image: np.ndarray | None = None) -> SearchResult | None:
+    """The template's best position in the whole image (:func:`zncc_search` over every position), coarse to fine:
+    the whole image searched at half resolution with ``half_template`` (:func:`half_resolution` of ``template``;
+    None: no coarse level), then the full image in +-:data:`COARSE_WINDOW_PX` around that peak. That window's peak
+    is returned when it is a clear one (ZNCC >= ``zncc_min``, not on the window's border); else (a pattern too fine
+    for half resolution, a second body alike) the whole image at full resolution, as without the coarse level.
+    ``half_image``: the image at half resolution when the caller has it already."""
+    th, tw = template.shape
+    if half_template is not None and min(th, tw) >= MIN_COARSE_TEMPLATE_PX:
+        half = half_resolution(image) if half_image is None else half_image
+        coarse = zncc_search(half, half_template, 0, half.shape[1], 0, half.shape[0])
+        if coarse is not None and coarse.zncc >= zncc_min:
+            r = COARSE_WINDOW_PX
+            x, y = 2 * coarse.x, 2 * coarse.y
+            fine = zncc_search(image, template, x - r, x + r, y - r, y + r)
+            if fine is not None and not fine.on_border and fine.zncc >= zncc_min:
+                return fine
+    rows, cols = image.shape
+    return zncc_search(image, template, 0, cols, 0, rows)

@@ -22,8 +22,9 @@ Pipeline for each mesh (ball, structure) and each frame:
    mesh's bounding box (the union of its subsets, frame 0) in a window of +-``search_px`` (default 4)
    around the prediction. If the peak is below ``zncc_min`` or on the window's border,
    the window is widened to cover the last good position +- (2 x fastest recent speed x
-   frames elapsed + search_px) (a reversal at an impact); failing that the whole image is
-   searched.
+   frames elapsed + search_px) (a reversal at an impact; with one frame of history there is no speed, and
+   this step is left out); failing that the whole image is searched, coarse to fine
+   (:func:`vibro_dic.search.whole_image_search`: half resolution first).
 3. **Sub-pixel**:
    - ``method="icgn"``: translation IC-GN (ZNSSD, Keys cubic interpolation; see
      :mod:`vibro_dic.icgn`) first on the whole bounding box, then one Gauss-Newton step
@@ -81,7 +82,7 @@ from .mesh import mesh_points
 from .outline import OutlineTracker
 from .quality import TrackQuality
 from .rotation import MIN_ARM_SPREAD_PX2, rotation_lever_arms
-from .search import SearchResult, zncc_search
+from .search import SearchResult, half_resolution, whole_image_search, zncc_search
 from .speckle import speckle_pattern
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
 
@@ -150,6 +151,7 @@ class MeshTracker:
         self.box_corner = np.array([x0, y0], dtype=float)
         self.box_size = (int(y1 - y0), int(x1 - x0))  # (h, w) of the union of the subsets
         self.template = extract_blocks(reference, [x0], [y0], self.box_size)[0]
+        self._half_template = half_resolution(self.template)  # the whole-image search's coarse level
         self.box = IcgnBlocks(reference, self.box_corner[None], self.box_size, taps=taps, tol_px=BOX_TOL_PX,
                               max_move_px=2.0)
         self.subsets = IcgnBlocks(reference, self.corners, (subset_px, subset_px), taps=taps, tol_px=tol_px,
@@ -240,7 +242,7 @@ class MeshTracker:
         if good(res):
             return res
         self.n_widened += 1
-        if self.history:
+        if len(self.history) >= 2:  # one frame of history has no speed: the widened window would be this one
             k_last, u_last = self.history[-1]
             # fastest recent speed (px/frame) per axis; x2 covers a reversal (impact) since then
             speed = np.zeros(2)
@@ -253,9 +255,8 @@ class MeshTracker:
             res2 = zncc_search(image, self.template, x_lo, x_hi, y_lo, y_hi)
             if good(res2):
                 return res2
-        rows, cols = image.shape
         self.n_global += 1
-        res3 = zncc_search(image, self.template, 0, cols, 0, rows)
+        res3 = whole_image_search(image, self.template, self._half_template, self.zncc_min)
         if res3 is not None and res3.zncc >= self.zncc_min:
             return res3
         return None
