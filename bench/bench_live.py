@@ -70,6 +70,25 @@ GOAL_EXCESS_S = 0.005
 WITH_REFERENCE = "--first-image-reference" not in sys.argv
 #: dic_tracker parameters set from the command line (--catch-up-ms), on top of the launch file's
 TRACKER_PARAMETERS: dict[str, float] = {}
+#: the camera process's own environment on top of the run's (--camera-shm-segment-mb: its Fast DDS profile)
+CAMERA_ENV: dict[str, str] = {}
+CAMERA_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
+<!-- bench_live --camera-shm-segment-mb: the camera driver's shared-memory segment (Fast DDS's default is 512 KB,
+     6 images of 160 x 480 px) -->
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor><transport_id>camera_shm</transport_id><type>SHM</type>
+        <segment_size>{segment_bytes}</segment_size></transport_descriptor>
+      <transport_descriptor><transport_id>camera_udp</transport_id><type>UDPv4</type></transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="camera_driver" is_default_profile="true">
+      <rtps><userTransports><transport_id>camera_shm</transport_id><transport_id>camera_udp</transport_id>
+      </userTransports><useBuiltinTransports>false</useBuiltinTransports></rtps>
+    </participant>
+  </profiles>
+</dds>
+"""
 #: DAQ of the synthetic rig (vibro synth: 50 kHz), block of 20 ms
 ACCEL_RATE_HZ = 50_000.0
 BLOCK_SAMPLES = 1000
@@ -191,7 +210,7 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel
                 peers["camera"] = subprocess.Popen(
                     [sys.executable, str(BENCH / "camera_peer.py"), str(rec), str(cam_out), "--rate-hz", str(rate_hz),
                      *common, "--ready-file", str(folder / "camera.ready"), "--ros-args", "-r",
-                     "__node:=camera_driver"], stdout=log, stderr=subprocess.STDOUT, env=env)
+                     "__node:=camera_driver"], stdout=log, stderr=subprocess.STDOUT, env={**env, **CAMERA_ENV})
             waiting = [folder / f"{n}.ready" for n in peers]
             # and the tracker has matched the camera's writer (the writer seeing the reader is not enough: a reader
             # drops samples of a writer it has not matched yet; once 226 images were lost so at the start)
@@ -372,8 +391,10 @@ def main() -> int:
                                                   "camera's first frame, for DURATION_S")
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "live.json")
     parser.add_argument("--catch-up-ms", type=float, default=None,
-                        help="dic_tracker's catch_up_ms (default: the node's): how far it may fall behind and still "
-                             "track every image (0: always jump to the newest)")
+                        help="dic_tracker's catch_up_ms (default: the node's): the time within which it works off a "
+                             "backlog, thinning it when its work per frame cannot (0: always the newest image)")
+    parser.add_argument("--camera-shm-segment-mb", type=float, default=None,
+                        help="the camera process's Fast DDS shared-memory segment (MB; default: Fast DDS's 512 KB)")
     parser.add_argument("--first-image-reference", action="store_true",
                         help="give dic_tracker no reference file: it builds its tracker on the first image (A/B of "
                              "the start-up)")
@@ -381,6 +402,13 @@ def main() -> int:
                         help="the live goals' three scenarios in one run, all to --out: 1000 Hz x 5, 2000 Hz x 2, "
                              "1000 Hz with a 0.3 s hog on core 0 x 2 (--rates/--repeat/--hog are then ignored)")
     args = parser.parse_args()
+    if args.camera_shm_segment_mb is not None:
+        if not args.camera_shm_segment_mb > 0:
+            parser.error("--camera-shm-segment-mb must be > 0")
+        profile = Path(tempfile.gettempdir()) / "vibro_bench_live" / "camera_profile.xml"
+        profile.parent.mkdir(parents=True, exist_ok=True)
+        profile.write_text(CAMERA_PROFILE.format(segment_bytes=int(args.camera_shm_segment_mb * 2**20)))
+        CAMERA_ENV["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
     if args.catch_up_ms is not None:
         TRACKER_PARAMETERS["catch_up_ms"] = float(args.catch_up_ms)
     if args.suite:
@@ -416,7 +444,7 @@ def run_scenario(args: argparse.Namespace, rates: list[float], repeat: int, hog_
                     "accelerometers": f"daq_peer {ACCEL_RATE_HZ:g} Hz, {BLOCK_SAMPLES} samples a block" if accel
                     else None, "hog": {"start_s": hog_window[0], "duration_s": hog_window[1], "core": 0}
                     if hog_window else None, "command": " ".join(sys.argv),
-                    "dic_tracker_parameters": dict(TRACKER_PARAMETERS)}
+                    "dic_tracker_parameters": dict(TRACKER_PARAMETERS), "camera_env": dict(CAMERA_ENV)}
     result["tracker_in_process_ms_per_frame"] = tracker_cost_ms(rec)
     one_core = 1e3 / sum(result["tracker_in_process_ms_per_frame"].values())
     result["tracker_one_core_ceiling_frames_per_s"] = one_core

@@ -111,22 +111,30 @@ def test_from_a_recording_no_ready_flag_and_no_leading_slots(tiny_recording: Pat
     assert [int(m.frame_index) for m in node._held] == [3]
 
 
+def _pin_work_per_frame(node, seconds: float) -> None:
+    """The catch-up policy's measure of the tracker's own work per frame, fixed (whatever this machine's load)."""
+    node.catch_up_policy.cost_s = seconds
+    node.catch_up_policy.worked = lambda _seconds: None
+
+
 @pytest.mark.parametrize("catch_up", ["0", "default"])
 def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_and_skipped_beyond(
         tiny_recording: Path, close_rclpy, ros_domain, catch_up: str) -> None:
-    """Four images queued behind a stalled tracker: with catch_up_ms 0 the newest is tracked across the gap and the
-    three older ones are skipped; with the default bound (several frames) all four are tracked, oldest first."""
+    """Four images queued behind a stalled tracker whose work is 0.1 ms a frame: with catch_up_ms 0 the newest is
+    tracked across the gap and the three older ones are skipped; with the default (30 ms, in which that tracker
+    works off hundreds of frames) all four are tracked, oldest first."""
     import time
 
     from sensor_msgs.msg import Image
 
-    from vibro_dic.catch_up import SKIPPED
+    from vibro_dic.catch_up import DEFAULT_CATCH_UP_MS, SKIPPED
 
     extra = ["-p", "catch_up_ms:=0.0"] if catch_up == "0" else []
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
                  f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
     close_rclpy.append(node)
-    assert (node.max_behind == 0) == (catch_up == "0") and (catch_up == "0" or node.max_behind >= 3)
+    assert node.catch_up_policy.catch_up_s == (0.0 if catch_up == "0" else 1e-3 * DEFAULT_CATCH_UP_MS)
+    _pin_work_per_frame(node, 1e-4)
     pub, deadline = _camera_matched(close_rclpy)
     images = _images(tiny_recording)
     for k in (0, 1, 2, 3):  # a stalled tracker: four images queued before it looks again
@@ -164,12 +172,13 @@ def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording
     from vibro_io.frames import Frame
     from vibro_io.recording import open_recording
 
-    # catch_up_ms far beyond the test's own time: the catch-up policy (its own tests: test_catch_up.py) never passes
-    # an image over, however slowly a loaded machine tracks the 20
+    # the catch-up policy (its own tests: test_catch_up.py) never passes an image over, however slowly a loaded
+    # machine tracks the 20: its work per frame pinned at 0.1 ms
     extra = ["-p", f"image_queue_depth:={depth}"] if depth else []
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
-                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", "-p", "catch_up_ms:=5000.0", *extra)
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
     close_rclpy.append(node)
+    _pin_work_per_frame(node, 1e-4)
     pub, deadline = _camera_matched(close_rclpy)
     rec = open_recording(tiny_recording)
     still = next(iter(rec.frames)).image  # the scene of frame 0 in every image: each tracks to 0 mm

@@ -2,18 +2,29 @@
 
 No rclpy here. ``dic_tracker`` (live camera), each time it is handed an image, first takes every image already
 waiting in its subscription's queue (raw, unread: only their stamps are read, :func:`cdr_stamp_ns`) into its own
-backlog. A backlog of up to ``max_behind`` images behind the one tracked is worked through oldest first: a short
-stall (another process on its core for a millisecond or two, a slow frame) costs no image, only a few frames of
-lag, which the tracker's spare capacity removes (at 0.7 ms of work per 1 ms frame, 10 frames behind are caught
-up in about 25 ms). Beyond ``max_behind``, the oldest images are passed over at once and reported lost with
-:data:`SKIPPED` as the reason, and the next one tracked is predicted across the gap from the motion history
-(vibro_dic.tracker, step 1: quadratic for the ball, the drive's sine for the structure). So a long stall is one
-block of skipped images and a lag under ``max_behind + 2`` frames' work, however long the stall; a tracker
-slower than its camera tracks at its own rate with the lost images spread (one now and then), not a collapse.
-``max_behind = 0`` is the pure jump to the newest image, which loses an image at every jitter.
+backlog. It then tracks one image of the backlog and reports the older ones it passed over lost, with
+:data:`SKIPPED` as the reason; the next image tracked is predicted across the gap from the motion history
+(vibro_dic.tracker, step 1: quadratic for the ball, the drive's sine for the structure).
 
-:func:`simulate` runs this policy (or the oldest-first one without a bound) on a schedule of image arrivals, a
-per-frame cost and stalls, deterministically: what the tests and the bench's expectations rest on.
+Which one (:func:`stride_for`, :class:`CatchUpPolicy`): the backlog must be worked off within ``catch_up_s`` (the
+node's ``catch_up_ms``) of the moment the tracker first found more images waiting than a few milliseconds'
+worth (:data:`KEEPING_UP_S`: on busy cores a backlog wanders over a few frames without a stall), back to that few (a
+deadline: reached with more waiting, it takes the newest). A tracker whose own work is ``cost_s`` per image (its
+CPU time: a stall, when another process has its core, is not work) and that advances ``stride`` images per image
+tracked removes ``stride - cost_s / period_s`` images of backlog in ``cost_s``; ``behind`` images are gone in
+``catch_up_s`` when
+
+    stride >= cost_s / period_s + behind * cost_s / catch_up_s.
+
+The smallest such whole stride is taken: 1 (every image, oldest first) while the backlog can be worked off in
+time, so a short stall (another process on the core for a millisecond or two, a slow frame) costs no image, only
+a few frames of lag; after a long stall every ``stride``-th image is tracked and the rest skipped, the stride
+falling back to 1 as the backlog goes (lost images spread, one or a few in a row, not a block: every flight of
+the ball keeps images); a tracker slower than its camera (``cost_s > period_s``) tracks every 2nd (3rd, ...)
+image at its own rate with a lag of a few frames. ``catch_up_s = 0``: always the newest image.
+
+:func:`simulate` runs a policy on a schedule of image arrivals, a per-frame cost and stalls, deterministically:
+what the tests and the bench's expectations rest on.
 """
 
 from __future__ import annotations
@@ -38,8 +49,8 @@ def cdr_stamp_ns(raw: bytes) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
-#: (ms of camera time) dic_tracker's default bound on its backlog (parameter ``catch_up_ms``): on 2 cores beside the
-#: rest of the live graph at 1000 Hz, 10 ms passed over 14-468 of 3000 images per run, 30 ms 4-26 (bench_live.py)
+#: (ms) dic_tracker's default ``catch_up_ms``: the time within which a tracker that fell behind has worked off its
+#: backlog (the live goal: back at the camera within 50 ms of a stall's end, with margin for the cost's estimate)
 DEFAULT_CATCH_UP_MS = 30.0
 
 
@@ -66,48 +77,104 @@ def choose(waiting: Sequence[int], max_behind: int = 0) -> Choice:
     return Choice(keep[0], [int(k) for k in waiting[:n_skip]], keep[1:])
 
 
+def thin(waiting: Sequence[int], stride: int) -> Choice:
+    """Of the images waiting (frame indices, arrival order): the oldest ``stride - 1`` skipped, the next tracked,
+    the rest left waiting; the newest tracked when fewer wait."""
+    if not waiting:
+        raise ValueError("no image waiting")
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, got {stride}")
+    i = min(stride, len(waiting)) - 1
+    return Choice(int(waiting[i]), [int(k) for k in waiting[:i]], [int(k) for k in waiting[i + 1:]])
+
+
+def stride_for(behind: int, cost_s: float, period_s: float, catch_up_s: float) -> int:
+    """Images to advance per image tracked (>= 1) so that ``behind`` images of backlog are worked off within
+    ``catch_up_s`` (s) by a tracker whose work per image is ``cost_s`` (s) at a camera period ``period_s`` (s): the
+    smallest whole stride >= cost_s / period_s + behind * cost_s / catch_up_s (module doc). ``catch_up_s = 0``
+    with a backlog: the whole backlog (``behind + 1``, the newest image)."""
+    if behind < 0 or not (cost_s >= 0 and period_s > 0 and catch_up_s >= 0):
+        raise ValueError(f"stride_for: behind {behind}, cost {cost_s} s, period {period_s} s, catch_up {catch_up_s} s")
+    if behind == 0:
+        return 1
+    if catch_up_s == 0:
+        return behind + 1
+    need = cost_s / period_s + behind * cost_s / catch_up_s
+    return max(1, min(behind + 1, math.ceil(need - 1e-9)))
+
+
+#: (s) a lag that still counts as keeping up: no deadline runs while the images waiting behind the one taken are
+#: at most this much camera time (and at least one image: images arrive in pairs now and then). On 2 busy cores the
+#: tracker shares its core with the rest of the graph, and its backlog wanders over a few frames without a stall;
+#: 3 ms of backlog plus a frame's work and the transport is under the live goal's 5 ms lag ("back at the camera")
+KEEPING_UP_S = 0.003
+
+
 @dataclass
 class CatchUpPolicy:
-    """:func:`choose` with a memory: how long the tracker has been behind, and what a frame's own work costs.
+    """:func:`stride_for` towards a deadline, with a memory of what a frame's own work costs.
 
-    Behind (more than the image about to be tracked waiting) for ``jump_after_s`` of wall time in a row, a
-    tracker whose mean work per frame (``work_s``, its own CPU time: not inflated by the stall) is under the
-    camera's period jumps to the newest image: it can keep up, so the backlog is the stall's, and draining it on
-    the little spare capacity left would keep it behind for many times the stall (recovery in one frame instead).
-    Otherwise the backlog is bounded by ``max_behind`` (a short stall costs nothing; a tracker slower than its
-    camera loses single images, spread).
-    """
+    The costs: the tracker's CPU time per image tracked (not inflated by a stall; running means, weight 0.1 on the
+    newest), ``cost_s`` of an image tracked next to the one before (stride 1) and ``gap_cost_s`` of one tracked
+    across a gap (stride above 1: the prediction across it misses more often, and the search costs more). Two
+    costs, so that a tracker whose frames across a gap cost more than the camera's period is not held at stride 2
+    once its backlog is gone.
 
-    max_behind: int
+    The deadline: when the tracker finds more images waiting behind the one it takes than ``keeping_up_s`` of camera
+    time (:data:`KEEPING_UP_S`; one image at least), it has ``catch_up_s`` from then until they are that few again.
+    Each choice takes stride 1 while that works the excess off by the deadline at ``cost_s``, else the stride
+    :func:`stride_for` gives for the time left at ``gap_cost_s`` (``cost_s`` until a gap was measured), 2 at
+    least; at the deadline, the newest image. So the lag after a stall is gone ``catch_up_s``
+    after it, whatever the costs' estimates, and the images lost meanwhile are spread. Before any work is measured
+    every image is tracked oldest first (and the deadline holds)."""
+
     period_s: float
-    jump_after_s: float
-    behind_since_s: float | None = None
-    work_s: float | None = None
-    jumps: int = 0
+    catch_up_s: float
+    keeping_up_s: float = KEEPING_UP_S
+    cost_s: float | None = None
+    gap_cost_s: float | None = None
+    deadline_s: float | None = None  # of the catch-up under way (None: not behind)
+    stride: int = 1  # of the latest choice
+    thinned: int = 0  # choices that passed over an image
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.keeping_up_s) and self.keeping_up_s >= 0):
+            raise ValueError(f"keeping_up_s must be a time in s >= 0, got {self.keeping_up_s}")
+        if not (math.isfinite(self.period_s) and self.period_s > 0):
+            raise ValueError(f"the camera period must be > 0 s, got {self.period_s}")
+        if not (math.isfinite(self.catch_up_s) and self.catch_up_s >= 0):
+            raise ValueError(f"catch_up_ms must be a time in ms >= 0, got {1e3 * self.catch_up_s}")
 
     def choose(self, waiting: Sequence[int], now_s: float) -> Choice:
-        """The choice for the images ``waiting`` at wall time ``now_s`` (s)."""
-        if len(waiting) <= 1:
-            self.behind_since_s = None
-        elif self.behind_since_s is None:
-            self.behind_since_s = now_s
-        jump = (self.behind_since_s is not None and now_s - self.behind_since_s >= self.jump_after_s
-                and self.work_s is not None and self.work_s < self.period_s)
-        if jump:
-            self.behind_since_s = None
-            self.jumps += 1
-        return choose(waiting, 0 if jump else self.max_behind)
+        """The choice for the images ``waiting`` (frame indices, arrival order) at ``now_s`` (s, monotonic)."""
+        behind = len(waiting) - 1
+        excess = behind - max(1, int(self.keeping_up_s / self.period_s + 1e-9))
+        if self.catch_up_s == 0:  # always the newest
+            self.stride = behind + 1
+        elif excess <= 0:
+            self.deadline_s = None
+            self.stride = 1
+        else:
+            if self.deadline_s is None:
+                self.deadline_s = now_s + self.catch_up_s
+            left_s = self.deadline_s - now_s
+            if left_s <= 0:
+                self.stride = behind + 1
+            elif self.cost_s is None or stride_for(excess, self.cost_s, self.period_s, left_s) == 1:
+                self.stride = 1
+            else:
+                cost = self.gap_cost_s if self.gap_cost_s is not None else self.cost_s
+                self.stride = max(2, stride_for(excess, cost, self.period_s, left_s))
+        choice = thin(waiting, self.stride)
+        self.thinned += bool(choice.skipped)
+        return choice
 
     def worked(self, seconds: float) -> None:
-        """A tracked frame's own work (s): the running mean ``work_s`` (weight 0.1 on the newest)."""
-        self.work_s = seconds if self.work_s is None else 0.9 * self.work_s + 0.1 * seconds
-
-
-def frames_behind(catch_up_ms: float, fps: float) -> int:
-    """The backlog bound in frames for ``catch_up_ms`` of camera time at ``fps`` (0 for 0 ms: always the newest)."""
-    if not (math.isfinite(catch_up_ms) and catch_up_ms >= 0):
-        raise ValueError(f"catch_up_ms must be a time in ms >= 0, got {catch_up_ms}")
-    return int(round(catch_up_ms * 1e-3 * fps))
+        """The own work (s) of the image just tracked, the latest choice's."""
+        if self.stride > 1:
+            self.gap_cost_s = seconds if self.gap_cost_s is None else 0.9 * self.gap_cost_s + 0.1 * seconds
+        else:
+            self.cost_s = seconds if self.cost_s is None else 0.9 * self.cost_s + 0.1 * seconds
 
 
 @dataclass
@@ -143,12 +210,12 @@ class Simulation:
 
 def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *,
              stalls: Sequence[tuple[float, float]] = (), queue_depth: int = 5, jump: bool = True,
-             max_behind: int = 0, jump_after_s: float | None = None) -> Simulation:
+             max_behind: int = 0, catch_up_s: float | None = None) -> Simulation:
     """Frame k arrives at ``arrivals_s[k]`` into a keep-last queue of ``queue_depth``; the tracker, whenever it is
     free and an image waits, takes what waits (``jump``: all of it into its backlog, then :func:`choose` with
-    ``max_behind``; else the oldest only, the queue bounding nothing but itself) and is busy for ``cost_s(k, gap)``
-    (gap: frames since the last one tracked); during a stall (start, end) it does nothing. ``jump_after_s``: the
-    :class:`CatchUpPolicy` with that time, the arrivals' median interval as the period."""
+    ``max_behind``, or with ``catch_up_s`` the :class:`CatchUpPolicy`, the arrivals' median interval as the period;
+    else the oldest only, the queue bounding nothing but itself) and is busy for ``cost_s(k, gap)`` (gap: frames
+    since the last one tracked); during a stall (start, end) it does nothing."""
     sim = Simulation()
     queue: list[int] = []
     backlog: list[int] = []  # taken from the queue (jump): the tracker's own, unbounded by queue_depth
@@ -159,9 +226,9 @@ def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *
     stalls = sorted(stalls)
     pending_stalls = list(stalls)
     policy = None
-    if jump_after_s is not None:
-        period = sorted(b - a for a, b in zip(arrivals_s, arrivals_s[1:]))[(n - 1) // 2] if n > 1 else math.inf
-        policy = CatchUpPolicy(max_behind, period, jump_after_s)
+    if catch_up_s is not None:
+        period = sorted(b - a for a, b in zip(arrivals_s, arrivals_s[1:]))[(n - 1) // 2] if n > 1 else 1.0
+        policy = CatchUpPolicy(period, catch_up_s)
 
     def arrive_until(t: float) -> None:
         nonlocal nxt

@@ -12,14 +12,15 @@ vibro/dic is a latched history (``history_depth`` frames, transient local): a fi
 discrepancy node restarted mid-run receives every DicFrame again. Frames from a second publisher,
 repeated or going back, and statuses of another run stop the node (vibro_ros.guard).
 
-Live (``live_camera``), a tracker that falls behind catches up within a bound (:mod:`vibro_dic.catch_up`): each
-time it is handed an image it first takes every image waiting in its queue (only their stamps are read) into its
-backlog and tracks it oldest first while it is at most ``catch_up_ms`` of camera time behind; images beyond that
-are passed over (tracking resumes from the motion prediction across the gap), and a tracker behind for
-``catch_up_ms`` in a row that can keep up (after a stall) jumps to the newest image
-(:class:`vibro_dic.catch_up.CatchUpPolicy`). Images passed over are answered with lost DicFrames whose status is
+Live (``live_camera``), a tracker that falls behind catches up within ``catch_up_ms`` (:mod:`vibro_dic.catch_up`):
+each time it is handed an image it first takes every image waiting in its queue (only their stamps are read) into
+its backlog and tracks it oldest first while its own work per frame can remove that backlog within ``catch_up_ms``;
+beyond that it tracks every 2nd, 3rd, ... image (the stride :func:`vibro_dic.catch_up.stride_for` gives) and passes
+over the others (tracking resumes from the motion prediction across the gap), so the losses are spread and the
+lag is worked off in ``catch_up_ms``. Images passed over are answered with lost DicFrames whose status is
 :data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``, ``catch_up_episodes``,
-``catch_up_largest``, ``catch_up_last``, ``catch_up_jumps``).
+``catch_up_largest``, ``catch_up_last``) and gives the latest stride (``catch_up_stride``, 1 = every image)
+and the tracker's own work per frame (``work_ms_per_frame``).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
-from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats, cdr_stamp_ns, frames_behind
+from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats, cdr_stamp_ns
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
 from .tracker import METHODS, DicTracker, compile_kernels
@@ -114,10 +115,9 @@ class DicTrackerNode(Node):
                             "true: best-effort sensor QoS for a camera driver's image_raw"))
         self.live_camera = live
         catch_up_ms = float(declare(
-            self, "catch_up_ms", DEFAULT_CATCH_UP_MS, "live: how far (ms of camera time) the tracker may fall behind "
-            "and still track every image, oldest first; images beyond it are skipped (reported lost), so the lag "
-            "stays bounded; behind this long in a row while it can keep up (after a stall), it jumps to the newest "
-            "image. 0 = always jump to the newest image"))
+            self, "catch_up_ms", DEFAULT_CATCH_UP_MS, "live: the time (ms) within which a tracker that fell behind "
+            "works off its backlog: every image, oldest first, while its work per frame allows that; else every "
+            "2nd, 3rd, ... image, the others skipped (reported lost, spread). 0 = always the newest image"))
         image_queue_depth = int(declare(
             self, "image_queue_depth", DEFAULT_IMAGE_QUEUE_DEPTH, "live: images the best-effort reader keeps while the "
             "tracker is busy or waits for a core (sensor QoS, keep last): a deeper queue loses none in a short stall"))
@@ -148,10 +148,9 @@ class DicTrackerNode(Node):
         # arrive: their first call, ~0.3 s (~5 s uncached), must not fall on the first frame
         self.get_logger().debug(f"DIC kernels ready in {compile_kernels():.2f} s")
         try:
-            self.max_behind = frames_behind(catch_up_ms, self.rig.camera.fps)
+            self.catch_up_policy = CatchUpPolicy(1.0 / self.rig.camera.fps, 1e-3 * catch_up_ms)
         except ValueError as exc:
             raise RecordingError(f"dic_tracker: parameter 'catch_up_ms': {exc}") from None
-        self.catch_up_policy = CatchUpPolicy(self.max_behind, 1.0 / self.rig.camera.fps, 1e-3 * catch_up_ms)
         self.time_origin_ns = time_origin_parameter(self)
         self.reference_file = str(reference)
         self.reference: np.ndarray | None = None
@@ -304,7 +303,8 @@ class DicTrackerNode(Node):
                 continue
 
     def _work_backlog(self) -> None:
-        """Track the backlog oldest first, skipping the images beyond ``max_behind`` (reported lost as skipped),
+        """Track the backlog, oldest first or thinned (:class:`vibro_dic.catch_up.CatchUpPolicy`; the images passed
+        over reported lost as skipped),
         for at most :data:`WORK_SLICE_S` per call so that the node's timers and status still run; the next image
         or the resume timer goes on."""
         started = time.monotonic()
@@ -333,7 +333,10 @@ class DicTrackerNode(Node):
             work_started = time.thread_time()  # this thread's CPU: a frame's own work, not the time others took
             self._take(image if isinstance(image, Image) else deserialize_message(image, Image))
             self.catch_up_policy.worked(time.thread_time() - work_started)
-            self.health.values["catch_up_jumps"] = self.catch_up_policy.jumps
+            self.health.values["catch_up_stride"] = self.catch_up_policy.stride
+            work_s = self.catch_up_policy.cost_s
+            if work_s is not None:  # None while every image tracked came after a gap (catch_up_ms 0)
+                self.health.values["work_ms_per_frame"] = round(1e3 * work_s, 3)
             if time.monotonic() - started > WORK_SLICE_S:
                 return
 
