@@ -76,16 +76,15 @@ def half_resolution(image: np.ndarray) -> np.ndarray:
 
 
 def whole_image_search(image: np.ndarray, template: np.ndarray, half_template: np.ndarray | None,
-                       zncc_min: float, half_image: np.ndarray | None = None) -> SearchResult | None:
+                       zncc_min: float) -> SearchResult | None:
     """The template's best position in the whole image (:func:`zncc_search` over every position), coarse to fine:
     the whole image searched at half resolution with ``half_template`` (:func:`half_resolution` of ``template``;
     None: no coarse level), then the full image in +-:data:`COARSE_WINDOW_PX` around that peak. That window's peak
     is returned when it is a clear one (ZNCC >= ``zncc_min``, not on the window's border); else (a pattern too fine
-    for half resolution, a second body alike) the whole image at full resolution, as without the coarse level.
-    ``half_image``: the image at half resolution when the caller has it already."""
+    for half resolution) the whole image at full resolution, as without the coarse level."""
     th, tw = template.shape
     if half_template is not None and min(th, tw) >= MIN_COARSE_TEMPLATE_PX:
-        half = half_resolution(image) if half_image is None else half_image
+        half = half_resolution(image)
         coarse = zncc_search(half, half_template, 0, half.shape[1], 0, half.shape[0])
         if coarse is not None and coarse.zncc >= zncc_min:
             r = COARSE_WINDOW_PX
