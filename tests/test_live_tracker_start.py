@@ -117,23 +117,24 @@ def _pin_work_per_frame(node, seconds: float) -> None:
     node.catch_up_policy.worked = lambda _seconds: None
 
 
-@pytest.mark.parametrize("catch_up", ["0", "default"])
+@pytest.mark.parametrize("catch_up", ["0", "5000"])
 def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_and_skipped_beyond(
         tiny_recording: Path, close_rclpy, ros_domain, catch_up: str) -> None:
     """Four images queued behind a stalled tracker whose work is 0.1 ms a frame: with catch_up_ms 0 the newest is
-    tracked across the gap and the three older ones are skipped; with the default (30 ms, in which that tracker
-    works off hundreds of frames) all four are tracked, oldest first."""
+    tracked across the gap and the three older ones are skipped; with a catch-up time that tracker could work off
+    thousands of frames in (5 s: the deadline is wall time, which a loaded machine stretches) all four are
+    tracked, oldest first."""
     import time
 
     from sensor_msgs.msg import Image
 
-    from vibro_dic.catch_up import DEFAULT_CATCH_UP_MS, SKIPPED
+    from vibro_dic.catch_up import SKIPPED
 
-    extra = ["-p", "catch_up_ms:=0.0"] if catch_up == "0" else []
+    extra = ["-p", f"catch_up_ms:={float(catch_up)}"]
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
                  f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
     close_rclpy.append(node)
-    assert node.catch_up_policy.catch_up_s == (0.0 if catch_up == "0" else 1e-3 * DEFAULT_CATCH_UP_MS)
+    assert node.catch_up_policy.catch_up_s == 1e-3 * float(catch_up)
     _pin_work_per_frame(node, 1e-4)
     pub, deadline = _camera_matched(close_rclpy)
     images = _images(tiny_recording)
@@ -173,10 +174,10 @@ def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording
     from vibro_io.recording import open_recording
 
     # the catch-up policy (its own tests: test_catch_up.py) never passes an image over, however slowly a loaded
-    # machine tracks the 20: its work per frame pinned at 0.1 ms
+    # machine tracks the 20: its work per frame pinned at 0.1 ms, and its deadline (wall time) far beyond the test's
     extra = ["-p", f"image_queue_depth:={depth}"] if depth else []
     node = _node(tiny_recording, "-p", "live_camera:=true", "-p",
-                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", *extra)
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}", "-p", "catch_up_ms:=5000.0", *extra)
     close_rclpy.append(node)
     _pin_work_per_frame(node, 1e-4)
     pub, deadline = _camera_matched(close_rclpy)
