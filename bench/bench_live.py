@@ -70,6 +70,11 @@ GOAL_EXCESS_S = 0.005
 WITH_REFERENCE = "--first-image-reference" not in sys.argv
 #: dic_tracker parameters set from the command line (--catch-up-ms), on top of the launch file's
 TRACKER_PARAMETERS: dict[str, float] = {}
+#: (s) from the peers' ready files to the camera's frame 0 (--camera-lead-s). A lab triggers a camera whose driver
+#: has been up for a while; a Fast DDS participant younger than about a second blocked the camera's publish calls,
+#: waiting (not on the CPU, not preempted, no GC): with 0.3 s, 2 of 4 runs of 1500 frames lost 94 / 476 images to
+#: a 75-80 ms first publish and a 333 ms one at frame 374; with 2 s, 0 of 4 stalled (lost 1 / 0 / 0 / 0)
+CAMERA_LEAD = {"s": 2.0}
 #: the camera process's own environment on top of the run's (--camera-shm-segment-mb: its Fast DDS profile)
 CAMERA_ENV: dict[str, str] = {}
 CAMERA_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
@@ -220,7 +225,7 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel
                 if failed or time.monotonic() > deadline + 60:
                     raise SystemExit(f"peers not ready at {rate_hz:g} Hz (exited: {failed}); logs in {folder}")
                 time.sleep(0.02)
-            start = time.time() + 0.3
+            start = time.time() + CAMERA_LEAD["s"]
             (folder / "start.tmp").write_text(f"{start:.6f}")
             (folder / "start.tmp").rename(start_file)
             if hog_window is not None:
@@ -358,6 +363,8 @@ def summarize(rate_hz: float, cam: dict, seen: dict, cpu: dict[str, float], trut
         "publish_late_max_ms": 1e3 * float(np.max(np.diff(pub_t))) - 1e3 / rate_hz,
         # the camera process itself stalled (a late frame goes out at once: a burst follows); (frame, ms)
         "camera_publish_calls_over_5_ms": cam.get("publish_calls_over_5_ms", []),
+        # and per such call: the camera thread's CPU time in it, its context switches, Python's GC time in it
+        "camera_slow_publish_calls": cam.get("slow_publish_calls", []),
         "frames_per_s_tracked": tracked / span if span > 0 else math.nan,  # lost=false DicFrames only
         "dic_frames_per_s": (len(arrivals) - 1) / span if span > 0 else math.nan,  # every answered slot
         "frames_tracked": tracked,
@@ -393,6 +400,8 @@ def main() -> int:
     parser.add_argument("--catch-up-ms", type=float, default=None,
                         help="dic_tracker's catch_up_ms (default: the node's): the time within which it works off a "
                              "backlog, thinning it when its work per frame cannot (0: always the newest image)")
+    parser.add_argument("--camera-lead-s", type=float, default=CAMERA_LEAD["s"],
+                        help=f"seconds from the peers being ready to the camera's frame 0 (default {CAMERA_LEAD['s']})")
     parser.add_argument("--camera-shm-segment-mb", type=float, default=None,
                         help="the camera process's Fast DDS shared-memory segment (MB; default: Fast DDS's 512 KB)")
     parser.add_argument("--first-image-reference", action="store_true",
@@ -402,6 +411,9 @@ def main() -> int:
                         help="the live goals' three scenarios in one run, all to --out: 1000 Hz x 5, 2000 Hz x 2, "
                              "1000 Hz with a 0.3 s hog on core 0 x 2 (--rates/--repeat/--hog are then ignored)")
     args = parser.parse_args()
+    if not args.camera_lead_s > 0:
+        parser.error("--camera-lead-s must be > 0")
+    CAMERA_LEAD["s"] = args.camera_lead_s
     if args.camera_shm_segment_mb is not None:
         if not args.camera_shm_segment_mb > 0:
             parser.error("--camera-shm-segment-mb must be > 0")
@@ -444,7 +456,8 @@ def run_scenario(args: argparse.Namespace, rates: list[float], repeat: int, hog_
                     "accelerometers": f"daq_peer {ACCEL_RATE_HZ:g} Hz, {BLOCK_SAMPLES} samples a block" if accel
                     else None, "hog": {"start_s": hog_window[0], "duration_s": hog_window[1], "core": 0}
                     if hog_window else None, "command": " ".join(sys.argv),
-                    "dic_tracker_parameters": dict(TRACKER_PARAMETERS), "camera_env": dict(CAMERA_ENV)}
+                    "dic_tracker_parameters": dict(TRACKER_PARAMETERS), "camera_env": dict(CAMERA_ENV),
+                    "camera_lead_s": CAMERA_LEAD["s"]}
     result["tracker_in_process_ms_per_frame"] = tracker_cost_ms(rec)
     one_core = 1e3 / sum(result["tracker_in_process_ms_per_frame"].values())
     result["tracker_one_core_ceiling_frames_per_s"] = one_core
@@ -486,6 +499,9 @@ def run_scenario(args: argparse.Namespace, rates: list[float], repeat: int, hog_
         if r["camera_publish_calls_over_5_ms"] or r["publish_late_max_ms"] > 5:
             print(f"    the camera process itself stalled: publish late by up to {r['publish_late_max_ms']:.1f} ms, "
                   f"publish calls over 5 ms (frame, ms) {r['camera_publish_calls_over_5_ms'][:5]}")
+            for c in [c for c in r["camera_slow_publish_calls"] if c["ms"] > 20][:3]:
+                print(f"        frame {c['frame']}: {c['ms']} ms in publish, {c['thread_cpu_ms']} ms of it on the CPU, "
+                      f"{c['voluntary_switches']} waits, {c['involuntary_switches']} preemptions, GC {c['gc_ms']} ms")
         print(f"    after ready: {r['published_after_ready']} published ({r['published_before_ready']} before the "
               f"graph was ready), {r['tracked_after_ready']} tracked, {r['lost_after_ready']} lost "
               f"{r['lost_reasons']} in {r['lost_runs']} run(s), longest {r['longest_lost_run']}")

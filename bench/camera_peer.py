@@ -14,7 +14,9 @@ sensor QoS (qos_profile_sensor_data) like a camera driver's image_raw. Writes OU
 from __future__ import annotations
 
 import argparse
+import gc
 import json
+import resource
 import sys
 import time
 from pathlib import Path
@@ -71,20 +73,39 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(args.settle_s)
         start = time.time() + 0.05
     published_at: list[float] = []
-    call_s: list[float] = []  # how long each publish call took (s)
+    slow: list[dict] = []  # publish calls over 5 ms: the driver itself stalled, and how
+    gc_s = [0.0]  # time in Python's garbage collector since the last publish
+    gc_began = [0.0]
+
+    def gc_timer(phase: str, _info: dict) -> None:
+        if phase == "start":
+            gc_began[0] = time.perf_counter()
+        else:
+            gc_s[0] += time.perf_counter() - gc_began[0]
+
+    gc.callbacks.append(gc_timer)
     period_s = 1.0 / args.rate_hz
     for k, msg in enumerate(messages):
         delay = start + k * period_s - time.time()
         if delay > 0:
             time.sleep(delay)
         published_at.append(time.time())
+        cpu0, use0, gc_s[0] = time.thread_time(), resource.getrusage(resource.RUSAGE_THREAD), 0.0
         pub.publish(msg)
-        call_s.append(time.time() - published_at[-1])
+        took = time.time() - published_at[-1]
+        if took > 0.005:
+            use1 = resource.getrusage(resource.RUSAGE_THREAD)
+            # busy (CPU ~ wall), waiting on something (voluntary switches) or descheduled (involuntary ones)
+            slow.append({"frame": indices[k], "ms": round(1e3 * took, 2),
+                         "thread_cpu_ms": round(1e3 * (time.thread_time() - cpu0), 2),
+                         "voluntary_switches": use1.ru_nvcsw - use0.ru_nvcsw,
+                         "involuntary_switches": use1.ru_nivcsw - use0.ru_nivcsw, "gc_ms": round(1e3 * gc_s[0], 2)})
+    gc.callbacks.remove(gc_timer)
     time.sleep(0.5)  # let the last best-effort samples leave before the participant goes
-    slow = [(indices[k], round(1e3 * c, 2)) for k, c in enumerate(call_s) if c > 0.005]
     args.out.write_text(json.dumps({"rate_hz": args.rate_hz, "frame_index": indices,
                                     "published_at_s": published_at,
-                                    "publish_calls_over_5_ms": slow}))  # (frame, ms): the driver itself stalled
+                                    "publish_calls_over_5_ms": [[c["frame"], c["ms"]] for c in slow],
+                                    "slow_publish_calls": slow}))
     node.destroy_node()
     rclpy.shutdown()
     return 0
