@@ -71,8 +71,8 @@ WITH_REFERENCE = "--first-image-reference" not in sys.argv
 #: dic_tracker parameters set from the command line (--catch-up-ms), on top of the launch file's
 TRACKER_PARAMETERS: dict[str, float] = {}
 #: (s) from the peers' ready files to the camera's frame 0 (--camera-lead-s). A lab triggers a camera whose driver
-#: has been up for a while; a Fast DDS participant younger than about a second blocked the camera's publish calls,
-#: waiting (not on the CPU, not preempted, no GC): with 0.3 s, 2 of 4 runs of 1500 frames lost 94 / 476 images to
+#: has been up for a while; a camera process just started blocked in its first publish calls (once at frame 1271),
+#: waiting (under 0.6 ms of CPU in 75-333 ms, no GC): with 0.3 s, 2 of 4 runs of 1500 frames lost 94 / 476 images to
 #: a 75-80 ms first publish and a 333 ms one at frame 374; with 2 s, 0 of 4 stalled (lost 1 / 0 / 0 / 0)
 CAMERA_LEAD = {"s": 2.0}
 #: the camera process's own environment on top of the run's (--camera-shm-segment-mb: its Fast DDS profile)
