@@ -145,8 +145,10 @@ def test_images_waiting_behind_the_one_handed_over_are_tracked_within_the_bound_
         time.sleep(0.05)
         got = node._image_sub.handle.take_message(Image, False)  # what the executor hands the callback: frame 0
     assert got is not None
-    time.sleep(0.2)
+    time.sleep(1.0)  # frames 1-3 delivered into the reader's queue behind it
     node._on_image(got[0])
+    while node._backlog:  # what the resume timer does after each work slice (20 ms; a loaded machine needs several)
+        node._work_backlog()
     rows = {int(m.frame_index): m for m in node._held}
     assert sorted(rows) == [0, 1, 2, 3]
     if catch_up == "0":
