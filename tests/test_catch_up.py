@@ -1,7 +1,7 @@
 """The live tracker's catch-up policy (vibro_dic.catch_up): a backlog the tracker can work off within catch_up_s is
 tracked oldest first (a short stall costs no image); beyond that every stride-th image is tracked and the others
 skipped and reported (losses spread, the lag worked off within catch_up_s); a tracker slower than its camera tracks
-at its own rate with spread losses; catch_up 0 (and the bare bound) are the jump to the newest image. Run on
+at its own rate with spread losses; catch_up 0 is the jump to the newest image. Run on
 schedules, no ROS."""
 
 from __future__ import annotations
@@ -40,13 +40,6 @@ def test_the_newest_waiting_image_is_tracked_and_the_rest_skipped() -> None:
         choose([])
 
 
-def test_within_the_bound_the_oldest_is_tracked_and_beyond_it_the_oldest_are_skipped() -> None:
-    assert choose([3, 4], max_behind=5) == Choice(3, [], [4])
-    assert choose([3, 4, 5, 6, 7], max_behind=2) == Choice(5, [3, 4], [6, 7])
-    with pytest.raises(ValueError):
-        choose([1], max_behind=-1)
-
-
 def test_thinning_skips_stride_minus_one_and_tracks_the_next() -> None:
     assert thin([3, 4, 5, 6], 1) == Choice(3, [], [4, 5, 6])
     assert thin([3, 4, 5, 6], 3) == Choice(5, [3, 4], [6])
@@ -79,7 +72,7 @@ def test_the_policy_tracks_every_image_until_it_knows_its_cost_and_refuses_nonse
     assert p.choose([1, 2, 3, 4, 5, 6], 0.0) == Choice(1, [], [2, 3, 4, 5, 6]) and p.stride == 1
     p.worked(0.0009)  # 0.9 ms of 1: 0.1 ms spare per frame, 3 frames in 30 ms (one waiting is no lag)
     assert p.choose([2, 3, 4, 5, 6], 0.001).track == 2 and p.stride == 1  # 3 in the 29 ms left: in time
-    assert p.choose([3, 4, 5, 6, 7, 8], 0.002).track == 4 and p.stride == 2 and p.thinned == 1  # 4: not
+    assert p.choose([3, 4, 5, 6, 7, 8], 0.002) == Choice(4, [3], [5, 6, 7, 8]) and p.stride == 2  # 4: not
     # a backlog of a few milliseconds is keeping up: no deadline, every image
     q = CatchUpPolicy(PERIOD_S, CATCH_UP_S)
     q.worked(0.0009)
@@ -109,7 +102,7 @@ def test_short_stalls_cost_no_image() -> None:
     lag = np.array(sim.finished_s) - np.array(_arrivals(n))
     # behind by at most the stall plus the frames that came during it, caught up before the next stall
     assert lag.max() <= 0.0015 + 2 * cost + 1e-12
-    jump = simulate(_arrivals(n), lambda k, gap: cost, stalls=stalls, max_behind=0)
+    jump = simulate(_arrivals(n), lambda k, gap: cost, stalls=stalls)
     assert jump.skipped  # the pure jump loses images after the stalls that leave two waiting
 
 

@@ -64,17 +64,10 @@ class Choice:
     left: list[int] = field(default_factory=list)
 
 
-def choose(waiting: Sequence[int], max_behind: int = 0) -> Choice:
-    """Of the frame indices of the images waiting (arrival order, growing): the newest ``max_behind + 1`` are kept,
-    the oldest of them tracked now and the rest left waiting; the older ones are skipped. ``max_behind = 0``: the
-    newest is tracked and the rest skipped."""
-    if not waiting:
-        raise ValueError("no image waiting")
-    if max_behind < 0:
-        raise ValueError(f"max_behind must be >= 0, got {max_behind}")
-    n_skip = max(len(waiting) - (max_behind + 1), 0)
-    keep = [int(k) for k in waiting[n_skip:]]
-    return Choice(keep[0], [int(k) for k in waiting[:n_skip]], keep[1:])
+def choose(waiting: Sequence[int]) -> Choice:
+    """Of the frame indices of the images waiting (arrival order, growing): the newest tracked, the rest skipped
+    (``catch_up_ms`` 0, the pure jump)."""
+    return thin(waiting, len(waiting))
 
 
 def thin(waiting: Sequence[int], stride: int) -> Choice:
@@ -135,7 +128,6 @@ class CatchUpPolicy:
     gap_cost_s: float | None = None
     deadline_s: float | None = None  # of the catch-up under way (None: not behind)
     stride: int = 1  # of the latest choice
-    thinned: int = 0  # choices that passed over an image
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.keeping_up_s) and self.keeping_up_s >= 0):
@@ -165,9 +157,7 @@ class CatchUpPolicy:
             else:
                 cost = self.gap_cost_s if self.gap_cost_s is not None else self.cost_s
                 self.stride = max(2, stride_for(excess, cost, self.period_s, left_s))
-        choice = thin(waiting, self.stride)
-        self.thinned += bool(choice.skipped)
-        return choice
+        return thin(waiting, self.stride)
 
     def worked(self, seconds: float) -> None:
         """The own work (s) of the image just tracked, the latest choice's."""
@@ -179,7 +169,7 @@ class CatchUpPolicy:
 
 @dataclass
 class CatchUpStats:
-    """What the jumps cost a live session: images skipped, episodes (calls that skipped any), the largest."""
+    """What catching up cost a live session: images skipped, episodes (choices that skipped any), the largest."""
 
     skipped: int = 0
     episodes: int = 0
@@ -210,11 +200,11 @@ class Simulation:
 
 def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *,
              stalls: Sequence[tuple[float, float]] = (), queue_depth: int = 5, jump: bool = True,
-             max_behind: int = 0, catch_up_s: float | None = None) -> Simulation:
+             catch_up_s: float | None = None) -> Simulation:
     """Frame k arrives at ``arrivals_s[k]`` into a keep-last queue of ``queue_depth``; the tracker, whenever it is
-    free and an image waits, takes what waits (``jump``: all of it into its backlog, then :func:`choose` with
-    ``max_behind``, or with ``catch_up_s`` the :class:`CatchUpPolicy`, the arrivals' median interval as the period;
-    else the oldest only, the queue bounding nothing but itself) and is busy for ``cost_s(k, gap)`` (gap: frames
+    free and an image waits, takes what waits (``jump``: all of it into its backlog, then with ``catch_up_s`` the
+    :class:`CatchUpPolicy`, the arrivals' median interval as the period, else :func:`choose`, the newest; without
+    ``jump`` the oldest only, the queue bounding nothing but itself) and is busy for ``cost_s(k, gap)`` (gap: frames
     since the last one tracked); during a stall (start, end) it does nothing."""
     sim = Simulation()
     queue: list[int] = []
@@ -254,7 +244,7 @@ def simulate(arrivals_s: Sequence[float], cost_s: Callable[[int, int], float], *
         if jump:
             backlog += queue
             queue.clear()
-            choice = policy.choose(backlog, now) if policy is not None else choose(backlog, max_behind)
+            choice = policy.choose(backlog, now) if policy is not None else choose(backlog)
             backlog[:] = choice.left
         else:
             choice = Choice(queue.pop(0), [])
