@@ -362,9 +362,9 @@ def summarize(rate_hz: float, cam: dict, seen: dict, cpu: dict[str, float], trut
         "publish_rate_hz": (n - 1) / (pub_t[-1] - pub_t[0]),
         "publish_late_max_ms": 1e3 * float(np.max(np.diff(pub_t))) - 1e3 / rate_hz,
         # the camera process itself stalled (a late frame goes out at once: a burst follows); (frame, ms)
-        "camera_publish_calls_over_5_ms": cam.get("publish_calls_over_5_ms", []),
+        "camera_publish_calls_over_5_ms": [[c["frame"], c["ms"]] for c in cam["slow_publish_calls"]],
         # and per such call: the camera thread's CPU time in it, its context switches, Python's GC time in it
-        "camera_slow_publish_calls": cam.get("slow_publish_calls", []),
+        "camera_slow_publish_calls": cam["slow_publish_calls"],
         "frames_per_s_tracked": tracked / span if span > 0 else math.nan,  # lost=false DicFrames only
         "dic_frames_per_s": (len(arrivals) - 1) / span if span > 0 else math.nan,  # every answered slot
         "frames_tracked": tracked,
