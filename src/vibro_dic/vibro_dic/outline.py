@@ -10,7 +10,8 @@ Per frame (pixels, x = column, y = row down):
 1. **Prediction** of the centre from the last good frames (constant acceleration from three, velocity from
    two; frame indices, so dropped frames are handled), as the DIC mesh does. Without history (frame 1, a
    re-seed every ``reseed_every`` frames, a lost frame) or when step 2 fails, the reference box is found by
-   an integer ZNCC search (:func:`vibro_dic.search.zncc_search`), widened to the whole image if need be.
+   an integer ZNCC search (:func:`vibro_dic.search.zncc_search`), widened to the whole image if need be
+   (coarse to fine: :func:`vibro_dic.search.whole_image_search`).
 2. **Coarse edge points along rays** from the predicted centre, one ray per sector direction: the profile
    sampled every 0.5 px (bilinear) over +-``reach`` px about the reference radius, the edge at the strongest
    gradient of the reference's sign (dark inside: rising outwards), to a parabola through the peak. The
@@ -66,7 +67,7 @@ from scipy.special import ndtr
 from vibro_io.rig import Roi
 from vibro_model.errors import RecordingError
 
-from .search import zncc_search
+from .search import half_resolution, whole_image_search, zncc_search
 
 SECTOR_ARC_PX = 4.0          # arc length of a sector at the ball's radius (px): ~4 px of edge per sector
 MIN_SECTORS, MAX_SECTORS = 16, 256
@@ -541,6 +542,7 @@ class OutlineTracker:
         y1 = min(int(round(self.centre0[1])) + half + 1, ref.shape[0])
         self.template = np.ascontiguousarray(ref[y0:y1, x0:x1])
         self.template_corner = np.array([x0, y0], dtype=float)
+        self._half_template = half_resolution(self.template)  # the whole-image search's coarse level
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=3)
         self.n_searched = 0  # frames that needed the template search (statistics)
 
@@ -593,7 +595,7 @@ class OutlineTracker:
             res = zncc_search(image, self.template, cx - ext, cx + ext, cy - ext, cy + ext)
             if res is not None and not res.on_border and res.zncc >= 0.5:
                 return np.array([res.x + res.sub_dx, res.y + res.sub_dy]) - self.template_corner + self.centre0
-        res = zncc_search(image, self.template, 0, image.shape[1], 0, image.shape[0])
+        res = whole_image_search(image, self.template, self._half_template, 0.5)
         if res is None or res.zncc < 0.5:
             return None
         return np.array([res.x + res.sub_dx, res.y + res.sub_dy]) - self.template_corner + self.centre0
