@@ -119,10 +119,11 @@ def bench_chunked(long_rec: Path, tmp: Path, workers_list: list[int]) -> tuple[d
 def bench_analyze(long_rec: Path, tmp: Path, workers: int, track_csv: Path) -> dict:
     """``analyze_recording`` with DIC on ``workers`` (1: in this process), and the serial rest measured
     directly: the same analysis given the track (``track_csv``: no DIC)."""
-    from vibro_app.analyze import analyze_recording
+    from vibro_app.analyze import DicPlan, analyze_recording
 
     t0 = time.perf_counter()
-    analyze_recording(long_rec, tmp / f"analyze_w{workers}", progress=False, workers=workers if workers > 1 else None)
+    analyze_recording(long_rec, tmp / f"analyze_w{workers}", progress=False,
+                      dic=DicPlan(workers=workers if workers > 1 else None))
     wall = time.perf_counter() - t0
     t0 = time.perf_counter()
     analyze_recording(long_rec, tmp / f"analyze_rest_w{workers}", progress=False, track_csv=track_csv)

@@ -111,7 +111,7 @@ def end_to_end(n: int = N, mm_per_px: float = 0.05) -> dict:
     -> vibro analyze (DIC icgn + identification) -> errors against the truth, fitted vs finite differences."""
     import tempfile
 
-    from vibro_app.analyze import analyze_recording
+    from vibro_app.analyze import FitPlan, analyze_recording
     from vibro_dic.speckle import RigScene, write_scene_recording
     from vibro_fit.validation import compare_to_truth
     from vibro_io.dictrack import read_dic_csv
@@ -131,7 +131,7 @@ def end_to_end(n: int = N, mm_per_px: float = 0.05) -> dict:
         for method in ("paper", "joint"):
             t0 = time.perf_counter()
             doc = analyze_recording(f"{tmp}/rec", f"{tmp}/out_{method}", progress=False, report=False,
-                                    method=method)
+                                    fit=FitPlan(method=method))
             el = time.perf_counter() - t0
             tdoc = {"effects": [], "structure": {"amplitude_mm": 3.0, "frequency_hz": 22.0},
                     "impacts": [{"t": i.t_s, "plate": i.plate, "cor": i.cor} for i in truth.impacts]}
@@ -172,7 +172,7 @@ def synth_recordings() -> list[dict]:
     clock offset) -> vibro analyze (DIC + identification + replay) -> errors against the truth file."""
     import tempfile
 
-    from vibro_app.analyze import analyze_recording
+    from vibro_app.analyze import FitPlan, analyze_recording
     from vibro_fit.validation import compare_to_truth
     from vibro_io.dictrack import read_dic_csv
     from vibro_sim.synth import SynthConfig, synthesize
@@ -186,7 +186,7 @@ def synth_recordings() -> list[dict]:
             for method in ("paper", "joint"):
                 t0 = time.perf_counter()
                 doc = analyze_recording(f"{tmp}/rec", f"{tmp}/out_{method}", progress=False, report=False,
-                                        method=method)
+                                        fit=FitPlan(method=method))
                 el = time.perf_counter() - t0
                 cmp = compare_to_truth(doc, truth, M_KG)
                 track = read_dic_csv(f"{tmp}/out_{method}/dic.csv")

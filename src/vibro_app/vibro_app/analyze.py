@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from vibro_app.cmd_track import DIC_CSV
@@ -24,16 +25,24 @@ from vibro_app.report_files import FIGURE_FILES, REPORT_HTML
 from vibro_dic.chunked import track_rows
 from vibro_dic.quality import TrackQuality, dic_quality_section
 from vibro_fit.cross_checks import consistency_checks, consistency_section
-from vibro_fit.plausibility import withhold_results
+from vibro_fit.plausibility import consistency_stage
 from vibro_fit.spin import ball_spin_section
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
 from vibro_io.frames import find_frames_source
 from vibro_io.outputs import atomic_path, prepare_output_dir
 from vibro_io.recording import load_recording_accel, open_recording
-from vibro_io.results_file import write_results
+from vibro_io.results_file import CSV_TABLES, RESULTS_JSON, write_result_tables, write_results
 from vibro_io.rig import RigConfig, load_rig
+from vibro_model.assemble import (
+    BallSpinStage,
+    DicQualityStage,
+    DiscrepancyStage,
+    SimulationStage,
+    StageOutputs,
+    assemble_results,
+)
 from vibro_model.errors import RecordingError
-from vibro_model.results import Simulation
+from vibro_model.results import ResultsDocument, Simulation
 from vibro_model.units import m_to_mm, mm_to_m
 from vibro_sim.params import BallCavity
 
@@ -82,21 +91,39 @@ DISCREPANCY_PNG = "discrepancy.png"
 
 def analyze_outputs() -> tuple[str, ...]:
     """Every file ``vibro analyze`` may write into its output folder (what ``--overwrite`` replaces)."""
-    from vibro_fit.results import CSV_TABLES, RESULTS_JSON
-
     return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *FIGURE_FILES.values(), DISCREPANCY_PNG, REPORT_HTML)
 
 
-def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, progress: bool, dic_method: str,
-                out_dir: Path, overwrite: bool = False, quality=None, workers: int | None = None,
-                scheduler: str | None = None):
+@dataclass(frozen=True, kw_only=True)
+class DicPlan:
+    """How ``vibro analyze`` tracks the frames: the sub-pixel method (``"icgn"`` or ``"parabolic"``,
+    :mod:`vibro_dic.tracker`) and where, in this process (no ``workers``, no ``scheduler``), in chunks on a new
+    local Dask cluster of ``workers`` processes, or on the Dask scheduler at ``scheduler``
+    (:func:`vibro_dic.chunked.track_rows`: the same track either way)."""
+
+    method: str = "icgn"
+    workers: int | None = None
+    scheduler: str | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class FitPlan:
+    """How ``vibro analyze`` identifies the motion: the impact method (``"paper"``: Eq. 15-16, or ``"joint"``,
+    :func:`vibro_fit.identify.identify`) and the flight-fit weights (None or ``"dic_valid"``: by the valid ball
+    subsets per frame)."""
+
+    method: str = "paper"
+    weights: str | None = None
+
+
+def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, out_dir: Path, dic: DicPlan,
+                progress: bool, overwrite: bool = False, quality=None):
     """(rig, track, accel) from a recording: DIC unless ``track_csv`` is given (then frames are not read).
 
-    DIC runs in this process, or in chunks on Dask workers (``workers`` > 1 local processes, or the cluster
-    at ``scheduler``): the same track and quality (:func:`vibro_dic.chunked.track_rows`). The inputs are
-    opened (and validated) before ``out_dir`` is prepared (:func:`prepare_output_dir`); with DIC the track is
-    written to ``out_dir/dic.csv`` and ``quality`` (a :class:`vibro_dic.quality.TrackQuality`, optional)
-    receives the texture check and the correlation quality."""
+    DIC runs as ``dic`` plans it (:class:`DicPlan`). The inputs are opened (and validated) before ``out_dir`` is
+    prepared (:func:`prepare_output_dir`); with DIC the track is written to ``out_dir/dic.csv`` and ``quality``
+    (a :class:`vibro_dic.quality.TrackQuality`, optional) receives the texture check and the correlation
+    quality."""
     rec_dir = Path(recording_dir)
     inputs = [rec_dir] + ([Path(track_csv)] if track_csv is not None else [])
     if track_csv is not None:
@@ -111,7 +138,7 @@ def load_inputs(recording_dir: str | Path, track_csv: str | Path | None, *, prog
     rec = open_recording(rec_dir)
     accel = rec.load_accel()
     prepare_output_dir(out_dir, overwrite=overwrite, owned=analyze_outputs(), command="analyze", inputs=inputs)
-    rows = list(track_rows(rec, workers=workers, scheduler=scheduler, method=dic_method, progress=progress,
+    rows = list(track_rows(rec, workers=dic.workers, scheduler=dic.scheduler, method=dic.method, progress=progress,
                            quality=quality))
     with atomic_path(out_dir / DIC_CSV) as tmp:
         write_dic_csv(tmp, rows)
@@ -145,9 +172,8 @@ def _write_discrepancy_figure(disc_run, path: Path) -> Path | None:
 
 
 def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progress: bool = True,
-                      method: str = "paper", track_csv: str | Path | None = None, dic_method: str = "icgn",
-                      report: bool = True, weights: str | None = None, overwrite: bool = False,
-                      workers: int | None = None, scheduler: str | None = None) -> dict:
+                      fit: FitPlan = FitPlan(), track_csv: str | Path | None = None, dic: DicPlan = DicPlan(),
+                      report: bool = True, overwrite: bool = False) -> dict:
     """Run the whole analysis of one recording (``vibro analyze``).
 
     Parameters
@@ -160,22 +186,16 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         :func:`vibro_io.outputs.prepare_output_dir`). Every file is written atomically.
     progress : bool
         Progress bars on stderr.
-    method : str
-        Impact identification: ``"paper"`` (Eq. 15-16) or ``"joint"`` (:func:`vibro_fit.identify.identify`).
+    fit : FitPlan
+        The identification's impact method and flight-fit weights.
     track_csv : str or Path, optional
         A DIC track (dic.csv) to use instead of tracking the frames.
-    dic_method : str
-        The DIC sub-pixel method: ``"icgn"`` or ``"parabolic"`` (:mod:`vibro_dic.tracker`).
+    dic : DicPlan
+        The DIC's sub-pixel method and where it runs (this process, local workers, a Dask scheduler).
     report : bool
         Write the figures and report.html.
-    weights : str, optional
-        Flight-fit weights (``"dic_valid"``: by the valid ball subsets per frame).
     overwrite : bool
         Replace an earlier analysis's files in ``out_dir``.
-    workers : int, optional
-        DIC in chunks on a new local Dask cluster of this many processes.
-    scheduler : str, optional
-        DIC in chunks on the Dask scheduler at this address.
 
     Returns
     -------
@@ -188,68 +208,108 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         Bad input (named, with where); or a run the cross-checks refuse, after results.json is written with its
         ``consistency`` section and without a COR table.
     """
-    from vibro_discrepancy.engine import discrepancy_for_results
-    from vibro_discrepancy.reidentify import reidentify_document
-    from vibro_fit.identify import identify
-    from vibro_fit.results import RESULTS_JSON, cor_statistics_section, results_model, write_csv_tables
+    from vibro_fit.identify import identify  # scipy: only when an analysis runs
 
     out = Path(out_dir)
     bar = _bar(4, progress, "analyze")
     try:
         bar.set_description("DIC" if track_csv is None else "read track")
         quality = TrackQuality() if track_csv is None else None
-        rig, track, accel = load_inputs(recording_dir, track_csv, progress=progress, dic_method=dic_method,
-                                        out_dir=out, overwrite=overwrite, quality=quality, workers=workers,
-                                        scheduler=scheduler)
-        dic_warnings = [] if quality is None else quality.check()  # refuses a body lost in most frames
+        rig, track, accel = load_inputs(recording_dir, track_csv, out_dir=out, dic=dic, progress=progress,
+                                        overwrite=overwrite, quality=quality)
+        dic_stage = None if quality is None else _dic_quality_stage(quality)  # refuses a body lost in most frames
         bar.update(1)
         bar.set_description("identify")
-        ident = identify(track, rig, accel=accel, method=method, weights=weights)
-        findings, evidence = consistency_checks(ident, track, rig, accel, _frames_source_name(recording_dir,
-                                                                                             track_csv))
+        ident = identify(track, rig, accel=accel, method=fit.method, weights=fit.weights)
+        stages = _checked_identification(ident, track, rig, accel,
+                                         recording=str(recording_dir), dic_quality=dic_stage,
+                                         frames_name=_frames_source_name(recording_dir, track_csv))
         bar.update(1)
+        if stages.consistency.refusal is not None:
+            _write_refused(stages, out)
         bar.set_description("simulate")
-        document = results_model(ident, str(recording_dir))
-        if quality is not None:
-            document.sections["dic_quality"] = dic_quality_section(quality.texture, quality)
-            document.warnings += [f"DIC: {w}" for w in quality.texture.warnings() + dic_warnings]
-        document.sections["consistency"] = consistency_section(findings, evidence)
-        document.warnings += [f"consistency: {f.message}" for f in findings]
-        refusal = next((f for f in findings if f.refuses), None)
-        if refusal is not None:
-            withhold_results(document, findings)
-            write_results(out / RESULTS_JSON, document)
-            write_csv_tables(document, out)
-            raise RecordingError(f"{refusal.message} (results withheld: {out / RESULTS_JSON} has no COR table, "
-                                 "see its 'consistency' section)")
-        sim = replay_models(document, track, rig)
+        stages, sim = _simulated(stages, track, rig)
         bar.update(1)
-        dev = sim["deviations"]
-        document.warnings += [f"simulation {name}: {msg}" for name, msg in sim["errors"].items()]
-        document.simulation = Simulation.of_deviations({"cor_model": dev.get("cor_model"),
-                                                        "hertz_model": dev.get("hertz_model")})
         bar.set_description("discrepancy")
-        document.discrepancy, disc_run, disc_error = discrepancy_for_results(document, track, rig)
-        if disc_error:
-            document.warnings.append(disc_error)
-        # the physics found corrects the measurement: impacts re-measured under the final model
-        document = reidentify_document(document, disc_run)
-        document.sections["cor_statistics"] = cor_statistics_section(document.impacts)
-        document.sections["ball_spin"] = ball_spin_section(track, document.flights, document.impacts)
+        stages, disc_run = _with_discrepancy(stages, track, rig)
+        document = _with_ball_spin(stages, track)
         write_results(out / RESULTS_JSON, document)
-        write_csv_tables(document, out)
-        doc = document.to_dict()
+        write_result_tables(document, out)
         if report:
-            from vibro_app.report import REPORT_HTML, write_figures, write_html  # matplotlib: only for the report
-
             bar.set_description("report")
-            figs = write_figures(track, ident, out, sim, impacts=document.impacts)
-            if disc_run is not None:
-                fig = _write_discrepancy_figure(disc_run, out / DISCREPANCY_PNG)
-                if fig is not None:
-                    figs["discrepancy"] = fig
-            write_html(document, figs, out / REPORT_HTML)
+            _write_report(document, ident, track, sim, disc_run, out)
         bar.update(1)
     finally:
         bar.close()
-    return doc
+    return document.to_dict()
+
+
+def _dic_quality_stage(quality: TrackQuality) -> DicQualityStage:
+    """The DIC's texture and correlation checks as the assembler takes them (refuses a body lost in most
+    frames: :meth:`TrackQuality.check`)."""
+    dic_warnings = quality.check()
+    return DicQualityStage(section=dic_quality_section(quality.texture, quality),
+                           warnings=[f"DIC: {w}" for w in quality.texture.warnings() + dic_warnings])
+
+
+def _checked_identification(ident, track: DicTrack, rig: RigConfig, accel, *, recording: str,
+                            dic_quality: DicQualityStage | None, frames_name: str) -> StageOutputs:
+    """The stage outputs up to the cross-checks (:func:`vibro_fit.cross_checks.consistency_checks`, the
+    trajectory_fitter's core too)."""
+    from vibro_fit.results import identified_stage
+
+    findings, evidence = consistency_checks(ident, track, rig, accel, frames_name)
+    return StageOutputs(recording=recording, identified=identified_stage(ident), dic_quality=dic_quality,
+                        consistency=consistency_stage(findings, consistency_section(findings, evidence)))
+
+
+def _write_refused(stages: StageOutputs, out: Path) -> None:
+    """A run the cross-checks refuse: its document (no COR table, the refusal first among the warnings)
+    written, then the refusal raised (exit code 2)."""
+    document = assemble_results(stages)
+    write_results(out / RESULTS_JSON, document)
+    write_result_tables(document, out)
+    raise RecordingError(f"{stages.consistency.refusal} (results withheld: {out / RESULTS_JSON} has no COR table, "
+                         "see its 'consistency' section)")
+
+
+def _simulated(stages: StageOutputs, track: DicTrack, rig: RigConfig) -> tuple[StageOutputs, dict]:
+    """The stage outputs with the COR and Hertz models replayed on the identification (:func:`replay_models`),
+    and the replay itself (for the figures)."""
+    sim = replay_models(assemble_results(stages), track, rig)
+    dev = sim["deviations"]
+    stage = SimulationStage(simulation=Simulation.of_deviations({"cor_model": dev.get("cor_model"),
+                                                                 "hertz_model": dev.get("hertz_model")}),
+                            warnings=[f"simulation {name}: {msg}" for name, msg in sim["errors"].items()])
+    return replace(stages, simulation=stage), sim
+
+
+def _with_discrepancy(stages: StageOutputs, track: DicTrack, rig: RigConfig):
+    """The stage outputs with the discrepancy analysis and the impacts re-measured under its final model, and
+    the analysis' run (None when it was skipped or failed)."""
+    from vibro_discrepancy.engine import discrepancy_for_results
+    from vibro_discrepancy.reidentify import reidentification
+
+    block, run, error = discrepancy_for_results(assemble_results(stages), track, rig)
+    stage = DiscrepancyStage(discrepancy=block, warnings=[error] if error else [],
+                             reidentification=reidentification(block.findings, run))
+    return replace(stages, discrepancy=stage), run
+
+
+def _with_ball_spin(stages: StageOutputs, track: DicTrack) -> ResultsDocument:
+    """The final document: the ball's spin per flight and impact of the final flights and impacts."""
+    final = assemble_results(stages)
+    spin = BallSpinStage(section=ball_spin_section(track, final.flights, final.impacts))
+    return assemble_results(replace(stages, ball_spin=spin))
+
+
+def _write_report(document: ResultsDocument, ident, track: DicTrack, sim: dict, disc_run, out: Path) -> None:
+    """The figures (PNG) and report.html of an analysed recording."""
+    from vibro_app.report import REPORT_HTML, write_figures, write_html  # matplotlib: only for the report
+
+    figs = write_figures(track, ident, out, sim, impacts=document.impacts)
+    if disc_run is not None:
+        fig = _write_discrepancy_figure(disc_run, out / DISCREPANCY_PNG)
+        if fig is not None:
+            figs["discrepancy"] = fig
+    write_html(document, figs, out / REPORT_HTML)

@@ -30,13 +30,26 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from vibro_app.findings_text import findings_lines
 from vibro_app.run_completeness import RunCompleteness, restarts_from_pids, run_completeness
-from vibro_fit.plausibility import Finding, withhold_results
+from vibro_fit.plausibility import consistency_stage, findings_from_section
 from vibro_fit.spin import ball_spin_section
 from vibro_io.outputs import atomic_write_text, prepare_output_dir, prepare_output_file
+from vibro_io.results_file import RESULTS_JSON
+from vibro_model.assemble import (
+    BallSpinStage,
+    CompletenessStage,
+    ConsistencyStage,
+    DiscrepancyStage,
+    Identified,
+    Reidentification,
+    SimulationStage,
+    StageOutputs,
+    assemble_results,
+)
 from vibro_model.results import Discrepancy, ResultsDocument, Simulation, results_text
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
@@ -187,67 +200,77 @@ def ball_spin_from_frames(frames: list, flights: list, impacts: list) -> tuple[d
 
 
 def document_from_bag(bag: str | Path) -> ResultsDocument:
-    """The results document of a recorded graph run (``complete`` False when the bag is not whole)."""
-    from vibro_discrepancy.reidentify import apply_reidentification, measurement_effects, reidentified_from_impacts
-    from vibro_fit.results import cor_statistics_section
-
+    """The results document of a recorded graph run (``complete`` False when the bag is not whole), assembled
+    by the one assembler (:func:`vibro_model.assemble.assemble_results`) from the stage outputs the bag's
+    messages carry."""
     r = BagResults(bag)
-    missing = r.missing()
+    stages = bag_stages(r)
+    final = assemble_results(stages)
+    return assemble_results(replace(stages, ball_spin=_ball_spin_stage(r.frames, final)))
+
+
+def bag_stages(r: BagResults) -> StageOutputs:
+    """The stage outputs of a recorded graph run: the fitter's final (or streamed) structure, flights and
+    impacts, what the run lost, the fitter's cross-checks, the simulator's runs, the discrepancy node's
+    findings and the impacts it re-measured under its final model."""
+    from vibro_discrepancy.reidentify import measurement_effects, reidentified_from_impacts
+
     impacts = [impact_from_message(m) for m in r.merged(topics.IMPACTS.name)]
     flights = [flight_from_message(m) for m in r.merged(topics.FLIGHTS.name)]
+    structure = None if r.structure is None else structure_from_message(r.structure)
+    identified = Identified(structure=structure, flights=flights, impacts=impacts)
     findings = [finding_from_message(r.findings[k]) for k in sorted(r.findings)]
-    completeness = r.completeness(len(impacts))
+    remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
+    identified_doc = assemble_results(StageOutputs(recording=r.bag, identified=identified))
+    redo = Reidentification(effects=tuple(measurement_effects(findings)),
+                            impacts=reidentified_from_impacts(identified_doc, remeasured))
+    return StageOutputs(
+        recording=r.bag, identified=identified, completeness=_completeness_stage(r, len(impacts)),
+        consistency=_consistency_stage(r),
+        simulation=SimulationStage(simulation=Simulation({name: simulation_run_from_message(m)
+                                                          for name, m in r.simulation.items()})),
+        discrepancy=_discrepancy_stage(r, findings, redo))
+
+
+def _completeness_stage(r: BagResults, impacts: int) -> CompletenessStage:
+    """What the run lost: streams cut short (the bag's end-of-stream statuses) and frame slots without DIC."""
+    missing = r.missing()
+    completeness = r.completeness(impacts)
     warnings = []
     if missing:
         warnings.append(f"bag cut short: {'; '.join(missing)}; flights and impacts without a final estimate are "
                         "the streamed ones")
-    warnings += completeness.warnings()
+    return CompletenessStage(section=completeness.to_dict(), warnings=warnings + completeness.warnings(),
+                             complete=not missing and not completeness.lost_anything)
+
+
+def _consistency_stage(r: BagResults) -> ConsistencyStage | None:
+    """The fitter's cross-checks and refusal as its /diagnostics carried them (None: none recorded)."""
+    if r.consistency is None and not r.refused:
+        return ConsistencyStage(section=None, problem=r.consistency_problem) if r.consistency_problem else None
+    section = dict(r.consistency or {"findings": [], "checks": {}})
+    section["refused"] = bool(r.refused) or bool(section.get("refused"))
+    return consistency_stage(findings_from_section(section), section, refused_line=r.refused,
+                             problem=r.consistency_problem)
+
+
+def _discrepancy_stage(r: BagResults, findings: list, redo: Reidentification) -> DiscrepancyStage:
+    """The discrepancy node's findings (D before the first and after the last), and the impacts it re-measured."""
+    warnings = []
     if "discrepancy" in r.finished and not findings:
         # the discrepancy node publishes findings only: with none, the baseline D is not in the bag
         warnings.append("discrepancy: no finding published; the baseline D is not recorded in a bag "
                         "(baseline_deviation and final_deviation are null)")
     discrepancy = Discrepancy(findings[0].deviation_before if findings else None, findings,
                               findings[-1].deviation_after if findings else None)
-    simulation = Simulation({name: simulation_run_from_message(m) for name, m in r.simulation.items()})
-    doc = ResultsDocument.build(
-        str(bag), None if r.structure is None else structure_from_message(r.structure), flights, impacts,
-        simulation=simulation, discrepancy=discrepancy, warnings=warnings,
-        complete=not missing and not completeness.lost_anything, sections={"completeness": completeness.to_dict()})
-    remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
-    effects = measurement_effects(findings)
-    doc = apply_reidentification(doc, effects, reidentified_from_impacts(doc, remeasured))
-    doc.sections["cor_statistics"] = cor_statistics_section(doc.impacts)
-    if r.consistency_problem:
-        doc.warnings.append(r.consistency_problem)
-    if r.consistency is not None or r.refused:
-        section = dict(r.consistency or {"findings": [], "checks": {}})
-        section["refused"] = bool(r.refused) or bool(section.get("refused"))
-        doc.sections["consistency"] = section
-        doc.warnings += [f"consistency: {f['message']}" for f in section.get("findings", [])]
-    if r.refused or (r.consistency or {}).get("refused"):
-        return _refused_document(doc, r)
-    spin, why_not = ball_spin_from_frames(r.frames, doc.flights, doc.impacts)
-    if spin is None:
-        doc.warnings.append(f"ball_spin: not reported: {why_not}")
-    else:
-        doc.sections["ball_spin"] = spin
-    return doc
+    return DiscrepancyStage(discrepancy=discrepancy, warnings=warnings, reidentification=redo)
 
 
-def _refused_document(doc: ResultsDocument, r: BagResults) -> ResultsDocument:
-    """A run the fitter refused (its cross-checks, as vibro analyze's): the COR table withheld as analyze
-    withholds it (:func:`vibro_fit.plausibility.withhold_results`: no impacts, streamed previews included, friction
-    withheld when implausible), ``complete`` false, and the refusal first among the warnings."""
-    findings = [Finding(f.get("check", ""), f.get("message", ""), list(f.get("keys", ())), dict(f.get("evidence", {})),
-                        f.get("severity", "warn"), f.get("frame")) for f in doc.sections["consistency"]["findings"]]
-    had_statements = "rig_consistency" in doc.sections  # a bag carries none: not added empty
-    withhold_results(doc, findings)
-    if not had_statements and not doc.sections.get("rig_consistency"):
-        doc.sections.pop("rig_consistency", None)
-    doc.complete = False
-    line = r.refused or next((f.message for f in findings if f.refuses), "the trajectory_fitter refused the run")
-    doc.warnings.insert(0, f"refused: {line}")
-    return doc
+def _ball_spin_stage(frames: list, final: ResultsDocument) -> BallSpinStage:
+    """The ``ball_spin`` section (as ``vibro analyze``'s) of the recorded DicFrames and the final flights and
+    impacts."""
+    section, why_not = ball_spin_from_frames(frames, final.flights, final.impacts)
+    return BallSpinStage(section=section, why_not=why_not)
 
 
 def results_from_bag(bag: str | Path) -> dict:
@@ -268,8 +291,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def prepare_results_path(out: str | Path, overwrite: bool, inputs: list[Path]) -> Path:
     """Where ``vibro results --out OUT`` writes: OUT itself if it ends in .json, else OUT/results.json
     (OUT prepared by :func:`vibro_io.outputs.prepare_output_dir`)."""
-    from vibro_fit.results import RESULTS_JSON
-
     out = Path(out)
     if out.suffix == ".json":
         return prepare_output_file(out, overwrite=overwrite)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vibro_app.analyze import analyze_recording
+from vibro_app.analyze import DicPlan, FitPlan, analyze_recording
 from vibro_app.findings_text import findings_lines
 from vibro_dic.cluster import add_cluster_args
 from vibro_fit.methods import METHODS
@@ -33,10 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
 
     progress = not args.no_progress and sys.stderr.isatty()
-    doc = analyze_recording(args.recording, args.out, progress=progress, method=args.method,
-                            track_csv=args.track, dic_method=args.dic_method, report=not args.no_report,
-                            weights=args.weights, overwrite=args.overwrite, workers=args.workers,
-                            scheduler=args.scheduler)
+    dic = DicPlan(method=args.dic_method, workers=args.workers, scheduler=args.scheduler)
+    fit = FitPlan(method=args.method, weights=args.weights)
+    doc = analyze_recording(args.recording, args.out, progress=progress, fit=fit, track_csv=args.track, dic=dic,
+                            report=not args.no_report, overwrite=args.overwrite)
     summ = doc["cor_summary"]
     sim = doc["simulation"]
 

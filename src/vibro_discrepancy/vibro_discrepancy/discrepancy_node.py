@@ -7,21 +7,24 @@ new frame for ``dic_wait_s``), it runs :func:`vibro_discrepancy.run_discrepancy`
 results document of those messages (domain-model types, :mod:`vibro_ros.convert`; the same core as
 ``vibro analyze``); when a finding changes how an impact is measured (harmonics, a flight force)
 it publishes the impacts measured again under the final model (:mod:`vibro_discrepancy.reidentify`,
-as ``vibro analyze`` does) on vibro/impacts_final_model (ImpactEstimate, final) with the status of stream
-"impacts_final_model"; then one DiscrepancyFinding per finding and its own status (stream "discrepancy",
-finished). No finding: only the statuses (items_sent = 0).
+applied by the results assembler, :mod:`vibro_model.assemble`, as for ``vibro analyze``) on
+vibro/impacts_final_model (ImpactEstimate, final) with the status of stream "impacts_final_model"; then one
+DiscrepancyFinding per finding and its own status (stream "discrepancy", finished). No finding:
+only the statuses (items_sent = 0).
 """
 
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 
 from rclpy.node import Node
 
 from vibro_discrepancy import run_discrepancy
-from vibro_discrepancy.from_messages import document_from_messages, track_from_messages
-from vibro_discrepancy.reidentify import PAPER, reidentify_document
+from vibro_discrepancy.from_messages import stages_from_messages, track_from_messages
+from vibro_discrepancy.reidentify import reidentification
 from vibro_io.rig import load_rig
+from vibro_model.assemble import PAPER, DiscrepancyStage, assemble_results
 from vibro_model.errors import RecordingError
 from vibro_msgs.msg import DiscrepancyFinding, ImpactEstimate
 from vibro_ros import topics
@@ -75,8 +78,8 @@ class Discrepancy(Node):
             self.status.publish(0, 0, True)
             return
         try:
-            identified = document_from_messages(r.structure, r.flights.values(), r.impacts.values())
-            run = run_discrepancy(identified, track_from_messages(r.frames.values()), self.rig)
+            stages = stages_from_messages(r.structure, r.flights.values(), r.impacts.values())
+            run = run_discrepancy(assemble_results(stages), track_from_messages(r.frames.values()), self.rig)
         except RecordingError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"discrepancy analysis not possible: {exc}")
@@ -85,8 +88,9 @@ class Discrepancy(Node):
             return
         t_last = max(float(m.t_s) for m in r.frames.values())
         block = run.result
-        identified.discrepancy = block
-        remeasured = [i for i in reidentify_document(identified, run).impacts if i.cor_method != PAPER]
+        stage = DiscrepancyStage(discrepancy=block, reidentification=reidentification(block.findings, run))
+        final = assemble_results(replace(stages, discrepancy=stage))
+        remeasured = [i for i in final.impacts if i.cor_method != PAPER]
         for imp in remeasured:
             self.pub_impacts.publish(impact_to_message(imp, final=True, origin_ns=self.time_origin_ns))
         if remeasured:

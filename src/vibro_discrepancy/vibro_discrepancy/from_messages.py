@@ -8,16 +8,26 @@ import math
 from typing import Iterable
 
 from vibro_io.dictrack import DicTrack
+from vibro_model.assemble import Identified, StageOutputs, assemble_results
 from vibro_model.results import ResultsDocument
 from vibro_ros.convert import dic_track_from_messages, flight_from_message, impact_from_message, structure_from_message
 
 
+def stages_from_messages(structure, flights: Iterable, impacts: Iterable, recording: str = "graph run"
+                         ) -> StageOutputs:
+    """The identification stage of the fitter's final StructureMotion, FreeFlight and ImpactEstimate messages
+    (converted by :mod:`vibro_ros.convert`), as the results assembler takes it."""
+    identified = Identified(structure=structure_from_message(structure),
+                            flights=list(map(flight_from_message, flights)),
+                            impacts=list(map(impact_from_message, impacts)))
+    return StageOutputs(recording=recording, identified=identified)
+
+
 def document_from_messages(structure, flights: Iterable, impacts: Iterable, recording: str = "graph run"
                            ) -> ResultsDocument:
-    """The results document of the fitter's final StructureMotion, FreeFlight and ImpactEstimate messages
-    (converted by :mod:`vibro_ros.convert`; flights linked to the impacts that open/close them)."""
-    return ResultsDocument.build(recording, structure_from_message(structure), map(flight_from_message, flights),
-                                 map(impact_from_message, impacts))
+    """The results document of the fitter's final messages (:func:`stages_from_messages`; flights linked to the
+    impacts that open/close them), by the one assembler (:func:`vibro_model.assemble.assemble_results`)."""
+    return assemble_results(stages_from_messages(structure, flights, impacts, recording))
 
 
 def track_from_messages(frames: Iterable) -> DicTrack:

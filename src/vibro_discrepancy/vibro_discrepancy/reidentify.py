@@ -27,18 +27,17 @@ Without such a finding, or for an impact the final
 model does not see from both sides (a flight too short to fit), the identification's values stay and
 the impact's ``cor_method`` is ``"paper"``.
 
-Plain module (no rclpy, no vibro_fit), the one place this is done: ``vibro analyze``
-(:mod:`vibro_app.analyze`) applies :func:`reidentify_document` to its results document; the graph's
-``discrepancy`` node applies it to the document of the fitter's messages and publishes the re-measured
-impacts (``vibro/impacts_final_model``), which ``vibro results <bag>`` puts back with
-:func:`reidentified_from_impacts` and :func:`apply_reidentification`.
+Plain module (no rclpy, no vibro_fit), the one place the impacts are measured again: :func:`reidentification`
+is the stage the results assembler (:mod:`vibro_model.assemble`, which applies it) takes from ``vibro analyze``
+and from the graph's ``discrepancy`` node, which publishes the re-measured impacts
+(``vibro/impacts_final_model``); ``vibro results <bag>`` puts them back with :func:`reidentified_from_impacts`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Iterable, Sequence
+from typing import Iterable
 
 import numpy as np
 
@@ -47,15 +46,12 @@ from vibro_discrepancy.fitting import StructureModelFit
 from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
-from vibro_model.results import CorSummary, Impact, ResultsDocument, link_impacts
+from vibro_model.assemble import Reidentification
+from vibro_model.results import Impact, ResultsDocument
 
 #: findings whose model changes how an impact is measured (structure velocity, flight law); an
 #: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
 MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS) + (TONE_EFFECT,)
-PAPER = "paper"
-#: an identified impact and a measured one are the same when their times agree this well (s): both are
-#: the same float read from the same results document
-SAME_IMPACT_S = 1e-9
 
 
 def measurement_effects(findings: Iterable[object]) -> list[str]:
@@ -72,11 +68,6 @@ def measurement_effects(findings: Iterable[object]) -> list[str]:
         if name in MEASUREMENT_EFFECTS and name not in out:
             out.append(name)
     return out
-
-
-def cor_method_name(effects: Sequence[str]) -> str:
-    """The per-impact ``cor_method``: ``"paper"`` without an effect, else the effect names joined by '+'."""
-    return "+".join(effects) if effects else PAPER
 
 
 def _structure_velocity_gradient(fit: StructureModelFit, t_s: float) -> np.ndarray:
@@ -177,66 +168,15 @@ def reidentify_impacts(meas: Measured, model: FittedModel) -> list[Impact]:
     return out
 
 
-def _keep_paper(imp: Impact) -> Impact:
-    return replace(imp, cor_paper=imp.cor, cor_std_paper=imp.cor_std, t_paper_s=imp.t_s, cor_method=PAPER)
-
-
-def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
-                           measured: Sequence[Impact]) -> ResultsDocument:
-    """``doc`` with its impacts measured under the final model: ``cor``, ``cor_std``, ``t``, ``t_std``,
-    ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
-    ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact; ``cor_summary`` from the new CORs; the
-    flights' opening/closing impact times from the new times; the top-level ``impacts_model`` section
-    saying which model produced ``cor``. With no ``effects`` every impact keeps the identification's
-    values (``cor_method`` "paper"). ``measured`` (:func:`reidentify_impacts`) names each impact by the
-    identification's time, its ``t_paper_s``. The caller recomputes whatever else is derived from the CORs
-    (``cor_statistics``, figures)."""
-    method = cor_method_name(effects)
-    by_time = ({round(r.t_paper_s / SAME_IMPACT_S): r for r in measured if r.t_paper_s is not None}
-               if effects else {})
-    impacts, n_done = [], 0
-    for imp in doc.impacts:
-        base = _keep_paper(imp)
-        r = by_time.get(round(imp.t_s / SAME_IMPACT_S)) if imp.t_s is not None else None
-        if r is None or imp.cor is None:
-            impacts.append(base)
-            continue
-        n_done += 1
-        impacts.append(replace(base, t_s=r.t_s, t_std_s=r.t_std_s, cor=r.cor, cor_std=r.cor_std,
-                               v_ball_before_mps=r.v_ball_before_mps, v_ball_after_mps=r.v_ball_after_mps,
-                               v_structure_mps=r.v_structure_mps, cor_method=method))
-    n_cor = sum(i.cor is not None for i in doc.impacts)
-    section = {"cor_method": method if n_done else PAPER, "effects": list(effects) if n_done else [],
-               "n_reidentified": n_done, "n_paper": n_cor - n_done}
-    if effects and n_done:
-        section["description"] = (
-            f"cor, cor_std, t, t_std, v_* of {n_done}/{n_cor} impacts measured under the final model "
-            f"({', '.join(effects)}): impact time where its flights meet, structure velocity from its structure "
-            "fit, ball velocities from its flights integrated with its force law; cor_paper, cor_std_paper, "
-            "t_paper are the identification's (Eq. 15-16)"
-            + (f"; {n_cor - n_done} impact(s) without a fitted flight on both sides keep them" if n_cor > n_done
-               else ""))
-    elif effects:
-        section["description"] = (f"no impact was measured again under the final model ({', '.join(effects)}): "
-                                  "cor is the identification's (Eq. 15-16)")
-    else:
-        section["description"] = ("no finding changes how an impact is measured: cor is the identification's "
-                                  "(Eq. 15-16)")
-    sections = dict(doc.sections)
-    sections["impacts_model"] = section
-    # flights' t_start/t_end are the impacts that open/close them (the contract): the re-measured times
-    return replace(doc, flights=link_impacts(doc.flights, impacts), impacts=impacts,
-                   cor_summary=CorSummary.of(impacts), sections=sections)
-
-
-def reidentify_document(doc: ResultsDocument, run) -> ResultsDocument:
-    """``doc`` (with its ``discrepancy`` findings from ``run``, a
-    :class:`~vibro_discrepancy.engine.DiscrepancyRun` or None) re-identified with the engine's final
-    model when a finding changes how the impacts are measured; else with every impact marked "paper"."""
-    effects = measurement_effects(doc.discrepancy.findings)
+def reidentification(findings: Iterable[object], run) -> Reidentification:
+    """The re-identification stage of the results assembler (:class:`vibro_model.assemble.Reidentification`):
+    the impacts of ``run`` (a :class:`~vibro_discrepancy.engine.DiscrepancyRun` or None) measured again under
+    its final model when one of ``findings`` changes how the impacts are measured; else none (every impact
+    keeps the identification's values, ``cor_method`` "paper")."""
+    effects = measurement_effects(findings)
     if run is None or run.final is None or run.measured is None or not effects:
-        return apply_reidentification(doc, [], [])
-    return apply_reidentification(doc, effects, reidentify_impacts(run.measured, run.final))
+        return Reidentification()
+    return Reidentification(effects=tuple(effects), impacts=reidentify_impacts(run.measured, run.final))
 
 
 def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[Impact]:

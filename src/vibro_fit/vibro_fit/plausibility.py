@@ -30,8 +30,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
+from vibro_model.assemble import ConsistencyStage
 from vibro_model.constants import G_MPS2
-from vibro_model.results import CorSummary
 
 #: family-wise probability of a false alarm of one test family (impacts, plates, all)
 FALSE_ALARM = 1e-3
@@ -297,28 +297,30 @@ def friction_withheld(findings: Iterable[Finding]) -> bool:
     return any(f.check == "negative_friction" and f.refuses for f in findings)
 
 
-def withhold_results(document, findings: Sequence[Finding]) -> None:
-    """A refused run's document (vibro analyze's, or one rebuilt from a graph run's bag): the COR table withheld
-    (no impacts, an empty COR summary and statistics), friction withheld when it is implausible
-    (:func:`friction_withheld`, which the trajectory_fitter node applies to what it publishes), and rig.yaml
-    statements that the refusal shows to be consequences (the free play measured against structure fits seeded
-    at a wrong frequency) dropped from ``rig_consistency`` and the warnings, the refusal having named the key
-    that is wrong."""
-    from dataclasses import replace
+def findings_from_section(section: dict) -> list[Finding]:
+    """The findings of a ``consistency`` section as recorded (results.json, or the trajectory_fitter's
+    /diagnostics value): the inverse of :meth:`Finding.to_dict`."""
+    return [Finding(f.get("check", ""), f.get("message", ""), list(f.get("keys", ())), dict(f.get("evidence", {})),
+                    f.get("severity", "warn"), f.get("frame")) for f in section.get("findings", [])]
 
 
-    document.impacts = []
-    document.cor_summary = CorSummary.of([])
-    document.sections.pop("cor_statistics", None)
-    if friction_withheld(findings):
-        document.flights = [replace(f, friction_n=None, friction_std_n=None) for f in document.flights]
+def consistency_stage(findings: Sequence[Finding], section: dict | None, *, refused_line: str = "",
+                      problem: str = "") -> ConsistencyStage:
+    """The cross-checks as the results assembler takes them (:class:`vibro_model.assemble.ConsistencyStage`):
+    ``section`` (results.json ``consistency``), one warning per finding, and what a refusal withholds: the
+    refusal's line (``refused_line``, the trajectory_fitter's words when a bag recorded them, else the first
+    refusing finding's message), the friction when it is the implausible part (:func:`friction_withheld`),
+    and the rig.yaml statements that are the refusal's consequences: the free play, measured against
+    structure fits seeded at a wrong frequency or time base (:data:`_GEOMETRY_KEYS`). ``problem``: why a
+    recorded section could not be read (a warning)."""
+    refused = bool(refused_line) or any(f.refuses for f in findings) or bool((section or {}).get("refused"))
+    refusal = None
+    if refused:
+        refusal = refused_line or next((f.message for f in findings if f.refuses),
+                                       "the trajectory_fitter refused the run")
     frequency_cause = any(f.refuses and {"excitation.frequency_hz", "camera.fps"} & set(f.keys)
                           and "cor_against_recording_sine_range" in f.evidence for f in findings)
-    if not frequency_cause:
-        return
-    statements = document.sections.get("rig_consistency") or []
-    dropped = [r for r in statements if set(r.get("keys", ())) <= _GEOMETRY_KEYS]
-    document.sections["rig_consistency"] = [r for r in statements if r not in dropped]
-    texts = [r["message"] for r in dropped]
-    document.warnings = [w for w in document.warnings if not w.startswith("measured free play")
-                         and not any(t in w for t in texts)]
+    return ConsistencyStage(section=section, warnings=[f"consistency: {f.message}" for f in findings],
+                            refusal=refusal, withhold_friction=friction_withheld(findings),
+                            consequence_keys=frozenset(_GEOMETRY_KEYS) if frequency_cause else frozenset(),
+                            problem=problem)

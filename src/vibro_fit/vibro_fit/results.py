@@ -8,38 +8,18 @@ friction force (null otherwise) and only impacts between two free flights are li
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
-import numpy as np
-
-from vibro_io.outputs import atomic_open
-from vibro_io.results_file import write_results
-from vibro_model.codec import json_number, json_value
+from vibro_io.results_file import CSV_TABLES, RESULTS_JSON, write_result_tables, write_results
+from vibro_model.assemble import Identified, StageOutputs, assemble_results
+from vibro_model.codec import json_value
 from vibro_model.results import ResultsDocument, Simulation
 
 from .identify import Identification
-from .statistics import normal_check
 
-RESULTS_JSON = "results.json"
-CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_csv_tables, in this order
-
-
-def cor_statistics_section(impacts: Iterable) -> dict:
-    """Per plate (n >= 3): histogram (counts, edges) and normal Q-Q slope, intercept and correlation r of
-    the CORs of ``impacts`` (anything with ``plate`` and ``cor``)."""
-    impacts = list(impacts)
-    out = {}
-    for plate in ("top", "bottom"):
-        vals = [np.nan if i.cor is None else i.cor for i in impacts if i.plate == plate]
-        if len(vals) < 3:
-            continue
-        nc = normal_check(vals)
-        out[plate] = {"histogram_counts": [int(c) for c in nc.counts], "histogram_edges": json_value(nc.edges),
-                      "qq_slope": json_number(nc.slope), "qq_intercept": json_number(nc.intercept),
-                      "qq_r": json_number(nc.r)}
-    return out
+__all__ = ["CSV_TABLES", "RESULTS_JSON", "identification_extras", "identified_stage", "results_document",
+           "results_model", "write_csv_tables", "write_json"]
 
 
 def identification_extras(ident: Identification) -> dict[str, Any]:
@@ -81,20 +61,29 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
     return json_value(out)
 
 
-def results_model(ident: Identification, recording: str, simulation: Simulation | None = None) -> ResultsDocument:
-    """The results document of an identification (discrepancy left empty: the caller adds it)."""
-    impacts = [i.model() for i in ident.impacts]
-    sections = {"cor_statistics": cor_statistics_section(impacts), **identification_extras(ident)}
-    return ResultsDocument.build(recording, ident.structure_motion(), [f.model(ident.mass_kg) for f in ident.flights],
-                                 impacts, simulation=simulation, warnings=ident.warnings, sections=sections)
+def identified_stage(ident: Identification) -> Identified:
+    """The identification as the results assembler takes it (:class:`vibro_model.assemble.Identified`): the
+    structure, flights and impacts as results types, its warnings, and the sections only it fills."""
+    return Identified(structure=ident.structure_motion(), flights=[f.model(ident.mass_kg) for f in ident.flights],
+                      impacts=[i.model() for i in ident.impacts], warnings=list(ident.warnings),
+                      sections=identification_extras(ident))
+
+
+def results_model(ident: Identification, recording: str) -> ResultsDocument:
+    """The results document of an identification alone (``vibro fit``; no later stage): the assembler's
+    (:func:`vibro_model.assemble.assemble_results`)."""
+    return assemble_results(StageOutputs(recording=recording, identified=identified_stage(ident)))
 
 
 def results_document(ident: Identification, recording: str, simulation: dict | None = None,
                      discrepancy: dict | None = None) -> dict:
-    """The whole results.json mapping (schema vibro.results/1) of an identification."""
+    """The whole results.json mapping (schema vibro.results/1) of an identification, with a simulation and
+    discrepancy section given as results.json mappings (tests, the prove harness)."""
     from vibro_model.results import Discrepancy
 
-    doc = results_model(ident, recording, None if simulation is None else Simulation.from_dict(simulation))
+    doc = results_model(ident, recording)
+    if simulation is not None:
+        doc.simulation = Simulation.from_dict(simulation)
     if discrepancy is not None:
         doc.discrepancy = Discrepancy.from_dict(discrepancy)
     return doc.to_dict()
@@ -106,19 +95,7 @@ def write_json(path: str | Path, doc: ResultsDocument | dict) -> Path:
 
 
 def write_csv_tables(source: Identification | ResultsDocument, out_dir: str | Path) -> list[Path]:
-    """flights.csv, impacts.csv (same columns as results.json) in ``out_dir``; returns the paths."""
+    """flights.csv, impacts.csv of an identification or a results document in ``out_dir``
+    (:func:`vibro_io.results_file.write_result_tables`); returns the paths."""
     doc = source if isinstance(source, ResultsDocument) else results_model(source, "")
-    out_dir = Path(out_dir)
-    paths = []
-    for name, rows in zip(CSV_TABLES, ([f.to_dict() for f in doc.flights], [i.to_dict() for i in doc.impacts])):
-        path = out_dir / name
-        with atomic_open(path, "w", newline="") as fh:
-            if rows:
-                names = list(dict.fromkeys(k for r in rows for k in r))   # optional keys of later rows too
-                w = csv.DictWriter(fh, fieldnames=names)
-                w.writeheader()
-                w.writerows(rows)
-            else:
-                fh.write("index\n")
-        paths.append(path)
-    return paths
+    return write_result_tables(doc, out_dir)

@@ -39,7 +39,6 @@ import json
 import math
 import sys
 import time
-from dataclasses import replace
 
 import numpy as np
 from rclpy.node import Node
@@ -48,7 +47,9 @@ from rclpy.task import Future
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.rig import load_rig
+from vibro_model.assemble import StageOutputs, assemble_results
 from vibro_model.errors import RecordingError
+from vibro_model.results import ResultsDocument
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
 from vibro_ros import topics
 from vibro_ros.adaptive_qos import results_subscription
@@ -73,7 +74,8 @@ from .flight_fit import FlightFit
 from .identify import METHODS, identify
 from .impacts import ImpactFit
 from .live_accel import LIVE_RATE_GUESS_HZ, AccelStreamRefused, BlockCheck, LiveClockOffset
-from .plausibility import friction_withheld
+from .plausibility import consistency_stage
+from .results import identified_stage
 from .streaming import StreamingFitter
 
 
@@ -327,32 +329,39 @@ class TrajectoryFitter(Node):
             self.gate.finish()
             return
         # vibro analyze's cross-checks, the same core: the bag's reader finds them on /diagnostics
-        self.health.values[topics.CONSISTENCY_KEY] = json.dumps(consistency_section(findings, evidence))
-        refusal = next((f for f in findings if f.refuses), None)
+        section = consistency_section(findings, evidence)
+        self.health.values[topics.CONSISTENCY_KEY] = json.dumps(section)
         for f in findings:
             if not f.refuses:
                 self.get_logger().warning(f"consistency: {f.message}")
-        smsg = structure_to_message(ident.structure_motion(), float(track.t_s[-1]) if len(track.t_s) else None,
-                                    self.time_origin_ns)
-        self.pub_structure.publish(smsg)
-        no_friction = friction_withheld(findings)
-        for fl in ident.flights:
-            model = fl.model(ident.mass_kg)
-            if no_friction:  # as vibro analyze withholds it (vibro_fit.plausibility.withhold_results)
-                model = replace(model, friction_n=None, friction_std_n=None)
-            self.pub_flights.publish(flight_to_message(model, True, self.time_origin_ns))
         for w in ident.warnings:
             self.get_logger().warning(w)
-        self.flights_status.publish(len(ident.flights), 0, True)
-        if refusal is not None:
-            self._refuse(refusal.message, len(ident.impacts))
+        # what is published is the assembler's document (vibro analyze's rules: a refusal withholds the impacts,
+        # and the friction when it is the implausible part)
+        stages = StageOutputs(recording=f"the frames on {topics.DIC.name}", identified=identified_stage(ident),
+                              consistency=consistency_stage(findings, section))
+        refused = stages.consistency.refusal is not None
+        self._publish_final(assemble_results(stages), float(track.t_s[-1]) if len(track.t_s) else None,
+                            with_impacts=not refused)
+        if refused:
+            self._refuse(stages.consistency.refusal, len(ident.impacts))
             return
-        for est in ident.impacts:
-            self.pub_impacts.publish(impact_message(est, final=True, origin_ns=self.time_origin_ns))
-        self.status.publish(len(ident.impacts), 0, True)
         self.get_logger().info(f"final: {len(ident.flights)} flights, {len(ident.impacts)} impacts, "
                                f"regime {ident.regime.name}")
         self.gate.finish()
+
+    def _publish_final(self, document: ResultsDocument, t_end_s: float | None, *, with_impacts: bool) -> None:
+        """The final pass's structure, flights and (``with_impacts``: the run is not refused) impacts with their
+        end-of-stream statuses (a refused run's impacts stream ends in :meth:`_refuse`)."""
+        self.pub_structure.publish(structure_to_message(document.structure, t_end_s, self.time_origin_ns))
+        for flight in document.flights:
+            self.pub_flights.publish(flight_to_message(flight, True, self.time_origin_ns))
+        self.flights_status.publish(len(document.flights), 0, True)
+        if not with_impacts:
+            return
+        for impact in document.impacts:
+            self.pub_impacts.publish(impact_to_message(impact, final=True, origin_ns=self.time_origin_ns))
+        self.status.publish(len(document.impacts), 0, True)
 
     def _refuse(self, message: str, withheld: int) -> None:
         """A cross-check refused the identification (as ``vibro analyze`` refuses it): no final impact is

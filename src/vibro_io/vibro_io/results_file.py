@@ -3,13 +3,17 @@ through :func:`read_results` (contract: docs/recording-format.md; the types: :mo
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 from typing import Any, Mapping
 
-from vibro_io.outputs import atomic_write_text
+from vibro_io.outputs import atomic_open, atomic_write_text
 from vibro_model.codec import ResultsError
 from vibro_model.results import ResultsDocument, results_text
+
+RESULTS_JSON = "results.json"
+CSV_TABLES = ("flights.csv", "impacts.csv")  # written by write_result_tables, in this order
 
 
 def write_results(path: str | Path, doc: ResultsDocument | Mapping[str, Any]) -> Path:
@@ -28,3 +32,22 @@ def read_results(path: str | Path) -> ResultsDocument:
     except ValueError as exc:
         raise ResultsError(f"{path}: not JSON ({exc})") from None
     return ResultsDocument.from_dict(data, str(path))
+
+
+def write_result_tables(doc: ResultsDocument, out_dir: str | Path) -> list[Path]:
+    """flights.csv, impacts.csv (the columns of results.json's flights and impacts) in ``out_dir``, each
+    written atomically; returns the paths."""
+    out_dir = Path(out_dir)
+    paths = []
+    for name, rows in zip(CSV_TABLES, ([f.to_dict() for f in doc.flights], [i.to_dict() for i in doc.impacts])):
+        path = out_dir / name
+        with atomic_open(path, "w", newline="") as fh:
+            if rows:
+                names = list(dict.fromkeys(k for r in rows for k in r))   # optional keys of later rows too
+                w = csv.DictWriter(fh, fieldnames=names)
+                w.writeheader()
+                w.writerows(rows)
+            else:
+                fh.write("index\n")
+        paths.append(path)
+    return paths

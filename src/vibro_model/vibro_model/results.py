@@ -402,17 +402,17 @@ class ResultsDocument:
     @classmethod
     def build(cls, recording: str, structure: StructureMotion | None, flights: Iterable[Flight],
               impacts: Iterable[Impact], *, simulation: Simulation | None = None,
-              discrepancy: Discrepancy | None = None, warnings: Iterable[str] = (), complete: bool = True,
+              discrepancy: Discrepancy | None = None, warnings: Iterable[str] = (),
               sections: Mapping[str, Any] | None = None) -> "ResultsDocument":
-        """The document from its parts: impacts sorted by index, flights by index and linked to their
-        opening/closing impacts (:func:`link_impacts`), the COR summary from the impacts."""
+        """The document from its parts (marked complete): impacts sorted by index, flights by index and linked to
+        their opening/closing impacts (:func:`link_impacts`), the COR summary from the impacts. The results
+        assembler (:func:`vibro_model.assemble.assemble_results`) is the one caller that writes results.json."""
         impacts = sorted(impacts, key=lambda i: i.index)
         flights = link_impacts(sorted(flights, key=lambda f: f.index), impacts)
         return cls(recording=str(recording), structure=structure, flights=flights, impacts=impacts,
                    cor_summary=CorSummary.of(impacts),
                    simulation=simulation or Simulation.of_deviations({m: None for m in MODELS}),
-                   discrepancy=discrepancy or Discrepancy(), warnings=list(warnings), complete=complete,
-                   sections=dict(sections or {}))
+                   discrepancy=discrepancy or Discrepancy(), warnings=list(warnings), sections=dict(sections or {}))
 
     def to_dict(self) -> dict:
         out: dict[str, Any] = {"schema": SCHEMA, "recording": self.recording, "complete": self.complete,

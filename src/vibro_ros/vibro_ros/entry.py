@@ -6,6 +6,15 @@ after ``ros2 launch``, or launch shutting a run down) would raise KeyboardInterr
 a traceback and exit code -2 ("process has died"). These entry points install :func:`stop_while_starting` first,
 then import the node module and run its ``main``, which replaces the handler: a stop before the node exists is a
 clean exit 0 with one line. This module imports nothing heavy (``vibro_ros/__init__`` imports nothing).
+
+Why the table of node modules sits here, on the ground floor, and not as ``package.module:main`` in each setup.py
+as the rclpy examples declare it: a console script ``vibro_dic.dic_tracker_node:main`` imports ``vibro_dic``'s
+``__init__`` (the tracker, OpenCV, numba) before any of its code runs, and a package-local entry module
+(``vibro_dic.entry``) would do the same. Only a package whose ``__init__`` is empty can hold the early handler,
+and ``vibro_ros`` is the one every node package depends on. The table names the higher packages' modules as
+strings (nothing of them is imported here, so no arrow points up the package graph), each package's setup.py
+points its console scripts at the functions below, and tests/test_packaging.py and tests/test_launch_order.py
+hold the table equal to the graph's node specs (vibro_bringup.graph_spec).
 """
 
 from __future__ import annotations

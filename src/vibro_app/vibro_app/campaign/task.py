@@ -34,7 +34,7 @@ class _WarningCollector(logging.Handler):
 
 def analyze_run(name: str, recording: str, run_dir: str, options: dict, fingerprint: str, version: str) -> dict:
     """Analyse one recording into ``run_dir`` (see module doc); the record of the run."""
-    from vibro_app.analyze import analyze_recording
+    from vibro_app.analyze import DicPlan, FitPlan, analyze_recording
 
     start = time.perf_counter()
     record = {"name": name, "recording": recording, "status": "ok", "reason": "", "warnings": [],
@@ -45,7 +45,9 @@ def analyze_run(name: str, recording: str, run_dir: str, options: dict, fingerpr
     try:
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         forget_fingerprint(run_dir)
-        analyze_recording(recording, run_dir, progress=False, overwrite=True, **options)
+        analyze_recording(recording, run_dir, progress=False, overwrite=True,
+                          fit=FitPlan(method=options["method"], weights=options["weights"]),
+                          dic=DicPlan(method=options["dic_method"]))
         write_fingerprint(run_dir, fingerprint, recording, version, options)
     except RecordingError as exc:
         record.update(status="failed", reason=" ".join(str(exc).split()))
