@@ -301,6 +301,44 @@ def _differences_within(a: np.ndarray, d: np.ndarray, max_offset_s: float, rows:
     return np.concatenate(out) if out else np.empty(0)
 
 
+def _candidate_seeds(diffs: np.ndarray, max_offset_s: float, tol_s: float) -> list[float]:
+    """Up to 8 candidate offsets (s): the centres of the densest pairs of ``tol_s`` histogram bins of the
+    differences, each more than 3 ``tol_s`` from the others."""
+    edges = np.arange(-max_offset_s, max_offset_s + tol_s, tol_s)
+    counts, edges = np.histogram(diffs, bins=edges)
+    pair = counts[:-1] + counts[1:] if counts.size > 1 else counts
+    centres = edges[1:-1] if counts.size > 1 else 0.5 * (edges[:1] + edges[1:])
+    seeds: list[float] = []
+    for k in np.argsort(pair, kind="stable")[::-1]:
+        if pair[k] < 2 and seeds:
+            break
+        c = float(centres[k])
+        if all(abs(c - s) > 3 * tol_s for s in seeds):
+            seeds.append(c)
+        if len(seeds) >= 8:
+            break
+    return seeds
+
+
+def _started_together(off: float, n: int, others: list[tuple[float, int]], period_s: float,
+                      spans: tuple[tuple[float, float], tuple[float, float]]) -> tuple[int, str]:
+    """The matches a rival offset needs to make ``off`` (matching ``n``) ambiguous, and the stated assumption:
+    n when the records (``spans``: accelerometer on the DAQ clock, camera on the camera clock, s) last equally
+    long and ``off`` aligns their starts (within half a period), else n - 1 and none."""
+    accel_span_s, camera_span_s = spans
+    dur_a = accel_span_s[1] - accel_span_s[0]
+    dur_c = camera_span_s[1] - camera_span_s[0]
+    aligned = accel_span_s[0] - camera_span_s[0]
+    if not (abs(dur_a - dur_c) < 0.5 * period_s and abs(off - aligned) < 0.5 * period_s):
+        return n - 1, ""
+    assumption = ""
+    if any(m >= n - 1 for o, m in others):
+        assumption = ("assuming the two records were started together: they last equally long and this "
+                      "offset aligns their starts; a regular motion also matches "
+                      + ", ".join(f"{m} at {o:+.5f} s" for o, m in others if m >= n - 1))
+    return n, assumption
+
+
 def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = None, tol_s: float = 0.0005,
                           max_offset_s: float = 1.0, min_matched: int = MIN_MATCHED_IMPACTS,
                           accel_span_s: tuple[float, float] | None = None,
@@ -331,19 +369,7 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
     diffs = _differences_within(a, d, max_offset_s)
     if diffs.size == 0:
         return None
-    edges = np.arange(-max_offset_s, max_offset_s + tol_s, tol_s)
-    counts, edges = np.histogram(diffs, bins=edges)
-    pair = counts[:-1] + counts[1:] if counts.size > 1 else counts
-    centres = edges[1:-1] if counts.size > 1 else 0.5 * (edges[:1] + edges[1:])
-    seeds: list[float] = []
-    for k in np.argsort(pair, kind="stable")[::-1]:
-        if pair[k] < 2 and seeds:
-            break
-        c = float(centres[k])
-        if all(abs(c - s) > 3 * tol_s for s in seeds):
-            seeds.append(c)
-        if len(seeds) >= 8:
-            break
+    seeds = _candidate_seeds(diffs, max_offset_s, tol_s)
     scored = [_refine(a, d, s, tol_s) for s in seeds]
     best = max(scored, key=lambda x: (x[1], -x[2]))
     if period_s:
@@ -363,18 +389,9 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
     r, sel = _match(a, d, off, tol_s)
     span = (float(d[sel][0]), float(d[sel][-1])) if sel.any() else None
     reason = ""
-    assumption = ""
-    slack = n - 1
+    slack, assumption = n - 1, ""
     if period_s and accel_span_s is not None and camera_span_s is not None:
-        dur_a = accel_span_s[1] - accel_span_s[0]
-        dur_c = camera_span_s[1] - camera_span_s[0]
-        aligned = accel_span_s[0] - camera_span_s[0]
-        if abs(dur_a - dur_c) < 0.5 * period_s and abs(off - aligned) < 0.5 * period_s:
-            slack = n
-            if any(m >= n - 1 for o, m in others):
-                assumption = ("assuming the two records were started together: they last equally long and this "
-                              "offset aligns their starts; a regular motion also matches "
-                              + ", ".join(f"{m} at {o:+.5f} s" for o, m in others if m >= n - 1))
+        slack, assumption = _started_together(off, n, others, period_s, (accel_span_s, camera_span_s))
     rivals = [(o, m) for o, m in others if m >= slack]
     if n < min_matched:
         reason = (f"too little overlap: only {n} impact(s) in common between the accelerometers ({a.size}) and "
@@ -391,6 +408,18 @@ def estimate_clock_offset(accel_times_s, dic_times_s, period_s: float | None = N
                        candidates=others, assumption="" if reason else assumption)
 
 
+@dataclass(frozen=True, kw_only=True)
+class DetectorWindows:
+    """Time windows of :class:`AccelImpactDetector` (s): the refractory time after an impact (None: a quarter
+    of the excitation period), the filter context each side of a block, the warm-up that sets the threshold,
+    and the attribution window of an impact to a plate."""
+
+    refractory_s: float | None = None
+    context_s: float = 0.03
+    warmup_s: float = 0.2
+    attribution_s: float = 0.002
+
+
 class AccelImpactDetector:
     """Block-by-block impact detection (the core of the impact_detector node).
 
@@ -402,15 +431,15 @@ class AccelImpactDetector:
     """
 
     def __init__(self, sample_rate_hz: float, frequency_hz: float, *, highpass_hz: float = 100.0,
-                 k_sigma: float = 8.0, refractory_s: float | None = None, context_s: float = 0.03,
-                 warmup_s: float = 0.2, attribution_s: float = 0.002, threshold: float | None = None) -> None:
+                 k_sigma: float = 8.0, windows: DetectorWindows | None = None, threshold: float | None = None) -> None:
+        w = windows or DetectorWindows()
         self.fs = float(sample_rate_hz)
         self.highpass_hz = highpass_hz
         self.k_sigma = k_sigma
-        self.refractory_s = refractory_s if refractory_s is not None else 0.25 / frequency_hz
-        self.n_ctx = max(int(round(context_s * self.fs)), 16)
-        self.n_warm = max(int(round(warmup_s * self.fs)), 4 * self.n_ctx)
-        self.n_att = max(int(round(attribution_s * self.fs)), 4)
+        self.refractory_s = w.refractory_s if w.refractory_s is not None else 0.25 / frequency_hz
+        self.n_ctx = max(int(round(w.context_s * self.fs)), 16)
+        self.n_warm = max(int(round(w.warmup_s * self.fs)), 4 * self.n_ctx)
+        self.n_att = max(int(round(w.attribution_s * self.fs)), 4)
         self.n_iso = max(int(round(0.5 / frequency_hz * self.fs)), 8)
         self.threshold = threshold
         self._t = np.empty(0)

@@ -85,11 +85,11 @@ def _extreme_level(r: np.ndarray, sigma: float, side: int, k: float, min_frames:
     return float(np.median(np.concatenate([r[a:b + 1] for a, b in runs])))
 
 
-def find_contacts(t_s: np.ndarray, ball_mm: np.ndarray, structure_mm: np.ndarray, good: np.ndarray,
-                  sigma_rel_mm: float, free_play_mm: float, levels: dict | None = None,
+def find_contacts(track, sigma_rel_mm: float, free_play_mm: float, levels: dict | None = None,
                   k_sigma: float = K_SIGMA, min_frames: int = MIN_FRAMES) -> list[ContactPhase]:
-    """Contact phases (module rule) of a track; ``levels``: plate levels from the impacts
-    (:func:`vibro_fit.segmentation.plate_levels`), used where known."""
+    """Contact phases (module rule) of a DIC track (times s, ball and structure mm, good frames); ``levels``:
+    plate levels from the impacts (:func:`vibro_fit.segmentation.plate_levels`), used where known."""
+    t_s, ball_mm, structure_mm, good = track.t_s, track.ball_mm, track.structure_mm, track.good
     levels = levels or {}
     idx = np.flatnonzero(np.asarray(good, bool))
     if idx.size < min_frames or not np.isfinite(sigma_rel_mm) or sigma_rel_mm <= 0:

@@ -209,8 +209,9 @@ def accel_drive_tone(accel, structure, clock_offset_s: float | None, rig=None) -
                           "unit_as_read": units[k], "mps2_per_unit": factors[k]}
         tol = AMPLITUDE_TOL + 3.0 * sd_mag
         if abs(mag - 1.0) > tol:
-            findings.append(_unit_finding(name, mag, sd_mag, abs(tone), abs(dic), units[k], factors[k], unit_source,
-                                          rig))
+            findings.append(_unit_finding(name, {"ratio": mag, "ratio_std": sd_mag, "drive_tone_mps2": abs(tone),
+                                                 "dic_acceleration_mps2": abs(dic)},
+                                          unit=units[k], factor=factors[k], unit_source=unit_source, rig=rig))
         if clock_offset_s is not None and abs(phase) > POLARITY_LIMIT_RAD and mag > 3.0 * sd_mag:
             findings.append(Finding(
                 "accel_polarity",
@@ -229,9 +230,12 @@ def _channel_key(rig, name: str) -> str:
     return f"accelerometers.{name}_column"
 
 
-def _unit_finding(name: str, mag: float, sd: float, tone: float, dic: float, unit: str, factor: float,
-                  unit_source: str, rig) -> Finding:
-    """The accelerometer amplitude finding, naming the key (unit or sensitivity) the ratio points to."""
+def _unit_finding(name: str, amplitude: dict, *, unit: str, factor: float, unit_source: str, rig) -> Finding:
+    """The accelerometer amplitude finding, naming the key (unit or sensitivity) the ratio points to;
+    ``amplitude``: the channel's ``ratio`` (drive tone / DIC acceleration) and its ``ratio_std``, the
+    ``drive_tone_mps2`` as read and the ``dic_acceleration_mps2``; ``factor``: m/s^2 per unit as read."""
+    mag, sd = amplitude["ratio"], amplitude["ratio_std"]
+    tone, dic = amplitude["drive_tone_mps2"], amplitude["dic_acceleration_mps2"]
     ev = {"channel": name, "ratio": mag, "ratio_std": sd, "drive_tone_mps2": tone, "dic_acceleration_mps2": dic,
           "unit_as_read": unit, "unit_source": unit_source}
     head = (f"accelerometer {name} channel: its drive tone is {tone:.3g} m/s^2 as read ({unit}), the structure's "

@@ -114,46 +114,77 @@ def may_hide(p: FlightFit, q: FlightFit, one_parabola: bool, min_interval_s: flo
     return lo, max(lo, hi)
 
 
+@dataclass(frozen=True, kw_only=True)
+class GapEvidence:
+    """What a gap is judged with besides its two flights: ``prior``, the impacts identified so far (plate
+    levels, COR spreads, shortest interval); ``accel_times_s``, accelerometer impacts in the gap (camera clock,
+    s; empty without accelerometers or a determined clock offset); ``frame_dt_s``, the frame interval (s);
+    ``free_play_mm``, the rig's, for the level of a plate without impacts yet (its opposite's level -+ 2 b)."""
+
+    prior: list[ImpactFit]
+    accel_times_s: list[float]
+    frame_dt_s: float
+    free_play_mm: float | None = None
+
+
 def gap_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit, lost_frames: int,
-               prior: list[ImpactFit], accel_times_s: list[float], frame_dt_s: float,
-               free_play_mm: float | None = None) -> tuple[ImpactFit | None, GapVerdict]:
+               evidence: GapEvidence) -> tuple[ImpactFit | None, GapVerdict]:
     """The impact between flights ``p`` and ``q`` across ``lost_frames`` lost frames when the data determine
-    exactly one (module docstring), and the verdict. ``prior``: the impacts identified so far (plate levels,
-    COR spreads, shortest interval); ``accel_times_s``: accelerometer impacts in the gap (camera clock; empty
-    without accelerometers or a determined clock offset); ``free_play_mm``: the rig's, for the level of a
-    plate without impacts yet (its opposite's level -+ 2 b)."""
-    times = sorted(i.t_s for i in prior)
+    exactly one (module docstring), and the verdict; ``s_fit``: the structure's local sine."""
+    accel_times_s = evidence.accel_times_s
+    times = sorted(i.t_s for i in evidence.prior)
     min_iv = float(np.min(np.diff(times))) if len(times) >= 2 else None
     base = dict(t_start_s=float(p.t_end_s), t_end_s=float(q.t_start_s), lost_frames=int(lost_frames),
                 flight_before=int(p.index), flight_after=int(q.index))
     tests: dict = {}
-
-    def refuse(reason: str, one_parabola: bool = False) -> tuple[None, GapVerdict]:
-        lo, hi = may_hide(p, q, one_parabola, min_iv)
-        return None, GapVerdict(**base, determined=False, reason=reason, may_hide_min=lo, may_hide_max=hi,
-                                tests=tests)
-
-    span = q.t_start_s - p.t_end_s
-    longest = min(p.t_end_s - p.t_start_s, q.t_end_s - q.t_start_s)
     if len(accel_times_s) >= 2:
         tests["accel_impacts_in_gap"] = len(accel_times_s)
         lo, hi = may_hide(p, q, False, min_iv)
         return None, GapVerdict(**base, determined=False, may_hide_min=max(lo, len(accel_times_s)),
                                 may_hide_max=max(hi, len(accel_times_s)), tests=tests,
                                 reason=f"the accelerometers see {len(accel_times_s)} impacts in it")
+    est, reason = _one_meeting(index, p, q, s_fit, tests)
+    if reason is None:
+        reason = _plate_check(est, p, q, s_fit, evidence, tests)
+    if reason is None:
+        reason = _energy_check(est, evidence.prior, tests)
+    if reason is None:
+        reason = _accel_check(est, evidence, tests)
+    if reason is not None:
+        lo, hi = may_hide(p, q, False, min_iv)
+        return None, GapVerdict(**base, determined=False, reason=reason, may_hide_min=lo, may_hide_max=hi,
+                                tests=tests)
+    found = replace(est, in_gap=True, gap_lost_frames=int(lost_frames))
+    return found, GapVerdict(**base, determined=True, reason="one impact fits the flights, the plate and the energy"
+                             + (" and the accelerometers" if accel_times_s else ""),
+                             impact_index=index, may_hide_min=1, may_hide_max=1, tests=tests)
+
+
+def _one_meeting(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit,
+                 tests: dict) -> tuple[ImpactFit | None, str | None]:
+    """Rules 5 and 1: the impact where the parabolas meet (time, COR and sigmas into ``tests``), and the
+    reason to refuse it (None: they meet once inside the gap)."""
+    span = q.t_start_s - p.t_end_s
+    longest = min(p.t_end_s - p.t_start_s, q.t_end_s - q.t_start_s)
     if span > longest:
-        return refuse(f"the gap ({span * 1e3:.1f} ms) is longer than a flight beside it ({longest * 1e3:.1f} ms): "
+        return None, (f"the gap ({span * 1e3:.1f} ms) is longer than a flight beside it ({longest * 1e3:.1f} ms): "
                       "the parabolas cannot be extrapolated across it")
     est = paper_impact(index, p, q, s_fit)
     if est is None:
-        return refuse("the parabolas on both sides do not meet inside it with a reversed relative velocity")
+        return None, "the parabolas on both sides do not meet inside it with a reversed relative velocity"
     sd_t = max(float(est.t_std_s), 1e-9)
     tests.update(t=est.t_s, t_std=sd_t, cor=est.cor, cor_std=est.cor_std)
     n_roots = _roots_in(p, q, p.t_end_s - K_SIGMA * sd_t, q.t_start_s + K_SIGMA * sd_t)
     tests["roots_in_gap"] = n_roots
     if n_roots != 1:
-        return refuse(f"the parabolas meet {n_roots} times in it: the impact time is not unique")
-    plate, other = est.plate, ("bottom" if est.plate == "top" else "top")
+        return est, f"the parabolas meet {n_roots} times in it: the impact time is not unique"
+    return est, None
+
+
+def _known_levels(prior: list[ImpactFit], plate: str, free_play_mm: float | None) -> dict:
+    """(median, robust spread) of each plate's level (mm) over the impacts so far (not in gaps); the plate hit,
+    when unmeasured, from the other's and the free play."""
+    other = "bottom" if plate == "top" else "top"
     levels = {}
     for pl in ("top", "bottom"):
         ys = np.array([i.y_rel_mm for i in prior if i.plate == pl and not getattr(i, "in_gap", False)
@@ -163,9 +194,19 @@ def gap_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit, lost
     if plate not in levels and other in levels and free_play_mm:
         sgn = 1.0 if plate == "top" else -1.0
         levels[plate] = (levels[other][0] + sgn * 2.0 * free_play_mm, 2.0 * levels[other][1])
+    return levels
+
+
+def _plate_check(est: ImpactFit, p: FlightFit, q: FlightFit, s_fit: StructureFit, evidence: GapEvidence,
+                 tests: dict) -> str | None:
+    """Rule 2: the ball on the plate it hits at the impact, and neither flight past the other plate; the
+    reason to refuse, or None."""
+    free_play_mm = evidence.free_play_mm
+    plate, other = est.plate, ("bottom" if est.plate == "top" else "top")
+    levels = _known_levels(evidence.prior, plate, free_play_mm)
     if plate not in levels:
-        return refuse(f"the {plate} plate's level is not measured yet (fewer than {MIN_LEVEL_IMPACTS} impacts on "
-                      "it before the gap)")
+        return (f"the {plate} plate's level is not measured yet (fewer than {MIN_LEVEL_IMPACTS} impacts on "
+                "it before the gap)")
     lvl, lvl_sd = levels[plate]
     sp, sq = _position_sd_mm(p, est.t_s), _position_sd_mm(q, est.t_s)
     wp, wq = 1.0 / max(sp, 1e-9) ** 2, 1.0 / max(sq, 1e-9) ** 2
@@ -175,8 +216,8 @@ def gap_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit, lost
     z_level = (y_rel - lvl) / math.sqrt(y_sd ** 2 + lvl_sd ** 2)
     tests.update(y_rel_mm=y_rel, plate_level_mm=lvl, plate_level_sd_mm=lvl_sd, y_sd_mm=y_sd, z_plate=z_level)
     if abs(z_level) > K_SIGMA:
-        return refuse(f"the parabolas meet {y_rel - lvl:+.4f} mm from the {plate} plate ({z_level:+.1f} sigma): "
-                      "more than one impact, or none, fits")
+        return (f"the parabolas meet {y_rel - lvl:+.4f} mm from the {plate} plate ({z_level:+.1f} sigma): "
+                "more than one impact, or none, fits")
     if other in levels or free_play_mm:
         o_lvl = levels[other][0] if other in levels else lvl + (-2.0 if plate == "top" else 2.0) * free_play_mm
         o_sd = levels[other][1] if other in levels else lvl_sd
@@ -185,10 +226,17 @@ def gap_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit, lost
             yr = np.asarray(fl.position_mm(ts)) - np.asarray(s_fit.position_mm(ts))
             beyond = (yr - o_lvl) if plate == "bottom" else (o_lvl - yr)
             if np.any(beyond > K_SIGMA * math.hypot(o_sd, y_sd)):
-                return refuse(f"a flight beside it reaches the {other} plate inside the gap: more than one impact")
+                return f"a flight beside it reaches the {other} plate inside the gap: more than one impact"
+    return None
+
+
+def _energy_check(est: ImpactFit, prior: list[ImpactFit], tests: dict) -> str | None:
+    """Rule 3: a COR not above 1 and, with enough CORs on the plate, close to their median; the reason to
+    refuse, or None."""
+    plate = est.plate
     e, e_sd = float(est.cor), max(float(est.cor_std), 1e-9)
     if e > 1.0 + K_SIGMA * e_sd:
-        return refuse(f"the COR would be {e:.4f} +- {e_sd:.4f}, above 1: energy is not conserved by one impact")
+        return f"the COR would be {e:.4f} +- {e_sd:.4f}, above 1: energy is not conserved by one impact"
     cors = np.array([i.cor for i in prior if i.plate == plate and math.isfinite(i.cor)
                      and not getattr(i, "in_gap", False)][-50:])
     if cors.size >= MIN_LEVEL_IMPACTS:
@@ -197,14 +245,19 @@ def gap_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit, lost
         z_cor = (e - float(np.median(cors))) / math.hypot(e_sd, spread)
         tests.update(z_cor=z_cor, plate_cor_median=float(np.median(cors)), plate_cor_spread=spread)
         if abs(z_cor) > K_SIGMA:
-            return refuse(f"the COR would be {e:.4f}, {z_cor:+.1f} sigma from the {plate} plate's "
-                          f"{float(np.median(cors)):.4f}: not one impact's energy loss")
-    if accel_times_s:
-        dt = float(accel_times_s[0]) - est.t_s
-        tests["accel_dt_s"] = dt
-        if abs(dt) > K_SIGMA * sd_t + 0.25 * frame_dt_s:
-            return refuse(f"the accelerometers' impact in it is {dt * 1e3:+.3f} ms from the flights' meeting time")
-    found = replace(est, in_gap=True, gap_lost_frames=int(lost_frames))
-    return found, GapVerdict(**base, determined=True, reason="one impact fits the flights, the plate and the energy"
-                             + (" and the accelerometers" if accel_times_s else ""),
-                             impact_index=index, may_hide_min=1, may_hide_max=1, tests=tests)
+            return (f"the COR would be {e:.4f}, {z_cor:+.1f} sigma from the {plate} plate's "
+                    f"{float(np.median(cors)):.4f}: not one impact's energy loss")
+    return None
+
+
+def _accel_check(est: ImpactFit, evidence: GapEvidence, tests: dict) -> str | None:
+    """Rule 4: one accelerometer impact in the gap agrees with the impact time within K_SIGMA sigma plus a
+    quarter frame; the reason to refuse, or None."""
+    if not evidence.accel_times_s:
+        return None
+    sd_t = max(float(est.t_std_s), 1e-9)
+    dt = float(evidence.accel_times_s[0]) - est.t_s
+    tests["accel_dt_s"] = dt
+    if abs(dt) > K_SIGMA * sd_t + 0.25 * evidence.frame_dt_s:
+        return f"the accelerometers' impact in it is {dt * 1e3:+.3f} ms from the flights' meeting time"
+    return None

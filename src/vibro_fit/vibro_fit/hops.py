@@ -33,14 +33,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
+from vibro_io.dictrack import DicTrack
 from vibro_model.units import mm_to_m
 
+from .contacts import ContactPhase
 from .flight_fit import FlightFit
 from .impacts import ImpactFit, central_jacobian
-from .structure_fit import StructureFit
+from .structure_fit import StructureFit, fit_structure
 
 MIN_HOP_FRAMES = 3
 MARGIN_FRAMES = 0.3
+SHORT_FLIGHT_POINTS = 6   # a flight opened by a COR impact with fewer than twice this joins the hop chain after it
 
 
 @dataclass(kw_only=True)
@@ -57,6 +60,62 @@ class HopChain:
     last_hop_s: float | None = None      # the last hop's duration (s)
     replaces: tuple | None = None        # (COR impact, flight) the chain measures again as its first hop
     landing_v_rel_mps: float | None = None   # ball minus plate velocity where the last hop lands
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChainPlate:
+    """The plate a chain lands on: ``plate`` ("top"/"bottom"), its level (mm, ball - structure in track
+    coordinates) and the structure's local sine fit."""
+
+    plate: str
+    level_mm: float
+    structure: StructureFit
+
+
+@dataclass(frozen=True, kw_only=True)
+class HopSamples:
+    """The track the hops are measured on: frame times ``t`` (s), ball positions ``y`` (mm), ``usable`` (the
+    good frames outside contact phases) and ``t_limit`` (s), before which the hops end."""
+
+    t: np.ndarray
+    y: np.ndarray
+    usable: np.ndarray
+    t_limit: float
+
+
+@dataclass(kw_only=True)
+class _Hops:
+    """The hops found one after the other: launch times (s; the first is the flight's impact), launch
+    velocities (mm/s) and track indices of each hop's frames."""
+
+    starts: list[float]
+    velocities: list[float] = field(default_factory=list)
+    frames: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ChainFit:
+    """The joint fit: parameters ``th`` (see :class:`_Chain`), their covariance, the whitened residuals (the
+    prior's last), the noise (mm) and its scale-up factor."""
+
+    th: np.ndarray
+    cov: np.ndarray
+    residuals: np.ndarray
+    sigma_mm: float
+    scale_noise: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ChainImpacts:
+    """Impact times (s) and CORs of a fitted chain, the velocities (mm/s: ball in, ball out, structure) at
+    each, every impact time with the last hop's landing (None past the limit), and the variances."""
+
+    times: np.ndarray
+    cors: np.ndarray
+    velocities: list[tuple]
+    all_times: list
+    var_t: np.ndarray
+    var_e: np.ndarray
 
 
 def acceleration_prior(flights: list[FlightFit]) -> tuple[float, float] | None:
@@ -137,72 +196,122 @@ def _flight_root(fl: FlightFit, chain: _Chain, t_from, t_max):
                           t_from, t_max, 0.05 * chain.dt)
 
 
-def hop_chain(fl: FlightFit, plate: str, level: float, s_fit: StructureFit, t: np.ndarray, y: np.ndarray,
-              usable: np.ndarray, t_limit: float, prior: tuple[float, float], noise_mm: float,
+def hop_chain(fl: FlightFit, on: ChainPlate, samples: HopSamples, prior: tuple[float, float], noise_mm: float, *,
               first_impact_index: int, first_flight_index: int) -> HopChain | None:
-    """The chain after flight ``fl`` (module rule) landing on ``plate`` at ``level`` (mm); ``usable``: the
-    good frames outside contact phases; hops end before ``t_limit``. None when not even the first hop
-    holds MIN_HOP_FRAMES frames."""
-    dt = float(np.median(np.diff(t)))
-    chain = _Chain(s_fit, level, 1.0 if plate == "bottom" else -1.0, dt)
-    margin = MARGIN_FRAMES * dt
-    t_first = _flight_root(fl, chain, fl.t_end_s, min(fl.t_end_s + 4 * dt, t_limit))
+    """The chain after flight ``fl`` (module rule) landing on the plate ``on``; ``prior``: (median, spread) of
+    the acceleration (mm/s^2); ``noise_mm``: the ball's position noise (mm); the chain's impacts and hops are
+    numbered from ``first_impact_index`` and ``first_flight_index``. None when not even the first hop holds
+    MIN_HOP_FRAMES frames, or the joint fit fails."""
+    dt = float(np.median(np.diff(samples.t)))
+    chain = _Chain(on.structure, on.level_mm, 1.0 if on.plate == "bottom" else -1.0, dt)
+    hops = _find_hops(fl, chain, samples, prior[0])
+    if hops is None:
+        return None
+    fit = _fit_chain(fl, chain, samples, hops, prior, noise_mm)
+    if fit is None:
+        return None
+    imp = _chain_impacts(chain, fit, len(hops.velocities), samples.t_limit + 5 * dt)
+    if imp is None:
+        return None
+    out = HopChain(flight=fl, plate=on.plate, level_mm=on.level_mm)
+    for j in range(len(hops.velocities)):
+        out.hops.append(_hop_flight(j, on, samples, hops, fit, imp, first_flight_index))
+        out.impacts.append(_hop_impact(j, fl, on, imp, first_impact_index, first_flight_index))
+    _set_landing(out, fit.th, imp.all_times, on.structure)
+    if fit.scale_noise > 1.0:
+        out.notes.append(f"residual {fit.scale_noise:.2f} x the noise: sigmas scaled up")
+    return out
+
+
+def _find_hops(fl: FlightFit, chain: _Chain, samples: HopSamples, a0: float) -> _Hops | None:
+    """The flight's impact (where its parabola meets the plate) and the hops after it, one after the other
+    with the acceleration ``a0`` (mm/s^2), while a hop holds MIN_HOP_FRAMES frames and leaves the plate."""
+    t, y = samples.t, samples.y
+    t_first = _flight_root(fl, chain, fl.t_end_s, min(fl.t_end_s + 4 * chain.dt, samples.t_limit))
     if t_first is None:
         return None
-    a0 = prior[0]
-    ok = np.asarray(usable, bool) & np.isfinite(y)
-    starts, vs_, frames = [t_first], [], []
+    margin = MARGIN_FRAMES * chain.dt
+    ok = np.asarray(samples.usable, bool) & np.isfinite(y)
+    hops = _Hops(starts=[t_first])
     while True:
-        t0 = starts[-1]
-        sel = ok & (t > t0 + margin) & (t < t_limit)
-        cand = np.flatnonzero(sel)
+        t0 = hops.starts[-1]
+        cand = np.flatnonzero(ok & (t > t0 + margin) & (t < samples.t_limit))
         if cand.size < MIN_HOP_FRAMES:
             break
-        use = cand[:MIN_HOP_FRAMES]
-        t_land = None
-        for _ in range(12):
-            v = _fit_hop_v(chain, t0, a0, t[use], y[use])
-            t_land = chain.landing(t0, v, a0, t_limit)
-            hi = t_land - margin if t_land is not None else t_limit
-            new = cand[t[cand] < hi]
-            if np.array_equal(new, use):
-                break
-            if new.size < MIN_HOP_FRAMES:
-                use = new
-                break
+        found = _next_hop(chain, t0, a0, cand, samples)
+        if found is None:
+            break
+        use, v, t_land = found
+        hops.velocities.append(v)
+        hops.frames.append(use)
+        hops.starts.append(t_land)
+    return hops if hops.velocities else None
+
+
+def _next_hop(chain: _Chain, t0: float, a0: float, cand: np.ndarray, samples: HopSamples):
+    """The hop launched at ``t0`` (s) over the candidate frames ``cand``: (its frames, launch velocity mm/s,
+    landing time s), its frames those more than MARGIN_FRAMES before its landing (iterated); None when it
+    holds too few frames, does not land before the limit or does not leave the plate."""
+    t, y = samples.t, samples.y
+    margin = MARGIN_FRAMES * chain.dt
+    use = cand[:MIN_HOP_FRAMES]
+    t_land = None
+    for _ in range(12):
+        v = _fit_hop_v(chain, t0, a0, t[use], y[use])
+        t_land = chain.landing(t0, v, a0, samples.t_limit)
+        hi = t_land - margin if t_land is not None else samples.t_limit
+        new = cand[t[cand] < hi]
+        if np.array_equal(new, use):
+            break
+        if new.size < MIN_HOP_FRAMES:
             use = new
-        if use.size < MIN_HOP_FRAMES or t_land is None:
             break
-        # the hop must leave the plate (relative velocity away from it)
-        if chain.sign * (v - float(s_fit.velocity_mps(t0)) * 1e3) <= 0:
-            break
-        vs_.append(v)
-        frames.append(use)
-        starts.append(t_land)
-    if not vs_:
+        use = new
+    if use.size < MIN_HOP_FRAMES or t_land is None:
         return None
-    k = len(vs_)
-    # joint fit: th = [t_1, v_F, A_F, v_1..v_K, A_h]
+    # the hop must leave the plate (relative velocity away from it)
+    if chain.sign * (v - float(chain.s.velocity_mps(t0)) * 1e3) <= 0:
+        return None
+    return use, v, t_land
+
+
+def _residual_function(fl: FlightFit, chain: _Chain, samples: HopSamples, hops: _Hops,
+                       prior: tuple[float, float], sig: float):
+    """The whitened residuals of the joint fit as a function of th = [t_1, v_F, A_F, v_1..v_K, A_h]: the
+    flight's frames, each hop's frames (noise ``sig``, mm), and the acceleration prior's term last."""
+    t, y = samples.t, samples.y
     tf = np.asarray(fl.frames, int)
-    v_f0 = 2.0 * fl.coef[0] * (t_first - fl.t_ref_s) + fl.coef[1]
-    th0 = np.array([t_first, v_f0, fl.coef[0], *vs_, a0])
+    k = len(hops.velocities)
     mu, tau = prior
-    sig = max(float(noise_mm), 1e-7)
+    s_fit, level = chain.s, chain.L
 
     def resid(th):
         t1, vf, af = th[0], th[1], th[2]
         d = t[tf] - t1
         yf = s_fit.position_mm(t1) + level + vf * d + af * d * d
         out = [(yf - y[tf]) / sig]
-        ts = chain.times(th, k - 1, t_limit + 5 * dt)
+        ts = chain.times(th, k - 1, samples.t_limit + 5 * chain.dt)
         for j in range(k):
-            t0 = ts[j] if ts[j] is not None else starts[j]
-            tau_ = t[frames[j]] - t0
+            t0 = ts[j] if ts[j] is not None else hops.starts[j]
+            tau_ = t[hops.frames[j]] - t0
             yh = s_fit.position_mm(t0) + level + th[3 + j] * tau_ + th[-1] * tau_ * tau_
-            out.append((yh - y[frames[j]]) / sig)
+            out.append((yh - y[hops.frames[j]]) / sig)
         out.append(np.array([(th[-1] - mu) / tau]))
         return np.concatenate(out)
 
+    return resid
+
+
+def _fit_chain(fl: FlightFit, chain: _Chain, samples: HopSamples, hops: _Hops, prior: tuple[float, float],
+               noise_mm: float) -> _ChainFit | None:
+    """Everything fitted together by least squares (module docstring), with the covariance from the whitened
+    Jacobian, the noise scaled up when the residual exceeds it; None when the fit fails."""
+    k = len(hops.velocities)
+    t_first = hops.starts[0]
+    v_f0 = 2.0 * fl.coef[0] * (t_first - fl.t_ref_s) + fl.coef[1]
+    th0 = np.array([t_first, v_f0, fl.coef[0], *hops.velocities, prior[0]])
+    sig = max(float(noise_mm), 1e-7)
+    resid = _residual_function(fl, chain, samples, hops, prior, sig)
     scale = np.array([1e-4, 100.0, 1e3] + [100.0] * k + [1e3])
     try:
         res = least_squares(resid, th0, method="lm", x_scale=scale, xtol=1e-14, ftol=1e-14, gtol=1e-14)
@@ -219,75 +328,197 @@ def hop_chain(fl: FlightFit, plate: str, level: float, s_fit: StructureFit, t: n
         cov = np.linalg.inv(jw.T @ jw)
     except np.linalg.LinAlgError:
         return None
+    return _ChainFit(th=th, cov=cov, residuals=res.fun, sigma_mm=sig, scale_noise=scale_noise)
 
-    def quantities(th_):
-        """Impact times and CORs of the chain, from the parameters."""
-        ts = chain.times(th_, k, t_limit + 5 * dt)
-        out_t, out_e, out_v = [], [], []
-        for j in range(k):
-            ti = ts[j]
-            if ti is None:
-                return None
-            if j == 0:
-                vin = th_[1]
-            else:
-                vin = th_[3 + j - 1] + 2.0 * th_[-1] * (ti - ts[j - 1])
-            vout = th_[3 + j]
-            vsi = float(s_fit.velocity_mps(ti)) * 1e3
-            out_t.append(ti)
-            out_e.append(-(vout - vsi) / (vin - vsi))
-            out_v.append((vin, vout, vsi))
-        return np.array(out_t), np.array(out_e), out_v, ts
 
-    base = quantities(th)
+def _chain_quantities(chain: _Chain, th: np.ndarray, k: int, t_max: float):
+    """Impact times (s), CORs, velocities (mm/s: in, out, structure) and all impact times of the chain with
+    parameters ``th`` and ``k`` hops; None when an impact falls past ``t_max``."""
+    ts = chain.times(th, k, t_max)
+    out_t, out_e, out_v = [], [], []
+    for j in range(k):
+        ti = ts[j]
+        if ti is None:
+            return None
+        if j == 0:
+            vin = th[1]
+        else:
+            vin = th[3 + j - 1] + 2.0 * th[-1] * (ti - ts[j - 1])
+        vout = th[3 + j]
+        vsi = float(chain.s.velocity_mps(ti)) * 1e3
+        out_t.append(ti)
+        out_e.append(-(vout - vsi) / (vin - vsi))
+        out_v.append((vin, vout, vsi))
+    return np.array(out_t), np.array(out_e), out_v, ts
+
+
+def _chain_impacts(chain: _Chain, fit: _ChainFit, k: int, t_max: float) -> _ChainImpacts | None:
+    """The fitted chain's impacts with the variances of their times and CORs (first-order propagation of the
+    fit's covariance); None when an impact falls past ``t_max`` (s)."""
+    base = _chain_quantities(chain, fit.th, k, t_max)
     if base is None:
         return None
     t_imp, e_imp, v_imp, ts_all = base
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sd = np.sqrt(np.clip(np.diag(fit.cov), 0, None))
 
     def times_and_cors(x):
-        q = quantities(x)
+        q = _chain_quantities(chain, x, k, t_max)
         return None if q is None else np.concatenate([q[0], q[1]])
 
-    jac = central_jacobian(times_and_cors, th, sd)
+    jac = central_jacobian(times_and_cors, fit.th, sd)
     if jac.shape[0] == 0:
-        jac = np.zeros((2 * k, th.size))
+        jac = np.zeros((2 * k, fit.th.size))
     jac_t, jac_e = jac[:k], jac[k:]
-    var_t = np.einsum("ij,jk,ik->i", jac_t, cov, jac_t)
-    var_e = np.einsum("ij,jk,ik->i", jac_e, cov, jac_e)
-    out = HopChain(flight=fl, plate=plate, level_mm=level)
-    for j in range(k):
-        t_end = ts_all[j + 1] if ts_all[j + 1] is not None else float(t[frames[j][-1]])
-        a_ = float(th[-1])
-        t0 = float(t_imp[j])
-        # the hop as a parabola about its mid time (FlightFit's convention)
-        t_ref = 0.5 * (t0 + t_end)
-        d = t_ref - t0
-        c = float(s_fit.position_mm(t0)) + level + th[3 + j] * d + a_ * d * d
-        b = th[3 + j] + 2.0 * a_ * d
-        hop = FlightFit(index=first_flight_index + j, frames=np.asarray(frames[j], int),
-                        t_start_s=float(t[frames[j][0]]),
-                        t_end_s=float(t[frames[j][-1]]), t_ref_s=t_ref, coef=np.array([a_, b, c]), cov=np.full((3, 3),
-                                                                                                               np.nan),
-                        rms_residual_mm=float(np.sqrt(np.mean((res.fun[:-1]) ** 2)) * sig),
-                        n_points=int(len(frames[j])), fitted=True,
-                        is_free=False, reason="short hop: launched from the plate's level, acceleration from the "
-                        "free flights (hop chain); no friction from it",
-                        direction="up" if plate == "bottom" else "down")
-        hop.notes.append(f"hop between impacts at {t0:.5f} and {t_end:.5f} s")
-        out.hops.append(hop)
-        vin, vout, vsi = v_imp[j]
-        out.impacts.append(ImpactFit(
-            index=first_impact_index + j, t_s=t0, t_std_s=float(np.sqrt(max(var_t[j], 0.0))), plate=plate,
-            cor=float(e_imp[j]), cor_std=float(np.sqrt(max(var_e[j], 0.0))), v_ball_before_mps=mm_to_m(vin),
-            v_ball_after_mps=mm_to_m(vout), v_structure_mps=mm_to_m(vsi), y_rel_mm=level,
-            flight_before=fl.index if j == 0 else first_flight_index + j - 1, flight_after=first_flight_index + j,
-            method="hop_chain", structure=s_fit))
-    if ts_all[k] is not None:
-        out.landing_s = float(ts_all[k])
-        out.last_hop_s = float(ts_all[k] - ts_all[k - 1])
-        v_land = th[3 + k - 1] + 2.0 * th[-1] * (ts_all[k] - ts_all[k - 1])
-        out.landing_v_rel_mps = mm_to_m(v_land) - float(s_fit.velocity_mps(ts_all[k]))
-    if scale_noise > 1.0:
-        out.notes.append(f"residual {scale_noise:.2f} x the noise: sigmas scaled up")
-    return out
+    var_t = np.einsum("ij,jk,ik->i", jac_t, fit.cov, jac_t)
+    var_e = np.einsum("ij,jk,ik->i", jac_e, fit.cov, jac_e)
+    return _ChainImpacts(times=t_imp, cors=e_imp, velocities=v_imp, all_times=ts_all, var_t=var_t, var_e=var_e)
+
+
+def _hop_flight(j: int, on: ChainPlate, samples: HopSamples, hops: _Hops, fit: _ChainFit, imp: _ChainImpacts,
+                first_flight_index: int) -> FlightFit:
+    """Hop ``j`` as a flight: a parabola about its mid time (FlightFit's convention), not free."""
+    t, frames, th = samples.t, hops.frames[j], fit.th
+    t_end = imp.all_times[j + 1] if imp.all_times[j + 1] is not None else float(t[frames[-1]])
+    a_ = float(th[-1])
+    t0 = float(imp.times[j])
+    t_ref = 0.5 * (t0 + t_end)
+    d = t_ref - t0
+    c = float(on.structure.position_mm(t0)) + on.level_mm + th[3 + j] * d + a_ * d * d
+    b = th[3 + j] + 2.0 * a_ * d
+    hop = FlightFit(index=first_flight_index + j, frames=np.asarray(frames, int), t_start_s=float(t[frames[0]]),
+                    t_end_s=float(t[frames[-1]]), t_ref_s=t_ref, coef=np.array([a_, b, c]),
+                    cov=np.full((3, 3), np.nan),
+                    rms_residual_mm=float(np.sqrt(np.mean((fit.residuals[:-1]) ** 2)) * fit.sigma_mm),
+                    n_points=int(len(frames)), fitted=True,
+                    is_free=False, reason="short hop: launched from the plate's level, acceleration from the "
+                    "free flights (hop chain); no friction from it",
+                    direction="up" if on.plate == "bottom" else "down")
+    hop.notes.append(f"hop between impacts at {t0:.5f} and {t_end:.5f} s")
+    return hop
+
+
+def _hop_impact(j: int, fl: FlightFit, on: ChainPlate, imp: _ChainImpacts, first_impact_index: int,
+                first_flight_index: int) -> ImpactFit:
+    """The chain's impact ``j`` (the landing of flight ``fl`` for j = 0, else of hop j - 1) with its sigmas."""
+    vin, vout, vsi = imp.velocities[j]
+    return ImpactFit(
+        index=first_impact_index + j, t_s=float(imp.times[j]), t_std_s=float(np.sqrt(max(imp.var_t[j], 0.0))),
+        plate=on.plate, cor=float(imp.cors[j]), cor_std=float(np.sqrt(max(imp.var_e[j], 0.0))),
+        v_ball_before_mps=mm_to_m(vin), v_ball_after_mps=mm_to_m(vout), v_structure_mps=mm_to_m(vsi),
+        y_rel_mm=on.level_mm, flight_before=fl.index if j == 0 else first_flight_index + j - 1,
+        flight_after=first_flight_index + j, method="hop_chain", structure=on.structure)
+
+
+def _set_landing(out: HopChain, th: np.ndarray, ts_all: list, s_fit: StructureFit) -> None:
+    """Where the last hop lands (s), its duration (s) and the relative speed there (m/s), when before the limit."""
+    k = len(ts_all) - 1
+    if ts_all[k] is None:
+        return
+    out.landing_s = float(ts_all[k])
+    out.last_hop_s = float(ts_all[k] - ts_all[k - 1])
+    v_land = th[3 + k - 1] + 2.0 * th[-1] * (ts_all[k] - ts_all[k - 1])
+    out.landing_v_rel_mps = mm_to_m(v_land) - float(s_fit.velocity_mps(ts_all[k]))
+
+
+# ------------------------------------------------------------------ where the chains start
+@dataclass(frozen=True, kw_only=True)
+class _ChainSearch:
+    """What every chain of a recording is measured with: the track, its usable frames, the excitation
+    frequency (Hz), the plates' levels (mm), the acceleration prior, the noise (mm), the COR impacts and the
+    flights by index."""
+
+    track: DicTrack
+    usable: np.ndarray
+    f_hz: float
+    levels: dict
+    prior: tuple[float, float]
+    noise_mm: float
+    impacts: list[ImpactFit]
+    by_index: dict
+
+
+def chains_after_open_flights(flights: list[FlightFit], impacts: list[ImpactFit], levels: dict, *,
+                              contacts: list[ContactPhase], cframes: set[int], track: DicTrack, f_hz: float,
+                              noise_mm: float) -> list[HopChain]:
+    """The short hops after every free flight that no COR impact closes: the plate's level from the impacts'
+    ``levels``, else from its contact phases; hops stop before a contact phase or the next fitted flight;
+    ``cframes``: the contact phases' frames (never a hop's); ``f_hz``: the excitation's frequency (Hz)."""
+    prior = acceleration_prior(flights)
+    if prior is None:
+        return []
+    t = track.t_s
+    usable = track.good.copy()
+    if cframes:
+        usable[np.fromiter(cframes, int)] = False
+    search = _ChainSearch(track=track, usable=usable, f_hz=f_hz, levels=_chain_levels(levels, contacts),
+                          prior=prior, noise_mm=noise_mm, impacts=impacts, by_index={f.index: f for f in flights})
+    dt = float(np.median(np.diff(t)))
+    closed = {i.flight_before for i in impacts}
+    fitted = sorted([f for f in flights if f.fitted], key=lambda f: f.t_start_s)
+    chains: list[HopChain] = []
+    n_imp, n_fl = 10 ** 6, 10 ** 6   # temporary indices, renumbered when merged with the flights
+    for k, fl in enumerate(fitted):
+        if not fl.is_free or fl.index in closed:
+            continue
+        t_lim = float(t[-1]) + dt
+        if k + 1 < len(fitted):
+            t_lim = min(t_lim, fitted[k + 1].t_start_s)
+        later = [c.start_s for c in contacts if c.start_s > fl.t_end_s]
+        if later:
+            t_lim = min(t_lim, later[0])
+        ch = _chain_from(fl, search, t_lim, (n_imp, n_fl))
+        if ch is not None:
+            chains.append(ch)
+            n_imp += len(ch.impacts)
+            n_fl += len(ch.hops)
+    return chains
+
+
+def _chain_levels(levels: dict, contacts: list[ContactPhase]) -> dict[str, float]:
+    """Each plate's level (mm): the COR impacts', else the median of its contact phases' levels."""
+    lv = {p: levels[p] for p in ("top", "bottom") if p in levels}
+    for plate in ("top", "bottom"):
+        vals = [c.level_mm for c in contacts if c.plate == plate]
+        if plate not in lv and vals:
+            lv[plate] = float(np.median(vals))
+    return lv
+
+
+def _structure_near(search: _ChainSearch, t_from: float, t_lim: float, min_frames: int = 0) -> StructureFit | None:
+    """The structure's sine fitted on the good frames from one period before ``t_from`` to ``t_lim`` (s); None
+    with fewer than ``min_frames`` of them."""
+    t, good = search.track.t_s, search.track.good
+    w = (t >= t_from - 1.0 / search.f_hz) & (t <= t_lim) & good
+    if w.sum() < min_frames:
+        return None
+    return fit_structure(t[w], search.track.structure_mm[w], f0_hz=search.f_hz)
+
+
+def _chain_from(fl: FlightFit, search: _ChainSearch, t_lim: float, first: tuple[int, int]) -> HopChain | None:
+    """The chain after flight ``fl`` ending before ``t_lim`` (s), numbered from ``first`` (impact, flight): a
+    short flight opened by a COR impact on the same plate is the chain's first hop, the chain then starting
+    from the flight before it (its launch sits on the plate's level, its sigma is the chain's)."""
+    s_fit = _structure_near(search, fl.t_start_s, t_lim, min_frames=8)
+    if s_fit is None:
+        return None
+    v_end = float(fl.velocity_mps(fl.t_end_s) - s_fit.velocity_mps(fl.t_end_s))
+    plate = "bottom" if v_end < 0 else "top"
+    if plate not in search.levels:
+        return None
+    start, replaced = fl, None
+    opened = next((i for i in search.impacts if i.flight_after == fl.index), None)
+    prev = search.by_index.get(opened.flight_before) if opened is not None else None
+    if opened is not None and opened.plate == plate and fl.n_points < 2 * SHORT_FLIGHT_POINTS \
+            and prev is not None and prev.is_free:
+        start, replaced = prev, (opened, fl)
+        s_fit = _structure_near(search, prev.t_start_s, t_lim)
+    on = ChainPlate(plate=plate, level_mm=search.levels[plate], structure=s_fit)
+    samples = HopSamples(t=search.track.t_s, y=search.track.ball_mm, usable=search.usable, t_limit=t_lim)
+    kw = dict(first_impact_index=first[0], first_flight_index=first[1])
+    ch = hop_chain(start, on, samples, search.prior, search.noise_mm, **kw)
+    if ch is None and replaced is not None:
+        ch = hop_chain(fl, on, samples, search.prior, search.noise_mm, **kw)
+        replaced = None
+    if ch is not None:
+        ch.replaces = replaced
+    return ch

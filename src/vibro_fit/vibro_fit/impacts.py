@@ -130,7 +130,7 @@ def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) ->
     when the parabolas do not meet inside the gap or the relative velocity does not reverse."""
     t_lo, t_hi = p.t_end_s, q.t_start_s
     sp0 = np.asarray(s_fit.params_ref, float)
-    base = _quantities(p.coef, p.t_ref_s, q.coef, q.t_ref_s, sp0, s_fit, t_lo, t_hi)
+    base = _quantities(p.coef, p.t_ref_s, q.coef, q.t_ref_s, sp0, s_fit, t_lo=t_lo, t_hi=t_hi)
     if base is None:
         return None
     t_i, vm, vp, vs, e = base
@@ -144,7 +144,7 @@ def paper_impact(index: int, p: FlightFit, q: FlightFit, s_fit: StructureFit) ->
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
 
     def time_and_cor(x):
-        r = _quantities(x[:3], p.t_ref_s, x[3:6], q.t_ref_s, x[6:], s_fit, t_lo - 1.0, t_hi + 1.0)
+        r = _quantities(x[:3], p.t_ref_s, x[3:6], q.t_ref_s, x[6:], s_fit, t_lo=t_lo - 1.0, t_hi=t_hi + 1.0)
         return None if r is None else (r[0], r[4])
 
     jac = central_jacobian(time_and_cor, x0, sd)

@@ -48,10 +48,13 @@ def _level_from_cluster(cluster, t_s, ball_mm, structure_mm) -> float | None:
     return float(np.median(y)) if y.size else None
 
 
-def find_landings(flights, impacts, clusters, short_flights, structure, plate_levels: dict, t_s, ball_mm,
-                  structure_mm, max_impact_frames: int) -> list[Landing]:
-    """Landings (see module rule) from the streaming fitter's flights, impacts, clusters and short flights."""
-    t_s = np.asarray(t_s, float)
+def find_landings(flights, impacts, *, clusters, short_flights, structure, plate_levels: dict, track,
+                  max_impact_frames: int) -> list[Landing]:
+    """Landings (see module rule) from the streaming fitter's flights, impacts, clusters and short flights;
+    ``structure``: the structure's fit; ``plate_levels``: the COR impacts' levels (mm); ``track``: the DIC
+    track (times s, ball and structure mm)."""
+    t_s = np.asarray(track.t_s, float)
+    ball_mm, structure_mm = track.ball_mm, track.structure_mm
     closed = {i.flight_before for i in impacts}
     fitted = sorted(flights, key=lambda f: f.t_start_s)
     clusters = sorted(clusters, key=lambda c: c.t_start_s)

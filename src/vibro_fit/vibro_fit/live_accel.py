@@ -120,6 +120,37 @@ class BlockCheck:
         """The verdict on one block; :class:`AccelStreamRefused` for a block the stream may not carry."""
         rate = float(sample_rate_hz)
         n_up, n_lo = len(upper_ms2), len(lower_ms2)
+        self._refuse_malformed(block_index, sample_rate_hz, (n_up, n_lo), t_start_s)
+        out = BlockVerdict()
+        if self._last_stamp_ns is not None and stamp_ns < self._last_stamp_ns:
+            raise AccelStreamRefused(f"block {block_index}: header stamp {stamp_ns} ns is "
+                                     f"{(self._last_stamp_ns - stamp_ns) / 1e6:.3f} ms before the previous block's: "
+                                     "stamps must be the lab-clock time of each block's first sample, never going back")
+        if self._next_index is not None:
+            self._check_continuity(out, block_index=block_index, first_sample_index=first_sample_index,
+                                   t_start_s=t_start_s, rate=rate, n_samples=n_up)
+        self.rate_hz = rate
+        if self.block_n is None:
+            self.block_n = n_up
+        self._next_index = int(block_index) + 1
+        self._next_sample = int(first_sample_index) + n_up
+        self._next_t = float(t_start_s) + n_up / rate
+        self._last_stamp_ns = int(stamp_ns)
+        self._last_t_start = float(t_start_s)
+        self.blocks += 1
+        self.lost_blocks += out.lost_blocks
+        self.lost_samples += out.lost_samples
+        self._check_stamp(out, block_index, t_start_s, stamp_ns)
+        if self.full_scale_mps2 > 0:
+            self._check_clipping(out, block_index, t_start_s, (upper_ms2, lower_ms2))
+        return out
+
+    def _refuse_malformed(self, block_index: int, sample_rate_hz: float, counts: tuple[int, int],
+                          t_start_s: float) -> None:
+        """:class:`AccelStreamRefused` for a block whose rate (Hz), sample counts (upper, lower) or start time
+        (s) the stream cannot carry."""
+        rate = float(sample_rate_hz)
+        n_up, n_lo = counts
         if not (math.isfinite(rate) and rate > 0):
             raise AccelStreamRefused(f"block {block_index}: sample_rate_hz is {sample_rate_hz!r}, not a rate in Hz")
         if self.expected_rate_hz and abs(rate - self.expected_rate_hz) > 1e-6 * self.expected_rate_hz:
@@ -137,48 +168,40 @@ class BlockCheck:
                                      "block holds the same (> 0) number of samples of both plates")
         if not math.isfinite(t_start_s):
             raise AccelStreamRefused(f"block {block_index}: t_start_s is {t_start_s!r}")
-        out = BlockVerdict()
-        if self._last_stamp_ns is not None and stamp_ns < self._last_stamp_ns:
-            raise AccelStreamRefused(f"block {block_index}: header stamp {stamp_ns} ns is "
-                                     f"{(self._last_stamp_ns - stamp_ns) / 1e6:.3f} ms before the previous block's: "
-                                     "stamps must be the lab-clock time of each block's first sample, never going back")
-        if self._next_index is not None:
-            if t_start_s <= self._last_t_start:
-                raise AccelStreamRefused(f"block {block_index}: t_start_s {t_start_s:.6f} s is not after the block "
-                                         f"before's ({self._last_t_start:.6f} s): the DAQ time must grow")
-            gap = int(block_index) - self._next_index
-            late_samples = (t_start_s - self._next_t) * rate if self._next_t is not None else 0.0
-            if gap > 0:
-                out.lost_blocks = gap
-                by_count = int(first_sample_index) - (self._next_sample or 0)  # the DAQ's own sample count
-                by_time = max(int(round(late_samples)), gap * (self.block_n or 0))
-                out.lost_samples = by_count if by_count > 0 else by_time
-                out.restart = True
-                out.warnings.append(
-                    f"accelerometer blocks {self._next_index}..{block_index - 1} lost ({gap} block(s), "
-                    f"{1e3 * out.lost_samples / rate:.1f} ms from t = {self._next_t:.5f} s DAQ time): impacts there "
-                    "are not detected")
-            elif abs(late_samples) > CONTINUITY_SAMPLES:
-                out.lost_samples = max(int(round(late_samples)), 0)
-                out.restart = True
-                out.warnings.append(
-                    f"accelerometer block {block_index} starts {late_samples:+.1f} samples from the end of block "
-                    f"{block_index - 1} (t_start_s {t_start_s:.6f} s, expected {self._next_t:.6f} s): samples lost "
-                    "or repeated inside the driver; the detection restarts there")
-            if self.block_n is not None and n_up != self.block_n:
-                out.warnings.append(f"accelerometer block {block_index} holds {n_up} samples, the stream's blocks "
-                                    f"{self.block_n}: a driver sends a fixed block size")
-        self.rate_hz = rate
-        if self.block_n is None:
-            self.block_n = n_up
-        self._next_index = int(block_index) + 1
-        self._next_sample = int(first_sample_index) + n_up
-        self._next_t = float(t_start_s) + n_up / rate
-        self._last_stamp_ns = int(stamp_ns)
-        self._last_t_start = float(t_start_s)
-        self.blocks += 1
-        self.lost_blocks += out.lost_blocks
-        self.lost_samples += out.lost_samples
+
+    def _check_continuity(self, out: BlockVerdict, *, block_index: int, first_sample_index: int, t_start_s: float,
+                          rate: float, n_samples: int) -> None:
+        """Lost blocks, samples lost or repeated inside the driver, and a changed block size, into ``out``
+        (times s, rate Hz); :class:`AccelStreamRefused` for a start time (s) not after the block before's."""
+        if t_start_s <= self._last_t_start:
+            raise AccelStreamRefused(f"block {block_index}: t_start_s {t_start_s:.6f} s is not after the block "
+                                     f"before's ({self._last_t_start:.6f} s): the DAQ time must grow")
+        gap = int(block_index) - self._next_index
+        late_samples = (t_start_s - self._next_t) * rate if self._next_t is not None else 0.0
+        if gap > 0:
+            out.lost_blocks = gap
+            by_count = int(first_sample_index) - (self._next_sample or 0)  # the DAQ's own sample count
+            by_time = max(int(round(late_samples)), gap * (self.block_n or 0))
+            out.lost_samples = by_count if by_count > 0 else by_time
+            out.restart = True
+            out.warnings.append(
+                f"accelerometer blocks {self._next_index}..{block_index - 1} lost ({gap} block(s), "
+                f"{1e3 * out.lost_samples / rate:.1f} ms from t = {self._next_t:.5f} s DAQ time): impacts there "
+                "are not detected")
+        elif abs(late_samples) > CONTINUITY_SAMPLES:
+            out.lost_samples = max(int(round(late_samples)), 0)
+            out.restart = True
+            out.warnings.append(
+                f"accelerometer block {block_index} starts {late_samples:+.1f} samples from the end of block "
+                f"{block_index - 1} (t_start_s {t_start_s:.6f} s, expected {self._next_t:.6f} s): samples lost "
+                "or repeated inside the driver; the detection restarts there")
+        if self.block_n is not None and n_samples != self.block_n:
+            out.warnings.append(f"accelerometer block {block_index} holds {n_samples} samples, the stream's blocks "
+                                f"{self.block_n}: a driver sends a fixed block size")
+
+    def _check_stamp(self, out: BlockVerdict, block_index: int, t_start_s: float, stamp_ns: int) -> None:
+        """The block's lab-clock offset (s) into ``out`` and the running list, with a warning when it lies more
+        than the allowed jitter from the stream's."""
         offset = float(t_start_s) - (int(stamp_ns) - self.origin_ns) / 1e9
         ref = self.stamp_offset_s
         if ref is not None and abs(offset - ref) > self.max_stamp_jitter_s:
@@ -187,16 +210,17 @@ class BlockCheck:
                                 "stamp the time of the block's first sample, on the lab clock?")
         self._offsets.append(offset)
         out.stamp_offset_s = offset
-        if self.full_scale_mps2 > 0:
-            for name, x in (("upper", upper_ms2), ("lower", lower_ms2)):
-                k = int(np.count_nonzero(np.abs(np.asarray(x, float)) >= self.full_scale_mps2))
-                if k:
-                    out.clipped_samples[name] = k
-                    out.warnings.append(f"the {name} plate's accelerometer clipped: {k} sample(s) at or beyond its "
-                                        f"full scale {self.full_scale_mps2:g} m/s^2 in block {block_index} "
-                                        f"(t = {t_start_s:.5f} s DAQ time): peaks and energies there are not "
-                                        "trustworthy")
-        return out
+
+    def _check_clipping(self, out: BlockVerdict, block_index: int, t_start_s: float, channels: tuple) -> None:
+        """Samples at or beyond the full scale (m/s^2) of each plate's channel (``channels``: upper, lower)."""
+        for name, x in zip(("upper", "lower"), channels):
+            k = int(np.count_nonzero(np.abs(np.asarray(x, float)) >= self.full_scale_mps2))
+            if k:
+                out.clipped_samples[name] = k
+                out.warnings.append(f"the {name} plate's accelerometer clipped: {k} sample(s) at or beyond its "
+                                    f"full scale {self.full_scale_mps2:g} m/s^2 in block {block_index} "
+                                    f"(t = {t_start_s:.5f} s DAQ time): peaks and energies there are not "
+                                    "trustworthy")
 
 
 class LiveClockOffset:

@@ -44,18 +44,38 @@ class Regime:
         return out
 
 
-def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, short_flights,
-                    max_impact_frames: int, frame_dt_s: float, y_rel_range_mm: float, free_play_mm: float,
-                    n_landings: int = 0, contacts=(), n_hop_impacts: int = 0) -> Regime:
-    """Regime from the impacts, contact clusters and short flights of a recording (see module rules);
-    ``n_landings``: impacts without a COR (:mod:`vibro_fit.landings`), noted and never called resting;
-    ``contacts``: the ball riding a plate (:class:`vibro_fit.contacts.ContactPhase`); ``n_hop_impacts``: the
-    impacts between short hops among ``impacts`` (:mod:`vibro_fit.hops`)."""
+@dataclass(frozen=True, kw_only=True)
+class RegimeEvidence:
+    """What the regime is classified from: the record's duration (s), the excitation frequency (Hz), the COR
+    impacts, contact clusters and short flights of the segmentation, the most frames of an impact's cluster,
+    the frame interval (s), the range of ball - structure (mm), the free play (mm); ``n_landings``: impacts
+    without a COR (:mod:`vibro_fit.landings`), noted and never called resting; ``contacts``: the ball riding a
+    plate (:class:`vibro_fit.contacts.ContactPhase`); ``n_hop_impacts``: the impacts between short hops among
+    ``impacts`` (:mod:`vibro_fit.hops`)."""
+
+    duration_s: float
+    frequency_hz: float
+    impacts: list
+    clusters: list
+    short_flights: list
+    max_impact_frames: int
+    frame_dt_s: float
+    y_rel_range_mm: float
+    free_play_mm: float
+    n_landings: int = 0
+    contacts: tuple | list = ()
+    n_hop_impacts: int = 0
+
+
+def classify_regime(ev: RegimeEvidence) -> Regime:
+    """Regime from the impacts, contact clusters and short flights of a recording (see module rules)."""
+    duration_s, frequency_hz, impacts, clusters = ev.duration_s, ev.frequency_hz, ev.impacts, ev.clusters
+    short_flights, max_impact_frames, frame_dt_s = ev.short_flights, ev.max_impact_frames, ev.frame_dt_s
+    y_rel_range_mm, free_play_mm, n_landings = ev.y_rel_range_mm, ev.free_play_mm, ev.n_landings
     n_cycles = max(duration_s * frequency_hz, 1e-9)
-    contacts = list(contacts)
+    contacts = list(ev.contacts)
     if contacts and len(contacts) >= 0.5 * n_cycles:
-        return _sticking(duration_s, n_cycles, impacts, clusters, short_flights, contacts, n_landings,
-                         n_hop_impacts, frame_dt_s)
+        return _sticking(ev, n_cycles, contacts)
     n_top = sum(1 for i in impacts if i.plate == "top")
     n_bot = sum(1 for i in impacts if i.plate == "bottom")
     contact_s = sum((c.n + 1) * frame_dt_s for c in clusters if c.n > max_impact_frames)
@@ -96,9 +116,10 @@ def classify_regime(duration_s: float, frequency_hz: float, impacts, clusters, s
                   contact_fraction=float(contact_fraction), notes=notes)
 
 
-def _sticking(duration_s, n_cycles, impacts, clusters, short_flights, contacts, n_landings, n_hop_impacts,
-              frame_dt_s) -> Regime:
+def _sticking(ev: RegimeEvidence, n_cycles: float, contacts: list) -> Regime:
     """``chatter_with_sticking`` (or ``resting`` beyond half the record on a plate) from the contact phases."""
+    duration_s, impacts, short_flights, frame_dt_s = ev.duration_s, ev.impacts, ev.short_flights, ev.frame_dt_s
+    n_landings, n_hop_impacts = ev.n_landings, ev.n_hop_impacts
     n_top = sum(1 for i in impacts if i.plate == "top")
     n_bot = sum(1 for i in impacts if i.plate == "bottom")
     on = {p: sum(c.end_s - c.start_s + frame_dt_s for c in contacts if c.plate == p) for p in ("top", "bottom")}

@@ -21,7 +21,7 @@ import numpy as np
 from vibro_io.dictrack import FrameTrack
 
 from .flight_fit import FlightFit, fit_flight
-from .gaps import GapVerdict, gap_impact
+from .gaps import GapEvidence, GapVerdict, gap_impact
 from .impacts import ImpactFit, joint_impact, paper_impact
 from .segmentation import SegmentationConfig, accel_estimate, noise_sigma_mm
 from .structure_fit import fit_structure
@@ -47,6 +47,16 @@ def _shifted(fl: FlightFit, lo: int) -> FlightFit:
     return replace(fl, frames=fl.frames - lo)
 
 
+@dataclass(frozen=True, kw_only=True)
+class StreamingTuning:
+    """Windows of :class:`StreamingFitter`: ``warmup_frames``, the frames the noise is estimated from when it
+    is not given; ``history_s`` (s), how far before the flight before an impact the structure's local sine is
+    fitted (None: one nominal period)."""
+
+    warmup_frames: int = 100
+    history_s: float | None = None
+
+
 class StreamingFitter:
     """Incremental segmentation, flight fits and impact estimates.
 
@@ -54,13 +64,14 @@ class StreamingFitter:
     to estimate it from the first ``warmup_frames`` frames; ``method`` "paper" or "joint" (joint uses the
     running median relative position of each plate over the impacts so far, from 3 impacts on);
     ``weights`` None or "dic_valid": weight each frame of a flight fit by its number of valid ball mesh
-    points (the DIC displacement is their mean, so its variance goes as 1 / valid).
+    points (the DIC displacement is their mean, so its variance goes as 1 / valid); ``tuning``: the warm-up
+    and structure-history windows (:class:`StreamingTuning`).
     """
 
     def __init__(self, frequency_hz: float, *, noise_mm: float | None = None, method: str = "paper",
-                 config: SegmentationConfig | None = None, warmup_frames: int = 100,
-                 history_s: float | None = None, weights: str | None = None,
-                 free_play_mm: float | None = None, contact_frames: set[int] | None = None) -> None:
+                 config: SegmentationConfig | None = None, tuning: StreamingTuning | None = None,
+                 weights: str | None = None, free_play_mm: float | None = None,
+                 contact_frames: set[int] | None = None) -> None:
         if method not in ("paper", "joint"):
             raise ValueError(f"unknown method {method!r} (paper, joint)")
         if weights not in (None, "none", "dic_valid"):
@@ -70,8 +81,9 @@ class StreamingFitter:
         self.cfg = config or SegmentationConfig()
         self.method = method
         self.noise_mm = noise_mm
-        self.warmup_frames = warmup_frames
-        self.history_s = history_s if history_s is not None else 1.0 / self.frequency_hz
+        tuning = tuning or StreamingTuning()
+        self.warmup_frames = tuning.warmup_frames
+        self.history_s = tuning.history_s if tuning.history_s is not None else 1.0 / self.frequency_hz
         self.t: list[float] = []
         self.ball: list[float] = []
         self.struct: list[float] = []
@@ -324,8 +336,9 @@ class StreamingFitter:
         lo = bisect.bisect_right(self.ext_times, p.t_end_s)
         hi = bisect.bisect_left(self.ext_times, q.t_start_s)
         dt = float(np.median(np.diff(self.t[-50:]))) if len(self.t) > 2 else 0.0
-        est, verdict = gap_impact(self._n_impact, p, q, s_fit, lost, self.impacts, self.ext_times[lo:hi], dt,
-                                  self.free_play_mm)
+        evidence = GapEvidence(prior=self.impacts, accel_times_s=self.ext_times[lo:hi], frame_dt_s=dt,
+                               free_play_mm=self.free_play_mm)
+        est, verdict = gap_impact(self._n_impact, p, q, s_fit, lost, evidence)
         self.gaps.append(verdict)
         if est is None:
             self.rejected.append(verdict.warning())

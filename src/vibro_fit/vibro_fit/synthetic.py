@@ -9,7 +9,7 @@ v_b+ = v_s - e (v_b- - v_s).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import brentq
@@ -46,14 +46,39 @@ class Truth:
         return p[:, 1] + p[:, 2] * d + 0.5 * p[:, 3] * d * d
 
 
-def simulate(amplitude_m: float = 5e-3, frequency_hz: float = 22.0, phase_rad: float = 0.3,
-             free_play_m: float = 5.915e-3, cor_top=0.6, cor_bottom=0.75, duration_s: float = 1.6,
-             force_up_n: float = 0.0, force_down_n: float = 0.0, mass_kg: float = 1.82e-4,
-             cor_jitter: float = 0.0, seed: int = 0, y0_rel_m: float = 0.0, v0_mps: float = 0.0) -> Truth:
-    """Event-driven exact simulation. ``force_up_n`` acts on flights that start moving up relative to the
-    structure (usually negative: friction opposes motion), ``force_down_n`` on the others.
-    ``cor_jitter`` adds N(0, jitter) scatter to each impact's COR (seeded)."""
-    rng = np.random.default_rng(seed)
+@dataclass(frozen=True, kw_only=True)
+class Scenario:
+    """The simulated rig and motion (SI): the structure's sine (amplitude m, frequency Hz, phase rad), the free
+    play (m), the plates' CORs, the duration (s), constant forces (N) on flights that start moving up
+    (``force_up_n``, usually negative: friction opposes motion) or down relative to the structure, the ball's
+    mass (kg), ``cor_jitter``: N(0, jitter) scatter of each impact's COR (``seed``), and the ball's start
+    relative to the structure (m, m/s)."""
+
+    amplitude_m: float = 5e-3
+    frequency_hz: float = 22.0
+    phase_rad: float = 0.3
+    free_play_m: float = 5.915e-3
+    cor_top: float = 0.6
+    cor_bottom: float = 0.75
+    duration_s: float = 1.6
+    force_up_n: float = 0.0
+    force_down_n: float = 0.0
+    mass_kg: float = 1.82e-4
+    cor_jitter: float = 0.0
+    seed: int = 0
+    y0_rel_m: float = 0.0
+    v0_mps: float = 0.0
+
+
+def simulate(scenario: Scenario | None = None, /, **overrides) -> Truth:
+    """Event-driven exact simulation of ``scenario`` (default :class:`Scenario`) with the fields named in
+    ``overrides`` replaced (e.g. ``simulate(amplitude_m=3e-3, duration_s=0.6)``)."""
+    sc = replace(scenario or Scenario(), **overrides)
+    amplitude_m, frequency_hz, phase_rad, free_play_m = sc.amplitude_m, sc.frequency_hz, sc.phase_rad, sc.free_play_m
+    cor_top, cor_bottom, duration_s, mass_kg = sc.cor_top, sc.cor_bottom, sc.duration_s, sc.mass_kg
+    force_up_n, force_down_n, cor_jitter = sc.force_up_n, sc.force_down_n, sc.cor_jitter
+    y0_rel_m, v0_mps = sc.y0_rel_m, sc.v0_mps
+    rng = np.random.default_rng(sc.seed)
     w = 2 * np.pi * frequency_hz
     A, ph, b = amplitude_m, phase_rad, free_play_m
 
@@ -131,13 +156,32 @@ def paper_rig(frequency_hz: float = 22.0, fps: float = 1000.0, accelerometers: b
     return parse_rig(data, "synthetic rig.yaml")
 
 
-def accel_signals(truth: Truth, fs_hz: float = 50_000.0, duration_s: float = 1.5, offset_s: float = 0.0,
-                  ring_hz: tuple[float, float] = (3100.0, 7400.0), ring_mps2: float = 300.0, tau_s: float = 0.002,
-                  noise_mps2: float = 2.0, seed: int = 2, clip_mps2: float | None = None):
-    """Synthetic accelerometer samples (vibro_io AccelData): structure acceleration + a decaying two-mode
-    ringing starting at each impact (stronger on the channel of the plate hit: x1 vs x0.3) + white noise.
-    DAQ clock = camera clock + ``offset_s``."""
-    rng = np.random.default_rng(seed)
+@dataclass(frozen=True, kw_only=True)
+class AccelSetup:
+    """Synthetic accelerometers: sample rate (Hz), duration (s), DAQ clock minus camera clock (s), the two
+    ringing modes (Hz), their amplitude (m/s^2) and decay time (s), the white noise (m/s^2, ``seed``), and the
+    upper channel's clipping level (m/s^2; None: no clipping)."""
+
+    fs_hz: float = 50_000.0
+    duration_s: float = 1.5
+    offset_s: float = 0.0
+    ring_hz: tuple[float, float] = (3100.0, 7400.0)
+    ring_mps2: float = 300.0
+    tau_s: float = 0.002
+    noise_mps2: float = 2.0
+    seed: int = 2
+    clip_mps2: float | None = None
+
+
+def accel_signals(truth: Truth, setup: AccelSetup | None = None, /, **overrides):
+    """Synthetic accelerometer samples (vibro_io AccelData) of ``setup`` (default :class:`AccelSetup`) with the
+    fields named in ``overrides`` replaced: structure acceleration + a decaying two-mode ringing starting at
+    each impact (stronger on the channel of the plate hit: x1 vs x0.3) + white noise. DAQ clock = camera
+    clock + ``offset_s``."""
+    st = replace(setup or AccelSetup(), **overrides)
+    fs_hz, duration_s, offset_s, ring_hz, ring_mps2 = st.fs_hz, st.duration_s, st.offset_s, st.ring_hz, st.ring_mps2
+    tau_s, noise_mps2, clip_mps2 = st.tau_s, st.noise_mps2, st.clip_mps2
+    rng = np.random.default_rng(st.seed)
     t = np.arange(int(duration_s * fs_hz)) / fs_hz + offset_s
     tc = t - offset_s
     s = truth.structure
