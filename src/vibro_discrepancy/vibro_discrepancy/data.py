@@ -30,7 +30,7 @@ MIN_FLIGHT_POINTS = 6
 SAME_TIME_S = 1e-7
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FlightSamples:
     """One free flight of the identification (``flight``) with its DIC samples and the impacts that
     open/close it.
@@ -60,7 +60,7 @@ class FlightSamples:
         return 2.0 * self.flight.a_mps2 * np.asarray(t_s, dtype=float) + self.flight.b_mps
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Measured:
     """Everything the analysis uses, SI units, DIC frame.
 
@@ -165,7 +165,8 @@ def _flight_samples(k: int, fl: Flight, t: np.ndarray, ball: np.ndarray, impact_
 
     oi, ci = impact_at(t0), impact_at(t1)
     t_ref = t0 if oi is not None else float(t[sel][0])
-    return FlightSamples(-1, t_ref, t1, t[sel], ball[sel], direction, fl, oi, ci)
+    return FlightSamples(index=-1, t_ref_s=t_ref, t_end_s=t1, t_s=t[sel], y_m=ball[sel], direction=direction,
+                         flight=fl, open_impact=oi, close_impact=ci)
 
 
 def measured_from_model(structure: StructureMotion | None, flights: Sequence[Flight], impacts: Sequence[Impact],
@@ -189,8 +190,8 @@ def measured_from_model(structure: StructureMotion | None, flights: Sequence[Fli
             links.setdefault(fs.close_impact, {})["flight_before"] = fi
     usable = [replace(i, **links.get(j, {})) for j, i in enumerate(usable)]
     notes = [f"only {len(samples)} usable free flights"] if len(samples) < 3 else []
-    return Measured(sine, samples, usable, t, ball, struct, float(rig.ball.mass_kg), mm_to_m(float(rig.free_play_mm)),
-                    notes=notes)
+    return Measured(structure=sine, flights=samples, impacts=usable, t_s=t, ball_m=ball, structure_m=struct,
+                    mass_kg=float(rig.ball.mass_kg), free_play_m=mm_to_m(float(rig.free_play_mm)), notes=notes)
 
 
 def measured_from_document(doc: ResultsDocument, track: DicTrack, rig: RigConfig) -> Measured:

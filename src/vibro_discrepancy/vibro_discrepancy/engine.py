@@ -45,7 +45,7 @@ import logging
 import math
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -63,6 +63,9 @@ from vibro_discrepancy.shape_model import (
     LABELS,
     PARITY_KIND,
     POSITION_KIND,
+    ParityFit,
+    PositionFit,
+    TermTest,
     cor_share,
     fit_cor_parity,
     impact_restarted_run,
@@ -112,7 +115,7 @@ def noise_floors(meas: Measured) -> NoiseFloors:
                        float(np.median(stds)) if stds else 0.0)
 
 
-@dataclass
+@dataclass(frozen=True)
 class ModelStep:
     """One model of the chain: the fitted model, its paper D run, its restarted D_r run, its one-step errors."""
 
@@ -129,27 +132,54 @@ def evaluate(meas: Measured, label: str, model: FittedModel, floors: NoiseFloors
                      one_step(meas, model, floors.ball_m))
 
 
-class FindingChain:
-    """The models in the order the findings are added (structure, flight terms, COR law), each finding
-    with D_r (and the paper's D, the one-step errors) of the model without and with it."""
+@dataclass(frozen=True, kw_only=True)
+class Explanation:
+    """One catalogue effect explained: its ``effect`` name, the ``model`` with it, its contract ``parameters``
+    and their ``stds``, ``where`` it shows (words) and the finding's ``extras`` beside the deviations."""
 
-    def __init__(self, meas: Measured, floors: NoiseFloors, baseline: ModelStep):
-        self.meas, self.floors = meas, floors
-        self.steps: list[ModelStep] = [baseline]
-        self.findings: list[DiscrepancyFinding] = []
+    effect: str
+    model: FittedModel
+    parameters: dict
+    stds: dict | None
+    where: str
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class FindingChain:
+    """The models in the order the findings are added (structure, flight terms, COR law, then the located
+    mismatches modelled), each finding with D_r (and the paper's D, the one-step errors) of the model without
+    and with it. Immutable: every stage returns a new chain."""
+
+    meas: Measured
+    floors: NoiseFloors
+    steps: tuple[ModelStep, ...]
+    findings: tuple[DiscrepancyFinding, ...] = ()
+
+    @property
+    def baseline(self) -> ModelStep:
+        return self.steps[0]
 
     @property
     def current(self) -> ModelStep:
         return self.steps[-1]
 
-    def add(self, effect: str, model: FittedModel, params: dict, stds: dict, where: str,
-            extras: Mapping[str, Any] | None = None) -> None:
-        before, after = self.current, evaluate(self.meas, effect, model, self.floors)
+    def explained(self, e: Explanation) -> FindingChain:
+        """A new chain: ``e``'s model evaluated as the final model, ``e``'s finding (without/with it) added."""
+        before, after = self.current, evaluate(self.meas, e.effect, e.model, self.floors)
         details = {"paper_deviation_before": before.run.deviation, "paper_deviation_after": after.run.deviation,
                    "one_step_before": before.steps.summary(), "one_step_after": after.steps.summary(),
-                   **(extras or {})}
-        self.findings.append(finding(effect, params, where, before.restarted, after.restarted, stds, details))
-        self.steps.append(after)
+                   **e.extras}
+        found = finding(e.effect, e.parameters, e.where, before.restarted, after.restarted, e.stds, details)
+        return replace(self, steps=self.steps + (after,), findings=self.findings + (found,))
+
+    def with_model(self, step: ModelStep) -> FindingChain:
+        """A new chain ending on ``step``, a model without a finding of its own."""
+        return replace(self, steps=self.steps + (step,))
+
+    def with_findings(self, findings: Iterable[DiscrepancyFinding]) -> FindingChain:
+        """A new chain with the (annotated) ``findings`` in place of its own."""
+        return replace(self, findings=tuple(findings))
 
 
 def finding(effect: str, params: Mapping[str, Any], where: str, before: FullRun, after: FullRun,
@@ -160,31 +190,72 @@ def finding(effect: str, params: Mapping[str, Any], where: str, before: FullRun,
                               json_value(dict(details)))
 
 
+def annotated(f: DiscrepancyFinding, where: str, extra: Mapping[str, Any]) -> DiscrepancyFinding:
+    """``f`` with ``where`` and ``extra`` added to its details."""
+    return replace(f, where=where, details={**(f.details or {}), **json_value(dict(extra))})
+
+
+# ---------------------------------------------------------------- select: library x selector
+@dataclass(frozen=True, kw_only=True)
+class Selection:
+    """What the stage-wise selection chose from the library: the structure fit and its stage, the flight fit
+    and its stage (None: a stage not run), the COR law's kind ("none": the constant baseline) and its stage."""
+
+    structure: StructureModelFit
+    structure_stage: StageResult | None
+    flights: FlightModelFit
+    flight_stage: StageResult | None
+    cor_kind: str
+    cor_stage: StageResult
+
+    def stages(self) -> dict:
+        """Per stage run: the chosen terms, the residual in noise floors, every candidate tested."""
+        return stages_section(self.structure_stage, self.flight_stage, self.cor_stage)
+
+
+def select_terms(meas: Measured, floors: NoiseFloors, library: CandidateLibrary, selector: StagewiseSelector
+                 ) -> Selection:
+    """The selection's three stages in turn: structure, flights, then the COR law on the impacts measured under
+    the chosen structure and flights."""
+    s_fit, s_stage = selector.structure(meas, floors.structure_m, library)
+    f_fit, f_stage = selector.flights(meas, floors.ball_m, library)
+    pre_cor = fit_model(meas, structure=s_fit, flights=f_fit)
+    kind, c_stage = selector.cor(pre_cor.impacts, floors.cor, library)
+    return Selection(structure=s_fit, structure_stage=s_stage, flights=f_fit, flight_stage=f_stage, cor_kind=kind,
+                     cor_stage=c_stage)
+
+
+def pure_sine(meas: Measured) -> StructureModelFit:
+    """The baseline's structure: the drive's sine alone, fitted to the structure track."""
+    return fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))
+
+
 # ---------------------------------------------------------------- explain: one stage at a time
-def explain_structure(chain: FindingChain, s_fit: StructureModelFit, stage: StageResult | None,
-                      sine: StructureModelFit) -> None:
-    """structure_harmonics when the selection chose harmonics: ratios to the fundamental, their stds."""
+def explain_structure(chain: FindingChain, sel: Selection, sine: StructureModelFit) -> FindingChain:
+    """structure_harmonics when the selection chose harmonics: ratios to the fundamental, their stds; where the
+    pure ``sine`` misses the track."""
+    stage, s_fit = sel.structure_stage, sel.structure
     if stage is None or not stage.chosen:
-        return
+        return chain
     meas, floors = chain.meas, chain.floors
-    model = fit_model(meas, structure=s_fit, flights=fit_flights(meas))
     mot = s_fit.motion()
     amps = s_fit.harmonic_amplitudes()
-    params = {"h2_ratio": float(mot.h2_ratio), "h3_ratio": float(mot.h3_ratio)}
     sd = s_fit.sigma * math.sqrt(2.0 / s_fit.n_points) / max(mot.amplitude_m, 1e-12)
-    stds = {"h2_ratio": sd if 2 in amps else None, "h3_ratio": sd if 3 in amps else None}
     where = (structure_words(sine.residual, meas.t_s, floors.structure_m, sine.frequency_hz) + "; "
              + locate(chain.current.steps, floors.cor, stages=("impacts",))["text"])
-    chain.add("structure_harmonics", model, params, stds, where,
-              {"phases_rad": {"h2_phase_rad": float(mot.h2_phase_rad), "h3_phase_rad": float(mot.h3_phase_rad)}})
+    return chain.explained(Explanation(
+        effect="structure_harmonics", model=fit_model(meas, structure=s_fit, flights=fit_flights(meas)),
+        parameters={"h2_ratio": float(mot.h2_ratio), "h3_ratio": float(mot.h3_ratio)},
+        stds={"h2_ratio": sd if 2 in amps else None, "h3_ratio": sd if 3 in amps else None}, where=where,
+        extras={"phases_rad": {"h2_phase_rad": float(mot.h2_phase_rad), "h3_phase_rad": float(mot.h3_phase_rad)}}))
 
 
-def explain_flights(chain: FindingChain, f_fit: FlightModelFit, stage: StageResult | None,
-                    terms: tuple[FlightTerm, ...]) -> None:
+def explain_flights(chain: FindingChain, sel: Selection, terms: tuple[FlightTerm, ...]) -> FindingChain:
     """The chosen flight terms, in the order of what each explains alone (the chain's D); parameters and
     their uncertainties from the fit with all chosen terms."""
+    stage, f_fit = sel.flight_stage, sel.flights
     if stage is None or not stage.chosen:
-        return
+        return chain
     meas, floors = chain.meas, chain.floors
     single = {d.label: d.statistic for d in stage.decisions}
     chosen = sorted((t for t in terms if t.effect in stage.chosen), key=lambda t: -single.get(t.effect, 0.0))
@@ -194,15 +265,18 @@ def explain_flights(chain: FindingChain, f_fit: FlightModelFit, stage: StageResu
         idx = f_fit.names.index(term.effect)
         params, stds = term.contract_parameters(float(f_fit.coefs[idx]), float(math.sqrt(f_fit.cov[idx, idx])),
                                                 meas.mass_kg, meas.g_mps2)
-        chain.add(term.effect, model, params, stds,
-                  flight_term_where(meas, chain.current.steps, model, term, floors.cor))
+        where = flight_term_where(meas, chain.current.steps, model, term, floors.cor)
+        chain = chain.explained(Explanation(effect=term.effect, model=model, parameters=params, stds=stds,
+                                            where=where))
+    return chain
 
 
-def explain_cor(chain: FindingChain, kind: str, stage: StageResult, library: CandidateLibrary) -> None:
-    """The chosen COR law (``kind``, "none": the constant baseline stays) and the share of the COR
+def explain_cor(chain: FindingChain, sel: Selection, library: CandidateLibrary) -> FindingChain:
+    """The chosen COR law (``sel.cor_kind``, "none": the constant baseline stays) and the share of the COR
     variance beyond noise it explains."""
+    kind, stage = sel.cor_kind, sel.cor_stage
     if kind == "none":
-        return
+        return chain
     meas, cur = chain.meas, chain.current.model
     model = fit_model(meas, structure=cur.structure, flights=cur.flights, cor_kind=kind)
     params, stds = library.impact_term(kind).contract_parameters(model.cor.coefs, model.cor.cov)
@@ -211,82 +285,133 @@ def explain_cor(chain: FindingChain, kind: str, stage: StageResult, library: Can
         extras["alternatives"] = list(stage.alternatives)
     if stage.notes:
         extras["note"] = "; ".join(stage.notes)
-    chain.add(kind, model, params, stds, cor_law_where(meas, chain.current.steps, model, chain.floors.cor), extras)
-
-
-def unexplained_finding(chain: FindingChain, sine: StructureModelFit, s_stage: StageResult | None,
-                        f_stage: StageResult | None, patterns: list[Mismatch], before: ModelStep | None = None,
-                        tone: ToneDecision | None = None, shape: ShapeCheck | None = None
-                        ) -> DiscrepancyFinding | None:
-    """What the final model leaves that is not noise (a stage's residual above UNEXPLAINED_RATIO x its
-    noise floor, the systematic patterns of :mod:`.systematic`), or None; random COR scatter is not.
-    ``before``: the model before a located mismatch was modelled (a structure tone, ``tone.model``; its
-    parameters become the finding's, its D_r and the paper's D before/after the finding's); else the
-    finding's before and after are both the final model."""
-    meas, floors, cur = chain.meas, chain.floors, chain.current
-    before = cur if before is None else before
-    final_loc = locate(cur.steps, floors.cor)
-    flights_words = final_loc["words"][0] if final_loc["words"] else "flights"
-    leftovers = []
-    s_ratio = s_stage.residual_ratio if s_stage is not None else sine.sigma / floors.structure_m
-    if s_ratio > UNEXPLAINED_RATIO and not any(p.series == "structure" for p in patterns):
-        leftovers.append(structure_words(cur.model.structure.residual, meas.t_s, floors.structure_m,
-                                         sine.frequency_hz).replace("the pure sine misses", "the model misses"))
-    if f_stage is not None and f_stage.unexplained:
-        leftovers.append(flights_words)
-    elif f_stage is None:
-        flights = cur.model.flights
-        if math.sqrt(flights.sse / max(flights.n_points, 1)) / floors.ball_m > 1.5:
-            leftovers.append(flights_words)
-    leftovers += [p.words() for p in patterns]
-    if shape is not None and shape.structured:
-        leftovers.insert(0, shape.words())
-    if not leftovers:
-        return None
-    details: dict[str, Any] = {"paper_deviation_before": before.run.deviation,
-                               "paper_deviation_after": cur.run.deviation,
-                               "mismatches": [p.to_dict() for p in patterns]}
-    if shape is not None and shape.structured:
-        details["shape"] = shape.to_dict()
-    params: dict[str, Any] = {}
-    stds = None
-    if tone is not None and tone.tests and tone.model is None:   # located, tested, not modelled: why
-        details["tone_tests"] = tone.to_dict()
-    if tone is not None and tone.model is not None:
-        params, stds = tone.model.parameters(), tone.model.parameter_stds()
-        details["model"] = tone.model.to_dict()
-        details["one_step_before"] = before.steps.summary()
-        details["one_step_after"] = cur.steps.summary()
-        leftovers.append(tone.model.words())
-    return finding(UNEXPLAINED, params, "; ".join(leftovers), before.restarted, cur.restarted, stds, details)
+    where = cor_law_where(meas, chain.current.steps, model, chain.floors.cor)
+    return chain.explained(Explanation(effect=kind, model=model, parameters=params, stds=stds, where=where,
+                                       extras=extras))
 
 
 def flight_shape(chain: FindingChain, f_stage: StageResult | None) -> ShapeCheck | None:
     """The flights' residual in the catalogue's coordinates (:mod:`.shape`) after the chosen flight terms,
-    when any was chosen or the flights keep a mismatch; every flight finding carries it
-    (``details.shape_check``) and, when the residual is structured, says that it does not fit it."""
+    when any was chosen or the flights keep a mismatch (None: not checked, or the check failed)."""
     if f_stage is None or not (f_stage.chosen or f_stage.unexplained):
         return None
     model = chain.current.model
     try:
-        shape = check_flight_shape(chain.meas, model.flights, model.motion, chain.floors.ball_m)
+        return check_flight_shape(chain.meas, model.flights, model.motion, chain.floors.ball_m)
     except (ValueError, np.linalg.LinAlgError) as exc:   # a degenerate design: no test, said so
         log.warning("flight shape check failed: %s", exc)
         return None
+
+
+def note_flight_shape(chain: FindingChain, shape: ShapeCheck | None) -> FindingChain:
+    """Every flight finding carries the shape check (``details.shape_check``) and, when the residual is
+    structured, says that it does not fit it."""
     if shape is None:
-        return None
+        return chain
     flight_effects = {t.effect for t in FLIGHT_TERMS}
-    for k, f in enumerate(chain.findings):
+
+    def noted(f: DiscrepancyFinding) -> DiscrepancyFinding:
         if f.effect not in flight_effects:
-            continue
+            return f
         extra: dict[str, Any] = {"shape_check": shape.to_dict()}
         where = f.where
         if shape.structured:
             extra["fits_residual_shape"] = False
             where = (f"{where}; lowers the deviation but does not fit the residual's shape: the residual left "
                      "depends on the ball's position (see unexplained)")
-        chain.findings[k] = replace(f, where=where, details={**(f.details or {}), **json_value(extra)})
-    return shape
+        return annotated(f, where, extra)
+
+    return chain.with_findings(noted(f) for f in chain.findings)
+
+
+# ---------------------------------------------------------------- what the catalogue model leaves
+@dataclass(frozen=True)
+class Systematic:
+    """What the catalogue model leaves systematically (:mod:`.systematic`): the ``patterns`` (under the final
+    model), the structure tone's decision (:mod:`.tone`) and the model step before a modelled tone (None: no tone
+    modelled)."""
+
+    patterns: list[Mismatch]
+    tone: ToneDecision
+    before_tone: ModelStep | None = None
+
+
+def with_structure_tone(chain: FindingChain, tone: ToneDecision) -> FindingChain:
+    """The chain with a modelled tone's model as its final model: its structure fit replaced by the one with the
+    tone (flights and COR law kind kept, the COR law refitted on the corrected impacts)."""
+    cur = chain.current.model
+    model = fit_model(chain.meas, structure=tone.model.fit, flights=cur.flights, cor_kind=cur.cor.kind)
+    return chain.with_model(evaluate(chain.meas, TONE_EFFECT, model, chain.floors))
+
+
+def find_systematic(chain: FindingChain) -> tuple[FindingChain, Systematic]:
+    """The systematic patterns the chain's model leaves; a located tone that passes its test is modelled (the
+    chain then ends on the model with it) and the contact levels and CORs are tested again under it."""
+    meas, floors = chain.meas, chain.floors
+    fps = 1.0 / float(np.median(np.diff(meas.t_s)))
+    patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps)
+    tone = model_structure_tone(meas, chain.current.model.structure, patterns, fps)
+    if tone.model is None:
+        return chain, Systematic(patterns, tone)
+    before = chain.current
+    chain = with_structure_tone(chain, tone)
+    patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
+                                   structure=[p for p in patterns if p.series == "structure"])
+    return chain, Systematic(patterns, tone, before)
+
+
+def leftover_words(chain: FindingChain, sine: StructureModelFit, sel: Selection, patterns: list[Mismatch],
+                   shape: ShapeCheck | None) -> list[str]:
+    """What the final model leaves that is not noise, in words: a stage's residual above UNEXPLAINED_RATIO x its
+    noise floor, the systematic ``patterns``, a structured flight ``shape`` first; empty when nothing is left."""
+    meas, floors, cur = chain.meas, chain.floors, chain.current
+    s_stage, f_stage = sel.structure_stage, sel.flight_stage
+    final_loc = locate(cur.steps, floors.cor)
+    flights_words = final_loc["words"][0] if final_loc["words"] else "flights"
+    words = []
+    s_ratio = s_stage.residual_ratio if s_stage is not None else sine.sigma / floors.structure_m
+    if s_ratio > UNEXPLAINED_RATIO and not any(p.series == "structure" for p in patterns):
+        words.append(structure_words(cur.model.structure.residual, meas.t_s, floors.structure_m,
+                                     sine.frequency_hz).replace("the pure sine misses", "the model misses"))
+    if f_stage is not None and f_stage.unexplained:
+        words.append(flights_words)
+    elif f_stage is None:
+        flights = cur.model.flights
+        if math.sqrt(flights.sse / max(flights.n_points, 1)) / floors.ball_m > 1.5:
+            words.append(flights_words)
+    words += [p.words() for p in patterns]
+    if shape is not None and shape.structured:
+        words.insert(0, shape.words())
+    return words
+
+
+def unexplained_finding(chain: FindingChain, sine: StructureModelFit, sel: Selection, left: Systematic,
+                        shape: ShapeCheck | None) -> DiscrepancyFinding | None:
+    """What the final model leaves that is not noise (:func:`leftover_words`), or None; random COR scatter is
+    not. A modelled structure tone (``left.tone.model``) gives the finding its parameters, and its D_r and the
+    paper's D before/after are the models without/with it; else both are the final model."""
+    words = leftover_words(chain, sine, sel, left.patterns, shape)
+    if not words:
+        return None
+    cur = chain.current
+    before = cur if left.before_tone is None else left.before_tone
+    details: dict[str, Any] = {"paper_deviation_before": before.run.deviation,
+                               "paper_deviation_after": cur.run.deviation,
+                               "mismatches": [p.to_dict() for p in left.patterns]}
+    if shape is not None and shape.structured:
+        details["shape"] = shape.to_dict()
+    params: dict[str, Any] = {}
+    stds = None
+    tone = left.tone
+    if tone.tests and tone.model is None:   # located, tested, not modelled: why
+        details["tone_tests"] = tone.to_dict()
+    if tone.model is not None:
+        params, stds = tone.model.parameters(), tone.model.parameter_stds()
+        details["model"] = tone.model.to_dict()
+        details["one_step_before"] = before.steps.summary()
+        details["one_step_after"] = cur.steps.summary()
+        words.append(tone.model.words())
+    return finding(UNEXPLAINED, params, "; ".join(words), before.restarted, cur.restarted, stds, details)
 
 
 #: COR patterns in the catalogue COR laws' own coordinates and beside them: left after a chosen law, the law
@@ -296,24 +421,31 @@ COR_LAW_SHAPES = ("plate", "speed", "parity")
 
 def cor_shape_left(chain: FindingChain, patterns: list[Mismatch]) -> list[Mismatch]:
     """The COR patterns (:mod:`.systematic`, tested against the COR scatter after the final COR law) that
-    the chosen COR law leaves in its coordinates (``COR_LAW_SHAPES``); the law's finding then says it
-    does not fit the COR's shape (``fits_residual_shape`` false, ``details.cor_shape_left``). Empty when no
-    COR law was chosen."""
+    the chosen COR law leaves in its coordinates (``COR_LAW_SHAPES``); empty when no COR law was chosen."""
     left = [p for p in patterns if p.series == "cor" and p.shape in COR_LAW_SHAPES]
     laws = set(CandidateLibrary.cor_terms)
-    hit = [k for k, f in enumerate(chain.findings) if f.effect in laws]
-    if not left or not hit:
-        return []
-    for k in hit:
-        f = chain.findings[k]
+    return left if any(f.effect in laws for f in chain.findings) else []
+
+
+def note_cor_shape_left(chain: FindingChain, left: list[Mismatch]) -> FindingChain:
+    """The COR law's finding, when it leaves COR patterns in its coordinates (``left``), says that it does not
+    fit the COR's shape (``fits_residual_shape`` false, ``details.cor_shape_left``)."""
+    if not left:
+        return chain
+    laws = set(CandidateLibrary.cor_terms)
+    extra = {"fits_residual_shape": False, "cor_shape_left": [p.to_dict() for p in left]}
+
+    def noted(f: DiscrepancyFinding) -> DiscrepancyFinding:
+        if f.effect not in laws:
+            return f
         where = (f"{f.where}; lowers the COR scatter but does not fit the COR's shape: "
                  + "; ".join(p.what() for p in left) + " (see unexplained)")
-        extra = {"fits_residual_shape": False, "cor_shape_left": [p.to_dict() for p in left]}
-        chain.findings[k] = replace(f, where=where, details={**(f.details or {}), **json_value(extra)})
-    return left
+        return annotated(f, where, extra)
+
+    return chain.with_findings(noted(f) for f in chain.findings)
 
 
-def order_findings(findings: list[DiscrepancyFinding], leftover: DiscrepancyFinding | None,
+def order_findings(findings: Sequence[DiscrepancyFinding], leftover: DiscrepancyFinding | None,
                    shape: ShapeCheck | None, cor_left: list[Mismatch] | None = None) -> list[DiscrepancyFinding]:
     """The findings in the order they are reported: the chain's, then ``unexplained``; when the flight
     finding leaves a structured residual (``shape``) or the COR law a shaped COR residual (``cor_left``),
@@ -326,21 +458,8 @@ def order_findings(findings: list[DiscrepancyFinding], leftover: DiscrepancyFind
     return list(findings) + [leftover]
 
 
-def add_structure_tone(chain: FindingChain, tone: ToneDecision) -> ModelStep | None:
-    """When a located tone is modelled: the chain's model with its structure fit replaced by the one with
-    the tone (flights and COR law kind kept, the COR law refitted on the corrected impacts) becomes the
-    final model. Returns the model step before it (None: nothing modelled)."""
-    if tone.model is None:
-        return None
-    before = chain.current
-    cur = before.model
-    model = fit_model(chain.meas, structure=tone.model.fit, flights=cur.flights, cor_kind=cur.cor.kind)
-    chain.steps.append(evaluate(chain.meas, TONE_EFFECT, model, chain.floors))
-    return before
-
-
 # ---------------------------------------------------------------- a located shape, modelled
-@dataclass
+@dataclass(kw_only=True)
 class ShapeStep:
     """A located shape modelled (:mod:`.shape_model`): the model steps without and with it, the deviation that
     judges it (``measure``: D_r for a flight force, D_i for a COR law) before/after, accepted when it falls."""
@@ -396,6 +515,23 @@ def _pct(d: float | None) -> str:
     return "n/a" if d is None else f"{100 * d:.3g} %"
 
 
+def _position_extras(meas: Measured, floors: NoiseFloors, fit: PositionFit, tests: list[TermTest], form: dict,
+                     catalogue: FlightModelFit) -> dict:
+    """The position shape model's details: the catalogue terms' tests beside it, its form check, the kept terms'
+    contract parameters and the fit (sum of squares mm^2, the chi^2 against the ``catalogue`` fit of the kept
+    terms alone)."""
+    chi = max(catalogue.sse - fit.sse, 0.0) / floors.ball_m ** 2
+    term_params = []
+    for t, c, sd in zip(fit.terms, fit.flights.coefs, fit.term_stds):
+        tp, ts = t.contract_parameters(float(c), float(sd), meas.mass_kg, fit.flights.g_mps2)
+        term_params.append({"effect": t.effect, "parameters": tp, "parameters_std": ts})
+    return {"term_tests": [t.to_dict() for t in tests], "form_check": form, "term_parameters": term_params,
+            "fit": {"sse_mm2": fit.sse * 1e6, "dof": fit.dof, "noise_floor_mm": floors.ball_m * 1e3,
+                    "residual_x_noise": math.sqrt(fit.sse / max(fit.flights.n_points, 1)) / floors.ball_m,
+                    "chi2_vs_catalogue": chi, "chi2_dof": 2, "p_value": chi2_sf(chi, 2),
+                    "decay_at_grid_end": fit.at_grid_end, "decay_search_mm": [DECAYS_MM[0], DECAYS_MM[-1]]}}
+
+
 def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeStep | None:
     """A force that depends on the ball's distance from the lower plate, when the shape check finds the flights'
     residual beyond the chain's flight terms structured in that coordinate: fitted beside the chain's flight terms
@@ -408,27 +544,33 @@ def position_shape_step(chain: FindingChain, shape: ShapeCheck | None) -> ShapeS
     try:
         fit, tests = position_with_terms(meas, before.model, terms, floors.ball_m)
         model = position_model(meas, before.model, fit)
-        cat = fit_flights(meas, fit.terms)
+        catalogue = fit_flights(meas, fit.terms)
         form = position_form_check(meas, before.model, fit, floors.ball_m)
     except (ValueError, np.linalg.LinAlgError) as exc:
         log.warning("position shape model failed: %s", exc)
         return None
     after = evaluate(meas, LABELS[POSITION_KIND], model, floors)
     params, stds = position_parameters(fit, meas)
-    chi = max(cat.sse - fit.sse, 0.0) / floors.ball_m ** 2
     kept = [t.effect for t in fit.terms]
-    term_params = []
-    for t, c, sd in zip(fit.terms, fit.flights.coefs, fit.term_stds):
-        tp, ts = t.contract_parameters(float(c), float(sd), meas.mass_kg, fit.flights.g_mps2)
-        term_params.append({"effect": t.effect, "parameters": tp, "parameters_std": ts})
-    extras = {"term_tests": [t.to_dict() for t in tests], "form_check": form, "term_parameters": term_params,
-              "fit": {"sse_mm2": fit.sse * 1e6, "dof": fit.dof, "noise_floor_mm": floors.ball_m * 1e3,
-                      "residual_x_noise": math.sqrt(fit.sse / max(fit.flights.n_points, 1)) / floors.ball_m,
-                      "chi2_vs_catalogue": chi, "chi2_dof": 2, "p_value": chi2_sf(chi, 2),
-                      "decay_at_grid_end": fit.at_grid_end, "decay_search_mm": [DECAYS_MM[0], DECAYS_MM[-1]]}}
-    return ShapeStep(POSITION_KIND, position_words(params, stds), params, stds, before, after, "D_r",
-                     before.restarted.deviation, after.restarted.deviation, kept,
-                     [t.effect for t in terms if t.effect not in kept], extras, rejected=form["reason"])
+    extras = _position_extras(meas, floors, fit, tests, form, catalogue)
+    return ShapeStep(kind=POSITION_KIND, form=position_words(params, stds), parameters=params, stds=stds,
+                     before=before, after=after, measure="D_r", value_before=before.restarted.deviation,
+                     value_after=after.restarted.deviation, sits_on=kept,
+                     not_kept=[t.effect for t in terms if t.effect not in kept], extras=extras,
+                     rejected=form["reason"])
+
+
+def _parity_extras(before: FittedModel, model: FittedModel, pf: ParityFit, d_i: tuple[FullRun, FullRun]) -> dict:
+    """The parity shape model's details: the COR laws tested beside it, the share of the COR variance and the COR
+    scatter without (``before``)/with it (``model``), the impacts, and why a D_i run (before, after) failed."""
+    extras = {"law_tests": pf.tests, "cor_variance_share": {"before": cor_share(before), "after": cor_share(model)},
+              "cor_scatter": {"before": math.sqrt(before.cor.sse / max(before.cor.dof, 1)),
+                              "after": math.sqrt(pf.fit.sse / max(pf.fit.dof, 1))},
+              "n_impacts": int(pf.fit.n)}
+    for run, key in zip(d_i, ("before", "after")):
+        if run.error:
+            extras.setdefault("notes", []).append(f"D_i {key}: {run.error}")
+    return extras
 
 
 def parity_shape_step(chain: FindingChain, patterns: list[Mismatch], library: CandidateLibrary
@@ -447,33 +589,29 @@ def parity_shape_step(chain: FindingChain, patterns: list[Mismatch], library: Ca
     d_b, d_a = impact_restarted_run(meas, before.model), impact_restarted_run(meas, model)
     params, stds = parity_parameters(pf, model.impacts)
     kind = before.model.cor.kind
-    extras = {"law_tests": pf.tests, "cor_variance_share": {"before": cor_share(before.model),
-                                                            "after": cor_share(model)},
-              "cor_scatter": {"before": math.sqrt(before.model.cor.sse / max(before.model.cor.dof, 1)),
-                              "after": math.sqrt(pf.fit.sse / max(pf.fit.dof, 1))},
-              "n_impacts": int(pf.fit.n)}
-    for run, key in ((d_b, "before"), (d_a, "after")):
-        if run.error:
-            extras.setdefault("notes", []).append(f"D_i {key}: {run.error}")
     sits = [] if pf.base_kind == "none" else [pf.base_kind]
-    return ShapeStep(PARITY_KIND, parity_words(pf, params, stds), params, stds, before, after, "D_i",
-                     d_b.deviation, d_a.deviation, sits, [kind] if kind != "none" and kind not in sits else [],
-                     extras, [par[0]])
+    return ShapeStep(kind=PARITY_KIND, form=parity_words(pf, params, stds), parameters=params, stds=stds,
+                     before=before, after=after, measure="D_i", value_before=d_b.deviation, value_after=d_a.deviation,
+                     sits_on=sits, not_kept=[kind] if kind != "none" and kind not in sits else [],
+                     extras=_parity_extras(before.model, model, pf, (d_b, d_a)), absorbs=[par[0]])
 
 
-def add_shape_steps(chain: FindingChain, shape: ShapeCheck | None, patterns: list[Mismatch],
-                    library: CandidateLibrary) -> list[ShapeStep]:
-    """The located shapes vibro can parametrise, modelled in turn (a position force, then a COR parity on top
-    of the model so far); an accepted one becomes the chain's final model."""
+def model_shapes(chain: FindingChain, leftover: DiscrepancyFinding | None, shape: ShapeCheck | None,
+                 patterns: list[Mismatch], library: CandidateLibrary) -> tuple[FindingChain, list[ShapeStep]]:
+    """When something is left (``leftover``), the located shapes vibro can parametrise, modelled in turn (a
+    position force, then a COR parity on top of the model so far); an accepted one becomes the chain's final
+    model. Returns the chain and the shapes modelled."""
+    if leftover is None:
+        return chain, []
     steps = []
-    for make in (lambda: position_shape_step(chain, shape), lambda: parity_shape_step(chain, patterns, library)):
-        step = make()
+    for make in (lambda c: position_shape_step(c, shape), lambda c: parity_shape_step(c, patterns, library)):
+        step = make(chain)
         if step is None:
             continue
         steps.append(step)
         if step.accepted:
-            chain.steps.append(step.after)
-    return steps
+            chain = chain.with_model(step.after)
+    return chain, steps
 
 
 def shape_model_section(steps: list[ShapeStep]) -> dict:
@@ -504,38 +642,53 @@ def with_shape_models(leftover: DiscrepancyFinding | None, steps: list[ShapeStep
     return replace(leftover, where=where, deviation_after=after, details=details)
 
 
-def mark_catalogue_under_shapes(chain: FindingChain, steps: list[ShapeStep]) -> None:
+def _not_needed_clause(step: ShapeStep, test: dict | None) -> str:
+    """Why a catalogue finding is not in the final model beside the accepted shape ``step`` (its ``test``)."""
+    if test is None:
+        why = ""
+    elif "chi2" in test:
+        why = (f" (chi2 = {test['chi2']:.3g}, p = {test['p_value']:.2g}, "
+               f"{test['explained_x_noise']:.2f} noise floors)")
+    else:
+        why = (f" (F = {test['f_statistic']:.3g}, p = {test['p_value']:.2g}, "
+               f"explained COR rms {test['explained_rms']:.4f})")
+    what = "position-dependent force" if step.kind == POSITION_KIND else "COR parity"
+    return (f"; not in the final model: with the {what} of the unexplained finding modelled, the data do not "
+            f"need it{why}")
+
+
+def _under_shape(f: DiscrepancyFinding, step: ShapeStep) -> DiscrepancyFinding:
+    """Catalogue finding ``f`` beside the accepted shape ``step``: its test there (``shape_model_test``), its
+    values in the final model when kept (``with_shape_model``), or ``in_final_model`` false and why."""
+    tests = {t["effect"]: t for t in step.extras.get("term_tests", [])}
+    tests.update({t["law"]: t for t in step.extras.get("law_tests", [])})
+    extra: dict[str, Any] = {}
+    where = f.where
+    if f.effect in tests:
+        extra["shape_model_test"] = tests[f.effect]
+    kept = [t for t in step.extras.get("term_parameters", []) if t["effect"] == f.effect]
+    if kept:   # kept beside the shape: its values in the final model
+        extra["with_shape_model"] = {k: kept[0][k] for k in ("parameters", "parameters_std")}
+    if f.effect in step.not_kept:
+        extra["in_final_model"] = False
+        where = where + _not_needed_clause(step, tests.get(f.effect))
+    return annotated(f, where, extra) if extra else f
+
+
+def mark_catalogue_under_shapes(chain: FindingChain, steps: list[ShapeStep]) -> FindingChain:
     """A catalogue finding a shape model was fitted beside: the test (``shape_model_test``), and where the data
     do not need it with the shape modelled, ``in_final_model`` false and a clause saying so."""
+    findings = chain.findings
     for step in steps:
-        if not step.accepted:
-            continue
-        tests = {t["effect"]: t for t in step.extras.get("term_tests", [])}
-        tests.update({t["law"]: t for t in step.extras.get("law_tests", [])})
-        for k, f in enumerate(chain.findings):
-            extra: dict[str, Any] = {}
-            where = f.where
-            if f.effect in tests:
-                extra["shape_model_test"] = tests[f.effect]
-            kept = [t for t in step.extras.get("term_parameters", []) if t["effect"] == f.effect]
-            if kept:   # kept beside the shape: its values in the final model
-                extra["with_shape_model"] = {k: kept[0][k] for k in ("parameters", "parameters_std")}
-            if f.effect in step.not_kept:
-                extra["in_final_model"] = False
-                t = tests.get(f.effect)
-                if t is None:
-                    why = ""
-                elif "chi2" in t:
-                    why = (f" (chi2 = {t['chi2']:.3g}, p = {t['p_value']:.2g}, "
-                           f"{t['explained_x_noise']:.2f} noise floors)")
-                else:
-                    why = (f" (F = {t['f_statistic']:.3g}, p = {t['p_value']:.2g}, "
-                           f"explained COR rms {t['explained_rms']:.4f})")
-                what = "position-dependent force" if step.kind == POSITION_KIND else "COR parity"
-                where = (f"{where}; not in the final model: with the {what} of the unexplained finding modelled, the "
-                         f"data do not need it{why}")
-            if extra:
-                chain.findings[k] = replace(f, where=where, details={**(f.details or {}), **json_value(extra)})
+        if step.accepted:
+            findings = tuple(_under_shape(f, step) for f in findings)
+    return chain.with_findings(findings)
+
+
+def not_absorbed(patterns: list[Mismatch], steps: list[ShapeStep]) -> list[Mismatch]:
+    """The patterns no accepted shape model absorbed (the contact scatter: after the final COR law)."""
+    absorbed = [id(m) for s in steps if s.accepted for m in s.absorbs]
+    return [p for p in patterns if id(p) not in absorbed]
 
 
 # ---------------------------------------------------------------- model and show
@@ -547,28 +700,27 @@ def stages_section(*stages: StageResult | None) -> dict:
             for st in stages if st is not None}
 
 
-def run_details(meas: Measured, chain: FindingChain, floors: NoiseFloors, location: dict, stages: dict,
-                patterns: list[Mismatch]) -> dict:
+def run_details(chain: FindingChain, location: dict, stages: dict, patterns: list[Mismatch]) -> dict:
     """The block's extras beside the contract keys (see the module docstring)."""
-    base, cur = chain.steps[0], chain.current
+    base, cur = chain.baseline, chain.current
     cor = cur.model.cor
     return {
         "paper_baseline_deviation": base.run.deviation,
         "paper_final_deviation": cur.run.deviation,
         "model": cur.model.label(),
         "replay_start_s": base.run.t_s[0] if base.run.t_s.size else None,
-        "noise_floor": floors.to_dict(),
+        "noise_floor": chain.floors.to_dict(),
         "cor_scatter": math.sqrt(cor.sse / max(cor.dof, 1)) if cor.n else None,
         "contact_scatter": contact_scatter(cur.model, patterns),
         "one_step": {"baseline": base.steps.summary(), "final": cur.steps.summary()},
         "location": {k: v for k, v in location.items() if k != "words"},
         "stages": stages,
-        "notes": list(meas.notes) + [f"{s.label}: {s.run.error}" for s in chain.steps if s.run.error]
+        "notes": list(chain.meas.notes) + [f"{s.label}: {s.run.error}" for s in chain.steps if s.run.error]
         + [f"{s.label} (restarted): {s.restarted.error}" for s in chain.steps if s.restarted.error],
     }
 
 
-@dataclass
+@dataclass(kw_only=True)
 class DiscrepancyRun:
     """The fitted discrepancy model: the typed result (``result``; ``document`` is its contract block) and
     the models and runs behind it, for figures and re-identification."""
@@ -589,6 +741,17 @@ class DiscrepancyRun:
         return self.result.to_dict()
 
 
+def discrepancy_run(chain: FindingChain, findings: list[DiscrepancyFinding], details: dict) -> DiscrepancyRun:
+    """The run of a finished chain: the typed result (D_r of its baseline and final model, the ``findings`` in
+    their reported order, the block's extras ``details``) and the models and runs behind it."""
+    base, cur = chain.baseline, chain.current
+    result = Discrepancy(json_number(base.restarted.deviation), findings, json_number(cur.restarted.deviation),
+                         json_value(details))
+    return DiscrepancyRun(result=result, measured=chain.meas, baseline=base.model, final=cur.model,
+                          baseline_run=base.run, final_run=cur.run, baseline_steps=base.steps, final_steps=cur.steps,
+                          chain=[(s.label, s.model, s.run) for s in chain.steps])
+
+
 @dataclass(frozen=True)
 class DiscrepancyEstimator:
     """Candidate library x stage-wise selection -> the fitted discrepancy model (module docstring)."""
@@ -597,42 +760,28 @@ class DiscrepancyEstimator:
     selector: StagewiseSelector = field(default_factory=StagewiseSelector)
 
     def fit(self, meas: Measured) -> DiscrepancyRun:
+        """The discrepancy model of ``meas``: baseline -> select -> explain -> what is left -> shapes modelled;
+        each stage takes the chain the stage before it returned and returns a new one."""
         floors = noise_floors(meas)
-        base = evaluate(meas, "baseline", fit_model(meas), floors)
-        location = locate(base.steps, floors.cor)
-        sine = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))
-        s_fit, s_stage = self.selector.structure(meas, floors.structure_m, self.library)
-        f_fit, f_stage = self.selector.flights(meas, floors.ball_m, self.library)
-        pre_cor = fit_model(meas, structure=s_fit, flights=f_fit)
-        kind, c_stage = self.selector.cor(pre_cor.impacts, floors.cor, self.library)
-
-        chain = FindingChain(meas, floors, base)
-        explain_structure(chain, s_fit, s_stage, sine)
-        explain_flights(chain, f_fit, f_stage, self.library.flight_terms)
-        shape = flight_shape(chain, f_stage)
-        explain_cor(chain, kind, c_stage, self.library)
-        fps = 1.0 / float(np.median(np.diff(meas.t_s)))
-        patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps)
-        tone = model_structure_tone(meas, chain.current.model.structure, patterns, fps)
-        before_tone = add_structure_tone(chain, tone)
-        if before_tone is not None:   # the contact levels and CORs again, under the model with the tone
-            patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
-                                           structure=[p for p in patterns if p.series == "structure"])
-        leftover = unexplained_finding(chain, sine, s_stage, f_stage, patterns, before_tone, tone, shape)
-        cor_left = cor_shape_left(chain, patterns)
-        shape_steps = add_shape_steps(chain, shape, patterns, self.library) if leftover is not None else []
+        baseline = evaluate(meas, "baseline", fit_model(meas), floors)
+        location = locate(baseline.steps, floors.cor)
+        sine = pure_sine(meas)
+        selection = select_terms(meas, floors, self.library, self.selector)
+        chain = FindingChain(meas, floors, (baseline,))
+        chain = explain_structure(chain, selection, sine)
+        chain = explain_flights(chain, selection, self.library.flight_terms)
+        shape = flight_shape(chain, selection.flight_stage)
+        chain = note_flight_shape(chain, shape)
+        chain = explain_cor(chain, selection, self.library)
+        chain, left = find_systematic(chain)
+        leftover = unexplained_finding(chain, sine, selection, left, shape)
+        cor_left = cor_shape_left(chain, left.patterns)
+        chain = note_cor_shape_left(chain, cor_left)
+        chain, shape_steps = model_shapes(chain, leftover, shape, left.patterns, self.library)
         leftover = with_shape_models(leftover, shape_steps, chain.current)
-        mark_catalogue_under_shapes(chain, shape_steps)
-        absorbed = [id(m) for s in shape_steps if s.accepted for m in s.absorbs]
-        left = [p for p in patterns if id(p) not in absorbed]   # the contact scatter: after the final COR law
-
-        cur = chain.current
-        findings = order_findings(chain.findings, leftover, shape, cor_left)
-        details = run_details(meas, chain, floors, location, stages_section(s_stage, f_stage, c_stage), left)
-        result = Discrepancy(json_number(base.restarted.deviation), findings, json_number(cur.restarted.deviation),
-                             json_value(details))
-        return DiscrepancyRun(result, meas, base.model, cur.model, base.run, cur.run, base.steps, cur.steps,
-                              [(s.label, s.model, s.run) for s in chain.steps])
+        chain = mark_catalogue_under_shapes(chain, shape_steps)
+        details = run_details(chain, location, selection.stages(), not_absorbed(left.patterns, shape_steps))
+        return discrepancy_run(chain, order_findings(chain.findings, leftover, shape, cor_left), details)
 
 
 # ---------------------------------------------------------------- entry points

@@ -39,7 +39,7 @@ FIXED_POINT_PASSES = 3
 
 # --- flights ---------------------------------------------------------------------------------------
 
-@dataclass
+@dataclass(kw_only=True)
 class FlightModelFit:
     """Fit of the flights with a set of flight terms."""
 
@@ -192,13 +192,14 @@ def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = 
             cov = np.full((p, p), np.inf)
     else:
         cov = np.zeros((0, 0))
-    return FlightModelFit(terms, coefs, cov, y0, v0, sse, n_points, dof, sse_k,
-                          np.array([fl.t_s.size for fl in flights]), res_k, list(zip(grids, vels)), g)
+    return FlightModelFit(terms=terms, coefs=coefs, cov=cov, y0=y0, v0=v0, sse=sse, n_points=n_points, dof=dof,
+                          flight_sse=sse_k, flight_n=np.array([fl.t_s.size for fl in flights]), residuals=res_k,
+                          grids=list(zip(grids, vels)), g_mps2=g)
 
 
 # --- structure -------------------------------------------------------------------------------------
 
-@dataclass
+@dataclass(kw_only=True)
 class StructureModelFit:
     """Y_s = B + sum over orders of (a_k sin k w t + b_k cos k w t), w = 2 pi f (m, s)."""
 
@@ -301,12 +302,13 @@ def fit_structure_harmonics(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float,
     c, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ c
     n = t.size
-    return StructureModelFit(orders, f, c, float(r @ r), n, max(n - X.shape[1] - 1, 1), r)
+    return StructureModelFit(orders=orders, frequency_hz=f, coefs=c, sse=float(r @ r), n_points=n,
+                             dof=max(n - X.shape[1] - 1, 1), residual=r)
 
 
 # --- impacts ---------------------------------------------------------------------------------------
 
-@dataclass
+@dataclass(kw_only=True)
 class ImpactSet:
     """Per-impact quantities recomputed under a model (arrays over the usable impacts)."""
 
@@ -366,13 +368,15 @@ def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: Struct
         rows.append((imp.index, t, imp.plate, vb, va, vs, e, imp.cor_std))
     if not rows:
         z = np.zeros(0)
-        return ImpactSet(z.astype(int), z, np.array([], dtype=object), z, z, z, z, z)
+        return ImpactSet(index=z.astype(int), t_s=z, plate=np.array([], dtype=object), v_before=z, v_after=z,
+                         v_structure=z, cor=z, cor_std=z)
     cols = list(zip(*rows))
-    return ImpactSet(np.array(cols[0], dtype=int), np.array(cols[1]), np.array(cols[2], dtype=object),
-                     np.array(cols[3]), np.array(cols[4]), np.array(cols[5]), np.array(cols[6]), np.array(cols[7]))
+    return ImpactSet(index=np.array(cols[0], dtype=int), t_s=np.array(cols[1]), plate=np.array(cols[2], dtype=object),
+                     v_before=np.array(cols[3]), v_after=np.array(cols[4]), v_structure=np.array(cols[5]),
+                     cor=np.array(cols[6]), cor_std=np.array(cols[7]))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CorModelFit:
     kind: str                  # "none", "asymmetric_restitution", "velocity_dependent_restitution", "plate_and_speed"
     coefs: np.ndarray
@@ -398,7 +402,8 @@ def ols_cor_fit(kind: str, X: np.ndarray, e: np.ndarray) -> CorModelFit:
     covariance sigma^2 (X^T X)^-1 (infinite when X is singular), residuals."""
     n, p = X.shape
     if n == 0:
-        return CorModelFit(kind, np.zeros(p), np.full((p, p), np.inf), 0.0, 0, 1, np.zeros(0))
+        return CorModelFit(kind=kind, coefs=np.zeros(p), cov=np.full((p, p), np.inf), sse=0.0, n=0, dof=1,
+                           residual=np.zeros(0))
     c, *_ = np.linalg.lstsq(X, e, rcond=None)
     r = e - X @ c
     sse = float(r @ r)
@@ -407,4 +412,4 @@ def ols_cor_fit(kind: str, X: np.ndarray, e: np.ndarray) -> CorModelFit:
         cov = (sse / dof) * np.linalg.inv(X.T @ X)
     except np.linalg.LinAlgError:
         cov = np.full((p, p), np.inf)
-    return CorModelFit(kind, c, cov, sse, n, dof, r)
+    return CorModelFit(kind=kind, coefs=c, cov=cov, sse=sse, n=n, dof=dof, residual=r)

@@ -56,81 +56,107 @@ def impact_ratios(os: OneStep, cor_noise: float = 0.0) -> tuple[np.ndarray, np.n
     return np.abs(os.impact_dv_mps) / sig_v, np.abs(os.impact_dt_s) / sig_t
 
 
+def _when(onset: float | None, t_s: np.ndarray) -> str:
+    """Words for when the disagreement starts: ``onset`` (s) against the first time ``t_s`` (s) judged."""
+    if onset is not None and onset <= float(np.min(t_s)):
+        return "throughout"
+    return f"from t = {onset:.3f} s on" if onset is not None else "scattered over the recording"
+
+
+def _earlier(first: float | None, onset: float | None) -> float | None:
+    """The first disagreement (s) so far, ``first``, updated with a later stage's ``onset`` (None: none known)."""
+    return onset if first is None or (onset is not None and onset < first) else first
+
+
+def _flight_location(os: OneStep) -> tuple[dict, str, float | None]:
+    """The flights' disagreement: (data, words, onset in s when any flight disagrees, else None)."""
+    r = flight_ratios(os)
+    ok = np.isfinite(r)
+    flag = ok & (r > FLIGHT_FLAG)
+    up = os.flight_direction == "up"
+    onset = _onset(os.flight_t_s[ok], flag[ok]) if ok.any() else None
+    d = {"n": int(ok.sum()), "n_disagree": int(flag.sum()),
+         "ascending": _count(flag, up & ok), "descending": _count(flag, ~up & ok),
+         "median_x_noise": float(np.median(r[ok])) if ok.any() else None,
+         "max_x_noise": float(np.max(r[ok])) if ok.any() else None,
+         "from_s": onset, "disagreeing_flights": [int(i) for i in np.flatnonzero(flag)]}
+    if not flag.any():
+        return d, f"flights: all {d['n']} within {FLIGHT_FLAG:g}x the noise floor", None
+    when = _when(onset, os.flight_t_s[ok])
+    return d, (f"flights: {d['n_disagree']}/{d['n']} disagree (towards the top plate {d['ascending']}, towards "
+               f"the bottom plate {d['descending']}), shape residual median {d['median_x_noise']:.1f}x, max "
+               f"{d['max_x_noise']:.1f}x the noise floor ({os.flight_sigma_m * 1e6:.2f} um per frame), {when}"), onset
+
+
+def _impact_data(os: OneStep, ok: np.ndarray, flag: np.ndarray, ratios: tuple[np.ndarray, np.ndarray],
+                 patterns: list, random_scatter: bool) -> dict:
+    """The impacts' disagreement as data: counts per plate and speed half, the median errors in noise floors.
+    ``ok``: the impacts judged; ``flag``: those that disagree; ``ratios``: the (velocity, time) errors in noise
+    floors; ``patterns``: the COR errors' patterns; ``random_scatter``: velocity errors set aside as scatter."""
+    rv, rt = ratios
+    top = os.impact_plate == "top"
+    spd = os.impact_speed_mps
+    fast = spd >= np.median(spd[ok]) if ok.any() else np.zeros_like(top)
+    return {"n": int(ok.sum()), "n_disagree": int(flag.sum()), "top": _count(flag, top & ok),
+            "bottom": _count(flag, ~top & ok), "fast": _count(flag, fast & ok), "slow": _count(flag, ~fast & ok),
+            "velocity_median_x_noise": float(np.nanmedian(rv)) if np.isfinite(rv).any() else None,
+            "time_median_x_noise": float(np.nanmedian(rt)) if np.isfinite(rt).any() else None,
+            "cor_error_rms": float(np.sqrt(np.nanmean(os.impact_de ** 2))) if np.isfinite(os.impact_de).any()
+            else None,
+            "from_s": _onset(os.impact_t_s[ok], flag[ok]) if ok.any() else None,
+            "disagreeing_impacts": [int(i) for i in np.flatnonzero(flag)],
+            "velocity_random_scatter": random_scatter,
+            "cor_patterns": [m.what() for m in patterns]}
+
+
+def _impact_location(os: OneStep, cor_noise: float) -> tuple[dict, str, float | None]:
+    """The impacts' disagreement: (data, words, onset in s when any impact disagrees, else None). The velocity
+    errors count only when the COR errors show a pattern (module docstring)."""
+    rv, rt = impact_ratios(os, cor_noise)
+    ok = np.isfinite(rv) | np.isfinite(rt)
+    flag_v = np.isfinite(rv) & (rv > IMPACT_FLAG)
+    patterns = cor_patterns(os.impact_t_s, os.impact_plate, os.impact_speed_mps, os.impact_de, 0.0,
+                            n_tests=1, shapes=("plate", "speed"))
+    de = os.impact_de[np.isfinite(os.impact_de)]
+    random_scatter = bool(flag_v.any()) and not patterns
+    if random_scatter:
+        flag_v[:] = False   # the COR scatters per impact: a property of the contact, not a model error
+    flag_t = np.isfinite(rt) & (rt > IMPACT_FLAG)
+    flag = flag_v | flag_t
+    d = _impact_data(os, ok, flag, (rv, rt), patterns, random_scatter)
+    onset = d["from_s"]
+    scatter_words = (f"the velocity after scatters with the per-impact COR (RMS COR error "
+                     f"{float(np.sqrt(np.mean(de ** 2))):.4f}, {d['velocity_median_x_noise']:.0f}x the "
+                     f"measurement noise) with no pattern in plate, speed or time: random contact scatter, not "
+                     f"a model error") if random_scatter else ""
+    scatter = f"; {scatter_words}" if scatter_words else ""
+    if not flag.any():
+        return d, f"impacts: all {d['n']} within {IMPACT_FLAG:g}x their noise floor" + scatter, None
+    what = []
+    if flag_v.any():
+        what.append(f"velocity after median {d['velocity_median_x_noise']:.1f}x noise")
+    if flag_t.any():
+        what.append(f"impact time median {d['time_median_x_noise']:.1f}x noise")
+    if patterns:
+        what.append("systematic in the COR: " + "; ".join(d["cor_patterns"]))
+    return d, (f"impacts: {d['n_disagree']}/{d['n']} disagree (top {d['top']}, bottom {d['bottom']}; fast "
+               f"{d['fast']}, slow {d['slow']}), {', '.join(what)}, {_when(onset, os.impact_t_s[ok])}"
+               + scatter), onset
+
+
 def locate(os: OneStep, cor_noise: float = 0.0, stages=("flights", "impacts")) -> dict:
-    """Data and plain words about where ``os`` (one model's one-step errors) disagrees with the data."""
+    """Data and plain words about where ``os`` (one model's one-step errors) disagrees with the data:
+    ``flights``/``impacts`` (the ``stages`` asked for that have any), ``from_s`` the first disagreement (s),
+    ``words`` a sentence per stage and ``text`` them joined."""
     out: dict = {"words": []}
     t_first = None
     if "flights" in stages and os.flight_rms_m.size:
-        r = flight_ratios(os)
-        ok = np.isfinite(r)
-        flag = ok & (r > FLIGHT_FLAG)
-        up = os.flight_direction == "up"
-        onset = _onset(os.flight_t_s[ok], flag[ok]) if ok.any() else None
-        d = {"n": int(ok.sum()), "n_disagree": int(flag.sum()),
-             "ascending": _count(flag, up & ok), "descending": _count(flag, ~up & ok),
-             "median_x_noise": float(np.median(r[ok])) if ok.any() else None,
-             "max_x_noise": float(np.max(r[ok])) if ok.any() else None,
-             "from_s": onset, "disagreeing_flights": [int(i) for i in np.flatnonzero(flag)]}
-        out["flights"] = d
-        if flag.any():
-            when = "throughout" if onset is not None and onset <= float(np.min(os.flight_t_s[ok])) else (
-                f"from t = {onset:.3f} s on" if onset is not None else "scattered over the recording")
-            out["words"].append(
-                f"flights: {d['n_disagree']}/{d['n']} disagree (towards the top plate {d['ascending']}, towards "
-                f"the bottom plate {d['descending']}), shape residual median {d['median_x_noise']:.1f}x, max "
-                f"{d['max_x_noise']:.1f}x the noise floor ({os.flight_sigma_m * 1e6:.2f} um per frame), {when}")
-            t_first = onset
-        else:
-            out["words"].append(f"flights: all {d['n']} within {FLIGHT_FLAG:g}x the noise floor")
+        out["flights"], words, t_first = _flight_location(os)
+        out["words"].append(words)
     if "impacts" in stages and os.impact_t_s.size:
-        rv, rt = impact_ratios(os, cor_noise)
-        ok = np.isfinite(rv) | np.isfinite(rt)
-        flag_v = np.isfinite(rv) & (rv > IMPACT_FLAG)
-        patterns = cor_patterns(os.impact_t_s, os.impact_plate, os.impact_speed_mps, os.impact_de, 0.0,
-                                n_tests=1, shapes=("plate", "speed"))
-        de = os.impact_de[np.isfinite(os.impact_de)]
-        random_scatter = bool(flag_v.any()) and not patterns
-        if random_scatter:
-            flag_v[:] = False   # the COR scatters per impact: a property of the contact, not a model error
-        flag_t = np.isfinite(rt) & (rt > IMPACT_FLAG)
-        flag = flag_v | flag_t
-        top = os.impact_plate == "top"
-        spd = os.impact_speed_mps
-        fast = spd >= np.median(spd[ok]) if ok.any() else np.zeros_like(top)
-        onset = _onset(os.impact_t_s[ok], flag[ok]) if ok.any() else None
-        d = {"n": int(ok.sum()), "n_disagree": int(flag.sum()), "top": _count(flag, top & ok),
-             "bottom": _count(flag, ~top & ok), "fast": _count(flag, fast & ok), "slow": _count(flag, ~fast & ok),
-             "velocity_median_x_noise": float(np.nanmedian(rv)) if np.isfinite(rv).any() else None,
-             "time_median_x_noise": float(np.nanmedian(rt)) if np.isfinite(rt).any() else None,
-             "cor_error_rms": float(np.sqrt(np.nanmean(os.impact_de ** 2))) if np.isfinite(os.impact_de).any()
-             else None,
-             "from_s": onset, "disagreeing_impacts": [int(i) for i in np.flatnonzero(flag)],
-             "velocity_random_scatter": random_scatter,
-             "cor_patterns": [m.what() for m in patterns]}
-        out["impacts"] = d
-        scatter_words = (f"the velocity after scatters with the per-impact COR (RMS COR error "
-                         f"{float(np.sqrt(np.mean(de ** 2))):.4f}, {d['velocity_median_x_noise']:.0f}x the "
-                         f"measurement noise) with no pattern in plate, speed or time: random contact scatter, not "
-                         f"a model error") if random_scatter else ""
-        if flag.any():
-            when = "throughout" if onset is not None and onset <= float(np.min(os.impact_t_s[ok])) else (
-                f"from t = {onset:.3f} s on" if onset is not None else "scattered over the recording")
-            what = []
-            if flag_v.any():
-                what.append(f"velocity after median {d['velocity_median_x_noise']:.1f}x noise")
-            if flag_t.any():
-                what.append(f"impact time median {d['time_median_x_noise']:.1f}x noise")
-            if patterns:
-                what.append("systematic in the COR: " + "; ".join(d["cor_patterns"]))
-            out["words"].append(
-                f"impacts: {d['n_disagree']}/{d['n']} disagree (top {d['top']}, bottom {d['bottom']}; fast "
-                f"{d['fast']}, slow {d['slow']}), {', '.join(what)}, {when}"
-                + (f"; {scatter_words}" if scatter_words else ""))
-            if t_first is None or (onset is not None and onset < t_first):
-                t_first = onset
-        else:
-            out["words"].append(f"impacts: all {d['n']} within {IMPACT_FLAG:g}x their noise floor"
-                                + (f"; {scatter_words}" if scatter_words else ""))
+        out["impacts"], words, onset = _impact_location(os, cor_noise)
+        out["words"].append(words)
+        t_first = _earlier(t_first, onset)
     out["from_s"] = t_first
     out["text"] = "; ".join(out["words"])
     return out

@@ -39,7 +39,7 @@ COR_TERMS = {"none": ConstantRestitution(), "asymmetric_restitution": Asymmetric
              "velocity_dependent_restitution": VelocityDependentRestitution(), "plate_and_speed": PlateAndSpeed()}
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FittedModel:
     """Structure, flights and COR fitted together (SI, DIC frame)."""
 
@@ -108,7 +108,7 @@ def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] 
     f = flights if flights is not None else fit_flights(meas, flight_terms)
     imp = recompute_impacts(meas, f, s.motion())
     c = fit_cor(imp, COR_TERMS[cor_kind], cor_kind)
-    return FittedModel(s, f, imp, c, meas.g_mps2)
+    return FittedModel(structure=s, flights=f, impacts=imp, cor=c, g_mps2=meas.g_mps2)
 
 
 def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:

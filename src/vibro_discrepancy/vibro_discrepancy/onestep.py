@@ -22,7 +22,7 @@ STEP_S = 2e-5
 EXTRA_S = 0.012     # look for the closing impact up to this long after the measured one
 
 
-@dataclass
+@dataclass(kw_only=True)
 class OneStep:
     """Per-flight and per-impact one-step errors of one model (arrays; NaN where not predictable)."""
 
@@ -88,74 +88,118 @@ def _integrate(model: FittedModel, mass_kg: float, y0: np.ndarray, v0: np.ndarra
     return ys, vs
 
 
-def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
-    """One-step-ahead errors of ``model`` (see the module docstring); ``sigma_m`` is the per-frame
-    noise floor of the ball track (reported with the errors)."""
-    flights = meas.flights
-    nf = len(flights)
-    fm = model.flights
-    levels = model_plate_levels(meas, model)
-    S = model.motion
-    flight_t = np.array([0.5 * (fl.t_s[0] + fl.t_s[-1]) for fl in flights])
-    flight_dir = np.array([fl.direction for fl in flights], dtype=object)
-    flight_rms = fm.flight_rms()
-    # state noise: sigma^2 (L^T L)^-1 of each flight's [1, tau] fit -> std of v0
-    v_sigma = np.empty(nf)
-    for k, fl in enumerate(flights):
+def _velocity_sigmas(meas: Measured, sigma_m: float) -> np.ndarray:
+    """Per flight, the std (m/s) of its measured initial velocity v0: sigma^2 (L^T L)^-1 of its [1, tau] fit,
+    ``sigma_m`` the ball's per-frame noise floor (m)."""
+    v_sigma = np.empty(len(meas.flights))
+    for k, fl in enumerate(meas.flights):
         L = np.column_stack([np.ones_like(fl.tau_s), fl.tau_s])
         v_sigma[k] = sigma_m * np.sqrt(np.linalg.inv(L.T @ L)[1, 1])
+    return v_sigma
 
+
+@dataclass(frozen=True)
+class _ClosingFlights:
+    """The flights that an impact closes, integrated from their measured states: ``pairs`` (flight, closing
+    impact), ``ys``/``vs`` position (m) and velocity (m/s) per step (rows) and flight (columns), ``tau_s``
+    the steps' times after each flight's reference time (s)."""
+
+    pairs: list[tuple[int, int]]
+    ys: np.ndarray
+    vs: np.ndarray
+    tau_s: np.ndarray
+
+
+def _integrate_closing(meas: Measured, model: FittedModel) -> _ClosingFlights | None:
+    """Every flight with a closing impact integrated under ``model`` (:func:`_integrate`) until ``EXTRA_S``
+    after the longest of them ends; None without such a flight."""
+    flights = meas.flights
+    pairs = [(k, fl.close_impact) for k, fl in enumerate(flights) if fl.close_impact is not None]
+    if not pairs:
+        return None
+    ks = np.array([k for k, _ in pairs])
+    durations = np.array([flights[k].t_end_s - flights[k].t_ref_s for k in ks])
+    n_steps = int(np.ceil((durations.max() + EXTRA_S) / STEP_S))
+    ys, vs = _integrate(model, meas.mass_kg, model.flights.y0[ks], model.flights.v0[ks], n_steps,
+                        np.array([flights[k].t_ref_s for k in ks]))
+    return _ClosingFlights(pairs, ys, vs, np.arange(n_steps + 1) * STEP_S)
+
+
+def _predicted_impact(meas: Measured, model: FittedModel, closing: _ClosingFlights, j: int, level: float
+                      ) -> tuple[float, float] | None:
+    """The ``j``-th closing flight's predicted closing impact: (time s, ball velocity after it m/s) where its
+    integrated run first reaches the plate's ``level`` (ball - structure, m) after its first frames; None when
+    it never does."""
+    k, ii = closing.pairs[j]
+    ys, vs, tau_s = closing.ys[:, j], closing.vs[:, j], closing.tau_s
+    imp, fl, S = meas.impacts[ii], meas.flights[k], model.motion
+    t_abs = fl.t_ref_s + tau_s
+    rel = ys - S.position(t_abs)
+    gap = (level - rel) if imp.plate == "top" else (rel - level)
+    # first crossing after the flight's last frame's neighbourhood (the ball leaves the plate first)
+    start = int(np.searchsorted(tau_s, 0.5 * (fl.t_s[0] - fl.t_ref_s) + 1e-4))
+    idx = np.flatnonzero(gap[start:] <= 0.0)
+    if idx.size == 0:
+        return None
+    m = start + int(idx[0])
+    if m == 0:
+        return None
+    g0, g1 = gap[m - 1], gap[m]
+    frac = g0 / (g0 - g1) if g0 != g1 else 0.0
+    t_pred = t_abs[m - 1] + frac * STEP_S
+    vb = vs[m - 1] + frac * (vs[m] - vs[m - 1])
+    vsx = float(S.velocity(t_pred))
+    e = float(model.cor_at(np.array([imp.plate]), np.array([abs(vb - vsx)]), np.array([ii]))[0])
+    return t_pred, vsx - e * (vb - vsx)
+
+
+def _by_impact(index: np.ndarray, values: np.ndarray) -> dict[int, float]:
+    return {int(i): float(x) for i, x in zip(index, values)}
+
+
+def _impact_errors(meas: Measured, model: FittedModel, v_sigma: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per impact (NaN where not predictable): predicted - measured time (s), predicted - measured velocity
+    after (m/s), measured - model COR, and the noise floor of the measured velocity after (m/s; ``v_sigma``
+    per flight)."""
     imps = meas.impacts
-    n_i = len(imps)
-    dt = np.full(n_i, np.nan)
-    dv = np.full(n_i, np.nan)
-    de = np.full(n_i, np.nan)
-    dv_sig = np.full(n_i, np.nan)
-    speeds = np.array([speed_mps(i) for i in imps])
-    closing = [(k, fl.close_impact) for k, fl in enumerate(flights) if fl.close_impact is not None]
-    if closing:
-        ks = np.array([k for k, _ in closing])
-        durations = np.array([flights[k].t_end_s - flights[k].t_ref_s for k in ks])
-        n_steps = int(np.ceil((durations.max() + EXTRA_S) / STEP_S))
-        ys, vs = _integrate(model, meas.mass_kg, fm.y0[ks], fm.v0[ks], n_steps,
-                            np.array([flights[k].t_ref_s for k in ks]))
-        tau = np.arange(n_steps + 1) * STEP_S
-        # measured impact quantities under this model (for the COR error)
-        e_meas = {int(i): float(e) for i, e in zip(model.impacts.index, model.impacts.cor)}
-        t_meas = {int(i): float(t) for i, t in zip(model.impacts.index, model.impacts.t_s)}
-        s_meas = {int(i): float(x) for i, x in zip(model.impacts.index, model.impacts.speed)}
-        a_meas = {int(i): float(x) for i, x in zip(model.impacts.index, model.impacts.v_after)}
-        for j, (k, ii) in enumerate(closing):
-            imp = imps[ii]
-            fl = flights[k]
-            t_abs = fl.t_ref_s + tau
-            level = levels.get(imp.plate)
-            if level is None:
-                continue
-            rel = ys[:, j] - S.position(t_abs)
-            gap = (level - rel) if imp.plate == "top" else (rel - level)
-            # first crossing after the flight's last frame's neighbourhood (the ball leaves the plate first)
-            start = int(np.searchsorted(tau, 0.5 * (fl.t_s[0] - fl.t_ref_s) + 1e-4))
-            idx = np.flatnonzero(gap[start:] <= 0.0)
-            if idx.size == 0:
-                continue
-            m = start + int(idx[0])
-            if m == 0:
-                continue
-            g0, g1 = gap[m - 1], gap[m]
-            frac = g0 / (g0 - g1) if g0 != g1 else 0.0
-            t_pred = t_abs[m - 1] + frac * STEP_S
-            vb = vs[m - 1, j] + frac * (vs[m, j] - vs[m - 1, j])
-            vsx = float(S.velocity(t_pred))
-            e = float(model.cor_at(np.array([imp.plate]), np.array([abs(vb - vsx)]), np.array([ii]))[0])
-            va_pred = vsx - e * (vb - vsx)
-            dt[ii] = t_pred - t_meas.get(ii, imp.t_s)
-            if imp.flight_after is not None and ii in a_meas:
-                dv[ii] = va_pred - a_meas[ii]
-                dv_sig[ii] = v_sigma[imp.flight_after]
-            if ii in e_meas:
-                e_model = float(model.cor_at(np.array([imp.plate]), np.array([s_meas[ii]]), np.array([ii]))[0])
-                de[ii] = e_meas[ii] - e_model
-    return OneStep(flight_t, flight_dir, flight_rms, float(sigma_m), np.arange(n_i),
-                   np.array([i.t_s for i in imps]), np.array([i.plate for i in imps], dtype=object), speeds,
-                   dt, dv, de, dv_sig)
+    levels = model_plate_levels(meas, model)
+    dt, dv, de, dv_sig = (np.full(len(imps), np.nan) for _ in range(4))
+    closing = _integrate_closing(meas, model)
+    if closing is None:
+        return dt, dv, de, dv_sig
+    # measured impact quantities under this model (for the COR error)
+    mi = model.impacts
+    e_meas, t_meas = _by_impact(mi.index, mi.cor), _by_impact(mi.index, mi.t_s)
+    s_meas, a_meas = _by_impact(mi.index, mi.speed), _by_impact(mi.index, mi.v_after)
+    for j, (_, ii) in enumerate(closing.pairs):
+        imp = imps[ii]
+        level = levels.get(imp.plate)
+        if level is None:
+            continue
+        pred = _predicted_impact(meas, model, closing, j, level)
+        if pred is None:
+            continue
+        t_pred, va_pred = pred
+        dt[ii] = t_pred - t_meas.get(ii, imp.t_s)
+        if imp.flight_after is not None and ii in a_meas:
+            dv[ii] = va_pred - a_meas[ii]
+            dv_sig[ii] = v_sigma[imp.flight_after]
+        if ii in e_meas:
+            e_model = float(model.cor_at(np.array([imp.plate]), np.array([s_meas[ii]]), np.array([ii]))[0])
+            de[ii] = e_meas[ii] - e_model
+    return dt, dv, de, dv_sig
+
+
+def one_step(meas: Measured, model: FittedModel, sigma_m: float) -> OneStep:
+    """One-step-ahead errors of ``model`` (see the module docstring); ``sigma_m`` is the per-frame
+    noise floor of the ball track (m, reported with the errors)."""
+    flights, imps = meas.flights, meas.impacts
+    dt, dv, de, dv_sig = _impact_errors(meas, model, _velocity_sigmas(meas, sigma_m))
+    return OneStep(flight_t_s=np.array([0.5 * (fl.t_s[0] + fl.t_s[-1]) for fl in flights]),
+                   flight_direction=np.array([fl.direction for fl in flights], dtype=object),
+                   flight_rms_m=model.flights.flight_rms(), flight_sigma_m=float(sigma_m),
+                   impact_index=np.arange(len(imps)), impact_t_s=np.array([i.t_s for i in imps]),
+                   impact_plate=np.array([i.plate for i in imps], dtype=object),
+                   impact_speed_mps=np.array([speed_mps(i) for i in imps]),
+                   impact_dt_s=dt, impact_dv_mps=dv, impact_de=de, dv_sigma_mps=dv_sig)

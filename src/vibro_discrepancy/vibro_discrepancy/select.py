@@ -48,7 +48,7 @@ MIN_COR_RMS = 0.004          # COR law: RMS change of the predicted COR over the
 UNEXPLAINED_RATIO = 1.5      # residual RMS / noise floor above which a stage's mismatch is unexplained
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Decision:
     """One tested candidate: its chi^2 (or F) statistic, p-value, explained size and verdict."""
 
@@ -68,7 +68,7 @@ class Decision:
         return out
 
 
-@dataclass
+@dataclass(kw_only=True)
 class StageResult:
     name: str
     chosen: tuple
@@ -87,7 +87,7 @@ def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit,
     t, y, f0 = meas.t_s, meas.structure_m, meas.frequency_hz
     fits = {o: fit_structure_harmonics(t, y, f0, o) for o in ((1,), (1, 2), (1, 3), (1, 2, 3))}
     sig2 = max(sigma_m, 1e-12) ** 2
-    stage = StageResult("structure", ())
+    stage = StageResult(name="structure", chosen=())
     full = fits[(1, 2, 3)]
     chosen = []
     for k in (2, 3):
@@ -96,8 +96,9 @@ def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit,
         p = chi2_sf(chi, 2)
         amp = full.harmonic_amplitudes()[k]
         ok = p < ALPHA and amp >= MIN_HARMONIC_SIGMA * sigma_m
-        stage.decisions.append(Decision(f"harmonic {k}", chi, p, amp / sigma_m, ok,
-                                        f"amplitude {amp * 1e6:.3g} um = {amp / sigma_m:.1f} x noise floor"))
+        stage.decisions.append(Decision(label=f"harmonic {k}", statistic=chi, p_value=p, explained=amp / sigma_m,
+                                        accepted=ok,
+                                        note=f"amplitude {amp * 1e6:.3g} um = {amp / sigma_m:.1f} x noise floor"))
         if ok:
             chosen.append(k)
     best = fits[(1,) + tuple(chosen)]
@@ -123,7 +124,7 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
                    ) -> tuple[FlightModelFit, StageResult]:
     """Flight terms: the best single by chi^2; then the best pair if it beats that single significantly
     and visibly. ``sigma_m``: per-frame noise floor of the ball track (3rd differences)."""
-    stage = StageResult("flights", ())
+    stage = StageResult(name="flights", chosen=())
     base = fit_flights(meas)
     n = base.n_points
     sig2 = max(sigma_m, 1e-12) ** 2
@@ -147,7 +148,8 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         p = chi2_sf(chi, 1)
         ex = _explained_rms(base.sse, f.sse, n) / sigma_m
         ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(f.coefs > 0))
-        stage.decisions.append(Decision(key[0], chi, p, ex, ok, f"explains {ex:.2f} x noise floor per frame"))
+        stage.decisions.append(Decision(label=key[0], statistic=chi, p_value=p, explained=ex, accepted=ok,
+                                        note=f"explains {ex:.2f} x noise floor per frame"))
     ranked = sorted(singles.items(), key=lambda kv: kv[1].sse)
     best_key, best = ranked[0]
     best_dec = next(d for d in stage.decisions if d.label == best_key[0])
@@ -172,8 +174,8 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         p = chi2_sf(chi, max(dp, 1))
         ex = _explained_rms(ref.sse, pf.sse, n) / sigma_m
         ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(pf.coefs > 0))
-        stage.decisions.append(Decision(" + ".join(pk), chi, p, ex, ok,
-                                        f"against {' + '.join(chosen) or 'baseline'}: explains {ex:.2f} x noise"))
+        stage.decisions.append(Decision(label=" + ".join(pk), statistic=chi, p_value=p, explained=ex, accepted=ok,
+                                        note=f"against {' + '.join(chosen) or 'baseline'}: explains {ex:.2f} x noise"))
         if ok:
             chosen, current = pk, pf
     stage.chosen = chosen
@@ -205,7 +207,7 @@ def select_cor(impacts: ImpactSet, cor_noise: float) -> tuple[str, dict, StageRe
     behaviour of a speed-dependent contact; a faster plate restituting more is not, so -> asymmetric.
     The indistinguishable alternative is listed in ``stage.alternatives``.
     """
-    stage = StageResult("impacts", ())
+    stage = StageResult(name="impacts", chosen=())
     fits = {k: fit_cor(impacts, term, k) for k, term in COR_TERMS.items()}
     n = impacts.cor.size
     if n < 4:
@@ -225,8 +227,8 @@ def select_cor(impacts: ImpactSet, cor_noise: float) -> tuple[str, dict, StageRe
             good = False
         ok[kind] = good
         share = law_variance_share(impacts, f)
-        stage.decisions.append(Decision(kind, F, p, ex, good, f"COR RMS change {ex:.4f} (floor {floor:.4f})",
-                                        share))
+        stage.decisions.append(Decision(label=kind, statistic=F, p_value=p, explained=ex, accepted=good,
+                                        note=f"COR RMS change {ex:.4f} (floor {floor:.4f})", variance_share=share))
     if ok["asymmetric_restitution"] and ok["velocity_dependent_restitution"]:
         kind, why, alt = _separate(impacts, fits)
         stage.notes.append(why)

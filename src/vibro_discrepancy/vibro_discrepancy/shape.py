@@ -42,7 +42,7 @@ DECAYS_MM = tuple(float(x) for x in np.geomspace(0.3, 30.0, 25))   # exponential
 EXP_SHARE = 0.9     # an exponential names the shape when it explains this share of what the bins explain
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ShapeCheck:
     """The residual's shape after a flight model (module docstring). ``structured``: a coordinate's columns
     are significant and visible beyond the model's; ``tests``: per coordinate its chi^2, p, explained noise
@@ -248,6 +248,7 @@ def check_flight_shape(meas: Measured, flights: FlightModelFit, motion: Structur
         expo = {"accel_at_contact_mps2": best[2], "accel_at_contact_std_mps2": best[3], "decay_mm": best[0],
                 "decay_grid_ratio": DECAYS_MM[1] / DECAYS_MM[0],
                 "explained_share_of_bins": (r0 - best[1]) / (r0 - sse_e_only)}
-    return ShapeCheck(structured, tuple(flights.names), tests, [float(x) for x in 1e3 * (edges - lower)],
-                      [float(x) for x in even], [float(x) for x in even_sd], [float(x) for x in odd_c],
-                      bool(direction_dependent), expo, g)
+    return ShapeCheck(structured=structured, model_terms=tuple(flights.names), tests=tests,
+                      bin_edges_mm=[float(x) for x in 1e3 * (edges - lower)], accel_even_mps2=[float(x) for x in even],
+                      accel_even_std_mps2=[float(x) for x in even_sd], accel_odd_mps2=[float(x) for x in odd_c],
+                      direction_dependent=bool(direction_dependent), exponential=expo, g_mps2=g)

@@ -95,7 +95,7 @@ class PositionShape:
         return self.accel_at_contact_mps2 * np.exp(-d / self.decay_m)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ParityShape:
     """One plate's COR alternates: the law's value + ``step`` x sign (+1 on the plate's first impact);
     ``signs`` per impact index (into :attr:`Measured.impacts`); ``first_sign`` of the first impact of the
@@ -130,7 +130,7 @@ class ParityRestitution(RestitutionLaw):
         return float(min(1.0, max(0.0, e + self.shape.step * self._signs[impact_index])))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ShapeModel(FittedModel):
     """A :class:`FittedModel` with a located shape modelled: a position force in flight, a COR parity, or
     both (None: that part is the catalogue model's)."""
@@ -192,11 +192,12 @@ def as_shape_model(model: FittedModel) -> ShapeModel:
     """``model`` as a :class:`ShapeModel` (keeping a shape it already has)."""
     if isinstance(model, ShapeModel):
         return model
-    return ShapeModel(model.structure, model.flights, model.impacts, model.cor, model.g_mps2, model.fixed_motion)
+    return ShapeModel(structure=model.structure, flights=model.flights, impacts=model.impacts, cor=model.cor,
+                      g_mps2=model.g_mps2, fixed_motion=model.fixed_motion)
 
 
 # ---------------------------------------------------------------- position force: the fit
-@dataclass
+@dataclass(kw_only=True)
 class PositionFit:
     """The flights fitted with the exponential position force beside the catalogue ``terms`` (module
     docstring): ``flights`` (the catalogue terms' coefficients and the histories with the force), A (m/s^2,
@@ -268,69 +269,122 @@ def _histories(meas: Measured, flights: FlightModelFit, model: FittedModel):
     return out
 
 
-def fit_position_force(meas: Measured, model: FittedModel, terms: Sequence[FlightTerm]) -> PositionFit:
-    """The flights with the exponential position force and the catalogue ``terms`` (module docstring), around
-    ``model``'s structure motion, starting from its flight histories."""
-    terms = tuple(terms)
-    m, g = meas.mass_kg, model.flights.g_mps2
+@dataclass(frozen=True)
+class _PositionTarget:
+    """What the position fit matches: per flight the projector ``Qs`` onto its [1, tau] (the free state) and
+    the raw target ``r_raw`` = y + g tau^2 / 2 (m), and ``r`` the targets with the states projected out, stacked
+    (m); ``g_mps2`` the gravity (m/s^2)."""
+
+    Qs: list[np.ndarray]
+    r_raw: list[np.ndarray]
+    r: np.ndarray
+    g_mps2: float
+
+
+def _position_target(meas: Measured, g_mps2: float) -> _PositionTarget:
+    """The flights' targets under gravity ``g_mps2`` (m/s^2), :class:`_PositionTarget`."""
     Qs = _projectors(meas)
-    r_raw = [fl.y_m + 0.5 * g * fl.tau_s ** 2 for fl in meas.flights]
+    r_raw = [fl.y_m + 0.5 * g_mps2 * fl.tau_s ** 2 for fl in meas.flights]
     r = np.concatenate([y - Q @ (Q.T @ y) for y, Q in zip(r_raw, Qs)])
-    flights = model.flights
-    cur = model
-    term_fns = [(lambda t: (lambda rel, v: t.basis(v, m)))(t) for t in terms]
-    theta, A, L, lower = np.zeros(len(terms)), 0.0, 1e-3 * DECAYS_MM[len(DECAYS_MM) // 2], 0.0
-    for _ in range(PASSES):
-        hist = _histories(meas, flights, cur)
-        lower = _lower_level(meas, cur)
-        B_t = _blocks(meas, hist, term_fns)
-        X_t = _project(B_t, Qs)
+    return _PositionTarget(Qs, r_raw, r, g_mps2)
 
-        def exp_fn(L_m, lower=lower):
-            return lambda rel, v: np.exp(-np.clip(rel - lower, 0.0, None) / L_m)
 
-        def sse_at(log_L):
-            x = _project(_blocks(meas, hist, [exp_fn(math.exp(log_L))]), Qs)[:, 0]
-            return _solve(X_t, x, r)[2]
+@dataclass(frozen=True)
+class _PositionForce:
+    """One pass's force: the catalogue ``terms``' coefficients ``theta`` (term units), A (m/s^2, + up), the decay
+    L (m) and the lower plate's contact level (ball - structure, m) the distance is counted from."""
 
-        grid = [math.log(1e-3 * d) for d in DECAYS_MM]
-        sses = [sse_at(x) for x in grid]
-        j = int(np.argmin(sses))
-        lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
-        best = minimize_scalar(sse_at, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
-        log_L = float(best.x) if best.fun <= sses[j] else grid[j]
-        L = math.exp(log_L)
-        B_p = _blocks(meas, hist, [exp_fn(L)])
-        theta, A, _ = _solve(X_t, _project(B_p, Qs)[:, 0], r)
-        # the flights' states and the new histories (as fit_flights)
-        y0, v0 = np.empty(len(meas.flights)), np.empty(len(meas.flights))
-        grids, sse_k, res_k = [], np.empty(len(meas.flights)), []
-        for k, (fl, (u, rel, v)) in enumerate(zip(meas.flights, hist)):
-            Lk = np.column_stack([np.ones_like(fl.tau_s), fl.tau_s])
-            rr = r_raw[k] - B_t[k] @ theta - A * B_p[k][:, 0]
-            c, *_ = np.linalg.lstsq(Lk, rr, rcond=None)
-            y0[k], v0[k] = c
-            res = rr - Lk @ c
-            res_k.append(res)
-            sse_k[k] = float(res @ res)
-            extra = A * np.exp(-np.clip(rel - lower, 0.0, None) / L)
-            for t, th in zip(terms, theta):
-                if th != 0.0:
-                    extra = extra + th * t.basis(v, m)
-            grids.append((u, v0[k] - g * u + _cumtrapz(extra, u[1] - u[0])))
-        n_points = int(sum(fl.t_s.size for fl in meas.flights))
-        dof = max(n_points - 2 * len(meas.flights) - len(terms) - 2, 1)
-        flights = FlightModelFit(terms, np.asarray(theta, float), np.zeros((len(terms), len(terms))), y0, v0,
-                                 float(sse_k.sum()), n_points, dof, sse_k,
-                                 np.array([fl.t_s.size for fl in meas.flights]), res_k, grids, g)
-        imps = recompute_impacts(meas, flights, cur.motion)
-        cur = replace(cur, flights=flights, impacts=imps)
-    # uncertainties: Gauss-Newton on the projected Jacobian [catalogue columns, d/dA, d/dL] at the last histories
+    terms: tuple[FlightTerm, ...]
+    theta: np.ndarray
+    accel_mps2: float
+    decay_m: float
+    lower_m: float
+
+
+def _term_fns(terms: Sequence[FlightTerm], mass_kg: float) -> list:
+    """Each catalogue term's acceleration basis as an extra-acceleration function f(rel (m), v (m/s))."""
+    return [(lambda t: (lambda rel, v: t.basis(v, mass_kg)))(t) for t in terms]
+
+
+def _exp_force(decay_m: float, lower_m: float):
+    """exp(-d / L), d the distance (m) above the lower contact level ``lower_m``, as a function f(rel, v)."""
+    return lambda rel, v: np.exp(-np.clip(rel - lower_m, 0.0, None) / decay_m)
+
+
+def _best_decay(meas: Measured, hist, X_t: np.ndarray, target: _PositionTarget, lower_m: float) -> float:
+    """The decay L (m) with the least sum of squares beside the projected catalogue columns ``X_t``: the grid
+    ``DECAYS_MM``, then a bounded refinement in log L around its best point (kept only when it improves)."""
+    def sse_at(log_L):
+        x = _project(_blocks(meas, hist, [_exp_force(math.exp(log_L), lower_m)]), target.Qs)[:, 0]
+        return _solve(X_t, x, target.r)[2]
+
+    grid = [math.log(1e-3 * d) for d in DECAYS_MM]
+    sses = [sse_at(x) for x in grid]
+    j = int(np.argmin(sses))
+    lo, hi = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+    best = minimize_scalar(sse_at, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    return math.exp(float(best.x) if best.fun <= sses[j] else grid[j])
+
+
+def _position_flights(meas: Measured, hist, blocks: tuple[list, list], force: _PositionForce,
+                      target: _PositionTarget) -> FlightModelFit:
+    """The flights' states under ``force`` and their new velocity histories (as :func:`fit_flights`);
+    ``blocks`` the raw designs (catalogue terms, the exponential) per flight on the histories ``hist``."""
+    B_t, B_p = blocks
+    terms, theta, A, L, lower = force.terms, force.theta, force.accel_mps2, force.decay_m, force.lower_m
+    m, g, n = meas.mass_kg, target.g_mps2, len(meas.flights)
+    y0, v0 = np.empty(n), np.empty(n)
+    grids, sse_k, res_k = [], np.empty(n), []
+    for k, (fl, (u, rel, v)) in enumerate(zip(meas.flights, hist)):
+        Lk = np.column_stack([np.ones_like(fl.tau_s), fl.tau_s])
+        rr = target.r_raw[k] - B_t[k] @ theta - A * B_p[k][:, 0]
+        c, *_ = np.linalg.lstsq(Lk, rr, rcond=None)
+        y0[k], v0[k] = c
+        res = rr - Lk @ c
+        res_k.append(res)
+        sse_k[k] = float(res @ res)
+        extra = A * np.exp(-np.clip(rel - lower, 0.0, None) / L)
+        for t, th in zip(terms, theta):
+            if th != 0.0:
+                extra = extra + th * t.basis(v, m)
+        grids.append((u, v0[k] - g * u + _cumtrapz(extra, u[1] - u[0])))
+    n_points = int(sum(fl.t_s.size for fl in meas.flights))
+    return FlightModelFit(terms=terms, coefs=np.asarray(theta, float), cov=np.zeros((len(terms), len(terms))),
+                          y0=y0, v0=v0, sse=float(sse_k.sum()), n_points=n_points,
+                          dof=max(n_points - 2 * n - len(terms) - 2, 1), flight_sse=sse_k,
+                          flight_n=np.array([fl.t_s.size for fl in meas.flights]), residuals=res_k, grids=grids,
+                          g_mps2=g)
+
+
+def _position_pass(meas: Measured, cur: FittedModel, terms: tuple[FlightTerm, ...], target: _PositionTarget
+                   ) -> tuple[FittedModel, _PositionForce]:
+    """One pass of the fixed point: on ``cur``'s flight histories, the decay (:func:`_best_decay`), then A and the
+    catalogue coefficients, then the flights' states and histories; (``cur`` with those flights and its impacts
+    measured again under them, the force)."""
+    hist = _histories(meas, cur.flights, cur)
+    lower = _lower_level(meas, cur)
+    B_t = _blocks(meas, hist, _term_fns(terms, meas.mass_kg))
+    X_t = _project(B_t, target.Qs)
+    L = _best_decay(meas, hist, X_t, target, lower)
+    B_p = _blocks(meas, hist, [_exp_force(L, lower)])
+    theta, A, _ = _solve(X_t, _project(B_p, target.Qs)[:, 0], target.r)
+    force = _PositionForce(terms=terms, theta=theta, accel_mps2=A, decay_m=L, lower_m=lower)
+    flights = _position_flights(meas, hist, (B_t, B_p), force, target)
+    return replace(cur, flights=flights, impacts=recompute_impacts(meas, flights, cur.motion)), force
+
+
+def _position_uncertainties(meas: Measured, cur: FittedModel, force: _PositionForce, target: _PositionTarget
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton on the projected Jacobian [active catalogue columns, d/dA, d/dL] at ``cur``'s histories
+    (sigma^2 = sse / dof): (stds of those parameters, the catalogue coefficients' stds (NaN: inactive), their
+    covariance (infinite variance: inactive))."""
+    terms, theta, A, L, lower = force.terms, force.theta, force.accel_mps2, force.decay_m, force.lower_m
+    flights, Qs = cur.flights, target.Qs
     hist = _histories(meas, flights, cur)
-    x_p = _project(_blocks(meas, hist, [lambda rel, v: np.exp(-np.clip(rel - lower, 0.0, None) / L)]), Qs)[:, 0]
+    x_p = _project(_blocks(meas, hist, [_exp_force(L, lower)]), Qs)[:, 0]
     x_l = _project(_blocks(meas, hist, [lambda rel, v: A * np.exp(-np.clip(rel - lower, 0.0, None) / L)
                                         * np.clip(rel - lower, 0.0, None) / L ** 2]), Qs)[:, 0]
-    X_t = _project(_blocks(meas, hist, term_fns), Qs)
+    X_t = _project(_blocks(meas, hist, _term_fns(terms, meas.mass_kg)), Qs)
     active = [i for i in range(len(terms)) if theta[i] > 0]
     J = np.column_stack([X_t[:, active], x_p, x_l])
     s2 = flights.sse / flights.dof
@@ -345,10 +399,25 @@ def fit_position_force(meas: Measured, model: FittedModel, terms: Sequence[Fligh
     t_cov = np.diag(np.where(np.isfinite(t_std), t_std, np.inf) ** 2) if len(terms) else np.zeros((0, 0))
     if active:
         t_cov[np.ix_(active, active)] = cov[:len(active), :len(active)]
-    flights = replace(flights, cov=t_cov)
+    return d, t_std, t_cov
+
+
+def fit_position_force(meas: Measured, model: FittedModel, terms: Sequence[FlightTerm]) -> PositionFit:
+    """The flights with the exponential position force and the catalogue ``terms`` (module docstring), around
+    ``model``'s structure motion, starting from its flight histories: ``PASSES`` passes of
+    :func:`_position_pass`, then the parameters' stds (:func:`_position_uncertainties`)."""
+    terms = tuple(terms)
+    target = _position_target(meas, model.flights.g_mps2)
+    cur, force = _position_pass(meas, model, terms, target)
+    for _ in range(PASSES - 1):
+        cur, force = _position_pass(meas, cur, terms, target)
+    d, t_std, t_cov = _position_uncertainties(meas, cur, force, target)
+    flights = replace(cur.flights, cov=t_cov)
+    L = force.decay_m
     edge = math.log(L / (1e-3 * DECAYS_MM[0])) < 0.05 or math.log(1e-3 * DECAYS_MM[-1] / L) < 0.05
-    return PositionFit(terms, flights, float(A), float(d[-2]), float(L), float(d[-1]), t_std, float(lower),
-                       flights.sse, flights.dof, bool(edge))
+    return PositionFit(terms=terms, flights=flights, accel_mps2=float(force.accel_mps2), accel_std_mps2=float(d[-2]),
+                       decay_m=float(L), decay_std_m=float(d[-1]), term_stds=t_std, lower_m=float(force.lower_m),
+                       sse=flights.sse, dof=flights.dof, at_grid_end=bool(edge))
 
 
 @dataclass
@@ -566,8 +635,8 @@ def parity_model(meas: Measured, model: FittedModel, pf: ParityFit) -> ShapeMode
     later = [(float(t), int(i)) for i, t, p in zip(imps.index, imps.t_s, imps.plate) if p == pf.plate and t > t0 + 1e-9]
     first = signs[min(later)[1]] if later else 1.0
     nb = COR_TERMS[pf.base_kind].columns(np.array(["top"], dtype=object), np.array([0.0])).shape[1]
-    shape = ParityShape(pf.plate, pf.base_kind, np.asarray(pf.fit.coefs[:nb], float), float(pf.fit.coefs[nb]), signs,
-                        first)
+    shape = ParityShape(plate=pf.plate, base_kind=pf.base_kind, base_coefs=np.asarray(pf.fit.coefs[:nb], float),
+                        step=float(pf.fit.coefs[nb]), signs=signs, first_sign=first)
     sm = replace(as_shape_model(model), cor=pf.fit)
     sm.parity = shape
     return sm

@@ -52,7 +52,7 @@ TAYLOR_TOL = 1e-15           # FFT periodogram: the off-clock series stops below
 MAX_TAYLOR_PHASE = 2 * math.pi   # ... used while 2 pi f (time - clock) stays below this (rad; at most ~45 terms)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Mismatch:
     """One systematic pattern: which series (and plate), its shape, size and significance."""
 
@@ -428,47 +428,77 @@ def structure_mismatch(t: np.ndarray, structure_m: np.ndarray, sigma_m: float, f
         f0_hz = _refine_frequencies(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
         r, _ = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
     _, parts = _joint_fit(t, r0, f0_hz, [(a[0], a[1]) for a in accepted])
-    return [Mismatch("structure", shape, size * 1e6, "um", float(t[0]), float(t[-1]), p, stat,
-                     frequency_hz=info.get("frequency_hz"), step_time_s=info.get("step_time_s"), fit=vals,
+    return [Mismatch(series="structure", shape=shape, size=size * 1e6, unit="um", t_from_s=float(t[0]),
+                     t_to_s=float(t[-1]), p_value=p, statistic=stat, frequency_hz=info.get("frequency_hz"),
+                     step_time_s=info.get("step_time_s"), fit=vals,
                      frequencies_searched=trials if shape == "periodic" else None)
             for (shape, info, p, stat, trials), (size, vals) in zip(accepted, parts)]
 
 
-def _series_pursuit(series: str, t: np.ndarray, r: np.ndarray, columns: dict, floor: float, unit_scale: float,
-                    unit: str, plate: str | None, n_tests: int, rms_floor: bool) -> list[Mismatch]:
+@dataclass(frozen=True)
+class SeriesScale:
+    """How a short series' patterns are judged and reported: ``floor`` the minimum size that matters (in the
+    series' own unit: m, COR), of the fitted pattern's RMS when ``rms_floor`` else of its size; sizes are
+    reported times ``unit_scale`` in ``unit``."""
+
+    floor: float
+    unit_scale: float
+    unit: str
+    rms_floor: bool
+
+
+def _column_candidates(r: np.ndarray, columns: dict) -> list[tuple[str, tuple]]:
+    """Each extra regressor {shape: x} projected on the series ``r``: (shape, (drop of the sum of squares, fitted
+    values, {"size": change over x's range, or c for ``plate``}, 1 trial)); a zero column is left out."""
+    out = []
+    for shape, x in columns.items():
+        xx = float(x @ x)
+        if xx > 0:
+            c = float(x @ r) / xx
+            out.append((shape, (c * c * xx, c * x, {"size": c * (x.max() - x.min()) if shape != "plate"
+                                                    else c}, 1)))
+    return out
+
+
+def _strongest_pattern(t: np.ndarray, r: np.ndarray, columns: dict, n_par: int, n_tests: int):
+    """The pursuit's next pattern on the series ``r`` at times ``t`` (s): trend, step in time or an extra
+    regressor of ``columns``, the one with the smallest p-value (F-test against the ``n_par`` parameters
+    fitted so far; Bonferroni over the shapes tried); (p, shape, fitted values, info, statistic) or None."""
+    cands = []
+    gens = [("trend", _trend(t, r)), ("step", _step(t, r, MIN_SPLIT))] + _column_candidates(r, columns)
+    for shape, c in gens:
+        if c is None:
+            continue
+        drop, fit, info, trials = c
+        sse_after = float(((r - fit) ** 2).sum())
+        extra = 2 if shape == "step" else 1
+        stat, p = _p_estimated(drop, sse_after, 1, r.size, n_par + extra, trials, n_tests)
+        cands.append((p, -drop, shape, fit, info, stat))
+    if not cands:
+        return None
+    p, _, shape, fit, info, stat = min(cands, key=lambda c: (c[0], c[1]))
+    return min(1.0, p * len(cands)), shape, fit, info, stat
+
+
+def _series_pursuit(series: str, t: np.ndarray, r: np.ndarray, columns: dict, scale: SeriesScale,
+                    plate: str | None, n_tests: int) -> list[Mismatch]:
     """Matching pursuit on a short series with estimated noise (F-tests). ``columns``: extra regressors
-    {shape: x} (already centred within groups) beside the trend and the step in time. ``floor``: minimum
-    size (``rms_floor``: of the fitted pattern's RMS, else of its size)."""
+    {shape: x} (already centred within groups) beside the trend and the step in time. ``scale``: the minimum
+    size that matters and the reported unit (:class:`SeriesScale`)."""
     out: list[Mismatch] = []
     r = r - r.mean()
     n_par = 1
     for _ in range(MAX_COMPONENTS):
-        cands = []
-        gens = [("trend", _trend(t, r)), ("step", _step(t, r, MIN_SPLIT))]
-        for shape, x in columns.items():
-            xx = float(x @ x)
-            if xx > 0:
-                c = float(x @ r) / xx
-                gens.append((shape, (c * c * xx, c * x, {"size": c * (x.max() - x.min()) if shape != "plate"
-                                                         else c}, 1)))
-        for shape, c in gens:
-            if c is None:
-                continue
-            drop, fit, info, trials = c
-            sse_after = float(((r - fit) ** 2).sum())
-            extra = 2 if shape == "step" else 1
-            stat, p = _p_estimated(drop, sse_after, 1, r.size, n_par + extra, trials, n_tests)
-            cands.append((p, -drop, shape, fit, info, stat))
-        if not cands:
+        best = _strongest_pattern(t, r, columns, n_par, n_tests)
+        if best is None:
             break
-        p, _, shape, fit, info, stat = min(cands, key=lambda c: (c[0], c[1]))
-        p = min(1.0, p * len(cands))   # Bonferroni over the shapes tried
-        size_ok = (math.sqrt(float(np.mean(fit ** 2))) >= floor) if rms_floor else abs(info["size"]) >= floor
-        if not (p < ALPHA_FAMILY) or not size_ok:
+        p, shape, fit, info, stat = best
+        size = math.sqrt(float(np.mean(fit ** 2))) if scale.rms_floor else abs(info["size"])
+        if not (p < ALPHA_FAMILY) or not size >= scale.floor:
             break
-        out.append(Mismatch(series, shape, info["size"] * unit_scale, unit, float(t.min()), float(t.max()), p, stat,
-                            plate=plate, step_time_s=info.get("step_time_s"),
-                            step_between_s=info.get("step_between_s"), fit=fit))
+        out.append(Mismatch(series=series, shape=shape, size=info["size"] * scale.unit_scale, unit=scale.unit,
+                            t_from_s=float(t.min()), t_to_s=float(t.max()), p_value=p, statistic=stat, plate=plate,
+                            step_time_s=info.get("step_time_s"), step_between_s=info.get("step_between_s"), fit=fit))
         r = r - fit
         n_par += 2 if shape == "step" else 1
     return out
@@ -498,8 +528,8 @@ def level_mismatch(meas: Measured, model: FittedModel, sigma_f_m: float, n_tests
     """Trend or step of each plate's contact level in time (um; and the impact-time shift in ms)."""
     out = []
     for plate, (t, lvl, spd) in contact_levels(meas, model).items():
-        found = _series_pursuit("contact_level", t, lvl, {}, MIN_LEVEL_SIGMA * sigma_f_m, 1e6, "um", plate,
-                                n_tests, rms_floor=False)
+        scale = SeriesScale(floor=MIN_LEVEL_SIGMA * sigma_f_m, unit_scale=1e6, unit="um", rms_floor=False)
+        found = _series_pursuit("contact_level", t, lvl, {}, scale, plate, n_tests)
         for m in found:
             m.size_ms = abs(m.size) * 1e-6 / max(float(np.median(spd)), 1e-6) * 1e3
         out += found
@@ -567,7 +597,8 @@ def cor_patterns(t: np.ndarray, plates: np.ndarray, speed: np.ndarray, residual:
                 signs[p] = x.copy()
                 x[sel] -= x[sel].mean()
                 cols[f"parity_{p}"] = x
-    found = _series_pursuit("cor", t, r, cols, MIN_COR_RMS, 1.0, "cor", None, n_tests, rms_floor=True)
+    scale = SeriesScale(floor=MIN_COR_RMS, unit_scale=1.0, unit="cor", rms_floor=True)
+    found = _series_pursuit("cor", t, r, cols, scale, None, n_tests)
     for m in found:
         if m.shape.startswith("parity_"):
             m.shape, m.plate = "parity", m.shape[len("parity_"):]

@@ -48,7 +48,7 @@ POLISH_STEPS = 6
 DRIVE_SPAN = 2e-3            # the drive frequency is refined within +-0.2 % (as fit_structure_harmonics)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class StructureToneFit(StructureModelFit):
     """The structure model plus one tone: ``coefs`` = [B, a_k, b_k ..., a_T, b_T] (the tone's sine and
     cosine coefficients last, m), ``tone_hz`` its frequency; parameters [coefs..., f, f_T]."""
@@ -127,15 +127,16 @@ def fit_structure_tone(t_s: np.ndarray, y_m: np.ndarray, f0_hz: float, orders: S
     c, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ c
     n = t.size
-    fit = StructureToneFit(orders, f, c, float(r @ r), n, max(n - X.shape[1] - 2, 1), r, tone_hz=ft)
+    fit = StructureToneFit(orders=orders, frequency_hz=f, coefs=c, sse=float(r @ r), n_points=n,
+                           dof=max(n - X.shape[1] - 2, 1), residual=r, tone_hz=ft)
     return _polish(fit, t, y)
 
 
 def _with_parameters(fit: StructureToneFit, p: np.ndarray, t: np.ndarray, y: np.ndarray) -> StructureToneFit:
     X = _tone_design(t, float(p[-2]), fit.orders, float(p[-1]))
     r = y - X @ p[:-2]
-    return StructureToneFit(fit.orders, float(p[-2]), p[:-2].copy(), float(r @ r), fit.n_points, fit.dof, r,
-                            tone_hz=float(p[-1]))
+    return StructureToneFit(orders=fit.orders, frequency_hz=float(p[-2]), coefs=p[:-2].copy(), sse=float(r @ r),
+                            n_points=fit.n_points, dof=fit.dof, residual=r, tone_hz=float(p[-1]))
 
 
 def _polish(fit: StructureToneFit, t: np.ndarray, y: np.ndarray, steps: int = POLISH_STEPS) -> StructureToneFit:
@@ -151,7 +152,7 @@ def _polish(fit: StructureToneFit, t: np.ndarray, y: np.ndarray, steps: int = PO
     return fit
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ToneTest:
     """The test of one tone against the residual noise (:func:`tone_f_test`)."""
 
@@ -217,7 +218,8 @@ def tone_f_test(sse_without_m2: float, fit: StructureToneFit, frequencies_search
     m = max(int(frequencies_searched), 1)
     z = drop / sse0 if sse0 > 0 else 0.0
     fap = search_false_alarm(z, dof1 + 2, m, t_s)
-    return ToneTest(float(fit.tone_hz), F, (2, dof1), p, m, fap, alpha, bool(fap < alpha))
+    return ToneTest(frequency_hz=float(fit.tone_hz), f_statistic=F, dof=(2, dof1), p_value=p, frequencies_searched=m,
+                    p_family=fap, alpha=alpha, accepted=bool(fap < alpha))
 
 
 def frequencies_searched(t_s: np.ndarray, f_lo_hz: float, f_hi_hz: float) -> int:

@@ -154,9 +154,10 @@ def sindy_discrepancy(meas: Measured) -> dict:
     model = fit_model(meas, structure=s_fit, flights=f_fit)
     if kind != "none":
         c = im["coefs"]
-        model = FittedModel(model.structure, model.flights, model.impacts,
-                            type(model.cor)(kind, np.asarray(c), np.zeros((len(c), len(c))), 0.0, 0, 1,
-                                            np.zeros(0)), model.g_mps2)
+        cor = type(model.cor)(kind=kind, coefs=np.asarray(c), cov=np.zeros((len(c), len(c))), sse=0.0, n=0, dof=1,
+                              residual=np.zeros(0))
+        model = FittedModel(structure=model.structure, flights=model.flights, impacts=model.impacts, cor=cor,
+                            g_mps2=model.g_mps2)
         if kind in ("asymmetric_restitution", "plate_and_speed"):
             findings.append({"effect": "asymmetric_restitution", "parameters": {"cor_top": c[0], "cor_bottom": c[1]}})
         if kind in ("velocity_dependent_restitution", "plate_and_speed"):

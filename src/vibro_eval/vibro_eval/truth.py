@@ -103,9 +103,10 @@ def true_fitted_model(meas: Measured, truth: Mapping[str, Any]):
     else:
         kind, coefs = "none", [float(truth.get("baseline", {}).get("cor", BASELINE_COR))]
     c = np.asarray(coefs, dtype=float)
-    cor = CorModelFit(kind, c, np.zeros((c.size, c.size)), 0.0, 0, 1, np.zeros(0))
+    cor = CorModelFit(kind=kind, coefs=c, cov=np.zeros((c.size, c.size)), sse=0.0, n=0, dof=1, residual=np.zeros(0))
     structure = fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz, (1,))  # unused: motion fixed
-    return FittedModel(structure, flights, recompute_impacts(meas, flights, S), cor, g, fixed_motion=S)
+    return FittedModel(structure=structure, flights=flights, impacts=recompute_impacts(meas, flights, S), cor=cor,
+                       g_mps2=g, fixed_motion=S)
 
 
 def true_model_measured_run(meas: Measured, truth: Mapping[str, Any]):
