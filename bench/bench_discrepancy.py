@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from side_by_side import print_side_by_side  # noqa: E402
 
-from vibro_eval.prove import GOALS, format_summary, prove  # noqa: E402
+from vibro_eval.prove import GOALS, ProofCases, format_summary, prove  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -37,8 +37,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="/tmp/vibro_bench_discrepancy")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    res = prove(args.cases, args.seed, args.out, args.frames, sindy=True, progress=sys.stderr.isatty(),
-                pairs=args.pairs)
+    res = prove(ProofCases(cases=args.cases, seed=args.seed, frames=args.frames, pairs=args.pairs), args.out,
+                sindy=True, progress=sys.stderr.isatty())
     wall = time.perf_counter() - t0
     v, s = res["vibro"], res.get("sindy")
     print(format_summary(v, f"vibro ({args.cases} cases, {args.frames} frames)"))

@@ -130,14 +130,14 @@ def start_nodes(rec: Path, folder: Path, env: dict[str, str], accel: bool
     origin (ns) they were given: the camera must stamp its frames on it, as a driver on the lab's clock does."""
     from launch_like import launch_command
 
-    from vibro_bringup.graph_spec import launch_nodes, write_reference_frame
+    from vibro_bringup.graph_spec import LiveDaq, RunSetup, launch_nodes, write_reference_frame
 
     procs = {}
     # frame 0 as the tracker's reference file, as docs/live.md asks of a lab: the tracker is then built before
     # the camera starts and says "ready"
     reference = write_reference_frame(rec, folder / "reference_frame0.png") if WITH_REFERENCE else None
-    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC, reference_image=reference,
-                         accel_topic="vibro/accel" if accel else None, accel_rate_hz=ACCEL_RATE_HZ)
+    nodes = launch_nodes(rec, None, live=True, camera_topic=CAMERA_TOPIC, setup=RunSetup(reference_image=reference),
+                         daq=LiveDaq(topic="vibro/accel", rate_hz=ACCEL_RATE_HZ) if accel else None)
     origins = {int(n.parameters["time_origin_unix_ns"]) for n in nodes if "time_origin_unix_ns" in n.parameters}
     if len(origins) != 1:
         raise SystemExit(f"the live nodes were given {len(origins)} lab-clock origins: {sorted(origins)}")

@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from side_by_side import fmt, print_side_by_side, ratio  # noqa: E402
 
-from vibro_eval.prove import EVIDENCE, GOALS, format_family_table, format_summary, prove  # noqa: E402
+from vibro_eval.prove import EVIDENCE, GOALS, ProofCases, format_family_table, format_summary, prove  # noqa: E402
 from vibro_model.errors import RecordingError  # noqa: E402
 
 
@@ -54,8 +54,8 @@ def main(argv=None) -> int:
     draws = replace(EVIDENCE, magnitudes=args.magnitudes, controls=args.controls)
     t0 = time.perf_counter()
     try:
-        res = prove(seed=args.seed, out=args.out, frames=args.frames, sindy=True, progress=sys.stderr.isatty(),
-                    draws=draws, only=only)
+        res = prove(ProofCases(seed=args.seed, frames=args.frames, draws=draws, only=only), out=args.out,
+                    sindy=True, progress=sys.stderr.isatty())
     except RecordingError as exc:
         print(str(exc), file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import ctypes
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,19 +44,30 @@ def write_mraw12(images: np.ndarray, header_path: Path, fps: float) -> Path:
     return header_path.with_suffix(".cih")
 
 
-def write_cine(images: np.ndarray, path: Path, fps: float, real_bpp: int, first_image_no: int = 0,
-               trigger_unix_s: float = 0.0, *, time_stamps_s: np.ndarray | None = None,
+@dataclass(frozen=True, kw_only=True)
+class CineClock:
+    """The timing a CINE file records: the first image's number, the trigger's wall time (Unix s) and,
+    optionally, one time stamp per image (s after the trigger)."""
+
+    first_image_no: int = 0
+    trigger_unix_s: float = 0.0
+    time_stamps_s: np.ndarray | None = None
+
+
+def write_cine(images: np.ndarray, path: Path, fps: float, real_bpp: int, *, clock: CineClock = CineClock(),
                black_white: tuple[int, int] | None = None, cfa: int = 0) -> Path:
     """``images`` (n, h, w) uint8 (8 bit) or uint16 (16-bit storage, ``real_bpp`` significant bits) as CINE.
 
-    ``time_stamps_s``: one per image, seconds after ``trigger_unix_s``, written as the tagged "time only"
-    block (type 1002: a block
+    ``clock.time_stamps_s``: one per image, seconds after ``clock.trigger_unix_s``, written as the tagged
+    "time only" block (type 1002: a block
     header of size, type, reserved, then TIME64 = uint32 fractions of 2**-32 s, uint32 seconds) between
     the setup (whose ``Length`` says where it ends) and the frame offset table. ``black_white``: the
     setup's BlackLevel/WhiteLevel (display levels; default 0 and full scale). ``cfa``: the setup's colour
     filter array code (0: grayscale).
     """
     from pycine import cine
+
+    first_image_no, trigger_unix_s, time_stamps_s = clock.first_image_no, clock.trigger_unix_s, clock.time_stamps_s
 
     n, h, w = images.shape
     bits = 8 if images.dtype == np.uint8 else 16

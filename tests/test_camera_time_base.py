@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
-from lab_writers import write_cine  # noqa: E402
+from lab_writers import CineClock, write_cine  # noqa: E402
 
 from vibro_app.cli import main  # noqa: E402
 from vibro_io.camera_files import open_camera_file  # noqa: E402
@@ -103,8 +103,8 @@ def test_frames_from_stamps_sit_at_their_stored_times_and_a_dropped_image_is_a_g
     trigger, dt = 1.7e9, 1 / 2500.0
     slots = np.array([0, 1, 2, 4, 5, 6])  # the camera dropped the image of slot 3
     stamps = -0.01 + slots * dt + rng.normal(0, 2e-8, slots.size)  # s after the trigger; 20 ns clock jitter
-    path = write_cine(images, tmp_path / "take.cine", 25000.0, real_bpp=12, trigger_unix_s=trigger,
-                      time_stamps_s=stamps)
+    path = write_cine(images, tmp_path / "take.cine", 25000.0, real_bpp=12,
+                      clock=CineClock(trigger_unix_s=trigger, time_stamps_s=stamps))
     header = open_camera_file(path).header
     assert header.fps == pytest.approx(2500.0, rel=1e-4)  # stamps stored to 2**-32 s, jitter 20 ns over 400 us
     assert header.t0_s == pytest.approx(-0.01, abs=1e-6)

@@ -28,6 +28,7 @@ from vibro_eval.prove import (
     GOALS,
     INVENTED,
     Draws,
+    ProofCases,
     draw_cases,
     draw_evidence,
     prove,
@@ -42,7 +43,7 @@ CI_DRAWS = Draws(cor_scatter=(SCATTER, SCATTER), noise_gray=(1.0, 3.0), blur_sha
 @pytest.fixture(scope="module")
 def proof(tmp_path_factory):
     work = tmp_path_factory.mktemp("prove")
-    return prove(seed=3, out=work, frames=300, sindy=True, draws=CI_DRAWS), work
+    return prove(ProofCases(seed=3, frames=300, draws=CI_DRAWS), out=work, sindy=True), work
 
 
 def test_draws_cover_every_family_and_stay_in_range():

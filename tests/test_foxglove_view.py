@@ -259,11 +259,11 @@ def test_a_client_that_stops_reading_never_blocks_publishing() -> None:
 
 # ------------------------------------------------------------------------------------------- graph wiring
 def test_the_bridge_joins_the_node_table_as_nobodys_reader(tiny_recording: Path, tmp_path: Path) -> None:
-    from vibro_bringup.graph_spec import launch_nodes
+    from vibro_bringup.graph_spec import RunSetup, launch_nodes
 
     plain = {n.spec.name: n for n in launch_nodes(tiny_recording, tmp_path / "bag", reference_dir=tmp_path)}
     watched = {n.spec.name: n for n in launch_nodes(tiny_recording, tmp_path / "bag", reference_dir=tmp_path,
-                                                    foxglove={"port": 9001, "host": "127.0.0.1"})}
+                                                    setup=RunSetup(foxglove={"port": 9001, "host": "127.0.0.1"}))}
     assert "foxglove_bridge" not in plain and set(watched) == set(plain) | {"foxglove_bridge"}
     bridge = watched.pop("foxglove_bridge")
     assert bridge.parameters["port"] == 9001 and bridge.parameters["host"] == "127.0.0.1"
@@ -275,7 +275,7 @@ def test_the_bridge_joins_the_node_table_as_nobodys_reader(tiny_recording: Path,
 
     assert without_clock(watched) == without_clock(plain)
     live = {n.spec.name: n for n in launch_nodes(tiny_recording, None, live=True, camera_topic="/camera/image_raw",
-                                                 foxglove={"port": 9001, "host": "0.0.0.0"})}
+                                                 setup=RunSetup(foxglove={"port": 9001, "host": "0.0.0.0"}))}
     bridge = live["foxglove_bridge"]
     assert bridge.respawn and bridge.parameters["exit_when_done"] is False  # stays up with a live graph
     assert bridge.remappings == (("vibro/frames", "/camera/image_raw"),)  # watches the camera the tracker reads

@@ -19,7 +19,7 @@ import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
-from lab_writers import write_cine, write_mraw, write_mraw12, write_tdms  # noqa: E402
+from lab_writers import CineClock, write_cine, write_mraw, write_mraw12, write_tdms  # noqa: E402
 
 from vibro_app.cli import main  # noqa: E402
 from vibro_io.frames import FrameSequence, read_image  # noqa: E402
@@ -161,7 +161,8 @@ def test_header_fps_fills_rig_and_a_clash_is_refused(lab, tmp_path, capsys):
     no_fps = {"mm_per_px": cam["mm_per_px"]}  # fps, t0_s and start time from the CINE header
     rec = _variant(lab["png"], tmp_path / "fill", camera=no_fps)
     trigger = 1.7e9 + 0.125
-    write_cine(lab["images"][:3], rec / "video.cine", 2000.0, real_bpp=8, first_image_no=-40, trigger_unix_s=trigger)
+    write_cine(lab["images"][:3], rec / "video.cine", 2000.0, real_bpp=8,
+               clock=CineClock(first_image_no=-40, trigger_unix_s=trigger))
     rig = load_rig(rec / "rig.yaml")
     assert rig.camera.fps == 2000.0
     assert rig.camera.t0_s == pytest.approx(-40 / 2000.0)

@@ -29,7 +29,7 @@ def recording(reference_run: dict) -> Path:
 
 
 def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, tmp_path: Path) -> None:
-    from vibro_bringup.graph_spec import launch_nodes
+    from vibro_bringup.graph_spec import LiveDaq, launch_nodes
 
     scripts = console_scripts()
     nodes = launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path)
@@ -54,7 +54,7 @@ def test_every_launch_node_is_a_console_script_of_its_package(recording: Path, t
     assert recorded == set(live) | {"recorder"}
     # live accelerometers from a DAQ driver: the detector joins, no file source, both readers check the blocks
     daq = {n.spec.name: n for n in launch_nodes(recording, None, live=True, camera_topic="/camera/image_raw",
-                                                accel_topic="/daq/accel", accel_rate_hz=50_000.0)}
+                                                daq=LiveDaq(topic="/daq/accel", rate_hz=50_000.0))}
     assert set(daq) == {"dic_tracker", "trajectory_fitter", "impact_detector"}
     for name in ("trajectory_fitter", "impact_detector"):
         assert daq[name].parameters["live_accel"] is True and daq[name].parameters["accel_rate_hz"] == 50_000.0
@@ -71,7 +71,7 @@ def test_reader_topics_pair_every_declared_reader_with_topics_the_node_publishes
                                                                                  ) -> None:
     import yaml
 
-    from vibro_bringup.graph_spec import ALL_SPECS, default_params_file, launch_nodes
+    from vibro_bringup.graph_spec import ALL_SPECS, RunSetup, default_params_file, launch_nodes
 
     for node in launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path):
         if node.spec.role == "sink":
@@ -90,7 +90,7 @@ def test_reader_topics_pair_every_declared_reader_with_topics_the_node_publishes
     base[key]["ros__parameters"]["exclude_topics"] = ["vibro/frames"]
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(base))
     source = next(n for n in launch_nodes(recording, tmp_path / "bag", reference_dir=tmp_path,
-                                          base=tmp_path / "p.yaml") if n.spec.name == "frame_source")
+                                          setup=RunSetup(base=tmp_path / "p.yaml")) if n.spec.name == "frame_source")
     assert "recorder=vibro/status" in source.parameters["reader_topics"]
     assert "recorder=vibro/frames" not in source.parameters["reader_topics"]
 

@@ -212,17 +212,17 @@ def test_hertz_replay_keeps_no_dense_contact_solutions() -> None:
     the plate during it)."""
     from vibro_model.kinematics import StructureKinematics
     from vibro_sim.forces import NoForce
-    from vibro_sim.hertz_model import ContactSegment, simulate_hertz
+    from vibro_sim.hertz_model import ContactSegment, HertzSolver
     from vibro_sim.params import BallCavity
     from vibro_sim.restitution import Constant
 
     S, cav = StructureKinematics(1.4e-3, 22.0, 0.3, 0.0), BallCavity()
-    simulate_hertz(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.1, delta_a="calibrated")
+    calibrated = HertzSolver(delta_a="calibrated")
+    calibrated.simulate(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=0.1)
     tracemalloc.start()
     try:
         base = tracemalloc.get_traced_memory()[0]
-        res = simulate_hertz(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=1.0,
-                             delta_a="calibrated")
+        res = calibrated.simulate(S, cav, Constant(0.7), NoForce(), y0_m=0.0, v0_mps=0.0, t0_s=0.0, t_end_s=1.0)
         kept = tracemalloc.get_traced_memory()[0] - base
     finally:
         tracemalloc.stop()

@@ -120,62 +120,96 @@ def check_ros2_run(package: str, executable: str, args: list[str]) -> None:
 def check_command(command: str) -> str:
     """Check one README command; returns how it was checked."""
     words = shlex.split(command)
-    head = words[0]
-    if head == "./vibro":
-        check_vibro(words[1:])
-        return "vibro --help"
-    if head == "make":
-        for target in words[1:]:
-            check_make(target)
-        return "make -n"
-    if head == "source":  # the lab PC's ROS, and colcon's install/ after `colcon build`
-        assert words[1] in ("/opt/ros/jazzy/setup.bash", "install/setup.bash"), command
-        return "lab PC only"
-    if head == "cd":
-        assert words[1] == "vibro", command  # the clone's folder
-        return "clone folder"
-    if head == "rosdep":
-        assert words[1] == "install" and "--from-paths" in words, command
-        paths = words[words.index("--from-paths") + 1]
-        assert list((ROOT / paths).glob("*/package.xml")), f"{paths}: no package.xml"
-        return "package.xml files present"
-    if head == "pip":
-        pins = requirement_pins()
-        for w in words[2:]:
-            if "==" in w:
-                name, version = w.split("==")
-                assert pins.get(name.lower().replace("_", "-")) == version, f"{w}: requirements pin {pins.get(name)}"
-        return "pins = requirements"
-    if head == "colcon":
-        res = run([str(ROOT / ".venv" / "bin" / "colcon"), *words[1:2], "--help"])
-        assert res.returncode == 0, res.stderr
-        for w in words[2:]:
-            assert w.split("=")[0] in res.stdout, f"colcon {words[1]}: no option {w}"
-        return "colcon --help"
+    check = LINE_CHECKS.get(words[0])
+    if check is not None:
+        return check(command, words)
     if re.fullmatch(r"[A-Z_]+=\S+", command):  # PARAMS=install/<pkg>/share/<pkg>/config/<file>
-        value = command.split("=", 1)[1]
-        m = re.fullmatch(r"install/(\w+)/share/\1/config/([\w.-]+)", value)
-        assert m, command
-        assert (ROOT / "src" / m[1] / "config" / m[2]).is_file()
-        assert 'share/' + m[1] + '/config", glob("config/*.yaml")' in (ROOT / "src" / m[1] / "setup.py").read_text()
-        return "installed config file"
-    if head == "ros2" and words[1] == "run":
+        return _check_config_assignment(command)
+    raise AssertionError(f"a README command this test does not know how to check: {command!r}")
+
+
+def _check_vibro_line(command: str, words: list[str]) -> str:
+    check_vibro(words[1:])
+    return "vibro --help"
+
+
+def _check_make_line(command: str, words: list[str]) -> str:
+    for target in words[1:]:
+        check_make(target)
+    return "make -n"
+
+
+def _check_source_line(command: str, words: list[str]) -> str:
+    """The lab PC's ROS, and colcon's install/ after `colcon build`."""
+    assert words[1] in ("/opt/ros/jazzy/setup.bash", "install/setup.bash"), command
+    return "lab PC only"
+
+
+def _check_cd_line(command: str, words: list[str]) -> str:
+    assert words[1] == "vibro", command  # the clone's folder
+    return "clone folder"
+
+
+def _check_rosdep_line(command: str, words: list[str]) -> str:
+    assert words[1] == "install" and "--from-paths" in words, command
+    paths = words[words.index("--from-paths") + 1]
+    assert list((ROOT / paths).glob("*/package.xml")), f"{paths}: no package.xml"
+    return "package.xml files present"
+
+
+def _check_pip_line(command: str, words: list[str]) -> str:
+    pins = requirement_pins()
+    for w in words[2:]:
+        if "==" in w:
+            name, version = w.split("==")
+            assert pins.get(name.lower().replace("_", "-")) == version, f"{w}: requirements pin {pins.get(name)}"
+    return "pins = requirements"
+
+
+def _check_colcon_line(command: str, words: list[str]) -> str:
+    res = run([str(ROOT / ".venv" / "bin" / "colcon"), *words[1:2], "--help"])
+    assert res.returncode == 0, res.stderr
+    for w in words[2:]:
+        assert w.split("=")[0] in res.stdout, f"colcon {words[1]}: no option {w}"
+    return "colcon --help"
+
+
+def _check_config_assignment(command: str) -> str:
+    """PARAMS=install/<pkg>/share/<pkg>/config/<file>: a config file the package installs."""
+    value = command.split("=", 1)[1]
+    m = re.fullmatch(r"install/(\w+)/share/\1/config/([\w.-]+)", value)
+    assert m, command
+    assert (ROOT / "src" / m[1] / "config" / m[2]).is_file()
+    assert 'share/' + m[1] + '/config", glob("config/*.yaml")' in (ROOT / "src" / m[1] / "setup.py").read_text()
+    return "installed config file"
+
+
+def _check_ros2_line(command: str, words: list[str]) -> str:
+    if words[1] == "run":
         check_ros2_run(words[2], words[3], words[4:])
         return "node --help"
-    if head == "ros2" and words[1] == "launch":
+    if words[1] == "launch":
         launch_file = ROOT / "src" / words[2] / "launch" / words[3]
         assert launch_file.is_file(), launch_file
         declared = launch_arguments(launch_file)
         for w in words[4:]:
             assert w.split(":=")[0] in declared, f"{w}: not an argument of {words[3]} ({sorted(declared)})"
         return "launch arguments declared"
-    if head == "ros2" and words[1:3] == ["topic", "echo"]:
+    if words[1:3] == ["topic", "echo"]:
         check_topic_echo(words[3], words[4:])
         return "topic and QoS = topics.py"
-    if head == "scripts/py":
-        check_bench(words)
-        return "bench --help"
     raise AssertionError(f"a README command this test does not know how to check: {command!r}")
+
+
+def _check_bench_line(command: str, words: list[str]) -> str:
+    check_bench(words)
+    return "bench --help"
+
+
+#: how each README command is checked, by its first word
+LINE_CHECKS = {"./vibro": _check_vibro_line, "make": _check_make_line, "source": _check_source_line,
+               "cd": _check_cd_line, "rosdep": _check_rosdep_line, "pip": _check_pip_line,
+               "colcon": _check_colcon_line, "ros2": _check_ros2_line, "scripts/py": _check_bench_line}
 
 
 def check_topic_echo(topic: str, options: list[str]) -> None:

@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 
 from vibro_app.findings_text import finding_line
-from vibro_bringup.graph_runner import GraphSummary, execute_graph, new_bag_path, prepare_environment
-from vibro_bringup.graph_spec import graph_nodes, write_reference_frame
+from vibro_bringup.graph_runner import GraphRun, GraphSummary, execute_graph, new_bag_path, prepare_environment
+from vibro_bringup.graph_spec import RunSetup, graph_nodes, write_reference_frame
 from vibro_bringup.isolation import namespace_argument
 from vibro_fit.coverage import frame_coverage
 from vibro_foxglove.view import DEFAULT_PORT
@@ -125,12 +125,24 @@ def _print_cor_table(s: GraphSummary) -> None:
 
 
 def print_summary(s: GraphSummary, bag: Path) -> None:
+    """Print what the monitor saw of a run (frames, CORs, deviations, findings, problems) and its ``bag``."""
+    if s.identity:
+        print(s.identity)
+    announced = _print_frame_counts(s)
+    _print_accel_coverage(s, announced)
+    _print_results(s)
+    _print_problems(s)
+    if s.foxglove_url:
+        print(f"foxglove: {s.foxglove_url} (served while the graph ran)")
+    print(f"bag: {bag}")
+
+
+def _print_frame_counts(s: GraphSummary) -> int:
+    """Print frames in / tracked / lost, the reasons and the restarts; returns the frames announced."""
     # the tracker's own end-of-stream count is authoritative (one DicFrame per frame slot);
     # the monitor's view of vibro/dic only adds the reasons. A restarted tracker only counts what it
     # answered itself, so after a restart the union of the frame indices seen on vibro/dic counts.
     restarted = s.restarts.get("dic_tracker", 0)
-    if s.identity:
-        print(s.identity)
     published, lost = (s.dic_frames, s.dic_lost) if restarted else s.counts.get("dic", (s.dic_frames, s.dic_lost))
     tracked = published - lost
     announced = s.frames_announced
@@ -149,13 +161,21 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
         print(f"  lost x{never}: no DIC result ever published{why}")
     for node, n in sorted(s.restarts.items()):
         print(f"restarted: {node} x{n}")
-    if s.accel_span_s and s.camera is not None and announced > 0:
+    return announced
 
+
+def _print_accel_coverage(s: GraphSummary, announced: int) -> None:
+    """Print the accelerometers' coverage note of the ``announced`` frames, if it has one."""
+    if s.accel_span_s and s.camera is not None and announced > 0:
         cam = s.camera
         cov = frame_coverage([cam.frame_time_s(0), cam.frame_time_s(announced - 1)], s.accel_span_s,
                              sorted(s.accel_impacts_s.values()), None, 1.0 / cam.fps)
         if cov.message():
             print(f"note: {cov.message()}")
+
+
+def _print_results(s: GraphSummary) -> None:
+    """Print the COR table (or why it is withheld), the deviation D per model and the findings."""
     withheld = s.counts.get("impacts", (0, 0))[1] if s.finished.get("impacts") and not s.final_impacts else 0
     if withheld:  # the fitter refused the run (its cross-checks): its streamed previews are not results
         print(f"COR table withheld: trajectory_fitter published no final impact ({withheld} withheld; its refusal "
@@ -164,23 +184,22 @@ def print_summary(s: GraphSummary, bag: Path) -> None:
         _print_cor_table(s)
     for model, d in sorted(s.deviations.items()):
         print(f"D {model:12s} {100 * d:6.2f} %")
-    if s.findings:
-
-        for f in s.findings:
-            sigmas = dict(zip(f.parameter_names, f.parameter_std))
-            print(finding_line(f.effect, dict(zip(f.parameter_names, f.parameter_values)), sigmas,
-                               f.deviation_before, f.deviation_after) + f"; {f.where}")
-    else:
+    if not s.findings:
         print("findings: none published")
+    for f in s.findings:
+        sigmas = dict(zip(f.parameter_names, f.parameter_std))
+        print(finding_line(f.effect, dict(zip(f.parameter_names, f.parameter_values)), sigmas,
+                           f.deviation_before, f.deviation_after) + f"; {f.where}")
+
+
+def _print_problems(s: GraphSummary) -> None:
+    """Print what the bag recorded per topic, the topics with messages missing and the nodes that failed."""
     if s.recorded:
         print("recorded: " + ", ".join(f"{t} {got}/{n}" for t, (n, got) in sorted(s.recorded.items())))
     for problem in s.count_problems:
         print(f"MISSING: {problem}")
     for failure in s.failures:
         print(f"FAILED: {failure.describe()}")
-    if s.foxglove_url:
-        print(f"foxglove: {s.foxglove_url} (served while the graph ran)")
-    print(f"bag: {bag}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -192,11 +211,12 @@ def run(args: argparse.Namespace) -> int:
     from vibro_ros.node_support import HISTORY_DEPTH
 
     t0 = time.monotonic()
-    ok, summary, log_dir = execute_graph(
-        recording.path, bag, sources, with_accel=recording.has_accel, params_base=args.params,
+    graph_run = GraphRun(
         timeout_s=args.timeout_s, env=env, respawn=args.respawn,
         reference=lambda folder: write_reference_frame(recording.path, folder / "reference_frame0.png"),
-        namespace=args.namespace, history_depth=max(HISTORY_DEPTH, len(recording.frames) + 1), foxglove=foxglove)
+        namespace=args.namespace, history_depth=max(HISTORY_DEPTH, len(recording.frames) + 1))
+    ok, summary, log_dir = execute_graph(recording.path, bag, sources, with_accel=recording.has_accel, run=graph_run,
+                                         setup=RunSetup(base=args.params, foxglove=foxglove))
     print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     return 0 if ok else 1

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from vibro_app.bag_results import document_from_bag
 from vibro_app.cmd_graph import add_run_options, foxglove_parameters, print_summary
-from vibro_bringup.graph_runner import bag_outputs, execute_graph, new_bag_path, prepare_environment
-from vibro_bringup.graph_spec import BAG_SOURCE, bag_time_origin_ns, frames_topic_of_bag, reference_from_bag
+from vibro_bringup.graph_runner import GraphRun, bag_outputs, execute_graph, new_bag_path, prepare_environment
+from vibro_bringup.graph_spec import BAG_SOURCE, RunSetup, bag_time_origin_ns, frames_topic_of_bag, reference_from_bag
 from vibro_io.outputs import atomic_write_text, prepare_output_dir
 from vibro_io.results_file import write_results
 from vibro_model.errors import RecordingError
@@ -58,15 +58,14 @@ def run(args: argparse.Namespace) -> int:
     env = prepare_environment(args.domain_id)
     with_accel = "accelerometers:" in rig_text
     t0 = time.monotonic()
-    ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, params_base=args.params,
-                                         timeout_s=args.timeout_s, env=env,
-                                         extra_params={"bag_source": {"bag": str(source_bag.resolve()),
-                                                                      "frames_topic": frames_topic}},
-                                         respawn=args.respawn, namespace=args.namespace,
-                                         time_origin_ns=time_origin_ns, foxglove=foxglove,
-                                         reference=lambda folder: reference_from_bag(
-                                             source_bag, folder / "reference_frame0.png", out / "rig.yaml",
-                                             frames_topic))
+    graph_run = GraphRun(timeout_s=args.timeout_s, env=env,
+                         extra_params={"bag_source": {"bag": str(source_bag.resolve()), "frames_topic": frames_topic}},
+                         respawn=args.respawn, namespace=args.namespace,
+                         reference=lambda folder: reference_from_bag(
+                             source_bag, folder / "reference_frame0.png", out / "rig.yaml", frames_topic))
+    ok, summary, log_dir = execute_graph(out, bag, [BAG_SOURCE], with_accel=with_accel, run=graph_run,
+                                         setup=RunSetup(base=args.params, time_origin_ns=time_origin_ns,
+                                                        foxglove=foxglove))
     print(f"replay: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
     if ok:

@@ -32,7 +32,7 @@ from launch_ros.actions import Node
 
 from vibro_bringup import launch_arguments as args
 from vibro_bringup.exit_policy import END_RUN, RESTART, exit_verdict
-from vibro_bringup.graph_spec import launch_nodes
+from vibro_bringup.graph_spec import LiveDaq, RunSetup, launch_nodes
 
 
 class RunEnded(RuntimeError):
@@ -67,12 +67,16 @@ def _nodes(context, *unused, **kwargs):
                 if args.flag("foxglove", value("foxglove")) else None)
     namespace = args.namespace(value("namespace"))
     respawn_max = int(value("respawn_max"))
-    nodes = launch_nodes(value("recording"), args.bag_directory(value("bag"), value("record")), live=live,
-                         camera_topic=value("camera_topic"), base=args.params_file(value("params_file")),
-                         respawn_delay_s=float(value("respawn_delay")),
-                         foxglove=foxglove, reference_image=args.reference_image(value("reference_image")),
-                         time_origin_ns=args.time_origin_ns(value("time_origin_unix_ns")),
-                         accel_topic=value("accel_topic") or None, accel_rate_hz=float(value("accel_rate_hz")))
+    # the launch arguments are read (and refused) in this order
+    recording, bag = value("recording"), args.bag_directory(value("bag"), value("record"))
+    camera_topic, base = value("camera_topic"), args.params_file(value("params_file"))
+    respawn_delay_s = float(value("respawn_delay"))
+    setup = RunSetup(base=base, foxglove=foxglove, reference_image=args.reference_image(value("reference_image")),
+                     time_origin_ns=args.time_origin_ns(value("time_origin_unix_ns")))
+    accel_topic, accel_rate_hz = value("accel_topic") or None, float(value("accel_rate_hz"))
+    nodes = launch_nodes(recording, bag, live=live, camera_topic=camera_topic, setup=setup,
+                         respawn_delay_s=respawn_delay_s,
+                         daq=LiveDaq(topic=accel_topic, rate_hz=accel_rate_hz) if accel_topic else None)
     actions = []
     for n in nodes:
         actions += _start(n, namespace, 0, respawn_max, live)

@@ -19,15 +19,17 @@ import os
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
 from vibro_bringup.graph_spec import (
     ALL_SPECS,
+    DEFAULT_RUN_SETUP,
     MONITOR,
     VIEWER,
     NodeSpec,
+    RunSetup,
     foxglove_layout_file,
     graph_nodes,
     node_parameters,
@@ -162,88 +164,151 @@ class Monitor:
             rclpy.shutdown()
 
 
-def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, params_base: str | None,
-                  timeout_s: float, env: dict[str, str], extra_params: dict | None = None, respawn: int = 2,
-                  reference: Callable[[Path], Path | None] | None = None, namespace: str | None = None,
-                  history_depth: int | None = None, time_origin_ns: int | None = None,
-                  foxglove: dict | None = None) -> tuple[bool, GraphSummary, Path]:
+@dataclass(frozen=True, kw_only=True)
+class GraphRun:
+    """How one run of the graph is started and watched (:func:`execute_graph`).
+
+    Attributes
+    ----------
+    timeout_s : float
+        Wall-clock limit of the run (s): what still runs then is stopped.
+    env : dict
+        The nodes' environment (:func:`prepare_environment`).
+    respawn : int
+        Restarts allowed per node.
+    namespace : str or None
+        The run's namespace (None: ``/vibro_<run id>``).
+    history_depth : int or None
+        Items the latched histories of vibro/dic and vibro/accel keep (None: the nodes' own).
+    extra_params : dict or None
+        ``{node: {parameter: value}}`` set over the run's parameters.
+    reference : callable or None
+        ``reference(folder)`` writes frame 0 as an image file into the run's temporary folder for dic_tracker's
+        ``reference_image`` and returns its path (None: the run setup's ``reference_image``).
+    """
+
+    timeout_s: float
+    env: dict[str, str]
+    respawn: int = 2
+    namespace: str | None = None
+    history_depth: int | None = None
+    extra_params: dict | None = None
+    reference: Callable[[Path], Path | None] | None = None
+
+
+def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_accel: bool, run: GraphRun,
+                  setup: RunSetup = DEFAULT_RUN_SETUP) -> tuple[bool, GraphSummary, Path]:
     """Run the graph (processing nodes, the recorder to ``bag``, ``sources``) until every node has exited by
-    itself, a node fails, or ``timeout_s``; stop what still runs; check the bag's counts.
+    itself, a node fails, or ``run.timeout_s``; stop what still runs; check the bag's counts.
 
     ``rig_dir`` holds the rig.yaml (and, for the file sources, the recording). Returns
-    (ok, summary, log folder). ``reference(folder)`` writes frame 0 as an image file into the
-    run's temporary folder for dic_tracker's ``reference_image``; ``respawn``: restarts allowed per node.
-    The run gets a new run id and lives in ``namespace`` (default ``/vibro_<run id>``); ``history_depth``:
-    items the latched histories of vibro/dic and vibro/accel keep (default: the nodes' own).
-    ``time_origin_ns``: every node's ``time_origin_unix_ns``, the lab clock of the header stamps (default:
-    rig.yaml's ``camera.start_time_unix_s``, else frame 0 = the wall clock now; graph_spec.run_time_origin).
-    ``foxglove``: the Foxglove bridge's parameters (host, port) to run it too; its URL is printed at the start.
+    (ok, summary, log folder). ``run`` (:class:`GraphRun`): the limit, environment, restarts, namespace,
+    history depth, extra parameters and the reference frame's writer. The run gets a new run id and lives in
+    ``run.namespace`` (default ``/vibro_<run id>``). ``setup`` (:class:`vibro_bringup.graph_spec.RunSetup`):
+    the parameters file (``base``); ``time_origin_ns``: every node's ``time_origin_unix_ns``, the lab clock
+    of the header stamps (default: rig.yaml's ``camera.start_time_unix_s``, else frame 0 = the wall clock now;
+    graph_spec.run_time_origin); ``foxglove``: the Foxglove bridge's parameters (host, port) to run it too;
+    its URL is printed at the start.
     """
-    identity = new_run_identity(namespace)
-    replay = any(s.name == "bag_source" for s in sources)
-    nodes = [s for s in graph_nodes(bag=True, with_accel=with_accel, replay=replay, foxglove=foxglove is not None)
-             if s.role != "source" or s in sources]
-    missing = [s.name for s in nodes if not _importable(s.module)]
-    if missing:
-        print(f"vibro graph: nodes not available in this checkout: {', '.join(missing)}", file=sys.stderr)
-        nodes = [s for s in nodes if s.name not in missing]
+    identity = new_run_identity(run.namespace)
+    nodes = _run_nodes(sources, with_accel, foxglove=setup.foxglove is not None)
     summary = GraphSummary(nodes=[s.name for s in nodes])
     log_dir = bag.parent / f"{bag.name}.logs"
     log_dir.mkdir(exist_ok=True)
-    ok = False
-    if time_origin_ns is None:
-        time_origin_ns = run_time_origin(rig_dir / "rig.yaml")
+    if setup.time_origin_ns is None:
+        setup = replace(setup, time_origin_ns=run_time_origin(rig_dir / "rig.yaml"))
     with tempfile.TemporaryDirectory(prefix="vibro-graph-") as tmp:
-        ref_png = reference(Path(tmp)) if reference is not None else None
-        params = node_parameters(rig_dir, bag, params_base, with_accel, reference_image=ref_png, nodes=nodes,
-                                 extra_readers=[MONITOR], time_origin_ns=time_origin_ns, foxglove=foxglove)
-        for spec in nodes:  # one run: its id, and histories a restarted node can recover from
-            params.setdefault(spec.name, {})["run_id"] = identity.run_id
-            if history_depth is not None:
-                params[spec.name]["history_depth"] = int(history_depth)
-        for node, values in (extra_params or {}).items():
-            params.setdefault(node, {}).update(values)
+        ref_png = run.reference(Path(tmp)) if run.reference is not None else setup.reference_image
+        setup = replace(setup, reference_image=ref_png)
+        params = _run_parameters(rig_dir, bag, setup, with_accel, nodes, identity.run_id, run)
         params_file = write_params_file(params, Path(tmp) / "params.yaml")
-        summary.identity = identity.describe(env)
-        print(summary.identity, flush=True)
-        print(f"stamps: {describe_origin(time_origin_ns)}", flush=True)
-        if foxglove is not None and any(s.name == "foxglove_bridge" for s in nodes):
-
-            summary.foxglove_url = websocket_url(foxglove["host"], foxglove["port"])
-            print(f"foxglove: {summary.foxglove_url} (open it in the Foxglove app: Open connection > Foxglove "
-                  f"WebSocket; layout: {foxglove_layout_file()})", flush=True)
+        _announce(summary, identity.describe(run.env), setup, nodes)
 
         def command(spec: NodeSpec) -> list[str]:
             return [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
                     str(params_file), "-r", f"__node:={spec.name}", "-r", f"__ns:={identity.namespace}"]
 
-        supervisor = Supervisor(nodes, command, log_dir, env, respawn)
-        monitor = None
-        try:
-            monitor = Monitor(summary, rig_dir, identity)
-            deadline = time.monotonic() + timeout_s
-            supervisor.start_all([VIEWER])
-            failures = _wait_for_viewers([s for s in nodes if s.role == VIEWER], supervisor, monitor, deadline)
-            if not failures:
-                supervisor.start_all([r for r in START_ORDER if r != VIEWER])
-            while time.monotonic() < deadline:
-                monitor.spin(0.05)
-                failures = failures or supervisor.poll()
-                if failures:
-                    for f in failures:
-                        print(f"vibro graph: {f.describe()}", file=sys.stderr, flush=True)
-                    break
-                if supervisor.all_finished():
-                    ok = True
-                    break
-            else:
-                print(f"vibro graph: timeout after {timeout_s:g} s; still running: "
-                      f"{', '.join(supervisor.running())}", file=sys.stderr)
-        finally:
-            supervisor.stop()
-            if monitor is not None:
-                monitor.spin(0.2)
-                monitor.close()
+        supervisor = Supervisor(nodes, command, log_dir, run.env, run.respawn)
+        ok = _supervise(supervisor, summary, rig_dir, identity, run.timeout_s)
+    return _conclude(summary, supervisor, bag, ok), summary, log_dir
+
+
+def _run_nodes(sources: list[NodeSpec], with_accel: bool, *, foxglove: bool) -> list[NodeSpec]:
+    """The run's nodes: the node table's for a bag (with the accelerometers, the Foxglove bridge), its sources
+    ``sources``; a node whose module this checkout lacks is left out, saying so."""
+    replay = any(s.name == "bag_source" for s in sources)
+    nodes = [s for s in graph_nodes(bag=True, with_accel=with_accel, replay=replay, foxglove=foxglove)
+             if s.role != "source" or s in sources]
+    missing = [s.name for s in nodes if not _importable(s.module)]
+    if missing:
+        print(f"vibro graph: nodes not available in this checkout: {', '.join(missing)}", file=sys.stderr)
+        nodes = [s for s in nodes if s.name not in missing]
+    return nodes
+
+
+def _run_parameters(rig_dir: Path, bag: Path, setup: RunSetup, with_accel: bool, nodes: list[NodeSpec],
+                    run_id: str, run: GraphRun) -> dict[str, dict]:
+    """Every node's parameters for this run (:func:`vibro_bringup.graph_spec.node_parameters`, the monitor as an
+    extra reader), with the run id, ``run.history_depth`` and ``run.extra_params`` over them."""
+    params = node_parameters(rig_dir, bag, setup, with_accel, nodes=nodes, extra_readers=[MONITOR])
+    for spec in nodes:  # one run: its id, and histories a restarted node can recover from
+        params.setdefault(spec.name, {})["run_id"] = run_id
+        if run.history_depth is not None:
+            params[spec.name]["history_depth"] = int(run.history_depth)
+    for node, values in (run.extra_params or {}).items():
+        params.setdefault(node, {}).update(values)
+    return params
+
+
+def _announce(summary: GraphSummary, identity_line: str, setup: RunSetup, nodes: list[NodeSpec]) -> None:
+    """Print (and keep in ``summary``) the run's identity, its stamps' clock and the Foxglove bridge's URL."""
+    summary.identity = identity_line
+    print(summary.identity, flush=True)
+    print(f"stamps: {describe_origin(setup.time_origin_ns)}", flush=True)
+    foxglove = setup.foxglove
+    if foxglove is not None and any(s.name == "foxglove_bridge" for s in nodes):
+        summary.foxglove_url = websocket_url(foxglove["host"], foxglove["port"])
+        print(f"foxglove: {summary.foxglove_url} (open it in the Foxglove app: Open connection > Foxglove "
+              f"WebSocket; layout: {foxglove_layout_file()})", flush=True)
+
+
+def _supervise(supervisor: Supervisor, summary: GraphSummary, rig_dir: Path, identity: RunIdentity,
+               timeout_s: float) -> bool:
+    """Start the nodes (viewers first) and watch them until all have finished (True), one fails or
+    ``timeout_s`` (s) passes (False, said on stderr); then stop what still runs."""
+    ok = False
+    monitor = None
+    try:
+        monitor = Monitor(summary, rig_dir, identity)
+        deadline = time.monotonic() + timeout_s
+        supervisor.start_all([VIEWER])
+        viewers = [s for s in supervisor.specs.values() if s.role == VIEWER]
+        failures = _wait_for_viewers(viewers, supervisor, monitor, deadline)
+        if not failures:
+            supervisor.start_all([r for r in START_ORDER if r != VIEWER])
+        while time.monotonic() < deadline:
+            monitor.spin(0.05)
+            failures = failures or supervisor.poll()
+            if failures:
+                for f in failures:
+                    print(f"vibro graph: {f.describe()}", file=sys.stderr, flush=True)
+                break
+            if supervisor.all_finished():
+                ok = True
+                break
+        else:
+            print(f"vibro graph: timeout after {timeout_s:g} s; still running: "
+                  f"{', '.join(supervisor.running())}", file=sys.stderr)
+    finally:
+        supervisor.stop()
+        if monitor is not None:
+            monitor.spin(0.2)
+            monitor.close()
+    return ok
+
+
+def _conclude(summary: GraphSummary, supervisor: Supervisor, bag: Path, ok: bool) -> bool:
+    """Put the restarts, failures and the bag's count problems into ``summary``; the run's verdict."""
     summary.restarts = dict(supervisor.restarts)
     summary.failures = list(supervisor.failures)
     summary.count_problems = check_recorded_counts(bag, summary)
@@ -251,7 +316,7 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
         waiting = sorted(supervisor.specs.keys() - supervisor.finished - {f.name for f in supervisor.failures})
         print("vibro graph: the graph did not finish; nodes not finished: "
               f"{', '.join(waiting) or 'none'}; the bag holds what was recorded", file=sys.stderr)
-    return ok and not summary.count_problems, summary, log_dir
+    return ok and not summary.count_problems
 
 
 #: s a viewer may take to subscribe before the run starts without it on its first frames (it then says so)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -300,18 +300,44 @@ def reference_from_bag(bag: str | Path, out_png: str | Path, rig_yaml: str | Pat
     return None
 
 
-def node_parameters(recording: str | Path, bag: str | Path | None, base: str | Path | None = None,
-                    with_accel: bool = True, reference_image: str | Path | None = None, *,
-                    nodes: Iterable[NodeSpec] | None = None, extra_readers: Iterable[str] = (),
-                    live: bool = False, time_origin_ns: int | None = None,
-                    foxglove: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
-    """Parameters per node for one run: the defaults file, then the recording and bag paths,
-    every node's ``time_origin_unix_ns`` (``time_origin_ns``, default :func:`run_time_origin`),
-    ``reference_image`` (frame 0 as an image file) for dic_tracker when given, and from the node table
+@dataclass(frozen=True, kw_only=True)
+class RunSetup:
+    """What every node of one run is given beside the node table's wiring.
+
+    Attributes
+    ----------
+    base : str or Path or None
+        The parameters YAML (``/**/<node>: ros__parameters: ...``); None: the installed config/vibro.yaml.
+    reference_image : str or Path or None
+        dic_tracker's ``reference_image`` (frame 0 as an image file); None: none given.
+    time_origin_ns : int or None
+        Every node's ``time_origin_unix_ns``: the lab clock of the header stamps (wall time of data time 0,
+        ns); None: :func:`run_time_origin` of the recording's rig.yaml.
+    foxglove : dict or None
+        The Foxglove bridge's parameters (e.g. ``{"port": 8765}``) to run it too; None: no bridge.
+    """
+
+    base: str | Path | None = None
+    reference_image: str | Path | None = None
+    time_origin_ns: int | None = None
+    foxglove: dict[str, Any] | None = None
+
+
+DEFAULT_RUN_SETUP = RunSetup()
+
+
+def node_parameters(recording: str | Path, bag: str | Path | None, setup: RunSetup = DEFAULT_RUN_SETUP,
+                    with_accel: bool = True, *, nodes: Iterable[NodeSpec] | None = None,
+                    extra_readers: Iterable[str] = (), live: bool = False) -> dict[str, dict[str, Any]]:
+    """Parameters per node for one run: the defaults file (``setup.base``), then the recording and bag paths,
+    every node's ``time_origin_unix_ns`` (``setup.time_origin_ns``, default :func:`run_time_origin`),
+    ``setup.reference_image`` (frame 0 as an image file) for dic_tracker when given, and from the node table
     each node's declared ``readers`` (plus ``extra_readers``, e.g. vibro graph's monitor), the recorder's
     ``writers`` and ``exit_when_done`` (not ``live``). ``nodes``: the run's nodes (default
-    :func:`graph_nodes` for ``bag`` and ``with_accel``, with the Foxglove bridge when ``foxglove`` is given:
-    its parameters, e.g. ``{"port": 8765}``)."""
+    :func:`graph_nodes` for ``bag`` and ``with_accel``, with the Foxglove bridge when ``setup.foxglove`` is
+    given: its parameters, e.g. ``{"port": 8765}``)."""
+    base, reference_image = setup.base, setup.reference_image
+    time_origin_ns, foxglove = setup.time_origin_ns, setup.foxglove
     base = Path(base or default_params_file())
     data = yaml.safe_load(base.read_text(encoding="utf-8")) or {}
     params = {node_name_of_key(key, base): dict(block.get("ros__parameters", {})) for key, block in data.items()}
@@ -377,26 +403,39 @@ LIVE_YIELDING_NODES = ("trajectory_fitter", "impact_detector")
 LIVE_NICE = 5
 
 
+@dataclass(frozen=True, kw_only=True)
+class LiveDaq:
+    """A DAQ driver's live accelerometer stream (docs/live.md, *Live accelerometers*).
+
+    Attributes
+    ----------
+    topic : str
+        Its AccelBlock topic.
+    rate_hz : float
+        The DAQ's sample rate (Hz): a block at another is refused; 0 = the first block's.
+    """
+
+    topic: str
+    rate_hz: float = 0.0
+
+
 def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = False,
-                 camera_topic: str = T.FRAMES.name, base: str | Path | None = None,
+                 camera_topic: str = T.FRAMES.name, setup: RunSetup = DEFAULT_RUN_SETUP,
                  reference_dir: str | Path | None = None, respawn_delay_s: float = 2.0,
-                 foxglove: dict[str, Any] | None = None, reference_image: str | Path | None = None,
-                 time_origin_ns: int | None = None, accel_topic: str | None = None,
-                 accel_rate_hz: float = 0.0) -> list[LaunchNode]:
+                 daq: LiveDaq | None = None) -> list[LaunchNode]:
     """What launch/vibro.launch.py starts: the same nodes, parameters and declared readers as ``vibro graph``
     (without its monitor). File mode: dic_tracker's reference is frame 0 written to ``reference_dir``
     (default: a new temporary folder) and every node exits once its stream has ended. What a node's exit
     means (restart after ``respawn_delay_s``, or end the run) is :func:`vibro_bringup.exit_policy.exit_verdict`'s
     call in the launch file's exit handlers, not launch's own ``respawn=True`` (which would restart a node
     that finished, or one that refused its input).
-    ``foxglove``: the Foxglove bridge's parameters (e.g. ``{"port": 8765}``) to start it too (None: not started);
-    from a recording it exits once the other nodes have gone, live it stays up and respawns.
-    ``reference_image``: dic_tracker's reference (an image of frame 0) instead of the one written from the
-    recording (live: instead of the first image received); ``time_origin_ns``: the lab-clock origin of the
-    stamps (wall time of data time 0, ns; live: the camera's frame 0 minus t0_s) instead of
-    :func:`run_time_origin`. ``accel_topic`` (live): a DAQ driver's AccelBlock topic (docs/live.md, *Live
-    accelerometers*), read by impact_detector and trajectory_fitter with ``live_accel`` (``accel_rate_hz``: the
-    DAQ's rate, a block at another is refused; 0 = the first block's)."""
+    ``setup`` (:class:`RunSetup`): the parameters file (``base``); ``foxglove``: the Foxglove bridge's parameters
+    (e.g. ``{"port": 8765}``) to start it too (None: not started); from a recording it exits once the other nodes
+    have gone, live it stays up and respawns. ``reference_image``: dic_tracker's reference (an image of frame 0)
+    instead of the one written from the recording (live: instead of the first image received);
+    ``time_origin_ns``: the lab-clock origin of the stamps (wall time of data time 0, ns; live: the camera's
+    frame 0 minus t0_s) instead of :func:`run_time_origin`. ``daq`` (live): a DAQ driver's AccelBlock stream
+    (:class:`LiveDaq`), read by impact_detector and trajectory_fitter with ``live_accel``."""
     from vibro_io.recording import open_recording
 
     rec = open_recording(recording)
@@ -404,17 +443,17 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
     # live, the recording only gives the rig: its accelerometer files are an old run's, which next to a live
     # camera would put that run's impacts into this one's flights; a live graph takes accelerometers only from a
     # DAQ driver (accel_topic)
-    live_accel = bool(live and accel_topic)
+    live_accel = bool(live and daq is not None and daq.topic)
     with_accel = live_accel or (rec.has_accel and not live)
-    nodes = graph_nodes(bag=bag is not None, with_accel=with_accel, live=live, foxglove=foxglove is not None)
-    reference = Path(reference_image) if reference_image is not None else None
+    nodes = graph_nodes(bag=bag is not None, with_accel=with_accel, live=live, foxglove=setup.foxglove is not None)
+    reference = Path(setup.reference_image) if setup.reference_image is not None else None
     if reference is None and not live:
         import tempfile
 
         folder = Path(reference_dir) if reference_dir is not None else Path(tempfile.mkdtemp(prefix="vibro-launch-"))
         reference = write_reference_frame(rec.path, folder / "reference_frame0.png")
-    params = node_parameters(rec.path, bag, base, with_accel, reference, nodes=nodes, live=live, foxglove=foxglove,
-                             time_origin_ns=time_origin_ns)
+    params = node_parameters(rec.path, bag, replace(setup, reference_image=reference), with_accel, nodes=nodes,
+                             live=live)
     params["dic_tracker"]["live_camera"] = live
     if live:  # the buffered readers give way to the tracker, whose best-effort images are lost while it waits
         for name in LIVE_YIELDING_NODES:
@@ -424,9 +463,9 @@ def launch_nodes(recording: str | Path, bag: str | Path | None, *, live: bool = 
     if live_accel:
         for name in ("impact_detector", "trajectory_fitter"):
             params[name]["live_accel"] = True
-            params[name]["accel_rate_hz"] = float(accel_rate_hz)
-        if accel_topic != T.ACCEL.name:
-            remap += ((T.ACCEL.name, accel_topic),)
+            params[name]["accel_rate_hz"] = float(daq.rate_hz)
+        if daq.topic != T.ACCEL.name:
+            remap += ((T.ACCEL.name, daq.topic),)
     restarted = ("processing", VIEWER)
     return [LaunchNode(spec, params.get(spec.name, {}), remap, live and spec.role in restarted,
                        not live and spec.role in restarted, respawn_delay_s) for spec in nodes]

@@ -116,10 +116,11 @@ def _window_sums(g: np.ndarray, oy: int, ox: int, h: int, w: int, proj: np.ndarr
     return s_g, f_g, hx, hy, gg
 
 
+# Flat argument list on purpose: a numba nopython kernel takes arrays and scalars, not records.
 @njit(cache=True, nogil=True, fastmath=_REORDER)
-def refine_box(image: np.ndarray, corner_x: float, corner_y: float, ux0: float, uy0: float, proj: np.ndarray,
-               df: float, du_fx: float, du_fy: float, cubic: np.ndarray, max_move_px: float, max_iter: int,
-               tol_px: float, g: np.ndarray, tmp: np.ndarray) -> tuple[int, float, float, float]:
+def refine_box(image: np.ndarray, corner_x: float, corner_y: float, ux0: float, uy0: float,  # noqa: PLR0913
+               proj: np.ndarray, df: float, du_fx: float, du_fy: float, cubic: np.ndarray, max_move_px: float,
+               max_iter: int, tol_px: float, g: np.ndarray, tmp: np.ndarray) -> tuple[int, float, float, float]:
     """IC-GN of one block (top-left ``corner_*`` px in the reference, size ``g.shape``) from (ux0, uy0) px.
 
     ``proj`` (4, h*w), ``df``, ``du_f*``: the block's constants (:class:`vibro_dic.icgn.IcgnBlocks`).
@@ -186,9 +187,11 @@ def _median(values: np.ndarray) -> float:
     return 0.5 * (s[(k - 1) // 2] + s[k // 2])
 
 
+# Flat arguments and one hot loop body on purpose: a numba nopython kernel takes arrays and scalars, not records.
 @njit(cache=True, nogil=True)
-def combine_points(u: np.ndarray, zncc: np.ndarray, converged: np.ndarray, zncc_min: float, outlier_k: float,
-                   outlier_floor_px: float, arms: np.ndarray, min_arm_spread_px2: float, valid: np.ndarray
+def combine_points(u: np.ndarray, zncc: np.ndarray, converged: np.ndarray,  # noqa: PLR0913, C901
+                   zncc_min: float, outlier_k: float, outlier_floor_px: float, arms: np.ndarray,
+                   min_arm_spread_px2: float, valid: np.ndarray
                    ) -> tuple[int, float, float, float, float, float, float, float, float]:
     """A mesh's displacement from its points ``u`` (N, 2) px: ``valid`` (N,) is set to the points kept
     (converged, ZNCC >= ``zncc_min``, finite, within max(``outlier_k`` robust sigmas, ``outlier_floor_px``)

@@ -580,10 +580,13 @@ def mesh_sigma_px(grad_xy: tuple[np.ndarray, np.ndarray], corners: np.ndarray, s
     return out
 
 
-def assess_body(name: str, reference: np.ndarray, roi: Roi, subset_px: int, step_px: int, noise: NoiseEstimate,
-                *, max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX, min_valid_fraction: float = 0.5,
+def assess_body(name: str, reference: np.ndarray, dic: DicConfig, noise: NoiseEstimate, *,
+                max_subset_sigma_px: float = DEFAULT_MAX_SUBSET_SIGMA_PX, min_valid_fraction: float = 0.5,
                 grad_xy: tuple[np.ndarray, np.ndarray] | None = None) -> BodyTexture:
-    """Texture of the mesh of ``roi`` in ``reference`` (2-D, gray levels) against ``noise``."""
+    """Texture of body ``name``'s mesh (rig.yaml ``dic``: its ``{name}_roi``, subset size and mesh step, px) in
+    ``reference`` (2-D, gray levels) against ``noise``."""
+    roi: Roi = getattr(dic, f"{name}_roi")
+    subset_px, step_px = dic.subset_px, dic.mesh_step_px
     points = mesh_points(roi, subset_px, step_px)
     n = len(points)
     gx, gy = grad_xy if grad_xy is not None else gradients(reference)
@@ -622,8 +625,7 @@ def assess_texture(reference: np.ndarray, dic: DicConfig, noise: NoiseEstimate, 
                            "is not a positive number predicts a DIC error of 0 px (or none), which is impossible; "
                            "give integer (8- or 16-bit) frames, whose quantization bounds the noise from below")
     grad = gradients(np.asarray(reference))
-    bodies = {name: assess_body(name, reference, getattr(dic, f"{name}_roi"), dic.subset_px, dic.mesh_step_px,
-                                noise, max_subset_sigma_px=max_subset_sigma_px,
+    bodies = {name: assess_body(name, reference, dic, noise, max_subset_sigma_px=max_subset_sigma_px,
                                 min_valid_fraction=min_valid_fraction, grad_xy=grad)
               for name in _mesh_bodies(dic)}
     if dic.ball_method == "outline":  # a plain ball: its outline's accuracy instead (vibro_dic.outline)

@@ -65,7 +65,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Iterable, Iterator
 
 import numpy as np
@@ -124,26 +124,62 @@ class MeshResult:
     rot_std_rad: float = math.nan  # its 1-sigma noise (rad); NaN when fewer than 2 points or lost
 
 
+@dataclass(frozen=True, kw_only=True)
+class TrackingConfig:
+    """How a mesh is tracked (module doc): the options :class:`DicTracker` takes by keyword.
+
+    Attributes
+    ----------
+    method : str
+        Sub-pixel method: "icgn" (default) or "parabolic" (baseline).
+    zncc_min : float
+        Lowest ZNCC of a search peak and of a kept point, in (0, 1).
+    min_valid_fraction : float
+        Fraction of a mesh's points that must be kept, in (0, 1]; fewer: the mesh is lost.
+    search_px : int
+        Half-width (px) of the first integer-search window around the prediction.
+    taps : int
+        Interpolation kernel taps (:data:`vibro_dic.interp.KERNEL_TAPS`).
+    tol_px : float
+        IC-GN convergence step of a subset (px).
+    outlier_k : float
+        Outlier limit in robust standard deviations (1.4826 x MAD) from the median displacement.
+    outlier_floor_px : float
+        Smallest outlier limit (px).
+    """
+
+    method: str = "icgn"
+    zncc_min: float = 0.6
+    min_valid_fraction: float = 0.5
+    search_px: int = 4
+    taps: int = 6
+    tol_px: float = 0.02
+    outlier_k: float = 3.0
+    outlier_floor_px: float = 0.1
+
+
+DEFAULT_TRACKING = TrackingConfig()
+
+
 class MeshTracker:
     """Tracks one rigid mesh of subsets against the reference image (see module doc)."""
 
     def __init__(self, name: str, reference: np.ndarray, roi: Roi, subset_px: int, step_px: int, *,
-                 method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
-                 search_px: int = 4, taps: int = 6, tol_px: float = 0.02, outlier_k: float = 3.0,
-                 outlier_floor_px: float = 0.1, rotation_corrected: bool = False,
+                 tracking: TrackingConfig = DEFAULT_TRACKING, rotation_corrected: bool = False,
                  drive_rad_per_frame: float | None = None):
+        method, taps, tol_px = tracking.method, tracking.taps, tracking.tol_px
         self.name = name
         self.drive_rad_per_frame = drive_rad_per_frame  # sinusoidal prediction (step 1) when given
         self.rotation_corrected = rotation_corrected
         self.method = method
         self.subset_px = subset_px
-        self.zncc_min = zncc_min
-        self.search_px = search_px
-        self.outlier_k = outlier_k
-        self.outlier_floor_px = outlier_floor_px
+        self.zncc_min = tracking.zncc_min
+        self.search_px = tracking.search_px
+        self.outlier_k = tracking.outlier_k
+        self.outlier_floor_px = tracking.outlier_floor_px
         self.points = mesh_points(roi, subset_px, step_px)  # (N, 2) centres
         n = len(self.points)
-        self.min_valid = max(1, math.ceil(min_valid_fraction * n - 1e-9))
+        self.min_valid = max(1, math.ceil(tracking.min_valid_fraction * n - 1e-9))
         h = subset_px // 2
         self.corners = self.points - h  # top-left pixels of the subsets
         x0, y0 = self.corners.min(axis=0)
@@ -409,6 +445,45 @@ def compile_kernels() -> float:
     return time.perf_counter() - t0
 
 
+def _check_tracker_inputs(ref: np.ndarray, mm_per_px: float, tracking: TrackingConfig, reseed_every: int,
+                          drive: float | None) -> None:
+    """Raise for an unusable tracker option or reference image (the :class:`DicTracker` arguments)."""
+    if tracking.method not in METHODS:
+        raise RecordingError(f"DIC method must be one of {', '.join(METHODS)}, got {tracking.method!r}")
+    if ref.ndim != 2 or ref.size == 0:
+        raise FrameError(f"reference image must be a 2-D grayscale array, got shape {ref.shape}")
+    if not (math.isfinite(mm_per_px) and mm_per_px > 0):
+        raise RecordingError(f"camera.mm_per_px must be a positive number, got {mm_per_px!r}")
+    if not 0.0 < tracking.zncc_min < 1.0:
+        raise RecordingError(f"zncc_min must be in (0, 1), got {tracking.zncc_min!r}")
+    if not 0.0 < tracking.min_valid_fraction <= 1.0:
+        raise RecordingError(f"min_valid_fraction must be in (0, 1], got {tracking.min_valid_fraction!r}")
+    if tracking.taps not in KERNEL_TAPS:
+        raise RecordingError(f"interpolation taps must be one of {KERNEL_TAPS}, got {tracking.taps!r}")
+    if tracking.search_px < 1:
+        raise RecordingError(f"search_px must be >= 1, got {tracking.search_px!r}")
+    if isinstance(reseed_every, bool) or not isinstance(reseed_every, int) or reseed_every < 1:
+        raise RecordingError(f"reseed_every must be a positive number of frames, got {reseed_every!r}")
+    if drive is not None and not (isinstance(drive, (int, float)) and 0.0 < drive < 0.5):
+        raise RecordingError(f"structure_drive_cycles_per_frame (excitation frequency / camera fps) must be in "
+                             f"(0, 0.5), below the Nyquist limit; got {drive!r}")
+
+
+def _check_rois_fit(shape: tuple[int, ...], dic_config: DicConfig, taps: int) -> None:
+    """Raise unless both ROIs (px) lie in the reference image of ``shape`` with the interpolation's margin."""
+    rows, cols = shape
+    before, after = patch_margin(taps)
+    for name in ("ball_roi", "structure_roi"):
+        roi: Roi = getattr(dic_config, name)
+        if roi.x < 0 or roi.y < 0 or roi.x + roi.w > cols or roi.y + roi.h > rows:
+            raise RecordingError(f"dic.{name} {roi.as_list()} (x, y, w, h) goes outside the "
+                                 f"{cols}x{rows} px reference image")
+        if roi.x < before or roi.y < before or roi.x + roi.w > cols - after or roi.y + roi.h > rows - after:
+            raise RecordingError(f"dic.{name} {roi.as_list()} (x, y, w, h) must keep {before} px from the "
+                                 f"left/top and {after} px from the right/bottom image border (sub-pixel "
+                                 f"interpolation support); the image is {cols}x{rows} px")
+
+
 class DicTracker:
     """Streaming DIC tracker of ball and structure against ``reference_image`` (frame 0).
 
@@ -417,62 +492,34 @@ class DicTracker:
     always a DIC mesh.
 
     ``dic_config`` gives subset size, mesh step and the two ROIs (px, frame 0);
-    ``mm_per_px`` converts to mm. ``method``: "icgn" (default) or "parabolic" (baseline).
+    ``mm_per_px`` converts to mm. ``tracking`` (:class:`TrackingConfig`) sets how the meshes are tracked; its
+    fields may also be given by keyword (``method="parabolic"``, ``zncc_min=0.7``, ...), overriding it.
     Call :meth:`track` once per frame, in order; it keeps the motion prediction within a segment of
     ``reseed_every`` frame indices (module doc, step 6).
     """
 
     def __init__(self, reference_image: np.ndarray, dic_config: DicConfig, mm_per_px: float, *,
-                 method: str = "icgn", zncc_min: float = 0.6, min_valid_fraction: float = 0.5,
-                 search_px: int = 4, taps: int = 6, outlier_k: float = 3.0, outlier_floor_px: float = 0.1,
-                 reseed_every: int = RESEED_EVERY_FRAMES, structure_drive_cycles_per_frame: float | None = None):
-        if method not in METHODS:
-            raise RecordingError(f"DIC method must be one of {', '.join(METHODS)}, got {method!r}")
+                 tracking: TrackingConfig = DEFAULT_TRACKING, reseed_every: int = RESEED_EVERY_FRAMES,
+                 structure_drive_cycles_per_frame: float | None = None, **tracking_options):
+        tracking = replace(tracking, **tracking_options) if tracking_options else tracking
         ref = np.asarray(reference_image)
-        if ref.ndim != 2 or ref.size == 0:
-            raise FrameError(f"reference image must be a 2-D grayscale array, got shape {ref.shape}")
-        if not (math.isfinite(mm_per_px) and mm_per_px > 0):
-            raise RecordingError(f"camera.mm_per_px must be a positive number, got {mm_per_px!r}")
-        if not 0.0 < zncc_min < 1.0:
-            raise RecordingError(f"zncc_min must be in (0, 1), got {zncc_min!r}")
-        if not 0.0 < min_valid_fraction <= 1.0:
-            raise RecordingError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction!r}")
-        if taps not in KERNEL_TAPS:
-            raise RecordingError(f"interpolation taps must be one of {KERNEL_TAPS}, got {taps!r}")
-        if search_px < 1:
-            raise RecordingError(f"search_px must be >= 1, got {search_px!r}")
-        if isinstance(reseed_every, bool) or not isinstance(reseed_every, int) or reseed_every < 1:
-            raise RecordingError(f"reseed_every must be a positive number of frames, got {reseed_every!r}")
         drive = structure_drive_cycles_per_frame
-        if drive is not None and not (isinstance(drive, (int, float)) and 0.0 < drive < 0.5):
-            raise RecordingError(f"structure_drive_cycles_per_frame (excitation frequency / camera fps) must be in "
-                                 f"(0, 0.5), below the Nyquist limit; got {drive!r}")
+        _check_tracker_inputs(ref, mm_per_px, tracking, reseed_every, drive)
+        _check_rois_fit(ref.shape, dic_config, tracking.taps)
         self.reseed_every = reseed_every
         self._segment: int | None = None  # segment (index // reseed_every) of the last frame tracked
-        rows, cols = ref.shape
-        before, after = patch_margin(taps)
-        for name in ("ball_roi", "structure_roi"):
-            roi: Roi = getattr(dic_config, name)
-            if roi.x < 0 or roi.y < 0 or roi.x + roi.w > cols or roi.y + roi.h > rows:
-                raise RecordingError(f"dic.{name} {roi.as_list()} (x, y, w, h) goes outside the "
-                                     f"{cols}x{rows} px reference image")
-            if roi.x < before or roi.y < before or roi.x + roi.w > cols - after or roi.y + roi.h > rows - after:
-                raise RecordingError(f"dic.{name} {roi.as_list()} (x, y, w, h) must keep {before} px from the "
-                                     f"left/top and {after} px from the right/bottom image border (sub-pixel "
-                                     f"interpolation support); the image is {cols}x{rows} px")
         self.shape = ref.shape
-        self.method = method
+        self.method = tracking.method
         self.mm_per_px = float(mm_per_px)
         ref32 = ref.astype(np.float32)
-        kw = dict(method=method, zncc_min=zncc_min, min_valid_fraction=min_valid_fraction, search_px=search_px,
-                  taps=taps, outlier_k=outlier_k, outlier_floor_px=outlier_floor_px)
         if dic_config.ball_method == "outline":  # a plain ball by its outline (vibro_dic.outline)
-            self.ball = OutlineTracker("ball", ref32, dic_config.ball_roi, min_valid_fraction=min_valid_fraction)
+            self.ball = OutlineTracker("ball", ref32, dic_config.ball_roi,
+                                       min_valid_fraction=tracking.min_valid_fraction)
         else:
             self.ball = MeshTracker("ball", ref32, dic_config.ball_roi, dic_config.subset_px,
-                                    dic_config.mesh_step_px, rotation_corrected=True, **kw)
+                                    dic_config.mesh_step_px, tracking=tracking, rotation_corrected=True)
         self.structure = MeshTracker("structure", ref32, dic_config.structure_roi, dic_config.subset_px,
-                                     dic_config.mesh_step_px, **kw,
+                                     dic_config.mesh_step_px, tracking=tracking,
                                      drive_rad_per_frame=None if drive is None else 2.0 * math.pi * drive)
         self.last_results: dict[str, MeshResult] = {}
 

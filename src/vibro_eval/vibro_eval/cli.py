@@ -103,7 +103,7 @@ def run_harder(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .prove import format_summary, prove
+    from .prove import ProofCases, format_summary, prove
 
     if args.harder:
         return run_harder(args)
@@ -113,8 +113,9 @@ def run(args: argparse.Namespace) -> int:
         raise RecordingError(f"--pairs must be in [0, 1], got {args.pairs}")
     draws = draws_of(args)
     frames = 500 if args.frames is None else args.frames
-    res = prove(8 if args.cases is None else args.cases, args.seed, args.out, frames, sindy=not args.no_sindy,
-                progress=not args.no_progress and sys.stderr.isatty(), pairs=args.pairs, draws=draws)
+    selection = ProofCases(cases=8 if args.cases is None else args.cases, seed=args.seed, frames=frames,
+                           pairs=args.pairs, draws=draws)
+    res = prove(selection, args.out, sindy=not args.no_sindy, progress=not args.no_progress and sys.stderr.isatty())
     print(format_summary(res["vibro"], "vibro discrepancy analysis"))
     if "sindy" in res:
         print(format_summary(res["sindy"], f"PySINDy {res['settings']['pysindy']} on the same data"))

@@ -244,10 +244,50 @@ def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth
     lost = {k for a, c in runs for k in range(a, a + c)}
     imps = truth["impacts"]
     tt = np.array([float(i["t"]) for i in imps])
-    plates = np.array([i["plate"] for i in imps])
     found = [x for x in doc.get("impacts", []) if x.get("t") is not None]
-    gap_windows = [_gap_bounds(a, c, fps) for a, c in runs]
-    # match: an in-gap impact by its sigma, any other within one frame interval; each truth impact once
+    matched, invented = _match_impacts(found, tt, np.array([i["plate"] for i in imps]), fps)
+    meas = measurable_impacts(truth, lost, fps)
+    hit = [j for j in meas if j in matched]
+    verdicts = (doc.get("identification") or {}).get("gaps") or []
+    gaps = [_score_gap(window, run, _TruthImpacts(imps, tt), found, matched, verdicts)
+            for window, run in zip([_gap_bounds(a, c, fps) for a, c in runs], runs)]
+    errs = [abs(float(x["cor"]) - float(imps[j]["cor"])) for j, x in matched.items() if x.get("cor") is not None]
+    disc = doc.get("discrepancy") or {}
+    names = [f["effect"] for f in disc.get("findings", [])]
+    improved, devs, shape_fit = _improvement(spec, disc, truth, found, names)
+    recall = len(hit) / len(meas) if meas else None
+    mean_err = float(np.mean(errs)) if errs else None
+    criteria = {
+        "recall": recall is not None and recall >= HARDER_GOALS["recall"],
+        "invented": len(invented) <= HARDER_GOALS["invented"],
+        "gaps": all(g["outcome"] in ("found", "counted", "clean") for g in gaps),
+        "cor": mean_err is not None and mean_err <= HARDER_GOALS["cor_error_mean"],
+        "findings": _findings_ok(spec, names),
+        "improved": improved,          # None: a control
+    }
+    return {"measurable": len(meas), "recalled": len(hit), "recall": recall,
+            "missed_t": [float(tt[j]) for j in meas if j not in matched], "invented_t": invented,
+            "gaps": gaps, "cor_error_mean": mean_err, "cor_error_max": float(max(errs)) if errs else None,
+            "cor_n": len(errs), "found": names, "regime": (doc.get("regime") or {}).get("name"),
+            "contacts": len(doc.get("contacts") or []), "truth_contacts": len(truth.get("contacts") or []),
+            "finding_deviations": devs, "shape_fit": shape_fit,
+            "deviation": {"baseline": disc.get("baseline_deviation"), "final": disc.get("final_deviation")},
+            "criteria": criteria, "pass": all(v is not False for v in criteria.values())}
+
+
+@dataclass(frozen=True)
+class _TruthImpacts:
+    """The truth's impacts (``records``) and their times (``t``, s)."""
+
+    records: list[dict]
+    t: np.ndarray
+
+
+def _match_impacts(found: list[dict], tt: np.ndarray, plates: np.ndarray, fps: float
+                   ) -> tuple[dict[int, dict], list[float]]:
+    """Pair the reported impacts ``found`` with the truth's (times ``tt`` s, ``plates``): an in-gap impact by its
+    sigma, any other within one frame interval (1 / ``fps`` s); each truth impact once. Returns ({truth index:
+    reported impact}, times (s) of the reported impacts matching none)."""
     matched: dict[int, dict] = {}
     invented = []
     for x in found:
@@ -262,84 +302,83 @@ def score_harder(spec: HarderSpec, runs: list[tuple[int, int]], doc: dict, truth
             matched[j] = x
         else:
             invented.append(t)
-    meas = measurable_impacts(truth, lost, fps)
-    hit = [j for j in meas if j in matched]
-    # gaps
-    verdicts = (doc.get("identification") or {}).get("gaps") or []
-    gaps = []
-    for (lo, hi), (a, c) in zip(gap_windows, runs):
-        inside = [j for j in range(len(imps)) if lo < tt[j] < hi]
-        in_gap = [x for x in found if x.get("in_gap") and lo < float(x["t"]) < hi]
-        over = [v for v in verdicts if v["t_start"] < hi and v["t_end"] > lo]
-        row: dict[str, Any] = {"first_frame": a, "lost_frames": c, "true_impacts": len(inside),
-                               "true_t": [float(tt[j]) for j in inside], "reported_in_gap": len(in_gap)}
-        if inside:
-            ok_found = False
-            if len(inside) == 1 and len(in_gap) == 1 and matched.get(inside[0]) is in_gap[0]:
-                x, j = in_gap[0], inside[0]
-                err = None if x.get("cor") is None else abs(float(x["cor"]) - float(imps[j]["cor"]))
-                cor_ok = (err is not None and x.get("cor_std") and err <= GAP_SIGMAS * float(x["cor_std"])
-                          and err <= HARDER_GOALS["cor_error_mean"])
-                ok_found = bool(cor_ok)
-                row.update(t_error_s=float(x["t"]) - float(tt[j]), t_std_s=x.get("t_std"),
-                           cor_error=None if x.get("cor") is None else float(x["cor"]) - float(imps[j]["cor"]),
-                           cor_std=x.get("cor_std"))
-            if ok_found:
-                row["outcome"] = "found"
-            else:
-                undet = [v for v in over if not v.get("determined")]
-                counted = any(v["may_hide_min"] <= sum(v["t_start"] < t < v["t_end"] for t in tt) <= v["may_hide_max"]
-                              for v in undet) and not in_gap
-                row["outcome"] = "counted" if counted else "lost"
-                if undet:
-                    row["may_hide"] = [[v["may_hide_min"], v["may_hide_max"]] for v in undet]
-        else:
-            admits_zero = all(v.get("determined") is False and v["may_hide_min"] == 0 for v in over)
-            row["outcome"] = "clean" if not in_gap and admits_zero else "miscounted"
-            if over:
-                row["may_hide"] = [[v["may_hide_min"], v["may_hide_max"]] for v in over]
-        gaps.append(row)
-    errs = [abs(float(x["cor"]) - float(imps[j]["cor"])) for j, x in matched.items() if x.get("cor") is not None]
-    disc = doc.get("discrepancy") or {}
-    names = [f["effect"] for f in disc.get("findings", [])]
-    cat = _catalogue(names)
-    true_cat = [e for e in spec.effects if e in EFFECTS]
-    if spec.family in CONTROLS:
-        findings_ok = not cat
-    elif spec.family in INVENTED_HARDER:
-        findings_ok = bool(names) and names[0] == "unexplained"
+    return matched, invented
+
+
+def _score_gap(window: tuple[float, float], run: tuple[int, int], truth: _TruthImpacts, found: list[dict],
+               matched: dict[int, dict], verdicts: list[dict]) -> dict[str, Any]:
+    """The row of one gap (frames ``run`` = (first, count) lost, times ``window`` s): what it hid, what was
+    reported in it, and its outcome against the identification's gap ``verdicts``."""
+    lo, hi = window
+    tt = truth.t
+    inside = [j for j in range(len(truth.records)) if lo < tt[j] < hi]
+    in_gap = [x for x in found if x.get("in_gap") and lo < float(x["t"]) < hi]
+    over = [v for v in verdicts if v["t_start"] < hi and v["t_end"] > lo]
+    row: dict[str, Any] = {"first_frame": run[0], "lost_frames": run[1], "true_impacts": len(inside),
+                           "true_t": [float(tt[j]) for j in inside], "reported_in_gap": len(in_gap)}
+    if inside:
+        row.update(_occupied_gap_outcome(inside, in_gap, over, matched, truth))
     else:
-        findings_ok = sorted(cat) == sorted(true_cat)
-    improved = None
-    devs = []
-    shape_fit = None
+        admits_zero = all(v.get("determined") is False and v["may_hide_min"] == 0 for v in over)
+        row["outcome"] = "clean" if not in_gap and admits_zero else "miscounted"
+        if over:
+            row["may_hide"] = [[v["may_hide_min"], v["may_hide_max"]] for v in over]
+    return row
+
+
+def _occupied_gap_outcome(inside: list[int], in_gap: list[dict], over: list[dict], matched: dict[int, dict],
+                          truth: _TruthImpacts) -> dict[str, Any]:
+    """The outcome of a gap that hid the truth impacts ``inside``: "found" (its one impact reported in it with a
+    COR within its sigma), "counted" (an undetermined verdict ``over`` it admits the count) or "lost"."""
+    out: dict[str, Any] = {}
+    ok_found = False
+    if len(inside) == 1 and len(in_gap) == 1 and matched.get(inside[0]) is in_gap[0]:
+        x, truth_x = in_gap[0], truth.records[inside[0]]
+        err = None if x.get("cor") is None else abs(float(x["cor"]) - float(truth_x["cor"]))
+        cor_ok = (err is not None and x.get("cor_std") and err <= GAP_SIGMAS * float(x["cor_std"])
+                  and err <= HARDER_GOALS["cor_error_mean"])
+        ok_found = bool(cor_ok)
+        out.update(t_error_s=float(x["t"]) - float(truth.t[inside[0]]), t_std_s=x.get("t_std"),
+                   cor_error=None if x.get("cor") is None else float(x["cor"]) - float(truth_x["cor"]),
+                   cor_std=x.get("cor_std"))
+    if ok_found:
+        out["outcome"] = "found"
+        return out
+    undet = [v for v in over if not v.get("determined")]
+    counted = any(v["may_hide_min"] <= sum(v["t_start"] < t < v["t_end"] for t in truth.t) <= v["may_hide_max"]
+                  for v in undet) and not in_gap
+    out["outcome"] = "counted" if counted else "lost"
+    if undet:
+        out["may_hide"] = [[v["may_hide_min"], v["may_hide_max"]] for v in undet]
+    return out
+
+
+def _findings_ok(spec: HarderSpec, names: list[str]) -> bool:
+    """The findings (effect ``names``, best first) are right: none for a control, "unexplained" first for an
+    invented effect, else exactly the case's catalogue effects."""
+    cat = _catalogue(names)
+    if spec.family in CONTROLS:
+        return not cat
+    if spec.family in INVENTED_HARDER:
+        return bool(names) and names[0] == "unexplained"
+    return sorted(cat) == sorted(e for e in spec.effects if e in EFFECTS)
+
+
+def _improvement(spec: HarderSpec, disc: dict, truth: dict, found: list[dict], names: list[str]
+                 ) -> tuple[bool | None, list, dict | None]:
+    """(whether the correct findings lowered the deviation (None: a control), the findings' deviations, the
+    unexplained finding's shape against the truth (invented effects only, else None))."""
+    true_cat = [e for e in spec.effects if e in EFFECTS]
     if true_cat:
         devs = finding_deviations(disc, truth, sum(x.get("cor") is not None for x in found))
         judged = [d for d in devs if d["correct"] and d["measure"] is not None]
-        improved = bool(judged) and all(bool(d["lowered"]) for d in judged)
-    elif spec.family in INVENTED_HARDER:
+        return bool(judged) and all(bool(d["lowered"]) for d in judged), devs, None
+    if spec.family in INVENTED_HARDER:
         devs = finding_deviations(disc, truth, sum(x.get("cor") is not None for x in found))
         top = (disc.get("findings") or [None])[0]
         improved = bool(names and names[0] == "unexplained" and devs[0]["lowered"])
-        shape_fit = shape_fit_vs_truth(top, truth)
-    recall = len(hit) / len(meas) if meas else None
-    mean_err = float(np.mean(errs)) if errs else None
-    criteria = {
-        "recall": recall is not None and recall >= HARDER_GOALS["recall"],
-        "invented": len(invented) <= HARDER_GOALS["invented"],
-        "gaps": all(g["outcome"] in ("found", "counted", "clean") for g in gaps),
-        "cor": mean_err is not None and mean_err <= HARDER_GOALS["cor_error_mean"],
-        "findings": findings_ok,
-        "improved": improved,          # None: a control
-    }
-    return {"measurable": len(meas), "recalled": len(hit), "recall": recall,
-            "missed_t": [float(tt[j]) for j in meas if j not in matched], "invented_t": invented,
-            "gaps": gaps, "cor_error_mean": mean_err, "cor_error_max": float(max(errs)) if errs else None,
-            "cor_n": len(errs), "found": names, "regime": (doc.get("regime") or {}).get("name"),
-            "contacts": len(doc.get("contacts") or []), "truth_contacts": len(truth.get("contacts") or []),
-            "finding_deviations": devs, "shape_fit": shape_fit,
-            "deviation": {"baseline": disc.get("baseline_deviation"), "final": disc.get("final_deviation")},
-            "criteria": criteria, "pass": all(v is not False for v in criteria.values())}
+        return improved, devs, shape_fit_vs_truth(top, truth)
+    return None, [], None
 
 
 # ---------------------------------------------------------------- running

@@ -159,7 +159,7 @@ EVIDENCE = Draws(cor_scatter=(0.01, 0.02), noise_gray=(1.0, 3.0), blur_share=0.5
                  invented=INVENTED)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CaseSpec:
     index: int
     family: str
@@ -274,9 +274,9 @@ def draw_cases(n: int, seed: int, frames: int, pairs: float = 0.0, draws: Draws 
             second = str(rng.choice(other))
             effects.update(draw_effect(second, rng))
             label = f"{fam}+{second}"
-        out.append(CaseSpec(i, label, effects, int(rng.integers(0, 2 ** 31 - 1)),
-                            float(rng.uniform(20.0, 24.0)), float(rng.uniform(25.0, 32.0)),
-                            float(rng.uniform(*draws.noise_gray)), frames))
+        out.append(CaseSpec(index=i, family=label, effects=effects, seed=int(rng.integers(0, 2 ** 31 - 1)),
+                            frequency_hz=float(rng.uniform(20.0, 24.0)), accel_mps2=float(rng.uniform(25.0, 32.0)),
+                            noise_gray=float(rng.uniform(*draws.noise_gray)), frames=frames))
     return _extras(out, seed, draws)
 
 
@@ -300,8 +300,9 @@ def draw_evidence(seed: int, frames: int, draws: Draws = EVIDENCE, pairs: float 
             second = str(rng.choice([f for f in EFFECTS if _compatible(fam, f)]))
             effects.update(draw_effect(second, rng))
             label = f"{fam}+{second}"
-        out.append(CaseSpec(i, label, effects, int(rng.integers(0, 2 ** 31 - 1)), f_hz, a_mps2,
-                            float(rng.uniform(*draws.noise_gray)), frames, magnitude=k))
+        out.append(CaseSpec(index=i, family=label, effects=effects, seed=int(rng.integers(0, 2 ** 31 - 1)),
+                            frequency_hz=f_hz, accel_mps2=a_mps2, noise_gray=float(rng.uniform(*draws.noise_gray)),
+                            frames=frames, magnitude=k))
     return _extras(out, seed, draws)
 
 
@@ -582,16 +583,45 @@ def format_summary(s: dict, title: str) -> str:
     return "\n".join(lines)
 
 
-def prove(cases: int = 8, seed: int = 0, out: str | Path | None = None, frames: int = 500, sindy: bool = True,
-          progress: bool = False, pairs: float = 0.0, draws: Draws = Draws(), only: tuple[int, ...] | None = None
-          ) -> dict:
-    """Run the proof; returns {"rows", "vibro", "sindy", "settings"}; writes proof.json into ``out``.
-    ``draws.magnitudes`` > 0: the cases of :func:`draw_evidence` (``cases`` is then not used). ``only``: run
-    just these case numbers of the drawn set (each drawn exactly as in the whole set)."""
+@dataclass(frozen=True, kw_only=True)
+class ProofCases:
+    """Which cases a proof draws and runs (:func:`prove`).
+
+    Attributes
+    ----------
+    cases : int
+        Cases drawn by :func:`draw_cases` (not used when ``draws.magnitudes`` > 0: :func:`draw_evidence`).
+    seed : int
+        Seed of the draw.
+    frames : int
+        Camera frames per synthetic recording.
+    pairs : float
+        Share of cases given a second, compatible effect (0..1).
+    draws : Draws
+        How cases are drawn besides the effect.
+    only : tuple of int or None
+        Run just these case numbers of the drawn set (each drawn exactly as in the whole set); None: all.
+    """
+
+    cases: int = 8
+    seed: int = 0
+    frames: int = 500
+    pairs: float = 0.0
+    draws: Draws = Draws()
+    only: tuple[int, ...] | None = None
+
+
+def prove(selection: ProofCases = ProofCases(), out: str | Path | None = None, *, sindy: bool = True,
+          progress: bool = False) -> dict:
+    """Run the proof of the cases ``selection`` picks; returns {"rows", "vibro", "sindy", "settings"}; writes
+    proof.json into ``out`` (None: a new temporary folder). ``sindy``: run PySINDy on the same data too;
+    ``progress``: a progress bar on stderr."""
     import tempfile
 
     from tqdm import tqdm
 
+    cases, seed, frames = selection.cases, selection.seed, selection.frames
+    pairs, draws, only = selection.pairs, selection.draws, selection.only
     if cases < 1:
         raise RecordingError(f"--cases must be >= 1, got {cases}")
     if frames < 200:

@@ -42,6 +42,21 @@ def best_effort(depth: int) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
+def _check_parameters(port: int, max_rate_hz: float, backlog: int, channels: list[str]) -> None:
+    """RecordingError naming the parameter for a bad ``port``, ``max_frame_rate_hz`` (frames/s),
+    ``client_backlog`` (messages) or an unknown channel in ``topics``."""
+    if not 0 <= port <= 65535:
+        raise RecordingError(f"foxglove_bridge: parameter 'port' must be 0-65535, got {port}")
+    if not max_rate_hz >= 0:
+        raise RecordingError(f"foxglove_bridge: parameter 'max_frame_rate_hz' must be >= 0, got {max_rate_hz}")
+    if backlog < 1:
+        raise RecordingError(f"foxglove_bridge: parameter 'client_backlog' must be >= 1, got {backlog}")
+    unknown = sorted(set(channels) - set(fv.CHANNELS_BY_TOPIC))
+    if unknown:
+        raise RecordingError(f"foxglove_bridge: parameter 'topics' has unknown channels {unknown} "
+                             f"(known: {', '.join(fv.CHANNELS_BY_TOPIC)})")
+
+
 class FoxgloveBridge(Node):
     def __init__(self) -> None:
         super().__init__("foxglove_bridge")
@@ -63,23 +78,8 @@ class FoxgloveBridge(Node):
                                            "false: stay up (live)"))
         self.linger_s = float(declare(self, "linger_s", 2.0, "s to keep serving after the graph's nodes have gone "
                                                              "(exit_when_done)"))
-        if not 0 <= port <= 65535:
-            raise RecordingError(f"foxglove_bridge: parameter 'port' must be 0-65535, got {port}")
-        if not max_rate_hz >= 0:
-            raise RecordingError(f"foxglove_bridge: parameter 'max_frame_rate_hz' must be >= 0, got {max_rate_hz}")
-        if backlog < 1:
-            raise RecordingError(f"foxglove_bridge: parameter 'client_backlog' must be >= 1, got {backlog}")
-        unknown = sorted(set(channels) - set(fv.CHANNELS_BY_TOPIC))
-        if unknown:
-            raise RecordingError(f"foxglove_bridge: parameter 'topics' has unknown channels {unknown} "
-                                 f"(known: {', '.join(fv.CHANNELS_BY_TOPIC)})")
-        self.geometry = None
-        if rig_file:
-
-            self.geometry = fv.ImageGeometry.from_rig(load_rig(rig_file))
-        elif fv.ANNOTATIONS.topic in channels:
-            self.get_logger().warning("parameter 'rig_file' not set: frames are served without annotations")
-            channels.remove(fv.ANNOTATIONS.topic)
+        _check_parameters(port, max_rate_hz, backlog, channels)
+        self.geometry = self._image_geometry(rig_file, channels)
         self.origin_ns = time_origin_parameter(self)
         self.throttle = fv.FrameThrottle(max_rate_hz)
         self.sent_frames: dict[int, int] = {}  # frame index -> stamp (ns) of the image sent, the latest few
@@ -95,7 +95,24 @@ class FoxgloveBridge(Node):
         self.get_logger().info(f"Foxglove WebSocket server on {self.url} (channels: {', '.join(channels)})")
         self.health.values["url"] = self.url
 
-        served = set(channels)
+        self._subscribe(set(channels))
+        self.saw_graph = False
+        self.graph_gone_since: float | None = None
+        self.done = Future()
+        self.create_timer(0.1, self._tick)
+
+    def _image_geometry(self, rig_file: str, channels: list[str]) -> fv.ImageGeometry | None:
+        """The image annotations' geometry (ROIs, scale) from ``rig_file``; without one, the annotations channel
+        is dropped from ``channels`` (with a warning) and None returned."""
+        if rig_file:
+            return fv.ImageGeometry.from_rig(load_rig(rig_file))
+        if fv.ANNOTATIONS.topic in channels:
+            self.get_logger().warning("parameter 'rig_file' not set: frames are served without annotations")
+            channels.remove(fv.ANNOTATIONS.topic)
+        return None
+
+    def _subscribe(self, served: set[str]) -> None:
+        """Subscribe (best effort) to the graph topics behind the ``served`` Foxglove channels."""
         if fv.FRAMES.topic in served:  # raw: deserialized only when the rate limit lets the frame through
             self.create_subscription(Image, topics.FRAMES.name, self._on_frame, best_effort(1), raw=True)
         if served & {fv.TRACK.topic, fv.ANNOTATIONS.topic}:
@@ -122,10 +139,6 @@ class FoxgloveBridge(Node):
         if fv.DIAGNOSTICS.topic in served:
             self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name, self._on_diagnostics,
                                      best_effort(STREAM_DEPTH))
-        self.saw_graph = False
-        self.graph_gone_since: float | None = None
-        self.done = Future()
-        self.create_timer(0.1, self._tick)
 
     # ------------------------------------------------------------------ callbacks
     def _send(self, payload: fv.Payload) -> None:

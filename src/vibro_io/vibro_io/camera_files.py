@@ -420,46 +420,60 @@ def merge_camera_header(data: Any, header: CameraHeader, rig_src: str) -> Any:
     if not isinstance(data, Mapping) or not isinstance(data.get("camera"), Mapping):
         return data  # parse_rig reports it
     cam = dict(data["camera"])
+    if header.time_base.fps is not None:  # a contradictory header's note goes into the refusal or is settled
+        for note in header.time_base.notes:  # by rig.yaml
+            log.warning("%s", note)
+    _merge_fps(cam, header, rig_src)
+    _merge_time_origin(cam, header, rig_src)
+    out = dict(data)
+    out["camera"] = cam
+    return out
+
+
+def _is_number(value: Any) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _merge_fps(cam: dict, header: CameraHeader, rig_src: str) -> None:
+    """Fill in ``cam["fps"]`` (frames/s) from the header's saved-frame spacing, or check rig.yaml's against it."""
     name = header.path.name
     base = header.time_base
-    if base.fps is not None:  # a contradictory header's note goes into the refusal or is settled by rig.yaml
-        for note in base.notes:
-            log.warning("%s", note)
-
-    def number(value: Any) -> bool:
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
     if base.fps is None:
         options = " or ".join(f"{c:g}" for c in base.candidates_fps)
         if cam.get("fps") is None:
             why = base.notes[0] if base.notes else f"{name}'s header allows {options} frames/s"
             raise RigError(f"{rig_src}: key 'camera.fps' is needed: {why}")
-        if number(cam["fps"]) and not base.names_same_spacing(cam["fps"], header.n_frames):
+        if _is_number(cam["fps"]) and not base.names_same_spacing(cam["fps"], header.n_frames):
             raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s header allows {options} "
                            "frames/s only")
     elif cam.get("fps") is None:
         cam["fps"] = base.fps
         log.info("%s: camera.fps %.8g taken from %s (%s)", rig_src, base.fps, name, base.source)
-    elif number(cam["fps"]) and not base.names_same_spacing(cam["fps"], header.n_frames):
+    elif _is_number(cam["fps"]) and not base.names_same_spacing(cam["fps"], header.n_frames):
         header_said = (f"; its header says {base.record_fps:g} frames/s" if base.source != "header" else "")
         raise RigError(f"{rig_src}: key 'camera.fps' is {cam['fps']:g} but {name}'s saved frames are "
                        f"{1.0 / base.fps:.6g} s apart ({base.fps:.8g} frames/s, from its {base.source}"
                        f"{header_said}): every time and velocity would be off by their ratio "
                        f"{cam['fps'] / base.fps:.4g}; fix camera.fps or remove it to use the file's")
+
+
+def _merge_time_origin(cam: dict, header: CameraHeader, rig_src: str) -> None:
+    """Fill in ``cam``'s t0_s (s) and start_time_unix_s (Unix s) from the header; where rig.yaml gives a
+    different one, keep it with a warning."""
+    name = header.path.name
     if header.t0_s is not None:
         if cam.get("t0_s") is None:
             cam["t0_s"] = header.t0_s
-        elif number(cam["t0_s"]) and number(cam.get("fps")) and abs(cam["t0_s"] - header.t0_s) > 0.5 / cam["fps"]:
+        elif (_is_number(cam["t0_s"]) and _is_number(cam.get("fps"))
+              and abs(cam["t0_s"] - header.t0_s) > 0.5 / cam["fps"]):
             log.warning("%s: key 'camera.t0_s' is %g s but %s's header puts frame 0 at %g s from the trigger; "
                         "rig.yaml's value is used", rig_src, cam["t0_s"], name, header.t0_s)
     if header.start_time_unix_s is not None:
         if cam.get("start_time_unix_s") is None:
             cam["start_time_unix_s"] = header.start_time_unix_s
-        elif number(cam["start_time_unix_s"]) and \
+        elif _is_number(cam["start_time_unix_s"]) and \
                 abs(cam["start_time_unix_s"] - header.start_time_unix_s) > START_TIME_TOLERANCE_S:
             log.warning("%s: key 'camera.start_time_unix_s' is %.6f but %s's header says %.6f (trigger time + "
                         "first image); rig.yaml's value is used", rig_src, cam["start_time_unix_s"], name,
                         header.start_time_unix_s)
-    out = dict(data)
-    out["camera"] = cam
-    return out

@@ -289,44 +289,72 @@ def load_rig(path: str | Path) -> RigConfig:
 
 
 def _check(value: Any, kind: str, where: str) -> Any:
-    def fail(expect: str) -> RigError:
-        return RigError(f"{where}: expected {expect}, got {value!r}")
-
+    """``value`` of rig.yaml key ``where`` checked against its ``kind`` (as in _SCHEMA) and converted."""
     if kind == "ball_method":
-        if value not in BALL_METHODS:
-            raise fail(f"one of {', '.join(BALL_METHODS)} (mesh: DIC subsets on a speckled ball; outline: a plain "
-                       "ball tracked by its outline, dic.ball_roi a box around the whole ball)")
-        return value
+        return _check_ball_method(value, where)
     if kind in ("str", "relpath"):
-        if not isinstance(value, str) or not value.strip():
-            raise fail("a non-empty string")
-        problem = relative_name_problem(value) if kind == "relpath" else None
-        if problem is not None:
-            raise fail(f"a file name relative to the recording directory, inside it (not {problem})")
-        return value
+        return _check_string(value, kind, where)
     if kind == "roi":
-        if not isinstance(value, (list, tuple)) or len(value) != 4:
-            raise fail("a list [x, y, w, h] of 4 integers (pixels)")
-        ints = [_check(v, "int", where) for v in value]
-        if ints[0] < 0 or ints[1] < 0 or ints[2] <= 0 or ints[3] <= 0:
-            raise fail("x, y >= 0 and w, h > 0 (pixels)")
-        return Roi(*ints)
+        return _check_roi(value, where)
     if kind in ("int", "posint", "odd"):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
-            raise fail("an integer")
-        value = int(value)
-        if kind in ("posint", "odd") and value <= 0:
-            raise fail("a positive integer")
-        if kind == "odd" and value % 2 == 0:
-            raise fail("an odd integer (the subset has a centre pixel)")
-        return value
+        return _check_integer(value, kind, where)
+    return _check_number(value, kind, where)
+
+
+def _expected(expect: str, value: Any, where: str) -> RigError:
+    """The refusal of ``value`` at ``where``, saying what was ``expect``-ed."""
+    return RigError(f"{where}: expected {expect}, got {value!r}")
+
+
+def _check_ball_method(value: Any, where: str) -> str:
+    """dic.ball_method: one of BALL_METHODS."""
+    if value not in BALL_METHODS:
+        raise _expected(f"one of {', '.join(BALL_METHODS)} (mesh: DIC subsets on a speckled ball; outline: a plain "
+                        "ball tracked by its outline, dic.ball_roi a box around the whole ball)", value, where)
+    return value
+
+
+def _check_string(value: Any, kind: str, where: str) -> str:
+    """A non-empty string; for ``kind`` "relpath" a file name inside the recording directory."""
+    if not isinstance(value, str) or not value.strip():
+        raise _expected("a non-empty string", value, where)
+    problem = relative_name_problem(value) if kind == "relpath" else None
+    if problem is not None:
+        raise _expected(f"a file name relative to the recording directory, inside it (not {problem})", value, where)
+    return value
+
+
+def _check_roi(value: Any, where: str) -> Roi:
+    """[x, y, w, h] in pixels: x, y >= 0, w, h > 0."""
+    if not isinstance(value, (list, tuple)) or len(value) != 4:
+        raise _expected("a list [x, y, w, h] of 4 integers (pixels)", value, where)
+    ints = [_check(v, "int", where) for v in value]
+    if ints[0] < 0 or ints[1] < 0 or ints[2] <= 0 or ints[3] <= 0:
+        raise _expected("x, y >= 0 and w, h > 0 (pixels)", value, where)
+    return Roi(*ints)
+
+
+def _check_integer(value: Any, kind: str, where: str) -> int:
+    """An integer; "posint" a positive one, "odd" a positive odd one."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        raise _expected("an integer", value, where)
+    value = int(value)
+    if kind in ("posint", "odd") and value <= 0:
+        raise _expected("a positive integer", value, where)
+    if kind == "odd" and value % 2 == 0:
+        raise _expected("an odd integer (the subset has a centre pixel)", value, where)
+    return value
+
+
+def _check_number(value: Any, kind: str, where: str) -> float:
+    """A finite number; "pos" a positive one, "poisson" a Poisson ratio in (-1, 0.5)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise fail("a finite number")
+        raise _expected("a finite number", value, where)
     value = float(value)
     if kind == "pos" and value <= 0:
-        raise fail("a positive number")
+        raise _expected("a positive number", value, where)
     if kind == "poisson" and not -1.0 < value < 0.5:
-        raise fail("a Poisson ratio in (-1, 0.5)")
+        raise _expected("a Poisson ratio in (-1, 0.5)", value, where)
     return value
 
 

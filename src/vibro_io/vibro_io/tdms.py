@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import math
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -183,10 +184,41 @@ def load_tdms_accel(path: str | Path, cfg: AccelConfig, camera: CameraConfig | N
     a non-finite sample, or an implausible rate (:func:`check_sample_rate`, naming wf_increment).
     Clipped stretches are warned about (:func:`warn_if_clipped`).
     """
+    path = Path(path)
+    chans = _read_channels(path, cfg)
+    upper, lower = chans
+    dt = _sample_interval(path, cfg, chans)
+    start_unix_s, offset_s = _start_time(path, cfg, chans)
+    _check_samples(path, cfg, chans)
+    scales = [channel_scale(recorded_unit(ch.props, ch.where), cfg, ch.role, ch.where) for ch in chans]
+    check_sample_rate(1.0 / dt, upper.where, camera.fps if camera else camera_fps, wf_increment_s=dt)
+    for ch in chans:
+        warn_if_clipped(ch.values, ch.where)
+    _warn_assumed(path, cfg, [s[2] for s in scales])
+    t_s = offset_s + np.arange(upper.values.size) * dt
+    if camera is not None and camera.start_time_unix_s is not None and start_unix_s is not None:
+        t_s = t_s + camera.t0_s + (start_unix_s - camera.start_time_unix_s)
+    return AccelData(t_s=t_s, upper_ms2=upper.values * scales[0][1], lower_ms2=lower.values * scales[1][1],
+                     source_units=(scales[0][0], scales[1][0]), mps2_per_source_unit=(scales[0][1], scales[1][1]),
+                     unit_source=_unit_source([s[2] for s in scales]))
+
+
+@dataclass(frozen=True)
+class _TdmsChannel:
+    """One accelerometer channel as read: its ``role`` (upper, lower), samples (file units), TDMS properties
+    and ``where`` (file and channel, for messages)."""
+
+    role: str
+    values: np.ndarray
+    props: dict
+    where: str
+
+
+def _read_channels(path: Path, cfg: AccelConfig) -> tuple[_TdmsChannel, _TdmsChannel]:
+    """The upper and lower channels of ``cfg.group`` in the TDMS file ``path``; AccelError when unreadable."""
     from nptdms import TdmsFile
 
-    path = Path(path)
-    where = {}
+    channels = []
     try:
         with _quiet_nptdms(), TdmsFile.open(str(path)) as tdms:
             try:
@@ -194,57 +226,57 @@ def load_tdms_accel(path: str | Path, cfg: AccelConfig, camera: CameraConfig | N
             except KeyError:
                 names = ", ".join(g.name for g in tdms.groups()) or "none"
                 raise AccelError(f"{path}: group '{cfg.group}' not found (groups: {names})") from None
-            channels = {}
             for role, name in (("upper", cfg.upper_channel), ("lower", cfg.lower_channel)):
                 channel = _channel(path, group, cfg.group, name)
-                where[role] = f"{path}: channel '{cfg.group}/{name}'"
-                channels[role] = (np.asarray(channel[:], dtype=float), dict(channel.properties))
+                channels.append(_TdmsChannel(role, np.asarray(channel[:], dtype=float), dict(channel.properties),
+                                             f"{path}: channel '{cfg.group}/{name}'"))
     except AccelError:
         raise
     except Exception as exc:  # npTDMS raises ValueError, struct errors, OSError for a bad file
         raise AccelError(f"{path}: not a readable TDMS file ({type(exc).__name__}: {exc})") from None
+    return channels[0], channels[1]
 
-    (upper, up_props), (lower, low_props) = channels["upper"], channels["lower"]
+
+def _sample_interval(path: Path, cfg: AccelConfig, chans: tuple[_TdmsChannel, _TdmsChannel]) -> float:
+    """The channels' common sample interval (s, ``wf_increment``); AccelError when missing or different."""
     dt = {}
-    for role, props in (("upper", up_props), ("lower", low_props)):
-        inc = props.get("wf_increment")
+    for ch in chans:
+        inc = ch.props.get("wf_increment")
         if isinstance(inc, bool) or not isinstance(inc, (int, float)) or not math.isfinite(inc) or inc <= 0:
-            raise AccelError(f"{where[role]}: property wf_increment (s per sample) missing or not positive "
+            raise AccelError(f"{ch.where}: property wf_increment (s per sample) missing or not positive "
                              f"({inc!r}): not waveform data, the sample rate is unknown")
-        dt[role] = float(inc)
+        dt[ch.role] = float(inc)
     if abs(dt["upper"] - dt["lower"]) > 1e-9 * dt["upper"]:
         raise AccelError(f"{path}: channels '{cfg.upper_channel}' and '{cfg.lower_channel}' have different "
                          f"sample intervals (wf_increment {dt['upper']:g} s and {dt['lower']:g} s)")
-    starts = [_unix_s(up_props.get("wf_start_time")), _unix_s(low_props.get("wf_start_time"))]
-    offsets = [float(p.get("wf_start_offset", 0.0) or 0.0) for p in (up_props, low_props)]
+    return dt["upper"]
+
+
+def _start_time(path: Path, cfg: AccelConfig, chans: tuple[_TdmsChannel, _TdmsChannel]) -> tuple[float | None, float]:
+    """The channels' common (wall-clock start, Unix s or None; start offset, s); AccelError when they differ."""
+    starts = [_unix_s(ch.props.get("wf_start_time")) for ch in chans]
+    offsets = [float(ch.props.get("wf_start_offset", 0.0) or 0.0) for ch in chans]
     if starts[0] != starts[1] or offsets[0] != offsets[1]:
         raise AccelError(f"{path}: channels '{cfg.upper_channel}' and '{cfg.lower_channel}' start at different "
                          "times (wf_start_time / wf_start_offset differ)")
-    for role, values, props in (("upper", upper, up_props), ("lower", lower, low_props)):
-        announced = props.get("wf_samples")
-        if isinstance(announced, (int, np.integer)) and values.size < int(announced):
-            raise AccelError(f"{where[role]}: {values.size} samples but wf_samples announces {int(announced)}: "
-                             f"the file is truncated at sample {values.size}")
-        bad = np.flatnonzero(~np.isfinite(values))
+    return starts[0], offsets[0]
+
+
+def _check_samples(path: Path, cfg: AccelConfig, chans: tuple[_TdmsChannel, _TdmsChannel]) -> None:
+    """AccelError for a truncated channel, a non-finite sample, channels of different lengths or < 2 samples."""
+    for ch in chans:
+        announced = ch.props.get("wf_samples")
+        if isinstance(announced, (int, np.integer)) and ch.values.size < int(announced):
+            raise AccelError(f"{ch.where}: {ch.values.size} samples but wf_samples announces {int(announced)}: "
+                             f"the file is truncated at sample {ch.values.size}")
+        bad = np.flatnonzero(~np.isfinite(ch.values))
         if bad.size:
-            raise AccelError(f"{where[role]}: sample {bad[0]}: non-finite value {values[bad[0]]}")
-    if upper.size != lower.size:
-        short, role = (lower, "lower") if lower.size < upper.size else (upper, "upper")
-        raise AccelError(f"{where[role]}: {short.size} samples against {max(upper.size, lower.size)} in the other "
-                         f"channel: the file is truncated (or the channels were recorded apart) at sample "
-                         f"{short.size}")
-    if upper.size < 2:
+            raise AccelError(f"{ch.where}: sample {bad[0]}: non-finite value {ch.values[bad[0]]}")
+    upper, lower = chans
+    if upper.values.size != lower.values.size:
+        short = lower if lower.values.size < upper.values.size else upper
+        raise AccelError(f"{short.where}: {short.values.size} samples against "
+                         f"{max(upper.values.size, lower.values.size)} in the other channel: the file is truncated "
+                         f"(or the channels were recorded apart) at sample {short.values.size}")
+    if upper.values.size < 2:
         raise AccelError(f"{path}: fewer than 2 samples in group '{cfg.group}'")
-    scales = [channel_scale(recorded_unit(props, where[role]), cfg, role, where[role])
-              for role, props in (("upper", up_props), ("lower", low_props))]
-    check_sample_rate(1.0 / dt["upper"], where["upper"], camera.fps if camera else camera_fps,
-                      wf_increment_s=dt["upper"])
-    for role, values in (("upper", upper), ("lower", lower)):
-        warn_if_clipped(values, where[role])
-    _warn_assumed(path, cfg, [s[2] for s in scales])
-    t_s = offsets[0] + np.arange(upper.size) * dt["upper"]
-    if camera is not None and camera.start_time_unix_s is not None and starts[0] is not None:
-        t_s = t_s + camera.t0_s + (starts[0] - camera.start_time_unix_s)
-    return AccelData(t_s=t_s, upper_ms2=upper * scales[0][1], lower_ms2=lower * scales[1][1],
-                     source_units=(scales[0][0], scales[1][0]), mps2_per_source_unit=(scales[0][1], scales[1][1]),
-                     unit_source=_unit_source([s[2] for s in scales]))

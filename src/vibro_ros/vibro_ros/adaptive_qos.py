@@ -28,6 +28,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
+from .qos_format import OfferedProfile
 from .qos_format import profile_dict as _profile_dict
 
 #: How often a ResultsSubscription looks for publishers it cannot match (s).
@@ -45,12 +46,13 @@ def _poll_publishers_of(node: Node) -> None:
 
 def profile_dict(qos: QoSProfile) -> dict[str, Any]:
     """An rclpy QoS profile in rosbag2's version-9 layout (policy names, ``{sec, nsec}`` durations)."""
-    return _profile_dict(history=qos.history.name.lower(), depth=qos.depth,
-                         reliability=qos.reliability.name.lower(), durability=qos.durability.name.lower(),
-                         deadline_ns=qos.deadline.nanoseconds, lifespan_ns=qos.lifespan.nanoseconds,
-                         liveliness=qos.liveliness.name.lower(),
-                         liveliness_lease_ns=qos.liveliness_lease_duration.nanoseconds,
-                         avoid_ros_namespace_conventions=qos.avoid_ros_namespace_conventions)
+    return _profile_dict(OfferedProfile(history=qos.history.name.lower(), depth=qos.depth,
+                                        reliability=qos.reliability.name.lower(),
+                                        durability=qos.durability.name.lower(),
+                                        deadline_ns=qos.deadline.nanoseconds, lifespan_ns=qos.lifespan.nanoseconds,
+                                        liveliness=qos.liveliness.name.lower(),
+                                        liveliness_lease_ns=qos.liveliness_lease_duration.nanoseconds,
+                                        avoid_ros_namespace_conventions=qos.avoid_ros_namespace_conventions))
 
 
 def discovered_offers(node: Node, topic: str, declared: QoSProfile | None = None,

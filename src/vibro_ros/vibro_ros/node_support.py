@@ -423,13 +423,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
     code = 0
     try:
         node = factory()
-        executor = make_executor(getattr(node, "EXECUTOR", "events"))
-        executor.add_node(node)
-        done = getattr(node, "done", None)
-        spin_until_done(executor, done)
-        if done is not None and done.done() and done.exception() is not None:
-            raise done.exception()  # e.g. vibro_ros.guard.ForeignInputError: one line, exit code 2
-        code = int(getattr(node, "exit_code", 0) or 0)
+        code = _spin_node(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RecordingError as exc:
@@ -443,18 +437,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         cleanup_from = time.monotonic()
         name = node.get_fully_qualified_name() if node is not None else ""
         if node is not None:  # a stop signal during this cleanup is only noted (_note_stop), never raised
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
-            if rclpy.ok():
-                health = getattr(node, "health", None)
-                if isinstance(health, Health):  # the final counts, also of a node that ran < 1 s
-                    try:
-                        health.publish()
-                    except Exception:  # best effort, like the flush below: the context may be going down
-                        pass
-                flush_publishers(node)
-            node.destroy_node()
+            _close_node(node)
         if rclpy.ok():
             rclpy.shutdown(uninstall_handlers=False)  # uninstalling what was never installed: SIGINT -> SIG_DFL
         if name:  # when it left the ROS graph, for a reader of the logs (its peers' view of it may lag)
@@ -465,3 +448,32 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         # so a second Ctrl-C arriving now would still kill the process with -2
         signal.signal(sig, signal.SIG_IGN)
     return code
+
+
+def _spin_node(node: Node) -> int:
+    """Spin ``node`` on its executor until it is done (or stopped); its exit code. The exception set on its
+    ``done`` future is raised."""
+    executor = make_executor(getattr(node, "EXECUTOR", "events"))
+    executor.add_node(node)
+    done = getattr(node, "done", None)
+    spin_until_done(executor, done)
+    if done is not None and done.done() and done.exception() is not None:
+        raise done.exception()  # e.g. vibro_ros.guard.ForeignInputError: one line, exit code 2
+    return int(getattr(node, "exit_code", 0) or 0)
+
+
+def _close_node(node: Node) -> None:
+    """Close ``node`` (its ``close``), publish its final health and flush its publishers while the context is
+    up, then destroy it."""
+    close = getattr(node, "close", None)
+    if close is not None:
+        close()
+    if rclpy.ok():
+        health = getattr(node, "health", None)
+        if isinstance(health, Health):  # the final counts, also of a node that ran < 1 s
+            try:
+                health.publish()
+            except Exception:  # best effort, like the flush below: the context may be going down
+                pass
+        flush_publishers(node)
+    node.destroy_node()

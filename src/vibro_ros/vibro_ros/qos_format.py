@@ -13,6 +13,7 @@ No rclpy here: converting an rclpy ``QoSProfile`` is :func:`vibro_ros.adaptive_q
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Iterable
 
 import yaml
@@ -32,25 +33,60 @@ def duration_dict(ns: int) -> dict[str, int]:
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
-def profile_dict(*, history: str, depth: int, reliability: str, durability: str,
-                 deadline_ns: int = DURATION_INFINITE_NS, lifespan_ns: int = DURATION_INFINITE_NS,
-                 liveliness: str = "automatic", liveliness_lease_ns: int = DURATION_INFINITE_NS,
-                 avoid_ros_namespace_conventions: bool = False) -> dict[str, Any]:
-    """One offered profile in rosbag2's version-9 layout (keys in rosbag2's order)."""
+@dataclass(frozen=True, kw_only=True)
+class OfferedProfile:
+    """One publisher's offered QoS, by rosbag2's policy names; durations in ns (default: infinite).
+
+    Attributes
+    ----------
+    history : str
+        One of :data:`HISTORY`.
+    depth : int
+        History depth (messages).
+    reliability : str
+        One of :data:`RELIABILITY`.
+    durability : str
+        One of :data:`DURABILITY`.
+    deadline_ns, lifespan_ns : int
+        Deadline and lifespan (ns).
+    liveliness : str
+        One of :data:`LIVELINESS`.
+    liveliness_lease_ns : int
+        Liveliness lease duration (ns).
+    avoid_ros_namespace_conventions : bool
+        The profile's avoid_ros_namespace_conventions flag.
+    """
+
+    history: str
+    depth: int
+    reliability: str
+    durability: str
+    deadline_ns: int = DURATION_INFINITE_NS
+    lifespan_ns: int = DURATION_INFINITE_NS
+    liveliness: str = "automatic"
+    liveliness_lease_ns: int = DURATION_INFINITE_NS
+    avoid_ros_namespace_conventions: bool = False
+
+
+def profile_dict(profile: OfferedProfile) -> dict[str, Any]:
+    """One offered profile in rosbag2's version-9 layout (keys in rosbag2's order); ValueError for a policy name
+    rosbag2 does not know."""
+    history, reliability, durability = profile.history, profile.reliability, profile.durability
+    liveliness = profile.liveliness
     for value, allowed, what in ((history, HISTORY, "history"), (reliability, RELIABILITY, "reliability"),
                                  (durability, DURABILITY, "durability"), (liveliness, LIVELINESS, "liveliness")):
         if value not in allowed:
             raise ValueError(f"QoS {what} {value!r}: must be one of {', '.join(allowed)}")
     return {
         "history": history,
-        "depth": int(depth),
+        "depth": int(profile.depth),
         "reliability": reliability,
         "durability": durability,
-        "deadline": duration_dict(deadline_ns),
-        "lifespan": duration_dict(lifespan_ns),
+        "deadline": duration_dict(profile.deadline_ns),
+        "lifespan": duration_dict(profile.lifespan_ns),
         "liveliness": liveliness,
-        "liveliness_lease_duration": duration_dict(liveliness_lease_ns),
-        "avoid_ros_namespace_conventions": bool(avoid_ros_namespace_conventions),
+        "liveliness_lease_duration": duration_dict(profile.liveliness_lease_ns),
+        "avoid_ros_namespace_conventions": bool(profile.avoid_ros_namespace_conventions),
     }
 
 

@@ -144,6 +144,23 @@ def _law_name(force: ForceLaw) -> str:
     return type(force).__name__
 
 
+@dataclass
+class _LoopState:
+    """Mutable state of the event loop: time (s), ball position (m) and velocity (m/s), the open flight."""
+
+    t: float
+    y: float
+    v: float
+    flight_start: float
+    flight_v0: float
+    start_plate: str | None = None
+    fi: int = 0
+    ii: int = 0
+    mode: str = "free"
+    stuck_plate: str | None = None
+    released_now: bool = False
+
+
 class _Simulator:
     def __init__(self, structure, cavity, restitution, force, stick_speed_mps, scan_step_s):
         self.S = structure
@@ -214,96 +231,121 @@ class _Simulator:
 
     # main loop -------------------------------------------------------------
     def run(self, y0, v0, t0, t_end, max_events) -> SimResult:
-        S, b, m, g = self.S, self.b, self.m, self.g
-        res = SimResult(structure=S, cavity=self.cav, t0_s=t0, t_end_s=t_end)
+        """Simulate from (t0 s, y0 m, v0 m/s) to t_end (s), stopping after ``max_events`` events."""
+        res = SimResult(structure=self.S, cavity=self.cav, t0_s=t0, t_end_s=t_end)
+        st = self._initial_state(y0, v0, t0)
+        events = 0
+        while st.t < t_end:
+            events += 1
+            if events > max_events:
+                log.warning("COR model stopped after %d events at t = %.6f s", max_events, st.t)
+                res.truncated = True
+                break
+            if st.mode == "stuck":
+                self._ride_plate(res, st, t_end)
+            else:
+                self._fly(res, st, t_end)
+        self._finish(res, st, (t0, y0, v0), t_end)
+        return res
+
+    def _initial_state(self, y0: float, v0: float, t0: float) -> _LoopState:
+        """The loop's start: the ball at y0 (m, clipped onto the cavity) with v0 (m/s) at t0 (s)."""
+        S, b = self.S, self.b
         rel0 = y0 - S.position(t0)
         if abs(rel0) > b * (1 + 1e-9) + GAP_TOL_M:
             raise ValueError(f"initial ball position y0 - Y_s(t0) = {rel0:.6g} m is outside the "
                              f"cavity (free play b = {b:.6g} m)")
         rel0 = min(max(rel0, -b), b)
-        t, y, v = t0, S.position(t0) + rel0, v0
-        fi = ii = 0
-        flight_start, flight_v0, start_plate = t0, v0, None
-        mode, stuck_plate = "free", None
-        released_now = False
-        events = 0
-        while t < t_end:
-            events += 1
-            if events > max_events:
-                log.warning("COR model stopped after %d events at t = %.6f s", max_events, t)
-                res.truncated = True
-                break
-            if mode == "stuck":
-                seg = Stuck(t, S, b, stuck_plate)
-                res.segments.append(seg)
-                f = self.release_fn(stuck_plate, fi)
-                if float(f(t)) > 0.0:
-                    tr = first_root(f, t, t_end, self.release_bound(), self.step)
-                else:
-                    tr = t
-                tr = t_end if tr is None else tr
-                res.stuck.append(StuckPhase(t, tr, stuck_plate))
-                t, y, v = tr, float(seg.pos(tr)), float(seg.vel(tr))
-                mode, flight_start, flight_v0, start_plate = "free", t, v, stuck_plate
-                released_now = True
+        return _LoopState(t=t0, y=S.position(t0) + rel0, v=v0, flight_start=t0, flight_v0=v0)
+
+    def _ride_plate(self, res: SimResult, st: _LoopState, t_end: float) -> None:
+        """The ball rides ``st.stuck_plate`` until the plate releases it (or t_end, s); then it flies."""
+        seg = Stuck(st.t, self.S, self.b, st.stuck_plate)
+        res.segments.append(seg)
+        f = self.release_fn(st.stuck_plate, st.fi)
+        if float(f(st.t)) > 0.0:
+            tr = first_root(f, st.t, t_end, self.release_bound(), self.step)
+        else:
+            tr = st.t
+        tr = t_end if tr is None else tr
+        res.stuck.append(StuckPhase(st.t, tr, st.stuck_plate))
+        st.t, st.y, st.v = tr, float(seg.pos(tr)), float(seg.vel(tr))
+        st.mode, st.flight_start, st.flight_v0, st.start_plate = "free", st.t, st.v, st.stuck_plate
+        st.released_now = True
+
+    def _fly(self, res: SimResult, st: _LoopState, t_end: float) -> None:
+        """One free-flight piece from the state: to the next impact, a sticking start or the piece's end."""
+        seg = make_flight_segment(st.t, st.y, st.v, self.force, st.fi,
+                                  mass_kg=self.m, g_eff=self.g, t_limit=t_end)
+        t_seg_end = min(seg.t_natural_end, t_end)
+        best, go_stuck = self._first_contact(seg, st.t, t_seg_end, st.released_now)
+        st.released_now = False
+        if go_stuck is not None:
+            st.mode, st.stuck_plate = "stuck", go_stuck
+            return
+        res.segments.append(seg)
+        if best is None:
+            self._coast(seg, st, t_seg_end)
+            return
+        tr, plate = best
+        vb = float(seg.vel(tr))
+        self._close_flight(res, st, tr, vb, plate)
+        st.t, st.y, st.v = self.impact(res, tr, plate, vb, st.ii, st.fi, t_end)
+        st.ii += 1
+        st.fi += 1
+        st.flight_start, st.flight_v0, st.start_plate = st.t, st.v, plate
+
+    def _first_contact(self, seg: Segment, t: float, t_seg_end: float, released_now: bool):
+        """The first contact of ``seg`` after t (s): ((time s, plate) or None, plate the ball sticks to or None).
+
+        The plate the ball heads for is scanned first; the other only up to that contact.
+        """
+        m2 = self.gap_bounds(seg)[0]
+        best = None
+        order = ("top", "bottom") if float(seg.vel(t) - self.S.velocity(t)) >= 0 else ("bottom", "top")
+        for plate in order:
+            gap = self.gap_fn(plate, seg)
+            ta = t
+            if float(gap(t)) <= GAP_TOL_M:
+                delay = self.leave_delay(plate, seg, t)
+                if delay == "impact":
+                    return (t, plate), None
+                if delay is None:
+                    if not released_now:
+                        return best, plate
+                    delay = 1e-9  # released on the boundary: let it go
+                ta = t + delay
+            t_stop = t_seg_end if best is None else best[0]
+            if ta >= t_stop:
                 continue
-            seg = make_flight_segment(t, y, v, self.force, fi, m, g, t_end)
-            t_seg_end = min(seg.t_natural_end, t_end)
-            m2 = self.gap_bounds(seg)[0]
-            best = None
-            go_stuck = None
-            # Scan the plate the ball heads for first; the other only up to that contact.
-            order = ("top", "bottom") if float(seg.vel(t) - S.velocity(t)) >= 0 else ("bottom", "top")
-            for plate in order:
-                gap = self.gap_fn(plate, seg)
-                ta = t
-                if float(gap(t)) <= GAP_TOL_M:
-                    delay = self.leave_delay(plate, seg, t)
-                    if delay == "impact":
-                        best = (t, plate)
-                        break
-                    if delay is None:
-                        if released_now:
-                            delay = 1e-9  # released on the boundary: let it go
-                        else:
-                            go_stuck = plate
-                            break
-                    ta = t + delay
-                t_stop = t_seg_end if best is None else best[0]
-                if ta >= t_stop:
-                    continue
-                r = first_root(gap, ta, t_stop, m2, self.step)
-                if r is not None and (best is None or r < best[0]):
-                    best = (r, plate)
-            released_now = False
-            if go_stuck is not None:
-                mode, stuck_plate = "stuck", go_stuck
-                continue
-            res.segments.append(seg)
-            if best is None:
-                apex = t_seg_end == seg.t_natural_end and seg.label == "flight" \
-                    and getattr(self.force, "kind", "") in ("coulomb", "quadratic")
-                t = t_seg_end
-                y, v = float(seg.pos(t)), float(seg.vel(t))
-                if apex:
-                    v = 0.0  # exactly at the apex: the next piece falls (no apex ping-pong)
-                continue
-            tr, plate = best
-            vb = float(seg.vel(tr))
-            self._close_flight(res, fi, flight_start, tr, flight_v0, vb, start_plate, plate)
-            t, y, v = self.impact(res, tr, plate, vb, ii, fi, t_end)
-            ii += 1
-            fi += 1
-            flight_start, flight_v0, start_plate = t, v, plate
+            r = first_root(gap, ta, t_stop, m2, self.step)
+            if r is not None and (best is None or r < best[0]):
+                best = (r, plate)
+        return best, None
+
+    def _coast(self, seg: Segment, st: _LoopState, t_seg_end: float) -> None:
+        """No contact on ``seg``: move the state to its end (t_seg_end, s)."""
+        apex = t_seg_end == seg.t_natural_end and seg.label == "flight" \
+            and getattr(self.force, "kind", "") in ("coulomb", "quadratic")
+        st.t = t_seg_end
+        st.y, st.v = float(seg.pos(st.t)), float(seg.vel(st.t))
+        if apex:
+            st.v = 0.0  # exactly at the apex: the next piece falls (no apex ping-pong)
+
+    def _finish(self, res: SimResult, st: _LoopState, start: tuple[float, float, float], t_end: float) -> None:
+        """Close the result: a segment if none, the last flight, the end time if truncated.
+
+        ``start`` is the simulation's (t0 s, y0 m, v0 m/s).
+        """
+        t0, y0, v0 = start
         if not res.segments:
-            res.segments.append(make_flight_segment(t0, y0, v0, self.force, 0, m, g, t_end))
-        if mode == "free" and flight_start < min(t, t_end):
-            t_last = min(t, t_end)
-            self._close_flight(res, fi, flight_start, t_last, flight_v0, float(res.velocity(t_last)),
-                               start_plate, None)
+            res.segments.append(make_flight_segment(t0, y0, v0, self.force, 0,
+                                                    mass_kg=self.m, g_eff=self.g, t_limit=t_end))
+        if st.mode == "free" and st.flight_start < min(st.t, t_end):
+            t_last = min(st.t, t_end)
+            self._close_flight(res, st, t_last, float(res.velocity(t_last)), None)
         if res.truncated:
-            res.t_end_s = t
-        return res
+            res.t_end_s = st.t
 
     def impact(self, res: SimResult, tr: float, plate: str, vb: float, ii: int, fi: int,
                t_end: float) -> tuple[float, float, float]:
@@ -319,7 +361,10 @@ class _Simulator:
         res.impacts.append(sim_impact(ii, tr, plate, e, vb, v_after, vs))
         return tr, float(S.position(tr)) + (b if plate == "top" else -b), v_after
 
-    def _close_flight(self, res, fi, t_start, t_end, v_start, v_end, start_plate, end_plate):
+    def _close_flight(self, res: SimResult, st: _LoopState, t_end: float, v_end: float,
+                      end_plate: str | None) -> None:
+        """Record the flight begun in ``st`` that ends at t_end (s) with velocity v_end (m/s) on ``end_plate``."""
+        fi, t_start, v_start, start_plate = st.fi, st.flight_start, st.flight_v0, st.start_plate
         dt = t_end - t_start
         if dt <= 0:
             return
@@ -335,11 +380,50 @@ class _Simulator:
                                         end_plate=end_plate, direction=direction, mean_force_n=mean_force))
 
 
+def check_span(model: str, y0_m: float, v0_mps: float, t0_s: float, t_end_s: float) -> None:
+    """Raise ValueError (naming ``model``) for a non-finite start state or ``t_end_s < t0_s`` (m, m/s, s)."""
+    for name, value in (("y0_m", y0_m), ("v0_mps", v0_mps), ("t0_s", t0_s), ("t_end_s", t_end_s)):
+        if not math.isfinite(value):
+            raise ValueError(f"{model}: {name} must be finite, got {value!r}")
+    if t_end_s < t0_s:
+        raise ValueError(f"{model}: t_end_s ({t_end_s}) < t0_s ({t0_s})")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CorSolver:
+    """Numerical settings of the COR model; :meth:`simulate` runs it (:func:`simulate_cor` with the defaults).
+
+    Attributes
+    ----------
+    stick_speed_mps : float
+        Rebounds slower than this (relative, m/s) are set to zero: the ball sticks.
+    scan_step_s : float or None
+        Grid of the contact scan (None: min(1e-4 s, T/400)); contacts are found exactly whatever its value.
+    max_events : int
+        Events (impacts, sticking starts and ends) after which the simulation stops with a warning and
+        ``truncated`` set.
+    """
+
+    stick_speed_mps: float = 1e-4
+    scan_step_s: float | None = None
+    max_events: int = 1_000_000
+
+    def simulate(self, structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
+                 force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
+                 t0_s: float = 0.0, t_end_s: float = 1.5) -> SimResult:
+        """Simulate the COR model with these settings; parameters, result and errors as :func:`simulate_cor`."""
+        check_span("simulate_cor", y0_m, v0_mps, t0_s, t_end_s)
+        sim = _Simulator(structure, cavity, restitution, force, self.stick_speed_mps, self.scan_step_s)
+        return sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), self.max_events)
+
+
 def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
                  force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5, stick_speed_mps: float = 1e-4,
-                 scan_step_s: float | None = None, max_events: int = 1_000_000) -> SimResult:
+                 t0_s: float = 0.0, t_end_s: float = 1.5) -> SimResult:
     """Simulate the COR model (instantaneous impacts, Eq. 4-6) from (t0_s, y0_m, v0_mps) to t_end_s.
+
+    The solver's settings (stick speed, scan step, event limit) keep their defaults; to change them use
+    ``CorSolver(stick_speed_mps=..., scan_step_s=..., max_events=...).simulate(...)``.
 
     Parameters
     ----------
@@ -357,13 +441,6 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
         Ball velocity (m/s), + up.
     t0_s, t_end_s : float
         Start and end of the simulation (s).
-    stick_speed_mps : float
-        Rebounds slower than this (relative, m/s) are set to zero: the ball sticks.
-    scan_step_s : float, optional
-        Grid of the contact scan (default min(1e-4 s, T/400)); contacts are found exactly whatever its value.
-    max_events : int
-        Events (impacts, sticking starts and ends) after which the simulation stops with a warning and
-        ``truncated`` set.
 
     Returns
     -------
@@ -375,10 +452,5 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
     ValueError
         A non-finite start, a ball outside the cavity, or ``t_end_s < t0_s``.
     """
-    for name, value in (("y0_m", y0_m), ("v0_mps", v0_mps), ("t0_s", t0_s), ("t_end_s", t_end_s)):
-        if not math.isfinite(value):
-            raise ValueError(f"simulate_cor: {name} must be finite, got {value!r}")
-    if t_end_s < t0_s:
-        raise ValueError(f"simulate_cor: t_end_s ({t_end_s}) < t0_s ({t0_s})")
-    sim = _Simulator(structure, cavity, restitution, force, stick_speed_mps, scan_step_s)
-    return sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), max_events)
+    return CorSolver().simulate(structure, cavity, restitution, force, y0_m=y0_m, v0_mps=v0_mps,
+                                t0_s=t0_s, t_end_s=t_end_s)

@@ -47,7 +47,7 @@ def first_root(f: Callable, ta: float, tb: float, m2: float, step: float,
                 return float(brentq(f, a, b, xtol=xtol, rtol=4 * np.finfo(float).eps))
             sub = b - a
             if sub / 16.0 >= min_step:
-                r = first_root(f, a, b, m2, sub / 16.0, xtol, min_step, touch_tol)
+                r = first_root(f, a, b, m2, sub / 16.0, xtol=xtol, min_step=min_step, touch_tol=touch_tol)
                 if r is not None:
                     return r
             else:

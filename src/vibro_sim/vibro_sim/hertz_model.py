@@ -33,13 +33,14 @@ there, (m g / K)^(2/3) ~ 1e-8 m, is neglected).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import OdeSolution, solve_ivp
 
 from vibro_model.kinematics import StructureKinematics
 
-from .cor_model import SimResult, _Simulator, sim_impact
+from .cor_model import SimResult, _Simulator, check_span, sim_impact
 from .flight import Segment
 from .forces import ForceLaw, NoForce
 from .params import BallCavity
@@ -184,12 +185,54 @@ class _HertzSimulator(_Simulator):
         return t_out, float(S.position(t_out)) + side * b, v_out
 
 
+@dataclass(frozen=True, kw_only=True)
+class HertzSolver:
+    """Settings of the Hertz model; :meth:`simulate` runs it (:func:`simulate_hertz` with the defaults).
+
+    Attributes
+    ----------
+    delta_a : str or float
+        The reference indentation of the damping (Eq. 11-12): ``"impact"`` (each impact's maximum
+        penetration), ``"calibrated"`` (chosen per impact so that the achieved COR is e) or a length (m); see
+        the module doc.
+    stick_speed_mps : float
+        Rebounds slower than this (relative, m/s) are set to zero: the ball sticks.
+    rtol : float
+        Relative tolerance of the contact integration.
+    max_events : int
+        Events after which the simulation stops with a warning and ``truncated`` set.
+    """
+
+    delta_a: str | float = "impact"
+    stick_speed_mps: float = 1e-4
+    rtol: float = 1e-9
+    max_events: int = 1_000_000
+
+    def simulate(self, structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
+                 force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
+                 t0_s: float = 0.0, t_end_s: float = 1.5) -> SimResult:
+        """Simulate the Hertz damped contact model (Eq. 7-12) with these settings; as :func:`simulate_hertz`."""
+        check_span("simulate_hertz", y0_m, v0_mps, t0_s, t_end_s)
+        delta_a = self.delta_a
+        if delta_a not in ("impact", "calibrated") and not (isinstance(delta_a, (int, float)) and delta_a > 0):
+            raise ValueError(f"simulate_hertz: delta_a must be 'impact', 'calibrated' or a positive length (m), "
+                             f"got {delta_a!r}")
+        sim = _HertzSimulator(structure, cavity, restitution, force, self.stick_speed_mps, None,
+                              delta_a=delta_a, rtol=self.rtol)
+        res = sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), self.max_events)
+        res.model = "hertz"
+        res.contact_durations_s = sim.contact_durations  # type: ignore[attr-defined]
+        res.effective_cors = sim.effective_cors  # type: ignore[attr-defined]
+        return res
+
+
 def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
                    force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
-                   t0_s: float = 0.0, t_end_s: float = 1.5, delta_a: str | float = "impact",
-                   stick_speed_mps: float = 1e-4, rtol: float = 1e-9,
-                   max_events: int = 1_000_000) -> SimResult:
+                   t0_s: float = 0.0, t_end_s: float = 1.5) -> SimResult:
     """Simulate the Hertz damped contact model (Eq. 7-12); same conventions as :func:`simulate_cor`.
+
+    The model's settings (``delta_a``, stick speed, integration tolerance, event limit) keep their
+    defaults; to change them use ``HertzSolver(delta_a=..., rtol=..., ...).simulate(...)``.
 
     Parameters
     ----------
@@ -207,16 +250,6 @@ def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restituti
         Ball velocity (m/s), + up.
     t0_s, t_end_s : float
         Start and end of the simulation (s).
-    delta_a : str or float
-        The reference indentation of the damping (Eq. 11-12): ``"impact"`` (each impact's maximum
-        penetration), ``"calibrated"`` (chosen per impact so that the achieved COR is e) or a length (m); see
-        the module doc.
-    stick_speed_mps : float
-        Rebounds slower than this (relative, m/s) are set to zero: the ball sticks.
-    rtol : float
-        Relative tolerance of the contact integration.
-    max_events : int
-        Events after which the simulation stops with a warning and ``truncated`` set.
 
     Returns
     -------
@@ -226,7 +259,7 @@ def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restituti
     Raises
     ------
     ValueError
-        A non-finite start, ``t_end_s < t0_s`` or an invalid ``delta_a``.
+        A non-finite start or ``t_end_s < t0_s``.
 
     Notes
     -----
@@ -235,21 +268,8 @@ def simulate_hertz(structure: StructureKinematics, cavity: BallCavity, restituti
     ``result.contact_durations_s`` and ``result.effective_cors`` hold, per impact, the
     contact time and the achieved -v_rel,out / v_rel,in.
     """
-    for name, value in (("y0_m", y0_m), ("v0_mps", v0_mps), ("t0_s", t0_s), ("t_end_s", t_end_s)):
-        if not math.isfinite(value):
-            raise ValueError(f"simulate_hertz: {name} must be finite, got {value!r}")
-    if t_end_s < t0_s:
-        raise ValueError(f"simulate_hertz: t_end_s ({t_end_s}) < t0_s ({t0_s})")
-    if delta_a not in ("impact", "calibrated") and not (isinstance(delta_a, (int, float)) and delta_a > 0):
-        raise ValueError(f"simulate_hertz: delta_a must be 'impact', 'calibrated' or a positive length (m), "
-                         f"got {delta_a!r}")
-    sim = _HertzSimulator(structure, cavity, restitution, force, stick_speed_mps, None,
-                          delta_a=delta_a, rtol=rtol)
-    res = sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), max_events)
-    res.model = "hertz"
-    res.contact_durations_s = sim.contact_durations  # type: ignore[attr-defined]
-    res.effective_cors = sim.effective_cors  # type: ignore[attr-defined]
-    return res
+    return HertzSolver().simulate(structure, cavity, restitution, force, y0_m=y0_m, v0_mps=v0_mps,
+                                  t0_s=t0_s, t_end_s=t_end_s)
 
 
 def hertz_single_impact(cavity: BallCavity, e: float, v_mps: float, delta_a: str | float = "impact",
@@ -265,8 +285,8 @@ def hertz_single_impact(cavity: BallCavity, e: float, v_mps: float, delta_a: str
     t_hit = 1e-4
     y0 = -cav.free_play_m + v_mps * t_hit
     tc = hertz_contact_time(cav, v_mps)
-    r = simulate_hertz(S, cav, Constant(e), NoForce(), y0_m=y0, v0_mps=-v_mps, t0_s=0.0, t_end_s=t_hit + 20 * tc,
-                       delta_a=delta_a, rtol=rtol)
+    r = HertzSolver(delta_a=delta_a, rtol=rtol).simulate(S, cav, Constant(e), NoForce(), y0_m=y0, v0_mps=-v_mps,
+                                                         t0_s=0.0, t_end_s=t_hit + 20 * tc)
     return r.effective_cors[0], r.contact_durations_s[0]  # type: ignore[attr-defined]
 
 

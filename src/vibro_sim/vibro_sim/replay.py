@@ -19,7 +19,7 @@ from vibro_model.kinematics import StructureKinematics
 from .cor_model import SimResult, simulate_cor
 from .deviation import deviation
 from .forces import PerFlight
-from .hertz_model import simulate_hertz
+from .hertz_model import HertzSolver
 from .params import BallCavity
 from .restitution import PLATES, RestitutionLaw
 
@@ -107,7 +107,7 @@ def simulate_measured(inputs: ReplayInputs, cavity: BallCavity, t_eval_s,
     Returns ``{"cor_model": (y_ball_m, result), "hertz_model": (y_ball_m, result)}`` where
     ``y_ball_m`` is the simulated ball centre (m, same lab frame as ``inputs.structure``)
     at ``t_eval_s`` (which must lie within [t_start_s, t_end_s]). ``hertz_delta_a``:
-    see :func:`vibro_sim.hertz_model.simulate_hertz`. Default "calibrated": delta_a of
+    see :class:`vibro_sim.hertz_model.HertzSolver`. Default "calibrated": delta_a of
     Eq. 12 chosen per impact so that the Hertz impact dissipates what the identified COR
     says (the paper's stated intent for c); "impact" (delta_a = undamped max
     penetration) restitutes ~0.06 less than the target and drifts away from the
@@ -128,8 +128,8 @@ def simulate_measured(inputs: ReplayInputs, cavity: BallCavity, t_eval_s,
         if name == "cor_model":
             res = simulate_cor(S, cavity, law, force, y0_m=y0, v0_mps=v0, t0_s=t0, t_end_s=inputs.t_end_s)
         elif name == "hertz_model":
-            res = simulate_hertz(S, cavity, law, force, y0_m=y0, v0_mps=v0, t0_s=t0, t_end_s=inputs.t_end_s,
-                                 delta_a=hertz_delta_a)
+            res = HertzSolver(delta_a=hertz_delta_a).simulate(S, cavity, law, force, y0_m=y0, v0_mps=v0, t0_s=t0,
+                                                              t_end_s=inputs.t_end_s)
         else:
             raise ValueError(f"unknown model {name!r} (expected 'cor_model' or 'hertz_model')")
         out[name] = (np.asarray(res.sample(t_eval), dtype=float), res)

@@ -31,10 +31,20 @@ class AccelSignals:
     lower_ms2: np.ndarray
 
 
-def make_accel(structure, impacts, mass_kg: float, t_first_s: float, t_last_s: float,
-               rate_hz: float, noise_mps2: float, clock_offset_s: float,
+@dataclass(frozen=True, kw_only=True)
+class DaqSettings:
+    """The accelerometer DAQ: sample rate (Hz), noise std (m/s^2) and its clock's lead on the camera clock (s)."""
+
+    rate_hz: float
+    noise_mps2: float
+    clock_offset_s: float
+
+
+def make_accel(structure, impacts, mass_kg: float, window_s: tuple[float, float], daq: DaqSettings,
                rng: np.random.Generator) -> AccelSignals:
-    """Samples on the DAQ clock covering the camera window [t_first_s, t_last_s]."""
+    """Samples on the DAQ clock covering the camera window ``window_s`` = (first, last) camera time (s)."""
+    t_first_s, t_last_s = window_s
+    rate_hz, noise_mps2, clock_offset_s = daq.rate_hz, daq.noise_mps2, daq.clock_offset_s
     n0 = int(math.ceil((t_first_s + clock_offset_s) * rate_hz))
     n1 = int(math.floor((t_last_s + clock_offset_s) * rate_hz))
     t_daq = np.arange(n0, n1 + 1) / rate_hz

@@ -266,7 +266,7 @@ def parse_effect_args(effect_names: list[str] | None, params: list[str] | None) 
     return normalise_effects(chosen)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Models:
     """The physics of one scenario."""
 
@@ -303,9 +303,10 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
     w = 2 * math.pi * cfg.frequency_hz
     h = eff.get("structure_harmonics", {})
     amp = 0.0 if cfg.still else cfg.accel_mps2 / w ** 2
-    structure = StructureKinematics(amp, cfg.frequency_hz, phase_rad, 0.0,
-                                h.get("h2_ratio", 0.0), h.get("h3_ratio", 0.0),
-                                h.get("h2_phase_rad", 0.0), h.get("h3_phase_rad", 0.0))
+    structure = StructureKinematics(amplitude_m=amp, frequency_hz=cfg.frequency_hz, phase_rad=phase_rad,
+                                    offset_m=0.0, h2_ratio=h.get("h2_ratio", 0.0), h3_ratio=h.get("h3_ratio", 0.0),
+                                    h2_phase_rad=h.get("h2_phase_rad", 0.0),
+                                    h3_phase_rad=h.get("h3_phase_rad", 0.0))
     cavity = BallCavity(mass_kg=cfg.ball_mass_kg, radius_m=0.5 * mm_to_m(cfg.ball_diameter_mm),
                         free_play_m=0.5 * mm_to_m(cfg.gap_mm - cfg.ball_diameter_mm),
                         tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
@@ -325,8 +326,9 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
     if cfg.cor_scatter > 0:
         law = Scattered(law, cfg.cor_scatter, seed=cfg.seed + 104729)
     drift = drift_per_impact(eff["cor_drift"]["drift_per_s"], cfg.frequency_hz) if "cor_drift" in eff else 0.0
-    return Models(structure, cavity, law, force, plain_law, eff.get("plate_step"), drift, before_scatter,
-                  cfg.cor_scatter, cfg.seed + 104729, spins)
+    return Models(structure=structure, cavity=cavity, restitution=law, force=force, law_without_scatter=plain_law,
+                  plate_step=eff.get("plate_step"), cor_drift_per_impact=drift, law_before_scatter=before_scatter,
+                  cor_scatter=cfg.cor_scatter, scatter_seed=cfg.seed + 104729, spins_rad_s=spins)
 
 
 def effect_laws(effects: Mapping[str, Mapping[str, float]], scatter_seed: int | None = None,

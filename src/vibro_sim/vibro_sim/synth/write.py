@@ -28,7 +28,7 @@ from vibro_io.rig import (
 )
 from vibro_model.units import m_to_mm, um_to_mm
 
-from .accel import make_accel
+from .accel import DaqSettings, make_accel
 from .render import Renderer, choose_layout, quantise
 from .scenario import STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
 from .spin import spin_angle, spin_rate
@@ -95,8 +95,8 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     S = models.structure
     try:
         layout = choose_layout(cfg.width_px, cfg.height_px, cfg.ball_diameter_mm, cfg.gap_mm,
-                               m_to_mm(S.bound(0)), cfg.mm_per_px, SUBSET_PX,
-                               cfg.drift_px if cfg.still and cfg.drift else 0.0)
+                               amplitude_mm=m_to_mm(S.bound(0)), mm_per_px=cfg.mm_per_px, subset_px=SUBSET_PX,
+                               drift_px=cfg.drift_px if cfg.still and cfg.drift else 0.0)
     except ValueError as exc:
         raise SynthError(f"image layout: {exc}") from None
     _prepare_dir(out_dir, overwrite)
@@ -126,11 +126,12 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     check_rois_in_image(rig, cfg.height_px, cfg.width_px)
 
     angle = _ball_angle(models, traj)
-    _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress, angle)
+    _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress=progress, angle=angle)
 
     if cfg.accel:
-        sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, float(t[0]), float(t[-1]),
-                         cfg.accel_rate_hz, cfg.accel_noise_mps2, cfg.clock_offset_s, noise_rng)
+        daq = DaqSettings(rate_hz=cfg.accel_rate_hz, noise_mps2=cfg.accel_noise_mps2,
+                          clock_offset_s=cfg.clock_offset_s)
+        sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, (float(t[0]), float(t[-1])), daq, noise_rng)
         with atomic_path(out_dir / "accel.csv") as tmp:
             write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
 
