@@ -16,8 +16,17 @@ skips the first two runs (the long sweep in less time). The recordings are delet
 frames take 3.2 GB) unless ``--keep``; ``--reuse`` takes an existing recording of the same length in
 ``--dir`` instead of writing it again (its synth time is then not measured).
 
+``--lab-files``: the path a lab takes from its own camera and DAQ files (issue 38 item 5). ``vibro synth
+--lab-files`` writes the take as an 8-bit Photron MRAW (video.mraw + video.cih) and an NI TDMS of the
+accelerometers (50 kHz), without rig.yaml; then, each a child timed alone: ``vibro init RUN --ball-diameter-mm
+4.77 --gap-mm 16.6``, the TDMS's accelerometers block added to the rig.yaml it wrote (what a lab adds by hand:
+init writes none), and ``vibro analyze RUN --out OUT`` (with its report). The goal: init + analyze within
+60 s and 1 GB peak RSS each on 2 cores. The rows go to the ``lab_files`` key of --out (the rest of the file
+is kept), with the load average (1 min) before and after each step: the machine may be shared.
+
 Run: scripts/py bench/bench_length.py [--lengths 1500,5000,20000,60000] [--only-analyze]
      [--dir /tmp/vibro_bench_length] [--keep] [--reuse] -> table + bench/results/length.json
+     scripts/py bench/bench_length.py --lab-files --lengths 1500,5000,20000 -> table + length.json "lab_files"
 """
 
 from __future__ import annotations
@@ -35,7 +44,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 VIBRO = str(ROOT / "vibro")
 LENGTHS = (1500, 5000, 20000, 60000)
+LAB_LENGTHS = (1500, 5000, 20000)
 MIB = 1024.0 * 1024.0
+BALL_DIAMETER_MM, GAP_MM = "4.77", "16.6"   # the synthetic rig's two lengths, as a lab knows them
+GOAL = {"wall_s": 60.0, "rss_mib": 1024.0}
 
 
 def run_child(args: list[str]) -> dict:
@@ -99,6 +111,100 @@ def one_length(n: int, work: Path, seed: int, only_analyze: bool, keep: bool, re
     return row
 
 
+def _load() -> float:
+    return os.getloadavg()[0]
+
+
+def timed_step(args: list[str]) -> dict:
+    """:func:`run_child` with the 1-minute load average before and after."""
+    before = _load()
+    res = run_child(args)
+    res["load_before"], res["load_after"] = before, _load()
+    return res
+
+
+def add_tdms_block(rec: Path) -> None:
+    """Append the accelerometers block of the TDMS (from the truth file's ``lab_files``) to init's rig.yaml."""
+    import yaml
+
+    truth = json.loads(Path(f"{rec}.truth.json").read_text(encoding="utf-8"))
+    with (rec / "rig.yaml").open("a", encoding="utf-8") as fh:
+        fh.write(yaml.safe_dump({"accelerometers": truth["lab_files"]["accelerometers"]}, sort_keys=False))
+
+
+def one_length_lab(n: int, work: Path, seed: int, keep: bool) -> dict:
+    """Lab files of ``n`` frames: synth --lab-files, then vibro init and vibro analyze, each timed alone."""
+    rec, out = work / f"lab{n}", work / f"lab{n}_out"
+    row: dict = {"frames": n}
+    print(f"[{n}] vibro synth --lab-files", file=sys.stderr, flush=True)
+    row["synth"] = timed_step(["synth", "--out", str(rec), "--frames", str(n), "--seed", str(seed), "--lab-files",
+                               "--overwrite", "--no-progress"])
+    row["mraw_mib"] = (rec / "video.mraw").stat().st_size / MIB
+    row["tdms_mib"] = (rec / "accel.tdms").stat().st_size / MIB
+    try:
+        print(f"[{n}] vibro init", file=sys.stderr, flush=True)
+        row["init"] = timed_step(["init", str(rec), "--ball-diameter-mm", BALL_DIAMETER_MM, "--gap-mm", GAP_MM])
+        add_tdms_block(rec)
+        print(f"[{n}] vibro analyze", file=sys.stderr, flush=True)
+        row["analyze"] = timed_step(["analyze", str(rec), "--out", str(out), "--overwrite", "--no-progress"])
+        row["analyze"].update(results_summary(out))
+        truth = json.loads(Path(f"{rec}.truth.json").read_text(encoding="utf-8"))
+        row["analyze"]["true_impacts"] = len(truth["impacts"])
+    finally:
+        if not keep:
+            for d in (rec, out):
+                shutil.rmtree(d, ignore_errors=True)
+            Path(f"{rec}.truth.json").unlink(missing_ok=True)
+    steps = (row["init"], row["analyze"])
+    row["user_wall_s"] = sum(s["wall_s"] for s in steps)
+    row["user_peak_rss_mib"] = max(s["rss_mib"] for s in steps)
+    row["goal_met"] = row["user_wall_s"] <= GOAL["wall_s"] and row["user_peak_rss_mib"] <= GOAL["rss_mib"]
+    return row
+
+
+def print_lab_table(rows: list[dict]) -> None:
+    print(f"\n{'frames':>7} {'synth s':>8} {'MiB':>5} | {'init MiB':>8} {'s':>5} | {'analyze MiB':>11} {'s':>6} "
+          f"{'impacts':>8} | {'init+analyze s':>14} {'goal':>4} | {'load':>9}")
+    for r in rows:
+        i, a = r["init"], r["analyze"]
+        loads = [s[k] for s in (r["synth"], i, a) for k in ("load_before", "load_after")]
+        goal = "met" if r["goal_met"] else "no"
+        print(f"{r['frames']:>7} {r['synth']['wall_s']:>8.0f} {r['synth']['rss_mib']:>5.0f} | "
+              f"{i['rss_mib']:>8.0f} {i['wall_s']:>5.1f} | {a['rss_mib']:>11.0f} {a['wall_s']:>6.1f} "
+              f"{a['impacts']:>3}/{a['true_impacts']:<4} | {r['user_wall_s']:>14.1f} {goal:>4} | "
+              f"{min(loads):.1f}-{max(loads):.1f}")
+
+
+def main_lab(args: argparse.Namespace) -> int:
+    """``--lab-files``: the rows into the ``lab_files`` key of ``args.out`` (the file's other keys kept)."""
+    lengths = sorted({int(x) for x in args.lengths.split(",") if x.strip()}) if args.lengths else list(LAB_LENGTHS)
+    work = Path(args.dir)
+    work.mkdir(parents=True, exist_ok=True)
+    rows, t0 = [], time.perf_counter()
+    for n in lengths:
+        rows.append(one_length_lab(n, work, args.seed, args.keep))
+        r = rows[-1]
+        print(f"[{n}] init {r['init']['wall_s']:.1f} s, analyze {r['analyze']['wall_s']:.1f} s "
+              f"{r['analyze']['rss_mib']:.0f} MiB, {r['analyze']['impacts']} impacts", file=sys.stderr, flush=True)
+    print_lab_table(rows)
+    path = Path(args.out)
+    doc = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {"benchmark": "length"}
+    doc["lab_files"] = {
+        "what": "a lab's path: vibro synth --lab-files (8-bit MRAW + .cih, NI TDMS at 50 kHz, no rig.yaml), then "
+                "vibro init RUN --ball-diameter-mm 4.77 --gap-mm 16.6, the TDMS block added to rig.yaml, vibro "
+                "analyze RUN --out OUT (report included); each a child process timed alone",
+        "goal": {"init_plus_analyze_wall_s": GOAL["wall_s"], "peak_rss_mib": GOAL["rss_mib"]},
+        "settings": {"lengths": lengths, "seed": args.seed, "fps": 1000.0, "cpus": os.cpu_count(),
+                     "python": platform.python_version()},
+        "rss": "peak resident set size of the child (os.wait4 ru_maxrss), MiB",
+        "load": "1-minute load average before and after each step (load_before, load_after)",
+        "wall_s": time.perf_counter() - t0, "rows": rows}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    print(f"wrote {path} (key lab_files)")
+    return 0
+
+
 def _f(x, fmt: str) -> str:
     return "-" if x is None else format(x, fmt)
 
@@ -122,15 +228,21 @@ def print_table(rows: list[dict]) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--lengths", default=",".join(map(str, LENGTHS)), help="frames, comma separated")
+    ap.add_argument("--lengths", default=None,
+                    help=f"frames, comma separated (default {','.join(map(str, LENGTHS))}; --lab-files "
+                         f"{','.join(map(str, LAB_LENGTHS))})")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--only-analyze", action="store_true", help="skip vibro track and analyze --track")
     ap.add_argument("--dir", default="/tmp/vibro_bench_length", help="working folder for the recordings")
     ap.add_argument("--keep", action="store_true", help="keep the recordings and outputs")
     ap.add_argument("--reuse", action="store_true", help="use a recording of the same length already in --dir")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "length.json"))
+    ap.add_argument("--lab-files", action="store_true",
+                    help="a lab's path: synth --lab-files, vibro init, vibro analyze (key lab_files of --out)")
     args = ap.parse_args(argv)
-    lengths = sorted({int(x) for x in args.lengths.split(",") if x.strip()})
+    if args.lab_files:
+        return main_lab(args)
+    lengths = sorted({int(x) for x in (args.lengths or ",".join(map(str, LENGTHS))).split(",") if x.strip()})
     work = Path(args.dir)
     work.mkdir(parents=True, exist_ok=True)
     rows = []

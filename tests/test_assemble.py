@@ -24,13 +24,22 @@ from vibro_model.assemble import (
     ConsistencyStage,
     DiscrepancyStage,
     Identified,
+    LocalStructure,
     Reidentification,
     SimulationStage,
     StageOutputs,
     assemble_results,
     cor_statistics_section,
 )
-from vibro_model.results import Discrepancy, DiscrepancyFinding, Flight, Impact, Simulation, StructureMotion
+from vibro_model.results import (
+    Discrepancy,
+    DiscrepancyFinding,
+    Flight,
+    Impact,
+    ResultsDocument,
+    Simulation,
+    StructureMotion,
+)
 
 N_IMPACTS = 12
 HALF_PERIOD_S = 0.0227  # two impacts per drive cycle at 22 Hz
@@ -189,3 +198,39 @@ def _assert_close(a, b, path: str) -> None:
         assert abs(a - b) <= 4.5e-16 * max(1.0, abs(a)), f"{path}: {a!r} vs {b!r}"  # 2 ulp: one mm <-> m rounding
     else:
         assert a == b, f"{path}: {a!r} vs {b!r}"
+
+
+def test_impacts_measured_with_a_local_structure_velocity_are_named_and_said_by_stretch() -> None:
+    ident = _identified()
+    # the final model measures every impact 0.01 lower; impacts 4-6 sit where its structure misses the measured
+    # one (a drive that changed there): they are measured with the local structure velocity, one stretch
+    local = {k: LocalStructure(t_paper_s=i.t_s, cor_global=i.cor - 0.03, cor_shift=0.02,
+                               structure_velocity_misfit_mps=2e-3 * (k - 3))
+             for k, i in enumerate(ident.impacts) if 4 <= k <= 6}
+    remeasured = [replace(i, cor=i.cor - 0.01, t_paper_s=i.t_s) for i in ident.impacts]
+
+    def assembled(kept: list[int]) -> ResultsDocument:
+        redo = Reidentification(effects=("coulomb_friction",), impacts=remeasured,
+                                local_structure=[local[k] for k in kept])
+        return assemble_results(StageOutputs(recording="r", identified=ident, discrepancy=DiscrepancyStage(
+            discrepancy=Discrepancy(0.03, [], 0.004), reidentification=redo)))
+
+    doc = assembled([4, 5, 6])
+    methods = [i.cor_method for i in doc.impacts]
+    assert methods == ["coulomb_friction"] * 4 + ["coulomb_friction+local_structure"] * 3 + ["coulomb_friction"] * 5
+    assert all(math.isclose(i.cor, i.cor_paper - 0.01) for i in doc.impacts)  # the re-measured values, all
+    section = doc.sections["impacts_model"]
+    assert section["n_reidentified"] == N_IMPACTS
+    (stretch,) = section["local_structure"]
+    assert (stretch["t_start_s"], stretch["t_end_s"], stretch["n_impacts"]) == (ident.impacts[4].t_s,
+                                                                                ident.impacts[6].t_s, 3)
+    assert math.isclose(stretch["max_cor_shift"], 0.02)
+    assert math.isclose(stretch["max_structure_velocity_misfit_mps"], 6e-3)
+    assert any(w.startswith("impacts_model: 3 impact(s) measured with the structure velocity of a fit local")
+               for w in doc.warnings)
+    # two stretches when an impact between them keeps the final model's structure
+    assert [s["n_impacts"] for s in assembled([4, 6]).sections["impacts_model"]["local_structure"]] == [1, 1]
+    # none: no section key, no warning
+    plain = assembled([])
+    assert "local_structure" not in plain.sections["impacts_model"]
+    assert not any(w.startswith("impacts_model") for w in plain.warnings)

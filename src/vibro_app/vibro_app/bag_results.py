@@ -45,6 +45,7 @@ from vibro_model.assemble import (
     ConsistencyStage,
     DiscrepancyStage,
     Identified,
+    LocalStructure,
     Reidentification,
     SimulationStage,
     StageOutputs,
@@ -88,6 +89,8 @@ class BagResults:
         self.consistency: dict | None = None  # the fitter's cross-checks (its /diagnostics, topics.CONSISTENCY_KEY)
         self.refused = ""  # the fitter's refusal line (topics.REFUSED_KEY), "" when it published its results
         self.consistency_problem = ""  # why a recorded consistency value could not be read
+        self.local_structure: list[LocalStructure] = []  # the discrepancy node's (topics.LOCAL_STRUCTURE_KEY)
+        self.local_structure_problem = ""  # why a recorded local_structure value could not be read
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
                   topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name,
@@ -100,6 +103,7 @@ class BagResults:
                     if pid is not None:
                         self.pids.setdefault(str(status.name).rsplit("/", 1)[-1], set()).add(str(pid))
                     self._note_consistency(status)
+                    self._note_local_structure(status)
             elif m.topic == topics.DIC.name:
                 self.frames.append(msg)
             elif m.topic == topics.STRUCTURE.name:
@@ -137,6 +141,24 @@ class BagResults:
                                             "are not in this document")
         if values.get(topics.REFUSED_KEY):
             self.refused = values[topics.REFUSED_KEY]
+
+    def _note_local_structure(self, status) -> None:
+        """The impacts the discrepancy node measured with a local structure velocity (its final model's structure
+        does not follow the measured one there), carried by its /diagnostics status once it ran (the latest
+        wins)."""
+        if str(status.name).rsplit("/", 1)[-1] != "discrepancy":
+            return
+        value = next((kv.value for kv in status.values if kv.key == topics.LOCAL_STRUCTURE_KEY), None)
+        if value is None:
+            return
+        try:
+            self.local_structure = [LocalStructure(**entry) for entry in json.loads(value)]
+            self.local_structure_problem = ""
+        except (ValueError, TypeError) as exc:
+            self.local_structure = []
+            self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
+                                            f"'{topics.LOCAL_STRUCTURE_KEY}' could not be read ({exc}); which "
+                                            "impacts took a local structure velocity is not in this document")
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]
@@ -223,7 +245,8 @@ def bag_stages(r: BagResults) -> StageOutputs:
     remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
     identified_doc = assemble_results(StageOutputs(recording=r.bag, identified=identified))
     redo = Reidentification(effects=tuple(measurement_effects(findings)),
-                            impacts=reidentified_from_impacts(identified_doc, remeasured))
+                            impacts=reidentified_from_impacts(identified_doc, remeasured),
+                            local_structure=r.local_structure)
     return StageOutputs(
         recording=r.bag, identified=identified, completeness=_completeness_stage(r, len(impacts)),
         consistency=_consistency_stage(r),
@@ -256,7 +279,7 @@ def _consistency_stage(r: BagResults) -> ConsistencyStage | None:
 
 def _discrepancy_stage(r: BagResults, findings: list, redo: Reidentification) -> DiscrepancyStage:
     """The discrepancy node's findings (D before the first and after the last), and the impacts it re-measured."""
-    warnings = []
+    warnings = [r.local_structure_problem] if r.local_structure_problem else []
     if "discrepancy" in r.finished and not findings:
         # the discrepancy node publishes findings only: with none, the baseline D is not in the bag
         warnings.append("discrepancy: no finding published; the baseline D is not recorded in a bag "

@@ -17,8 +17,13 @@ def _effects_help() -> str:
              for name, spec in EFFECTS.items()]
     invented = [f"{name} ({', '.join(f'{k}={d:g}' for k, (d, _, _) in spec.items())}: {INVENTED_HELP[name]})"
                 for name, spec in INVENTED_EFFECTS.items()]
+    from vibro_sim.synth.invented import DRIVE_EFFECTS, DRIVE_HELP
+
+    drive = [f"{name} ({', '.join(f'{k}={d:g}' for k, (d, _, _) in spec.items())}: {DRIVE_HELP[name]})"
+             for name, spec in DRIVE_EFFECTS.items()]
     return ("; ".join(parts) + ". Invented effects OUTSIDE the discrepancy catalogue (no term models them: "
-            "the analysis must report them as 'unexplained', located): " + "; ".join(invented))
+            "the analysis must report them as 'unexplained', located): " + "; ".join(invented)
+            + ". The drive itself, not ball physics (results.json 'drive'): " + "; ".join(drive))
 
 
 def register(sub) -> None:
@@ -44,7 +49,11 @@ def register(sub) -> None:
     p.add_argument("--noise", type=float, default=2.0, metavar="GRAY", help="read noise sigma (gray levels)")
     p.add_argument("--blur", action="store_true", help="motion blur over a 0.5 ms exposure")
     p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="T",
-                   help="accelerometer clock minus camera clock (ms)")
+                   help="accelerometer clock minus camera clock (ms), at camera time 0")
+    p.add_argument("--daq-clock-ppm", type=float, default=0.0, metavar="PPM",
+                   help="the accelerometer DAQ's clock runs fast by PPM against the camera's (a crystal's error, "
+                        "e.g. 200; negative: slow): accel.csv time = camera time + offset + PPM 1e-6 camera time "
+                        "(default 0)")
     p.add_argument("--cor-scatter", type=float, default=0.0, metavar="SIGMA",
                    help="per-impact COR scatter of every scenario: each impact's COR drawn N(law, SIGMA), e.g. "
                         "0.015 as the paper's Fig. 14-16 show (default 0: no scatter)")
@@ -71,6 +80,11 @@ def register(sub) -> None:
     p.add_argument("--bits12", action="store_true",
                    help="16-bit TIFF frames holding a 12-bit camera's codes (at the top of the word, as Photron)")
     p.add_argument("--no-accel", action="store_true", help="video-only recording")
+    p.add_argument("--lab-files", action="store_true",
+                   help="write what a lab's camera and DAQ give: the video as an 8-bit Photron MRAW (video.mraw + "
+                        "video.cih) and the accelerometers as an NI TDMS (accel.tdms, 50 kHz waveform channels) "
+                        "instead of frames/ and accel.csv, and no rig.yaml: make it with `vibro init` (the truth "
+                        "file's lab_files names the accelerometers block to add for the TDMS)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an earlier synthetic recording in --out and its truth file (refused if --out "
                         "holds other files)")
@@ -90,6 +104,7 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
         kw["cor"] = args.cor
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
+                       daq_clock_ppm=args.daq_clock_ppm,
                        frames=args.frames, still=args.still, drift=args.drift, tiff16=args.tiff16,
                        bits12=args.bits12,
                        accel=not args.no_accel, cor_scatter=args.cor_scatter, spin_rad_s=args.spin_rad_s,
@@ -103,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     truth = synthesize(args.out, cfg, overwrite=args.overwrite,
-                       progress=False if args.no_progress else None)
+                       progress=False if args.no_progress else None, lab_files=args.lab_files)
     n = len(truth["impacts"])
     print(f"wrote {args.out} ({cfg.frames} frames, {n} impacts) and {truth_path(args.out)}",
           file=sys.stdout)

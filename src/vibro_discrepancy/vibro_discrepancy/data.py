@@ -6,7 +6,9 @@ Input: the identification as :mod:`vibro_model.results` types (:class:`Structure
 structure displacements since frame 0, positive up (the track's mm are converted here, at the edge). The
 cavity centre sits on the structure displacement; the ball centre minus the cavity centre is ``ball + c0``
 minus it. :func:`measured_from_sections` reads a results.json-shaped mapping (a file read from disk, a
-test's hand-made input) into the model types first, validating every key.
+test's hand-made input) into the model types first, validating every key. The identification's verdict on the
+drive (results.json ``drive``, :mod:`vibro_fit.drive`) travels along as plain JSON (:attr:`Measured.drive`): a
+drive that did not hold still is not a structure tone (:func:`drive_change`).
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class Measured:
     free_play_m: float
     g_mps2: float = G_MPS2
     notes: list[str] = field(default_factory=list)
+    drive: Mapping[str, Any] | None = None   # results.json ``drive`` (the identification's windowed drive)
 
     @property
     def frequency_hz(self) -> float:
@@ -170,9 +173,10 @@ def _flight_samples(k: int, fl: Flight, t: np.ndarray, ball: np.ndarray, impact_
 
 
 def measured_from_model(structure: StructureMotion | None, flights: Sequence[Flight], impacts: Sequence[Impact],
-                        track: DicTrack, rig: RigConfig) -> Measured:
-    """Build :class:`Measured` from the identification (model types), the DIC track and the rig.
-    Raises :class:`RecordingError` naming what is missing or inconsistent."""
+                        track: DicTrack, rig: RigConfig, drive: Mapping[str, Any] | None = None) -> Measured:
+    """Build :class:`Measured` from the identification (model types), the DIC track and the rig (``drive``: the
+    results' ``drive`` section, carried as it is). Raises :class:`RecordingError` naming what is missing or
+    inconsistent."""
     sine = _sine(structure)
     good = _check_track(track)
     t = np.asarray(track.t_s, dtype=float)[good]
@@ -191,14 +195,15 @@ def measured_from_model(structure: StructureMotion | None, flights: Sequence[Fli
     usable = [replace(i, **links.get(j, {})) for j, i in enumerate(usable)]
     notes = [f"only {len(samples)} usable free flights"] if len(samples) < 3 else []
     return Measured(structure=sine, flights=samples, impacts=usable, t_s=t, ball_m=ball, structure_m=struct,
-                    mass_kg=float(rig.ball.mass_kg), free_play_m=mm_to_m(float(rig.free_play_mm)), notes=notes)
+                    mass_kg=float(rig.ball.mass_kg), free_play_m=mm_to_m(float(rig.free_play_mm)), notes=notes,
+                    drive=_drive_section(drive))
 
 
 def measured_from_document(doc: ResultsDocument, track: DicTrack, rig: RigConfig) -> Measured:
     """:func:`measured_from_model` of a results document's structure, flights and impacts."""
     if not isinstance(doc, ResultsDocument):
         raise RecordingError(f"discrepancy: expected a ResultsDocument, got {type(doc).__name__}")
-    return measured_from_model(doc.structure, doc.flights, doc.impacts, track, rig)
+    return measured_from_model(doc.structure, doc.flights, doc.impacts, track, rig, doc.sections.get("drive"))
 
 
 def sections_model(sections: Mapping[str, Any]) -> tuple[StructureMotion, list[Flight], list[Impact]]:
@@ -217,7 +222,25 @@ def sections_model(sections: Mapping[str, Any]) -> tuple[StructureMotion, list[F
 
 def measured_from_sections(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig) -> Measured:
     """:func:`measured_from_model` of a results.json-shaped mapping (read by :func:`sections_model`)."""
-    return measured_from_model(*sections_model(sections), track, rig)
+    return measured_from_model(*sections_model(sections), track, rig, sections.get("drive"))
+
+
+def _drive_section(drive: Any) -> Mapping[str, Any] | None:
+    """The ``drive`` section when it is a mapping (else None: older results have none)."""
+    return drive if isinstance(drive, Mapping) else None
+
+
+def drive_change(meas: Measured) -> Mapping[str, Any] | None:
+    """The ``drive`` section when the identification found the drive not stationary (``stationary`` false), else
+    None (stationary, not tested, or no section)."""
+    d = meas.drive
+    return d if d is not None and d.get("stationary") is False else None
+
+
+def drive_change_words(drive: Mapping[str, Any]) -> str:
+    """What the drive did, in words (the section's own, else a generic line)."""
+    words = drive.get("words")
+    return str(words) if words else "the drive is not stationary (results.json drive)"
 
 
 def difference_sigma(segments, order: int = 3) -> float:

@@ -15,8 +15,9 @@ only the statuses (items_sent = 0).
 
 from __future__ import annotations
 
+import json
 import sys
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 from rclpy.node import Node
 
@@ -88,8 +89,11 @@ class Discrepancy(Node):
             return
         t_last = max(float(m.t_s) for m in r.frames.values())
         block = run.result
-        stage = DiscrepancyStage(discrepancy=block, reidentification=reidentification(block.findings, run))
-        final = assemble_results(replace(stages, discrepancy=stage))
+        redo = reidentification(block.findings, run)
+        self.health.values[topics.LOCAL_STRUCTURE_KEY] = json.dumps([asdict(k) for k in redo.local_structure])
+        self.health.publish()
+        final = assemble_results(replace(stages, discrepancy=DiscrepancyStage(discrepancy=block,
+                                                                              reidentification=redo)))
         remeasured = [i for i in final.impacts if i.cor_method != PAPER]
         for imp in remeasured:
             self.pub_impacts.publish(impact_to_message(imp, final=True, origin_ns=self.time_origin_ns))

@@ -363,7 +363,9 @@ def find_systematic(chain: FindingChain) -> tuple[FindingChain, Systematic]:
 def leftover_words(chain: FindingChain, sine: StructureModelFit, sel: Selection, patterns: list[Mismatch],
                    shape: ShapeCheck | None) -> list[str]:
     """What the final model leaves that is not noise, in words: a stage's residual above UNEXPLAINED_RATIO x its
-    noise floor, the systematic ``patterns``, a structured flight ``shape`` first; empty when nothing is left."""
+    noise floor, the systematic ``patterns``, a structured flight ``shape`` first; empty when nothing is left.
+    A drive that did not hold still (a ``drive`` pattern) is not physics the model left out: results.json's
+    ``drive`` section and its warning say what the drive did, and no finding claims it."""
     meas, floors, cur = chain.meas, chain.floors, chain.current
     s_stage, f_stage = sel.structure_stage, sel.flight_stage
     final_loc = locate(cur.steps, floors.cor)
@@ -379,7 +381,7 @@ def leftover_words(chain: FindingChain, sine: StructureModelFit, sel: Selection,
         flights = cur.model.flights
         if math.sqrt(flights.sse / max(flights.n_points, 1)) / floors.ball_m > 1.5:
             words.append(flights_words)
-    words += [p.words() for p in patterns]
+    words += [p.words() for p in patterns if p.shape != "drive"]
     if shape is not None and shape.structured:
         words.insert(0, shape.words())
     return words

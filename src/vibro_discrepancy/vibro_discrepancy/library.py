@@ -20,6 +20,25 @@ import numpy as np
 from vibro_sim.forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from vibro_sim.restitution import PLATES, Constant, PerPlate, RestitutionLaw, VelocityDependent
 
+# --- physical floors (docs/method.md, "Physical floors") ------------------------------------------
+# A term's significance grows with the length of the recording (its chi^2 with the number of frames), so a
+# long take makes ever smaller effects significant, down to the DIC's own systematic errors. A term is a
+# finding only when it is also larger than its floor: what it changes must matter for the COR (~1e-3) and be
+# above what the DIC resolves. The floors are in the units the terms act in:
+
+#: flight terms (Coulomb friction, viscous and quadratic drag, gravity tilt): the term's force at the fastest
+#: flight speed measured, as a fraction of the ball's weight m g (tilt: m g (1 - cos tilt)). A force F changes
+#: the ball's speed over a flight of duration T by F T / m against a flight speed of order g T / 2: ~2 F / (m g)
+#: relative, so 1e-3 m g shifts a predicted COR by ~1e-3; one 20-frame flight's fitted acceleration resolves
+#: 4e-4 to 1.5e-3 m g at 0.25-1 um of DIC noise per frame; the same floor as vibro_fit.plausibility's
+#: FRICTION_FLOOR_OF_WEIGHT (the cross-check that refuses a friction feeding energy in)
+FORCE_FLOOR_OF_WEIGHT = 1e-3
+#: the COR change below which a term does not matter: structure harmonics (the plate velocity error
+#: k h_k A 2 pi f at impact, as a COR change (1 + e) k h_k A 2 pi f / |v_rel|), COR laws (the change of the
+#: predicted COR over the measured impacts, their speeds and plates); the COR floor of the cross-checks
+#: (vibro_fit.plausibility.COR_FLOOR) and of the order the force floor maps to
+COR_EFFECT_FLOOR = 1e-3
+
 EFFECTS = ("coulomb_friction", "viscous_drag", "quadratic_drag", "asymmetric_restitution",
            "velocity_dependent_restitution", "gravity_tilt", "structure_harmonics")
 UNEXPLAINED = "unexplained"
@@ -53,6 +72,16 @@ class FlightTerm(Term):
         """(parameters, their 1-sigma std) in contract names."""
         name = self.parameters[0]
         return {name: float(coef)}, {name: float(std)}
+
+    def peak_force_n(self, coef: float, speed_mps: float, mass_kg: float) -> float:
+        """|force| (N) of the term with coefficient ``coef`` at the speed ``speed_mps`` (Coulomb and tilt: at
+        any speed; the drags grow with it): ``mass_kg`` |coef basis(speed)|."""
+        return float(mass_kg * abs(coef * self.basis(np.array([abs(speed_mps)]), mass_kg)[0]))
+
+    def negligible(self, coef: float, speed_mps: float, mass_kg: float, g_mps2: float) -> bool:
+        """True when the term's force at the fastest measured speed ``speed_mps`` is below the physical floor
+        :data:`FORCE_FLOOR_OF_WEIGHT` m g: not a finding, however significant."""
+        return self.peak_force_n(coef, speed_mps, mass_kg) < FORCE_FLOOR_OF_WEIGHT * mass_kg * g_mps2
 
 
 class CoulombFriction(FlightTerm):
@@ -214,6 +243,20 @@ class StructureHarmonics(Term):
                  "frequency; impacts then meet the plates earlier or later than the sine says")
     orders = (2, 3)
 
+    @staticmethod
+    def cor_effect(order: int, ratio: float, drive_speed_mps: float, cor: float, impact_speed_mps: float) -> float:
+        """The COR change a harmonic of ``order`` and amplitude ``ratio`` (to the fundamental) can make: its
+        plate velocity ``order`` ratio A 2 pi f (``drive_speed_mps`` = A 2 pi f) at an impact of relative speed
+        ``impact_speed_mps`` with COR ``cor``, (1 + e) dv / |v_rel| (Eq. 16 differentiated)."""
+        if impact_speed_mps <= 0:
+            return math.inf
+        return (1.0 + cor) * order * abs(ratio) * drive_speed_mps / impact_speed_mps
+
+    def negligible(self, order: int, ratio: float, drive_speed_mps: float, cor: float,
+                   impact_speed_mps: float) -> bool:
+        """True when the harmonic's COR change (:meth:`cor_effect`) is below :data:`COR_EFFECT_FLOOR`."""
+        return self.cor_effect(order, ratio, drive_speed_mps, cor, impact_speed_mps) < COR_EFFECT_FLOOR
+
 
 STRUCTURE_TERMS: tuple[StructureHarmonics, ...] = (StructureHarmonics(),)
 ALL_TERMS: tuple[Term, ...] = STRUCTURE_TERMS + FLIGHT_TERMS + IMPACT_TERMS
@@ -289,7 +332,8 @@ def cor_values(kind: str, coefs, plates, speeds_mps) -> np.ndarray:
     return np.clip(term.columns(np.asarray(plates), np.asarray(speeds_mps, float)) @ np.asarray(coefs, float), 0, 1)
 
 
-__all__ = ["ALL_TERMS", "EFFECTS", "FLIGHT_TERMS", "IMPACT_TERMS", "PLATES", "STRUCTURE_TERMS", "UNEXPLAINED",
+__all__ = ["ALL_TERMS", "COR_EFFECT_FLOOR", "EFFECTS", "FLIGHT_TERMS", "FORCE_FLOOR_OF_WEIGHT", "IMPACT_TERMS",
+           "PLATES", "STRUCTURE_TERMS", "UNEXPLAINED",
            "AsymmetricRestitution", "ConstantRestitution", "CoulombFriction", "FlightTerm", "GravityTilt",
            "ImpactTerm", "PlateAndSpeed", "PlateSpeedLaw", "QuadraticDrag", "StructureHarmonics", "SumForce",
            "Term", "VelocityDependentRestitution", "ViscousDrag", "catalogue", "cor_values", "force_law",

@@ -36,7 +36,7 @@ and from the graph's ``discrepancy`` node, which publishes the re-measured impac
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Iterable
 
 import numpy as np
@@ -46,9 +46,13 @@ from vibro_discrepancy.fitting import StructureModelFit
 from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
-from vibro_model.assemble import Reidentification
+from vibro_model.assemble import LocalStructure, Reidentification
 from vibro_model.results import Impact, ResultsDocument
 
+#: a re-measured COR keeps the final model's structure velocity only where that velocity, carried into the COR,
+#: is off the local structure's by less than this (and 3 sigma): a quarter of the 0.002 a lab asks of every
+#: impact's COR, and above the COR shift DIC noise gives a local structure fit (~1e-5)
+COR_SUPPORT_FLOOR = 5e-4
 #: findings whose model changes how an impact is measured (structure velocity, flight law); an
 #: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
 MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS) + (TONE_EFFECT,)
@@ -168,15 +172,103 @@ def reidentify_impacts(meas: Measured, model: FittedModel) -> list[Impact]:
     return out
 
 
+def _local_slope(tau: np.ndarray, r: np.ndarray, w: float, ramp: bool) -> tuple[float, float]:
+    """(slope at tau = 0, its std) of c0 + c1 tau + a sin(w tau) + b cos(w tau) fitted to ``r``, with
+    (a + a1 tau) and (b + b1 tau) when ``ramp``; NaN when singular."""
+    s, c = np.sin(w * tau), np.cos(w * tau)
+    cols = [np.ones_like(tau), tau, s, c] + ([tau * s, tau * c] if ramp else [])
+    X = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+    s2 = float(np.sum((r - X @ coef) ** 2)) / max(tau.size - X.shape[1], 1)
+    try:
+        cov = s2 * np.linalg.inv(X.T @ X)
+    except np.linalg.LinAlgError:
+        return math.nan, math.nan
+    grad = np.array([0.0, 1.0, w, 0.0] + ([0.0, 1.0] if ramp else []))
+    return float(grad @ coef), math.sqrt(max(float(grad @ cov @ grad), 0.0))
+
+
+@dataclass(frozen=True)
+class StructureMisfit:
+    """How far a model's structure velocity is from the measured structure's at one time: ``dv_mps`` (m/s),
+    its statistical 1-sigma ``std_mps`` (the local fit's noise), and ``model_std_mps``, how much it rests on the
+    local model (zero where the drive does not change within the window)."""
+
+    dv_mps: float
+    std_mps: float
+    model_std_mps: float = 0.0
+
+    @property
+    def total_std_mps(self) -> float:
+        return math.hypot(self.std_mps, self.model_std_mps)
+
+
+def structure_misfit(meas: Measured, motion, t_s: float) -> StructureMisfit:
+    """How far the final model's structure velocity at ``t_s`` is from the measured
+    structure's, and its 1-sigma std. The final model's residual r = Y_measured - Y_model over the frames
+    within one drive period of ``t_s`` is fitted with c0 + c1 tau + (a + a1 tau) sin(w tau) + (b + b1 tau)
+    cos(w tau), tau = t - t_s: an offset, a slow drift, and the part of the drive the model's sine misses there
+    (an amplitude or phase that changed), itself changing linearly across the window so that an impact inside a
+    ramp of the drive is measured too; its slope at tau = 0, c1 + w a + b1, is the velocity misfit, with the
+    fit's std and, as ``model_std_mps``, its difference from the same fit without the linear change (a1 = b1 =
+    0): where the drive changes within the window, how much the answer rests on the local model. NaN when fewer
+    than 12 frames."""
+    sel = np.abs(meas.t_s - t_s) <= 1.0 / meas.frequency_hz
+    if np.count_nonzero(sel) < 12:
+        return StructureMisfit(math.nan, math.nan)
+    tau = meas.t_s[sel] - t_s
+    w = 2.0 * math.pi * meas.frequency_hz
+    r = meas.structure_m[sel] - np.asarray(motion.position(meas.t_s[sel]), dtype=float)
+    dv, dv_std = _local_slope(tau, r, w, ramp=True)
+    dv_flat, _ = _local_slope(tau, r, w, ramp=False)
+    return StructureMisfit(dv, dv_std, abs(dv - dv_flat))
+
+
+def cor_shift_of_misfit(imp: Impact, dv_mps: float) -> float:
+    """The COR error (Eq. 16) a structure velocity error ``dv_mps`` makes at impact ``imp``:
+    de/dv_s = (v_before - v_after) / (v_before - v_s)^2."""
+    vb, va, vs = imp.v_ball_before_mps, imp.v_ball_after_mps, imp.v_structure_mps
+    return (vb - va) / (vb - vs) ** 2 * dv_mps
+
+
+def with_local_structure(meas: Measured, model: FittedModel, impact: Impact) -> tuple[Impact, LocalStructure | None]:
+    """``impact`` (re-measured under ``model``, :func:`reidentify_impacts`) as it stands when the final model's
+    structure follows the measured structure there: the structure velocity misfit (:func:`structure_misfit`)
+    carried into the COR within 3 of its statistical sigmas or :data:`COR_SUPPORT_FLOOR`; then (impact, None).
+    Else the final model's one structure fit does not follow the structure at this impact (a drive whose
+    amplitude or phase moved during the take) and the impact is measured with the structure velocity of the
+    local fit: the model's plus the misfit, the model's flight law kept for the ball (Eq. 16 again, its std
+    widened by the misfit's, the part that rests on the local model included); returns (that impact, the
+    :class:`LocalStructure` record saying so)."""
+    misfit = structure_misfit(meas, model.motion, float(impact.t_s))
+    if not math.isfinite(misfit.dv_mps):
+        return impact, None
+    shift = cor_shift_of_misfit(impact, misfit.dv_mps)
+    if abs(shift) <= max(3.0 * abs(cor_shift_of_misfit(impact, misfit.std_mps)), COR_SUPPORT_FLOOR):
+        return impact, None
+    v_s = impact.v_structure_mps + misfit.dv_mps
+    cor = -(impact.v_ball_after_mps - v_s) / (impact.v_ball_before_mps - v_s)
+    cor_std = math.hypot(impact.cor_std or 0.0, cor_shift_of_misfit(impact, misfit.total_std_mps))
+    local = replace(impact, v_structure_mps=v_s, cor=cor, cor_std=cor_std)
+    return local, LocalStructure(t_paper_s=float(impact.t_paper_s), cor_global=float(impact.cor),
+                                 cor_shift=float(cor - impact.cor), structure_velocity_misfit_mps=misfit.dv_mps)
+
+
 def reidentification(findings: Iterable[object], run) -> Reidentification:
     """The re-identification stage of the results assembler (:class:`vibro_model.assemble.Reidentification`):
     the impacts of ``run`` (a :class:`~vibro_discrepancy.engine.DiscrepancyRun` or None) measured again under
-    its final model when one of ``findings`` changes how the impacts are measured; else none (every impact
-    keeps the identification's values, ``cor_method`` "paper")."""
+    its final model when one of ``findings`` changes how the impacts are measured, with the structure velocity of
+    a local fit where the final model's structure does not follow the measured one (:func:`with_local_structure`);
+    else none (every impact keeps the identification's values, ``cor_method`` "paper")."""
     effects = measurement_effects(findings)
     if run is None or run.final is None or run.measured is None or not effects:
         return Reidentification()
-    return Reidentification(effects=tuple(effects), impacts=reidentify_impacts(run.measured, run.final))
+    impacts, local = [], []
+    for imp in reidentify_impacts(run.measured, run.final):
+        measured, note = with_local_structure(run.measured, run.final, imp)
+        impacts.append(measured)
+        local += [note] if note is not None else []
+    return Reidentification(effects=tuple(effects), impacts=impacts, local_structure=local)
 
 
 def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[Impact]:

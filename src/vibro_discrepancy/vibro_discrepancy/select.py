@@ -9,7 +9,11 @@ floor sigma^2 estimated from the data (differences of consecutive frames, free o
 the chi^2 quantile at ``ALPHA`` (F-test against the residual scatter for CORs), and (2) it matters: the
 RMS of what it explains exceeds a fraction of the noise floor (flights: ``MIN_EXPLAINED_SIGMA`` sigma,
 structure: ``MIN_HARMONIC_SIGMA`` sigma of amplitude) or, for CORs, ``MIN_COR_RMS``. (2) keeps the small
-systematic errors of DIC (sub-pixel bias, ~0.1 sigma) from becoming findings. Singles first; a pair is
+systematic errors of DIC (sub-pixel bias, ~0.1 sigma) from becoming findings. (3) It is physically more
+than negligible (:mod:`.library`'s floors, docs/method.md "Physical floors"): a flight term's force at the
+fastest measured speed is at least ``FORCE_FLOOR_OF_WEIGHT`` (1e-3) of the ball's weight, a harmonic's COR
+change at least ``COR_EFFECT_FLOOR`` (1e-3); a COR law's ``MIN_COR_RMS`` is above that floor already. (3)
+keeps a long recording, whose chi^2 grows with its length, from claiming what does not matter. Singles first; a pair is
 tried when the best single leaves a significant, visible mismatch. Look-alikes are separated by their
 signatures: Coulomb (sign flips with the direction, speed-independent) vs tilt (one sign) vs viscous
 (linear in speed) vs quadratic (speed squared) are different columns of the same regression, so the
@@ -25,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from vibro_discrepancy.data import Measured
+from vibro_discrepancy.data import Measured, speed_mps
 from vibro_discrepancy.fitting import (
     FlightModelFit,
     ImpactSet,
@@ -34,7 +38,14 @@ from vibro_discrepancy.fitting import (
     fit_flights,
     fit_structure_harmonics,
 )
-from vibro_discrepancy.library import FLIGHT_TERMS, CandidateLibrary, FlightTerm
+from vibro_discrepancy.library import (
+    COR_EFFECT_FLOOR,
+    FLIGHT_TERMS,
+    FORCE_FLOOR_OF_WEIGHT,
+    CandidateLibrary,
+    FlightTerm,
+    StructureHarmonics,
+)
 from vibro_discrepancy.model import COR_TERMS
 from vibro_model.codec import json_number as _f
 from vibro_model.tail_probability import chi2_sf, f_sf
@@ -45,6 +56,8 @@ ALPHA_COR = 1e-3             # CORs: F-test (few impacts, scatter estimated from
 MIN_EXPLAINED_SIGMA = 0.5    # flight term: explained RMS per frame >= this x noise floor
 MIN_HARMONIC_SIGMA = 3.0     # harmonic amplitude >= this x structure noise floor
 MIN_COR_RMS = 0.004          # COR law: RMS change of the predicted COR over the impacts
+# (also the COR law's physical floor: an RMS change of 0.004 is a change of >= 0.008 over the measured
+# impacts, 8x COR_EFFECT_FLOOR, so a law whose effect over the measured speeds is < 1e-3 is never accepted)
 UNEXPLAINED_RATIO = 1.5      # residual RMS / noise floor above which a stage's mismatch is unexplained
 
 
@@ -89,29 +102,67 @@ def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit,
     sig2 = max(sigma_m, 1e-12) ** 2
     stage = StageResult(name="structure", chosen=())
     full = fits[(1, 2, 3)]
-    chosen = []
+    cor_change = _harmonic_cor_change(meas, full)
+    chosen, negligible = [], []
     for k in (2, 3):
         without = fits[(1, 5 - k)]   # the other harmonic kept: test k given it
         chi = (without.sse - full.sse) / sig2
         p = chi2_sf(chi, 2)
         amp = full.harmonic_amplitudes()[k]
-        ok = p < ALPHA and amp >= MIN_HARMONIC_SIGMA * sigma_m
+        change = cor_change(k, amp)
+        ok = p < ALPHA and amp >= MIN_HARMONIC_SIGMA * sigma_m and not change < COR_EFFECT_FLOOR
+        note = f"amplitude {amp * 1e6:.3g} um = {amp / sigma_m:.1f} x noise floor"
+        if p < ALPHA and change < COR_EFFECT_FLOOR:
+            note += f"; negligible: COR change {change:.2g} < floor {COR_EFFECT_FLOOR:g}"
         stage.decisions.append(Decision(label=f"harmonic {k}", statistic=chi, p_value=p, explained=amp / sigma_m,
-                                        accepted=ok,
-                                        note=f"amplitude {amp * 1e6:.3g} um = {amp / sigma_m:.1f} x noise floor"))
+                                        accepted=ok, note=note))
         if ok:
             chosen.append(k)
+        elif p < ALPHA and amp >= MIN_HARMONIC_SIGMA * sigma_m:
+            negligible.append(k)
     best = fits[(1,) + tuple(chosen)]
     stage.chosen = tuple(chosen)
-    stage.residual_ratio = best.sigma / sigma_m if sigma_m > 0 else float("nan")
+    # a harmonic below its floor explains the track's residual all the same: not a mismatch left unexplained
+    explained = fits[(1,) + tuple(sorted(chosen + negligible))]
+    if negligible:
+        stage.notes.append(f"harmonic(s) {', '.join(map(str, negligible))} significant but negligible (COR change "
+                           f"< {COR_EFFECT_FLOOR:g}): not a finding; the residual is judged with them")
+    stage.residual_ratio = explained.sigma / sigma_m if sigma_m > 0 else float("nan")
     stage.unexplained = stage.residual_ratio > UNEXPLAINED_RATIO
     return best, stage
+
+
+def _harmonic_cor_change(meas: Measured, fit: StructureModelFit):
+    """(order, amplitude m) -> the COR change the harmonic makes (:meth:`.StructureHarmonics.cor_effect`) at the
+    recording's median impact (relative speed, COR) under ``fit``'s fundamental; NaN (no floor) without
+    impacts."""
+    a1 = fit.motion().amplitude_m
+    drive = 2.0 * math.pi * meas.frequency_hz * a1
+    speeds = [speed_mps(i) for i in meas.impacts if i.cor is not None]
+    cors = [float(i.cor) for i in meas.impacts if i.cor is not None]
+    if not speeds or a1 <= 0:
+        return lambda order, amp: math.nan
+    v, e = float(np.median(speeds)), float(np.median(cors))
+    return lambda order, amp: StructureHarmonics.cor_effect(order, amp / a1, drive, e, v)
 
 
 # --- flights -----------------------------------------------------------------------------------------
 
 def _explained_rms(sse_before: float, sse_after: float, n: int) -> float:
     return math.sqrt(max(sse_before - sse_after, 0.0) / max(n, 1))
+
+
+def _fastest_speed(meas: Measured) -> float:
+    """The fastest ball speed (m/s) of the identified flights' parabolas over their samples."""
+    return max((float(np.max(np.abs(f.v_nominal(f.t_s)))) for f in meas.flights if f.t_s.size), default=0.0)
+
+
+def _negligible(fit: FlightModelFit, meas: Measured, speed: float) -> list[str]:
+    """The terms of ``fit`` whose force at ``speed`` is below the physical floor (:data:`FORCE_FLOOR_OF_WEIGHT`
+    m g), each as "effect F = x m g"; empty when every term matters."""
+    weight = meas.mass_kg * meas.g_mps2
+    return [f"{t.effect} {t.peak_force_n(float(c), speed, meas.mass_kg) / weight:.2g} m g" for t, c in
+            zip(fit.terms, fit.coefs) if t.negligible(float(c), speed, meas.mass_kg, meas.g_mps2)]
 
 
 def _summary(fit: FlightModelFit) -> FlightModelFit:
@@ -143,17 +194,24 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         else:
             f = _summary(f)
         singles[key] = f
+    speed = _fastest_speed(meas)
     for key, f in singles.items():
         chi = (base.sse - f.sse) / sig2
         p = chi2_sf(chi, 1)
         ex = _explained_rms(base.sse, f.sse, n) / sigma_m
-        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(f.coefs > 0))
+        small = _negligible(f, meas, speed) if p < ALPHA else []
+        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(f.coefs > 0)) and not small
         stage.decisions.append(Decision(label=key[0], statistic=chi, p_value=p, explained=ex, accepted=ok,
-                                        note=f"explains {ex:.2f} x noise floor per frame"))
+                                        note=f"explains {ex:.2f} x noise floor per frame" + _floor_note(small)))
     ranked = sorted(singles.items(), key=lambda kv: kv[1].sse)
     best_key, best = ranked[0]
     best_dec = next(d for d in stage.decisions if d.label == best_key[0])
     chosen, current = (), base
+    explained = base    # the residual is judged after a term below its floor too: not a mismatch left unexplained
+    if not best_dec.accepted and _floor_only(best_dec, best):
+        explained = best
+        stage.notes.append(f"{best_key[0]} significant but negligible (below its physical floor): not a finding; "
+                           "the residual is judged with it")
     if best_dec.accepted:
         chosen, current = best_key, best
         # runner-up look-alike: note how much worse it fits
@@ -173,15 +231,32 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         chi = (ref.sse - pf.sse) / sig2
         p = chi2_sf(chi, max(dp, 1))
         ex = _explained_rms(ref.sse, pf.sse, n) / sigma_m
-        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(pf.coefs > 0))
+        small = _negligible(pf, meas, speed) if p < ALPHA else []
+        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(pf.coefs > 0)) and not small
         stage.decisions.append(Decision(label=" + ".join(pk), statistic=chi, p_value=p, explained=ex, accepted=ok,
-                                        note=f"against {' + '.join(chosen) or 'baseline'}: explains {ex:.2f} x noise"))
+                                        note=f"against {' + '.join(chosen) or 'baseline'}: explains {ex:.2f} x noise"
+                                        + _floor_note(small)))
         if ok:
             chosen, current = pk, pf
     stage.chosen = chosen
-    stage.residual_ratio = math.sqrt(current.sse / max(n, 1)) / sigma_m
+    resid = current if chosen else explained
+    stage.residual_ratio = math.sqrt(resid.sse / max(n, 1)) / sigma_m
     stage.unexplained = stage.residual_ratio > UNEXPLAINED_RATIO
     return current, stage
+
+
+def _floor_only(decision: Decision, fit: FlightModelFit) -> bool:
+    """True when ``decision`` was refused by the physical floor alone (significant, visible, positive)."""
+    return (decision.p_value < ALPHA and decision.explained >= MIN_EXPLAINED_SIGMA and bool(np.all(fit.coefs > 0))
+            and "negligible" in decision.note)
+
+
+def _floor_note(negligible: list[str]) -> str:
+    """The decision note's clause for terms below the force floor (empty when none is)."""
+    if not negligible:
+        return ""
+    return (f"; negligible: force at the fastest flight speed {', '.join(negligible)} < floor "
+            f"{FORCE_FLOOR_OF_WEIGHT:g} m g")
 
 
 # --- impacts -----------------------------------------------------------------------------------------

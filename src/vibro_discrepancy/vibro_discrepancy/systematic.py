@@ -23,6 +23,14 @@ Matching pursuit per series: the strongest pattern is accepted when its family-c
 selection uses, so a pattern too small for a catalogue term is too small here); then it is subtracted
 and the next strongest is tested (at most ``MAX_COMPONENTS``). What is left of the COR residual after
 the accepted COR patterns is the random contact scatter (:func:`contact_scatter`).
+
+A drive that did not hold still (the identification's results.json ``drive``: ``stationary`` false,
+:func:`vibro_discrepancy.data.drive_change`) leaves side bands around the drive frequency in the residual of any
+stationary structure model: the structure's periodic patterns within the windowed drive model's bandwidth of a
+drive harmonic (+-1 / window: what the windows can follow) are the drive changing, not tones. They are replaced by
+one ``drive`` pattern that says what the drive did (:func:`drive_patterns`); a tone outside that band is still one.
+The COR patterns are then sought in CORs with the structure velocity the identification measured at each impact
+(its local fit follows the drive: :func:`drive_following_cor`), not the stationary sine's.
 """
 
 from __future__ import annotations
@@ -32,8 +40,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vibro_discrepancy.data import Measured
-from vibro_discrepancy.model import FittedModel
+from vibro_discrepancy.data import Measured, drive_change, drive_change_words
+from vibro_discrepancy.fitting import ImpactSet, fit_cor
+from vibro_discrepancy.model import COR_TERMS, FittedModel
 from vibro_model.codec import json_number as _num
 from vibro_model.tail_probability import chi2_sf, f_sf
 
@@ -73,6 +82,8 @@ class Mismatch:
     size_ms: float | None = None   # contact level: the impact-time shift it causes (ms)
     frequencies_searched: int | None = None   # periodic: independent frequencies the search tried
     levels: tuple[float, float] | None = None   # parity: the mean measured COR on the even and odd impacts
+    note: str | None = None        # drive: what the drive did (results.json drive's words)
+    absorbed_hz: tuple[float, ...] | None = None   # drive: the side-band "tones" it stands for (Hz)
     fit: np.ndarray | None = None  # the pattern's values on the series (for subtraction)
 
     def what(self) -> str:
@@ -82,6 +93,10 @@ class Mismatch:
         u = " um" if self.unit == "um" else ""
         span = f"t = {self.t_from_s:.3f} to {self.t_to_s:.3f} s"
         ms = f" (impact times shift by {self.size_ms:.3f} ms)" if self.size_ms is not None else ""
+        if self.shape == "drive":
+            tones = ", ".join(f"{f:.2f}" for f in self.absorbed_hz or ())
+            return (f"structure: {self.note}: not a structure tone (the side bands at {tones} Hz) and not ball "
+                    "physics: the drive changed (results.json drive)")
         if self.shape == "trend":
             what = f"drifts by {self.size:+.3g}{u} over {span}{ms}"
         elif self.shape == "step":
@@ -105,6 +120,8 @@ class Mismatch:
 
     def words(self) -> str:
         p = f"p = {self.p_value:.1e}" if self.p_value > 1e-300 else "p < 1e-300"
+        if self.shape == "drive":
+            return f"{self.what()}; the catalogue's structure models assume a stationary drive (paper Eq. 2)"
         return f"{self.what()}, {p}, which no term of the library produces"
 
     def to_dict(self) -> dict:
@@ -123,6 +140,8 @@ class Mismatch:
             out["frequencies_searched"] = int(self.frequencies_searched)
         if self.levels is not None:
             out["levels"] = [_num(x) for x in self.levels]
+        if self.absorbed_hz is not None:
+            out["absorbed_tones_hz"] = [_num(x) for x in self.absorbed_hz]
         return out
 
 
@@ -616,10 +635,66 @@ def systematic_mismatch(meas: Measured, model: FittedModel, sigma_s_m: float, si
     structure track's patterns when already found (they do not depend on the model)."""
     out = (list(structure) if structure is not None
            else structure_mismatch(meas.t_s, meas.structure_m, sigma_s_m, meas.frequency_hz, fps))
+    out = drive_patterns(out, meas)
     out += level_mismatch(meas, model, sigma_f_m)
-    imp = model.impacts
-    out += cor_patterns(imp.t_s, imp.plate, imp.speed, model.cor.residual, meas.frequency_hz, cor=imp.cor)
+    imp, residual = model.impacts, model.cor.residual
+    if drive_change(meas) is not None:
+        imp, residual = drive_following_cor(meas, model)
+    out += cor_patterns(imp.t_s, imp.plate, imp.speed, residual, meas.frequency_hz, cor=imp.cor)
     return out
+
+
+def drive_following_cor(meas: Measured, model: FittedModel) -> tuple[ImpactSet, np.ndarray]:
+    """The model's impacts with the structure velocity the identification measured at each (its local structure
+    fit, which follows a drive that does not hold still) instead of the model's stationary sine, their CORs
+    recomputed and the model's COR law refitted on them: (impacts, COR residual). Used for the COR patterns when
+    the drive is not stationary: a stationary sine's velocity error at the impacts moves with the drive (a step
+    in the CORs where the drive's amplitude steps) and is not the contact's."""
+    imp = model.impacts
+    vs = np.array([meas.impacts[int(i)].v_structure_mps for i in imp.index], dtype=float)
+    den = imp.v_before - vs
+    ok = np.isfinite(vs) & (np.abs(den) > 1e-6)
+    vs = np.where(ok, vs, imp.v_structure)
+    den = imp.v_before - vs
+    cor = -(imp.v_after - vs) / den
+    moved = ImpactSet(index=imp.index, t_s=imp.t_s, plate=imp.plate, v_before=imp.v_before, v_after=imp.v_after,
+                      v_structure=vs, cor=cor, cor_std=imp.cor_std)
+    return moved, fit_cor(moved, COR_TERMS[model.cor.kind], model.cor.kind).residual
+
+
+def in_drive_band(frequency_hz: float | None, meas: Measured) -> bool:
+    """Whether a structure frequency lies within +-1 / window (the windowed drive model's bandwidth) of a drive
+    harmonic 1..DRIVE_HARMONICS, the drive not being stationary (else False: a stationary drive has no band)."""
+    drive = drive_change(meas)
+    if drive is None or frequency_hz is None:
+        return False
+    window = drive.get("window_s")
+    half = 1.0 / float(window) if window else 0.25 * meas.frequency_hz
+    return any(abs(frequency_hz - k * meas.frequency_hz) < half for k in range(1, DRIVE_HARMONICS + 1))
+
+
+def drive_patterns(patterns: list[Mismatch], meas: Measured) -> list[Mismatch]:
+    """``patterns`` with the structure's periodic ones within the drive band (:func:`in_drive_band`) replaced by one
+    ``drive`` pattern saying what the drive did (module docstring); unchanged when the drive is stationary, or
+    nothing lies in the band, or it was done already."""
+    band = [m for m in patterns
+            if m.series == "structure" and m.shape == "periodic" and in_drive_band(m.frequency_hz, meas)]
+    if not band or any(m.shape == "drive" for m in patterns):
+        return patterns
+    drive = drive_change(meas)
+    amp, ph = drive.get("amplitude") or {}, drive.get("phase") or {}
+    changed = bool(amp.get("changed"))
+    size, unit = ((1e3 * float(amp["change_mm"]), "um") if changed and amp.get("change_mm") is not None
+                  else (float(ph.get("span_rad") or 0.0), "rad"))
+    ps = [float(x["p_value"]) for x in (amp, ph) if x.get("p_value") is not None]
+    mark = Mismatch(series="structure", shape="drive", size=size, unit=unit, t_from_s=meas.t_first_s,
+                    t_to_s=meas.t_last_s, p_value=min(ps) if ps else 0.0, statistic=float(amp.get("z") or 0.0),
+                    step_time_s=float(amp["t_s"]) if changed and amp.get("t_s") is not None else None,
+                    note=drive_change_words(drive), absorbed_hz=tuple(float(m.frequency_hz) for m in band))
+    ids = {id(m) for m in band}
+    rest = [m for m in patterns if id(m) not in ids]
+    first = next(i for i, m in enumerate(patterns) if id(m) in ids)
+    return rest[:first] + [mark] + rest[first:]
 
 
 def contact_scatter(model: FittedModel, patterns: list[Mismatch], alpha: float = ALPHA_FAMILY) -> dict:

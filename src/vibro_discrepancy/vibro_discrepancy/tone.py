@@ -19,7 +19,9 @@ sd(A) = sigma sqrt(2 / N)).
 Whether it is modelled (:func:`tone_f_test`) is decided by an F-test of the extra sinusoid against the
 residual noise of the fit with it, corrected for the search that chose its frequency (the false-alarm
 probability of the best periodogram peak, Baluev 2008: see :func:`search_false_alarm`). Only
-the strongest located tone that passes is modelled (a second one stays located, unmodelled).
+the strongest located tone that passes is modelled (a second one stays located, unmodelled). When the
+identification found the drive not stationary (results.json ``drive``), nothing within the drive's band is a tone:
+it is the drive's amplitude or frequency moving (:func:`.systematic.drive_patterns`).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from scipy.optimize import minimize_scalar
 
 from vibro_discrepancy.data import Measured
 from vibro_discrepancy.fitting import StructureModelFit, _design
-from vibro_discrepancy.systematic import ALPHA_FAMILY, Mismatch
+from vibro_discrepancy.systematic import ALPHA_FAMILY, Mismatch, in_drive_band
 from vibro_model.codec import json_number as _num
 from vibro_model.kinematics import StructureWithTone
 from vibro_model.tail_probability import f_sf
@@ -311,9 +313,12 @@ def model_structure_tone(meas: Measured, structure: StructureModelFit, patterns:
                          fps: float, alpha: float = ALPHA_FAMILY) -> ToneDecision:
     """The strongest located periodic structure mismatch (:mod:`.systematic`) that passes
     :func:`tone_f_test`, modelled with ``structure`` (the chain's current structure fit on the same track);
-    the number of frequencies searched is the search's own (else the band 1.5/T .. fps/2 it uses)."""
+    the number of frequencies searched is the search's own (else the band 1.5/T .. fps/2 it uses). A drive that did
+    not hold still (``meas.drive``) has no tone within its band (:func:`.systematic.in_drive_band`): those side
+    bands are the drive changing, never modelled as a tone."""
     tones = sorted((m for m in patterns if m.series == "structure" and m.shape == "periodic"
-                    and m.frequency_hz is not None), key=lambda m: -abs(m.size))
+                    and m.frequency_hz is not None and not in_drive_band(m.frequency_hz, meas)),
+                   key=lambda m: -abs(m.size))
     tests = []
     T = float(meas.t_s[-1] - meas.t_s[0])
     for m in tones:

@@ -62,17 +62,22 @@ class FrameCoverage:
                 "message": self.message()}
 
 
-def frame_coverage(frames_t_s, accel_t_s, accel_impact_times_s, offset_s: float | None,
-                   frame_interval_s: float) -> FrameCoverage:
+def frame_coverage(frames_t_s, accel_t_s, accel_impact_times_s, clock, frame_interval_s: float) -> FrameCoverage:
     """Compare the frame slots' times (camera clock, s) with the accelerometer samples' and impacts' times
-    (DAQ clock, s; ``offset_s`` = t_daq - t_camera, None when unknown)."""
+    (DAQ clock, s), put on the camera clock by ``clock`` (anything with ``camera_s(t_daq_s)``: a
+    :class:`vibro_fit.accel_impacts.ClockLine`, offset and rate), None when the relation is unknown."""
     ft = np.asarray(frames_t_s, float)
     at = np.asarray(accel_t_s, float)
-    off = 0.0 if offset_s is None else float(offset_s)
-    imp = np.asarray(accel_impact_times_s, float) - off
+
+    def camera(t_daq_s) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t_daq_s, float))
+        return t if clock is None else np.atleast_1d(clock.camera_s(t))
+
+    imp = camera(accel_impact_times_s) if len(accel_impact_times_s) else np.empty(0)
+    ends = camera([at[0], at[-1]])
     f0, f1 = float(ft[0]), float(ft[-1])
-    return FrameCoverage(frames_start_s=f0, frames_end_s=f1, accel_start_s=float(at[0]) - off,
-                         accel_end_s=float(at[-1]) - off,
+    return FrameCoverage(frames_start_s=f0, frames_end_s=f1, accel_start_s=float(ends[0]),
+                         accel_end_s=float(ends[1]),
                          impacts_before_s=[float(x) for x in imp[imp < f0 - 0.5 * frame_interval_s]],
                          impacts_after_s=[float(x) for x in imp[imp > f1 + 0.5 * frame_interval_s]],
-                         clock_offset_known=offset_s is not None, slack_s=2.0 * frame_interval_s)
+                         clock_offset_known=clock is not None, slack_s=2.0 * frame_interval_s)

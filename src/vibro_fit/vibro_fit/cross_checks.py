@@ -30,6 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .accel_impacts import ClockLine
 from .plausibility import Finding
 
 G0 = 9.80665  # m/s^2 per g (standard gravity, the unit g of accelerometers)
@@ -176,20 +177,19 @@ def drive_tone(t_s: np.ndarray, x: np.ndarray, frequency_hz: float) -> tuple[com
     return complex(coef[0], coef[1]) * np.exp(-1j * w * t[0]), sd, n_eff
 
 
-def accel_drive_tone(accel, structure, clock_offset_s: float | None, rig=None) -> tuple[list[Finding], dict]:
+def accel_drive_tone(accel, structure, clock: ClockLine | None, rig=None) -> tuple[list[Finding], dict]:
     """Each accelerometer channel's drive tone against the DIC acceleration A (2 pi f)^2 (module rules).
 
     ``accel``: AccelData (DAQ clock, m/s^2 as read); ``structure``: the sine fit (camera clock, mm);
-    ``clock_offset_s``: t_daq - t_camera when determined, else None (then the phase is not judged: an unknown
-    offset turns it by 2 pi f offset). Returns (findings, evidence per channel)."""
+    ``clock``: the camera-to-DAQ relation (offset and rate) when determined, else None (then the phase is not
+    judged: an unknown offset turns it by 2 pi f offset). Returns (findings, evidence per channel)."""
     f = float(structure.frequency_hz)
     w = 2.0 * math.pi * f
     a_mm, psi = structure.params_ref[0], structure.params_ref[2]
     # DIC: Y'' = -A w^2 sin(w (t - t_ref) + psi) = Re(A w^2 exp(i (w t + phi0 + pi/2))), phi0 the phase about t=0
     phi0 = psi - w * structure.t_ref_s
     dic = a_mm * 1e-3 * w * w * np.exp(1j * (phi0 + math.pi / 2.0))
-    off = 0.0 if clock_offset_s is None else float(clock_offset_s)
-    t_cam = np.asarray(accel.t_s, float) - off
+    t_cam = np.asarray(accel.t_s, float) if clock is None else clock.camera_s(accel.t_s)
     # the DIC amplitude's relative sigma (amplitude and frequency of the fit)
     sa, sf = (float(x) if np.isfinite(x) else 0.0 for x in structure.std[:2])
     rel_dic = math.hypot(sa / a_mm if a_mm else 0.0, 2.0 * sf / f if f else 0.0)
@@ -205,14 +205,14 @@ def accel_drive_tone(accel, structure, clock_offset_s: float | None, rig=None) -
         sd_mag = math.hypot(sd / abs(dic), mag * rel_dic)
         phase = float(np.angle(ratio))
         evidence[name] = {"drive_tone_mps2": abs(tone), "dic_acceleration_mps2": abs(dic), "ratio": mag,
-                          "ratio_std": sd_mag, "phase_rad": phase if clock_offset_s is not None else None,
+                          "ratio_std": sd_mag, "phase_rad": phase if clock is not None else None,
                           "unit_as_read": units[k], "mps2_per_unit": factors[k]}
         tol = AMPLITUDE_TOL + 3.0 * sd_mag
         if abs(mag - 1.0) > tol:
             findings.append(_unit_finding(name, {"ratio": mag, "ratio_std": sd_mag, "drive_tone_mps2": abs(tone),
                                                  "dic_acceleration_mps2": abs(dic)},
                                           unit=units[k], factor=factors[k], unit_source=unit_source, rig=rig))
-        if clock_offset_s is not None and abs(phase) > POLARITY_LIMIT_RAD and mag > 3.0 * sd_mag:
+        if clock is not None and abs(phase) > POLARITY_LIMIT_RAD and mag > 3.0 * sd_mag:
             findings.append(Finding(
                 "accel_polarity",
                 f"accelerometer {name} channel inverted: its drive tone at {f:.3f} Hz is {math.degrees(phase):+.0f} "
@@ -258,16 +258,17 @@ def _unit_finding(name: str, amplitude: dict, *, unit: str, factor: float, unit_
                    "with the measurement", ["accelerometers.unit", "camera.mm_per_px"], ev, "warn")
 
 
-def plate_attribution(dic_impacts: Sequence, accel_impacts: Sequence, clock_offset_s: float | None, fps: float,
+def plate_attribution(dic_impacts: Sequence, accel_impacts: Sequence, clock: ClockLine | None, fps: float,
                       rig=None) -> tuple[Finding | None, dict]:
     """Each DIC impact's plate against the accelerometer channel that responds strongest at the same time
-    (camera clock, within 0.5 ms + one frame); swapped channels when at least :data:`SWAP_FRACTION` of at
-    least :data:`SWAP_MIN_IMPACTS` pairs disagree. Returns (finding or None, evidence)."""
-    if clock_offset_s is None or not dic_impacts or not accel_impacts:
-        return None, {"matched": 0, "reason": "clock offset not determined" if clock_offset_s is None
+    (camera clock through ``clock``, the offset and rate; within 0.5 ms + one frame); swapped channels when at
+    least :data:`SWAP_FRACTION` of at least :data:`SWAP_MIN_IMPACTS` pairs disagree. Returns (finding or None,
+    evidence)."""
+    if clock is None or not dic_impacts or not accel_impacts:
+        return None, {"matched": 0, "reason": "clock offset not determined" if clock is None
                       else "no impacts to compare"}
     tol = 0.0005 + 1.0 / fps
-    acc_t = np.array([a.t_s - clock_offset_s for a in accel_impacts])
+    acc_t = np.atleast_1d(clock.camera_s([a.t_s for a in accel_impacts]))
     agree = disagree = 0
     ratios = []
     for imp in dic_impacts:
@@ -301,8 +302,8 @@ def consistency_checks(ident, track, rig, accel=None, source: str = "the video")
     """Every cross-check of an identification (:class:`~vibro_fit.identify.Identification` of ``track`` with
     ``rig``, ``accel`` the AccelData or None): time base (step, drift), physical plausibility, accelerometer
     drive tone and plate attribution. Returns (findings, refusing ones first; evidence of the checks that
-    passed too: {"time_base": .., "accelerometers": .., "plates": ..})."""
-    from .plausibility import physical_plausibility
+    passed too: {"time_base": .., "friction": .., "accelerometers": .., "plates": ..})."""
+    from .plausibility import friction_balance, physical_plausibility
 
     moves = ident.motion.structure_moves if ident.motion is not None else True
     out: list[Finding] = []
@@ -320,15 +321,21 @@ def consistency_checks(ident, track, rig, accel=None, source: str = "the video")
         drift = time_base_drift(ident.rig_consistency, float(t[-1] - t[0]) if t.size else 0.0)
         if drift is not None:
             out.append(drift)
-    out += physical_plausibility([i.model() for i in ident.impacts],
-                                 [f.model(ident.mass_kg) for f in ident.flights], ident.structure, rig,
+    flights = [f.model(ident.mass_kg) for f in ident.flights]
+    out += physical_plausibility([i.model() for i in ident.impacts], flights, ident.structure, rig,
                                  ident.rig_consistency, moves)
+    # the friction's dissipative part against its sigma and its physical floor, refused or not (below the
+    # floor: zero within it, said here and nowhere claimed)
+    friction = friction_balance(flights, float(rig.ball.mass_kg))
+    if friction is not None:
+        evidence["friction"] = friction
     if accel is not None and moves:
-        offset = ident.clock_offset.known_offset_s if ident.clock_offset is not None else None
-        tone_findings, evidence["accelerometers"] = accel_drive_tone(accel, ident.structure, offset, rig)
+        off = ident.clock_offset
+        clock = off.line if off is not None and off.known_offset_s is not None else None
+        tone_findings, evidence["accelerometers"] = accel_drive_tone(accel, ident.structure, clock, rig)
         out += tone_findings
         if ident.accel is not None:
-            swap, evidence["plates"] = plate_attribution(ident.impacts, ident.accel.impacts, offset,
+            swap, evidence["plates"] = plate_attribution(ident.impacts, ident.accel.impacts, clock,
                                                          float(rig.camera.fps), rig)
             if swap is not None:
                 out.append(swap)

@@ -18,6 +18,7 @@ from vibro_model.results import StructureMotion
 from .accel_impacts import AccelAnalysis, ClockOffset
 from .contacts import ContactPhase
 from .coverage import FrameCoverage
+from .drive import DriveModel
 from .flight_fit import FlightFit
 from .gaps import GapVerdict
 from .hops import HopChain
@@ -29,6 +30,7 @@ from .passes import (
     StreamingSettings,
     accel_pass,
     contact_pass,
+    drive_pass,
     flight_warnings,
     friction_pass,
     hop_pass,
@@ -83,6 +85,7 @@ class Identification:
     gaps: list[GapVerdict] = field(default_factory=list)   # runs of lost frames: impact found, or what they may hide
     contacts: list[ContactPhase] = field(default_factory=list)   # the ball riding a plate (vibro_fit.contacts)
     hop_chains: list[HopChain] = field(default_factory=list)     # short hops measured on the plate (vibro_fit.hops)
+    drive: DriveModel | None = None    # the drive in windows, stationary or not (vibro_fit.drive); None: no motion
 
     def structure_motion(self) -> StructureMotion:
         """The identified structure as the model type, with the ball offset from the plate levels; no
@@ -140,9 +143,10 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     (``landings``), accelerometer impacts the camera misses (``accel_unseen_s``) and contradictions between
     rig.yaml and the measurement (``rig_consistency``).
 
-    The passes (:mod:`vibro_fit.passes`) run in this order: validate, structure, streaming fitter, accelerometers
-    and clock offset, contact phases, impacts (``joint`` refinement), hop chains, friction, landings, unseen
-    accelerometer impacts, regime, motion state, rig consistency. The streaming fitter runs once, plus once
+    The passes (:mod:`vibro_fit.passes`) run in this order: validate, structure, drive (stationary or not:
+    :mod:`vibro_fit.drive`), streaming fitter, accelerometers and clock offset, contact phases, impacts
+    (``joint`` refinement), hop chains, friction, landings, unseen accelerometer impacts, regime, motion state,
+    rig consistency. The streaming fitter runs once, plus once
     more for each of two inputs it can only take from the start of the track, as it segments frame by frame:
 
     1. always, from the DIC alone: its impacts give the clock offset and the plate levels;
@@ -156,6 +160,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     validate_inputs(track, method, weights)
     cfg = config or SegmentationConfig()
     basis = structure_pass(track, rig)
+    drive, drive_notes = drive_pass(track, basis)
     settings = StreamingSettings(frequency_hz=rig.excitation.frequency_hz, noise_mm=basis.noise_mm, method=method,
                                  config=cfg, weights=weights, free_play_mm=rig.free_play_mm)
     sf = run_streaming(track, settings)
@@ -176,8 +181,8 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
                                        config=cfg)
     motion, motion_notes = motion_pass(sf, hops, len(landings), track, basis)
     rig_state, rig_notes = rig_pass(rig, accel, sf, hops.impacts, basis, cfg.g_mps2)
-    warnings = (basis.warnings + acc.warnings + flight_notes + landing_notes + unseen_notes + regime_notes
-                + motion_notes + rig_notes)
+    warnings = (basis.warnings + drive_notes + acc.warnings + flight_notes + landing_notes + unseen_notes
+                + regime_notes + motion_notes + rig_notes)
     return Identification(structure=basis.structure, flights=hops.flights, impacts=hops.impacts, friction=friction,
                           cor_summary=cor_summary(hops.impacts), regime=regime, plate_levels=levels,
                           noise_mm=float(basis.noise_mm), method=method, mass_kg=rig.ball.mass_kg,
@@ -185,4 +190,4 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
                           accel=acc.analysis, clock_offset=acc.offset, warnings=warnings, weights=weights or "none",
                           coverage=acc.coverage, motion=motion, landings=landings, accel_unseen_s=unseen,
                           rig_consistency=rig_state, gaps=list(sf.gaps), contacts=hops.contacts,
-                          hop_chains=hops.chains)
+                          hop_chains=hops.chains, drive=drive)

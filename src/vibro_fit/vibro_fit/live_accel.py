@@ -223,14 +223,21 @@ class BlockCheck:
                                     "trustworthy")
 
 
+#: DIC impacts (and as many accelerometer impacts) the live clock fit keeps: about 6 s at two impacts per 22 Hz
+#: cycle, so that a DAQ crystal's rate (a few 100 ppm: 0.5 ms over 1 s at 500 ppm) is fitted to a few ppm
+LIVE_CLOCK_WINDOW = 256
+
+
 class LiveClockOffset:
     """t_daq - t_camera of a live run: from the blocks' lab-clock stamps (:class:`BlockCheck`), refined from the
     impacts seen by both the camera and the accelerometers as ``vibro analyze`` refines it (the median of the
-    matched differences, :func:`vibro_fit.accel_impacts.refine_clock_offset`), seeded at the stamps' offset so
-    that a regular motion cannot pull it a whole period away. ``tol_s``: how far a DIC impact may lie from an
-    accelerometer impact to be matched (the stamps' uncertainty plus the DIC impact time's)."""
+    matched differences, then offset + rate when the DAQ's clock drifts significantly against the camera's:
+    :func:`vibro_fit.accel_impacts.refine_clock_offset`), seeded at the stamps' offset so that a regular motion
+    cannot pull it a whole period away. The last ``window`` impacts of each clock are kept, so the fit follows a
+    drift as they accumulate. ``tol_s``: how far a DIC impact may lie from an accelerometer impact to be matched
+    (the stamps' uncertainty plus the DIC impact time's)."""
 
-    def __init__(self, tol_s: float = 0.0005, window: int = 64) -> None:
+    def __init__(self, tol_s: float = 0.0005, window: int = LIVE_CLOCK_WINDOW) -> None:
         self.tol_s = float(tol_s)
         self.accel_daq_s: deque[float] = deque(maxlen=window)
         self.dic_cam_s: deque[float] = deque(maxlen=window)
@@ -238,16 +245,40 @@ class LiveClockOffset:
         self.refined: ClockOffset | None = None
 
     @property
+    def _determined(self) -> bool:
+        return self.refined is not None and self.refined.determined
+
+    @property
     def offset_s(self) -> float | None:
-        """The refined offset when determined, else the stamps'."""
-        if self.refined is not None and self.refined.determined:
+        """The refined offset (s, at camera time :attr:`t_ref_s`) when determined, else the stamps'."""
+        if self._determined:
             return self.refined.offset_s
         return self.stamps_s
 
     @property
+    def rate_ppm(self) -> float:
+        """How much faster the DAQ's clock runs than the camera's (ppm): the refined rate when determined and
+        significant, else 0."""
+        return float(self.refined.rate_ppm) if self._determined else 0.0
+
+    @property
+    def t_ref_s(self) -> float:
+        """The camera time (s) at which :attr:`offset_s` holds (with a rate; 0 without a refined fit)."""
+        return float(self.refined.t_ref_s) if self._determined else 0.0
+
+    def to_camera_s(self, t_daq_s: float) -> float:
+        """A DAQ-clock time (s) on the camera clock (s): with the refined offset and rate when determined, else
+        minus the stamps' offset (unchanged before any stamp)."""
+        if self._determined:
+            return float(self.refined.line.camera_s(t_daq_s))
+        return float(t_daq_s) - (self.stamps_s or 0.0)
+
+    @property
     def source(self) -> str:
-        if self.refined is not None and self.refined.determined:
-            return f"impacts ({self.refined.n_matched} matched, residual {1e6 * self.refined.residual_std_s:.0f} us)"
+        if self._determined:
+            rate = f", rate {self.refined.rate_ppm:+.1f} ppm" if self.refined.rate_ppm else ""
+            return (f"impacts ({self.refined.n_matched} matched, residual {1e6 * self.refined.residual_std_s:.0f} us"
+                    f"{rate})")
         return "stamps" if self.stamps_s is not None else "none"
 
     def add_accel(self, t_daq_s: float) -> None:
@@ -258,7 +289,17 @@ class LiveClockOffset:
         self.refine()
 
     def refine(self) -> ClockOffset | None:
+        """Refit the relation from the impacts kept (seeded at the stamps' offset); the last fit, or None before
+        the first stamp and the first impact of each clock."""
         if self.stamps_s is None or not self.accel_daq_s or not self.dic_cam_s:
             return self.refined
-        self.refined = refine_clock_offset(list(self.accel_daq_s), list(self.dic_cam_s), self.stamps_s, self.tol_s)
+        self.refined = refine_clock_offset(list(self.accel_daq_s), list(self.dic_cam_s), self._seed_s(), self.tol_s)
         return self.refined
+
+    def _seed_s(self) -> float:
+        """The offset (s) the refinement starts from: the stamps', or the last determined fit's at the middle of the
+        DIC impacts kept (with its rate, it has followed a drift the stamps' median lags behind)."""
+        if not self._determined or not self.refined.rate_ppm:
+            return float(self.stamps_s)
+        mid = 0.5 * (self.dic_cam_s[0] + self.dic_cam_s[-1])
+        return float(self.refined.line.daq_s(mid) - mid)

@@ -20,9 +20,17 @@ from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.rig import RigConfig
 from vibro_model.errors import RecordingError
 
-from .accel_impacts import AccelAnalysis, ClockOffset, analyse_accel, estimate_clock_offset
+from .accel_impacts import (
+    AccelAnalysis,
+    ClockOffset,
+    analyse_accel,
+    estimate_clock_offset,
+    expected_timing_noise_s,
+    judge_residuals,
+)
 from .contacts import ContactPhase, contact_frames, find_contacts, refine_contacts
 from .coverage import FrameCoverage, frame_coverage
+from .drive import DriveModel, fit_drive
 from .flight_fit import FlightFit
 from .gaps import GapVerdict
 from .hops import HopChain, acceleration_prior, chains_after_open_flights
@@ -147,11 +155,22 @@ def structure_pass(track: DicTrack, rig: RigConfig) -> MotionBasis:
                        noise_mm=noise, warnings=warnings)
 
 
+def drive_pass(track: DicTrack, basis: MotionBasis) -> tuple[DriveModel | None, list[str]]:
+    """Whether the drive held still over the take (:mod:`vibro_fit.drive`: the structure track in windows of a few
+    drive cycles against the global sine of ``basis``), and the warning when it did not; (None, []) when the
+    structure does not move. Changes nothing else: a stationary drive keeps the global sine."""
+    good = track.good
+    drive = fit_drive(track.t_s[good], track.structure_mm[good], basis.structure, basis.moving)
+    warning = drive.warning() if drive is not None else None
+    return drive, [warning] if warning else []
+
+
 # ------------------------------------------------------------------ accelerometers and clock offset
 def accel_pass(accel: AccelData | None, sf: StreamingFitter, *, track: DicTrack, rig: RigConfig,
                basis: MotionBasis, config: SegmentationConfig, highpass_hz: float) -> AccelPass:
-    """Accelerometer impacts (high-pass corner ``highpass_hz``, Hz), the camera-to-DAQ clock offset from the
-    first streaming run ``sf``, their times on the camera clock when the offset is determined, and the
+    """Accelerometer impacts (high-pass corner ``highpass_hz``, Hz), the camera-to-DAQ clock relation (offset and,
+    when significant, rate) from the first streaming run ``sf``, their times on the camera clock when the offset
+    is determined (mapped with the rate), a warning when the clock residuals exceed the timing noise, and the
     filmed interval's coverage by the accelerometer record."""
     if accel is None:
         return AccelPass()
@@ -161,11 +180,13 @@ def accel_pass(accel: AccelData | None, sf: StreamingFitter, *, track: DicTrack,
     offset = _clock_offset(acc_t, sf, track=track, rig=rig, basis=basis, config=config, accel=accel)
     camera_times = None
     if offset is not None and offset.determined:
-        camera_times = [x - offset.offset_s for x in acc_t]
+        camera_times = offset.camera_s(acc_t) if acc_t else []
+        if offset.residual_warning:
+            warnings.append(offset.residual_warning)
     elif acc_t:
         warnings.append(_offset_unknown(offset, accel, track.t_s))
-    coverage = frame_coverage(track.t_s, accel.t_s, acc_t, offset.known_offset_s if offset is not None else None,
-                              1.0 / rig.camera.fps)
+    clock = offset.line if offset is not None and offset.determined else None
+    coverage = frame_coverage(track.t_s, accel.t_s, acc_t, clock, 1.0 / rig.camera.fps)
     if coverage.message():
         warnings.append(coverage.message())
     return AccelPass(analysis=analysis, offset=offset, coverage=coverage, camera_times_s=camera_times,
@@ -189,9 +210,11 @@ def _clock_offset(acc_t: list[float], sf: StreamingFitter, *, track: DicTrack, r
     spans = {"accel_span_s": (float(accel.t_s[0]), float(accel.t_s[-1])),
              "camera_span_s": (float(t[0]), float(t[-1]))}
     period_s = 1.0 / basis.f_motion_hz
+    frame_s = 1.0 / rig.camera.fps
     offset = estimate_clock_offset(acc_t, [i.t_s for i in sf.impacts], period_s=period_s, **spans)
     if offset is not None and offset.determined:
-        return offset
+        noise_s = expected_timing_noise_s(accel.sample_rate_hz, [i.t_std_s for i in sf.impacts], frame_s)
+        return judge_residuals(offset, noise_s)
     levels = plate_levels(list(sf.impacts), rig.free_play_mm)
     landings = find_landings(sf.flights, sf.impacts, clusters=sf.clusters, short_flights=sf.short_flights,
                              structure=basis.structure, plate_levels=levels, track=track,
@@ -199,7 +222,8 @@ def _clock_offset(acc_t: list[float], sf: StreamingFitter, *, track: DicTrack, r
     marks = sorted([i.t_s for i in sf.impacts] + [x.t_s for x in landings])
     alt = estimate_clock_offset(acc_t, marks, period_s=period_s, tol_s=0.0005 + 0.5 / rig.camera.fps, **spans)
     if alt is not None and (alt.determined or offset is None or alt.n_matched > offset.n_matched):
-        return alt
+        # landings are located to a frame: their times carry a frame's quantisation
+        return judge_residuals(alt, expected_timing_noise_s(accel.sample_rate_hz, (), frame_s))
     return offset
 
 

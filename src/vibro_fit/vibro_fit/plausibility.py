@@ -19,7 +19,12 @@ measurement chain. :func:`physical_plausibility` states each as a :class:`Findin
 
 Thresholds: a one-sided normal test at a family-wise false-alarm probability ``FALSE_ALARM`` (1e-3)
 over the n impacts tested (z = Phi^-1(1 - 1e-3 / n): 4.0 for 13 impacts), per impact, per plate
-(inverse-variance weighted mean) and over all impacts.
+(inverse-variance weighted mean) and over all impacts. A statistical test alone refuses ever smaller biases
+as a recording grows (its sigma falls as 1/sqrt(n)), so each bound also has a physical floor: a value is
+refused only when it lies beyond the bound by more than its threshold in sigmas AND by more than the floor
+(:data:`FRICTION_FLOOR_OF_WEIGHT` of the ball's weight for the friction, :data:`COR_FLOOR` for a COR).
+Below the floor the friction's dissipative part is reported as zero within the floor
+(:func:`friction_balance`, results.json ``consistency.checks.friction``), neither refused nor claimed.
 """
 
 from __future__ import annotations
@@ -40,6 +45,19 @@ FALSE_ALARM = 1e-3
 STRUCTURE_VELOCITY_TOL = 0.2
 #: an impact's structure speed above (1 + this) x the drive's velocity amplitude A w is impossible
 DRIVE_SPEED_TOL = 0.1
+#: physical floor of the flights' friction, as a fraction of the ball's weight m g. A force F in flight
+#: changes the ball's speed over a flight of duration T by F T / m, against a flight speed of order g T / 2:
+#: a relative change of ~2 F / (m g), so 1e-3 m g moves an impact speed (and a COR model's prediction) by
+#: ~2e-3 relative, ~1e-3 in the COR: below the COR scatter of any real contact and below the COR floor of
+#: the discrepancy analysis. It is also what the DIC resolves in one flight's fitted acceleration: a 20 ms
+#: flight of 20 frames at 0.25-1 um per frame gives sigma(F) = m sigma(a) ~ 4e-4 to 1.5e-3 m g, so a
+#: smaller mean comes from averaging many flights, where the DIC's systematic errors (sub-pixel bias,
+#: interpolation) no longer average out (a no-friction synthetic take of 20,000 frames shows -8e-5 m g at 5
+#: sigma). Below the floor the friction is zero within it: neither refused nor claimed.
+FRICTION_FLOOR_OF_WEIGHT = 1e-3
+#: physical floor of a COR outside [0, 1]: the COR change the friction floor above makes (~1e-3); a mean COR
+#: of 1.0005 over thousands of impacts is a bias of the measurement chain at that level, not an active impact
+COR_FLOOR = 1e-3
 
 
 @dataclass
@@ -96,11 +114,12 @@ def _weighted_mean(values: np.ndarray, sigmas: np.ndarray) -> tuple[float, float
 
 
 def cor_outside_bounds(impacts: Sequence) -> dict | None:
-    """Where the CORs leave [0, 1] beyond their sigma: per impact, per plate (weighted mean), all together.
+    """Where the CORs leave [0, 1] beyond their sigma and beyond :data:`COR_FLOOR`: per impact, per plate
+    (weighted mean), all together.
 
     ``impacts``: anything with ``index``, ``plate``, ``cor``, ``cor_std``. Returns None when none does, else
     {"impacts": [(index, plate, cor, cor_std, z)], "plates": {plate: (mean, std, z)}, "all": (mean, std, z),
-    "z_limit": {...}} listing only the tests that fail (z: distance beyond the bound in sigmas)."""
+    "z_limit": {...}, "floor"} listing only the tests that fail (z: distance beyond the bound in sigmas)."""
     rows = [(int(i.index), i.plate, float(i.cor), float(i.cor_std or 0.0)) for i in impacts
             if i.cor is not None and np.isfinite(i.cor)]
     if not rows:
@@ -111,24 +130,28 @@ def cor_outside_bounds(impacts: Sequence) -> dict | None:
     def beyond(x: float, s: float) -> float:
         return max(x - 1.0, -x, 0.0) / s
 
+    def outside(x: float, s: float, z_limit: float) -> bool:
+        # significant beyond its sigma AND beyond the physical floor
+        return beyond(x, s) > z_limit and max(x - 1.0, -x) > COR_FLOOR
+
     z_one = z_threshold(len(rows))
     bad_impacts = [(r[0], r[1], r[2], r[3], beyond(r[2], max(r[3], 1e-9))) for r in rows
-                   if beyond(r[2], max(r[3], 1e-9)) > z_one]
+                   if outside(r[2], max(r[3], 1e-9), z_one)]
     z_plate = z_threshold(2)
     plates = {}
     for plate in ("bottom", "top"):
         sel = np.array([r[1] == plate for r in rows])
         if sel.sum() >= 2:
             m, s = _weighted_mean(cor[sel], sd[sel])
-            if beyond(m, s) > z_plate:
+            if outside(m, s, z_plate):
                 plates[plate] = (m, s, beyond(m, s))
     m, s = _weighted_mean(cor, sd)
     z_all = z_threshold(1)
-    together = (m, s, beyond(m, s)) if len(rows) >= 2 and beyond(m, s) > z_all else None
+    together = (m, s, beyond(m, s)) if len(rows) >= 2 and outside(m, s, z_all) else None
     if not bad_impacts and not plates and together is None:
         return None
     return {"impacts": bad_impacts, "plates": plates, "all": together,
-            "z_limit": {"impact": z_one, "plate": z_plate, "all": z_all}}
+            "z_limit": {"impact": z_one, "plate": z_plate, "all": z_all}, "floor": COR_FLOOR}
 
 
 def cor_against_sine(impacts: Sequence, structure) -> list[float]:
@@ -175,11 +198,9 @@ def _frequency_statement(rig_statements: Iterable):
     return None
 
 
-def negative_friction(flights: Sequence, mass_kg: float) -> dict | None:
-    """The dissipative part of the flights' friction (Eq. 17), averaged over the up and down flights so that a
-    constant force (a gravity tilt) cancels: D = (median(-F_up) + median(F_down)) / 2 (N, > 0 opposes the
-    motion). Returns {"dissipative_n", "std_n", "z"} when D < 0 beyond its sigma (z > z_threshold(1)), else
-    None. ``flights``: model Flights (``free``, ``direction``, ``friction_n``, ``friction_std_n``)."""
+def _dissipative_part(flights: Sequence) -> tuple[float, float] | None:
+    """(D, its standard deviation) in N: D = (median(-F_up) + median(F_down)) / 2 of the free flights' Eq. 17
+    friction; None with fewer than 2 free flights in a direction."""
     parts, var = [], 0.0
     for d, sign in (("up", -1.0), ("down", 1.0)):
         rows = [(f.friction_n, f.friction_std_n or 0.0) for f in flights
@@ -191,18 +212,63 @@ def negative_friction(flights: Sequence, mass_kg: float) -> dict | None:
         spread = 1.4826 * float(np.median(np.abs(vals - np.median(vals))))
         parts.append(sign * float(np.median(vals)))
         var += max(spread, sd_fit) ** 2 * (math.pi / 2.0) / vals.size
-    d_n = 0.5 * sum(parts)
-    sd = 0.5 * math.sqrt(var)
-    z = -d_n / sd if sd > 0 else math.inf
-    if d_n < 0 and z > z_threshold(1):
-        return {"dissipative_n": d_n, "std_n": sd, "z": z, "weight_fraction": d_n / (mass_kg * G_MPS2)}
-    return None
+    return 0.5 * sum(parts), 0.5 * math.sqrt(var)
+
+
+def friction_balance(flights: Sequence, mass_kg: float) -> dict | None:
+    """The dissipative part of the flights' friction (Eq. 17), averaged over the up and down flights so that a
+    constant force (a gravity tilt) cancels: D = (median(-F_up) + median(F_down)) / 2 (N, > 0 opposes the
+    motion), judged against its sigma and the physical floor :data:`FRICTION_FLOOR_OF_WEIGHT` m g.
+
+    Returns {"dissipative_n", "std_n", "z" (-D / sigma: > 0 feeds energy in), "z_limit", "weight_fraction",
+    "floor_n", "floor_of_weight", "significant", "verdict", "words"} (None with fewer than 2 free flights per
+    direction). ``verdict``: ``"feeds_energy"`` (D < 0 beyond z_limit sigmas and beyond the floor: refused),
+    ``"zero_within_floor"`` (|D| <= floor, significant or not: reported as zero), ``"dissipative"`` (D above
+    the floor) or ``"not_significant"`` (D below minus the floor but within its sigma). ``flights``: model
+    Flights (``free``, ``direction``, ``friction_n``, ``friction_std_n``)."""
+    est = _dissipative_part(flights)
+    if est is None:
+        return None
+    d_n, sd = est
+    weight = mass_kg * G_MPS2
+    floor = FRICTION_FLOOR_OF_WEIGHT * weight
+    z = -d_n / sd if sd > 0 else math.copysign(math.inf, -d_n)
+    z_lim = z_threshold(1)
+    significant = abs(z) > z_lim
+    if abs(d_n) <= floor:
+        verdict = "zero_within_floor"
+        words = (f"friction in flight zero within the floor: dissipative part {d_n:.3g} N +- {sd:.2g} N "
+                 f"({d_n / weight:+.2g} m g) is below {FRICTION_FLOOR_OF_WEIGHT:g} m g = {floor:.3g} N"
+                 + (f" though {abs(z):.1f} sigma from zero (a bias of the measurement chain below what matters for "
+                    "the COR)" if significant else ""))
+    elif d_n > 0:
+        verdict, words = "dissipative", f"friction in flight opposes the motion: dissipative part {d_n:.3g} N"
+    elif significant:
+        verdict, words = "feeds_energy", f"friction feeds energy into the flights: dissipative part {d_n:.3g} N"
+    else:
+        verdict = "not_significant"
+        words = f"dissipative part {d_n:.3g} N +- {sd:.2g} N: not significantly below zero"
+    return {"dissipative_n": d_n, "std_n": sd, "z": z, "z_limit": z_lim, "weight_fraction": d_n / weight,
+            "floor_n": floor, "floor_of_weight": FRICTION_FLOOR_OF_WEIGHT, "significant": significant,
+            "verdict": verdict, "words": words}
+
+
+def negative_friction(flights: Sequence, mass_kg: float) -> dict | None:
+    """The flights' friction when it feeds energy in (:func:`friction_balance`'s verdict ``"feeds_energy"``:
+    D < 0 beyond its sigma, z > z_threshold(1), AND beyond the floor :data:`FRICTION_FLOOR_OF_WEIGHT` m g):
+    {"dissipative_n", "std_n", "z", "weight_fraction", "floor_n"}, else None. ``flights``: model Flights
+    (``free``, ``direction``, ``friction_n``, ``friction_std_n``)."""
+    bal = friction_balance(flights, mass_kg)
+    if bal is None or bal["verdict"] != "feeds_energy":
+        return None
+    return {k: bal[k] for k in ("dissipative_n", "std_n", "z", "weight_fraction", "floor_n")}
 
 
 def physical_plausibility(impacts: Sequence, flights: Sequence, structure, rig, rig_statements: Iterable = (),
                           structure_moves: bool = True) -> list[Finding]:
     """Findings (severity ``"refuse"``) for CORs outside [0, 1], a friction that feeds energy into the flights
-    and plate speeds above the drive's, each naming its likely cause (see the module rules).
+    (each beyond its sigma and its physical floor) and plate speeds above the drive's, each naming its likely
+    cause (see the module rules).
 
     ``impacts``: model Impacts (SI); ``flights``: model Flights; ``structure``: the whole recording's sine
     (:class:`~vibro_fit.structure_fit.StructureFit`); ``rig``: the RigConfig; ``rig_statements``: the
@@ -214,7 +280,7 @@ def physical_plausibility(impacts: Sequence, flights: Sequence, structure, rig, 
     freq = _frequency_statement(rig_statements)
     cause, keys, ev_cause = _structure_cause(impacts, structure, rig, local, freq, structure_moves)
     if bounds is not None:
-        ev = {"z_limits": bounds["z_limit"], **ev_cause}
+        ev = {"z_limits": bounds["z_limit"], "floor": bounds["floor"], **ev_cause}
         what = []
         if bounds["all"] is not None:
             m, s, z = bounds["all"]
@@ -230,8 +296,9 @@ def physical_plausibility(impacts: Sequence, flights: Sequence, structure, rig, 
             ev["impacts_outside"] = [{"index": r[0], "plate": r[1], "cor": r[2], "cor_std": r[3]}
                                      for r in bounds["impacts"]]
         out.append(Finding("cor_outside_0_1",
-                           f"COR outside [0, 1] beyond its uncertainty ({'; '.join(what)}): a passive impact "
-                           f"cannot return more speed than it received; {cause}", keys, ev, "refuse"))
+                           f"COR outside [0, 1] beyond its uncertainty and the floor {COR_FLOOR:g} "
+                           f"({'; '.join(what)}): a passive impact cannot return more speed than it received; "
+                           f"{cause}", keys, ev, "refuse"))
     if local is not None and local["too_fast"]:
         k, v = max(local["too_fast"], key=lambda r: abs(r[1]))
         out.append(Finding("impact_speed_above_drive",
@@ -246,7 +313,8 @@ def physical_plausibility(impacts: Sequence, flights: Sequence, structure, rig, 
                                        "(check dic.ball_roi and the ball track)")
         out.append(Finding("negative_friction",
                            f"friction feeds energy into the flights: dissipative part {neg['dissipative_n']:.3g} N "
-                           f"+- {neg['std_n']:.2g} N (mean of the up and down flights; friction opposes motion); "
+                           f"+- {neg['std_n']:.2g} N (mean of the up and down flights; friction opposes motion; "
+                           f"beyond the floor {FRICTION_FLOOR_OF_WEIGHT:g} m g = {neg['floor_n']:.2g} N); "
                            f"{fr_cause}", keys, {**neg, **ev_cause}, "refuse"))
     return out
 

@@ -39,6 +39,8 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
     }
     if ident.motion is not None:
         out["motion"] = ident.motion.to_dict()
+    if getattr(ident, "drive", None) is not None:   # the windowed drive, stationary or not (vibro_fit.drive)
+        out["drive"] = ident.drive.to_dict()
     if ident.accel is not None:
         acc, off = ident.accel, ident.clock_offset
         out["accelerometers"] = {
@@ -49,16 +51,25 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
             "clock_offset_residual_std_s": off.residual_std_s if off else None,
             "clock_offset": off.to_dict() if off else {
                 "determined": False, "offset_s": None, "reason": "no accelerometer impact near a DIC impact",
-                "n_matched": 0, "message": "clock offset not determined: no accelerometer impact near a DIC impact"},
+                "n_matched": 0, "message": "clock offset not determined: no accelerometer impact near a DIC impact",
+                "rate_ppm": None, "rate_std_ppm": None, "offset_std_s": None, "t_ref_s": None},
             "impacts_not_seen_by_camera_s": None if ident.accel_unseen_s is None else list(ident.accel_unseen_s),
-            "impacts": [{"t_daq": i.t_s, "plate": i.plate, "peak_mps2": i.peak_mps2,
+            "impacts": [{"t_daq": i.t_s, "t_camera": t_cam, "plate": i.plate, "peak_mps2": i.peak_mps2,
                          "upper_energy_m2s3": i.energy_upper, "lower_energy_m2s3": i.energy_lower,
                          "dominant_frequencies_hz": list(i.dominant_frequencies_hz), "clipped": bool(i.clipped)}
-                        for i in acc.impacts],
+                        for i, t_cam in zip(acc.impacts, _accel_camera_times(acc, off))],
         }
         if getattr(ident, "coverage", None) is not None:
             out["accelerometers"]["coverage"] = ident.coverage.to_dict()
     return json_value(out)
+
+
+def _accel_camera_times(acc, off) -> list[float | None]:
+    """Each accelerometer impact's time on the camera clock (s; offset and rate of ``off``), None for every one
+    while the clock offset is not determined."""
+    if off is None or not off.determined or not acc.impacts:
+        return [None] * len(acc.impacts)
+    return off.camera_s([i.t_s for i in acc.impacts])
 
 
 def identified_stage(ident: Identification) -> Identified:

@@ -22,9 +22,11 @@ Live accelerometers (``live_accel``: a DAQ driver publishes vibro/accel, docs/li
 as the impact detector checks it (:class:`vibro_fit.live_accel.BlockCheck`, a refusal stops the node), blocks are
 not kept (a live stream has no end), the impacts are detected here with the same core as ``impact_detector`` and
 put on the camera clock with the camera-to-DAQ offset from the blocks' lab-clock stamps, refined from the impacts
-both see as ``vibro analyze`` refines it (:class:`vibro_fit.live_accel.LiveClockOffset`); they mark the frames next
-to them as contact (``StreamingFitter.push_accel_impact``). /diagnostics: ``clock_offset_s``, its source, the
-stamps' offset and jitter, ``accel_impacts_count``, lost blocks and samples.
+both see as ``vibro analyze`` refines it, with the DAQ clock's rate when it drifts significantly
+(:class:`vibro_fit.live_accel.LiveClockOffset`); they mark the frames next to them as contact
+(``StreamingFitter.push_accel_impact``). /diagnostics: ``clock_offset_s`` (at camera time ``clock_t_ref_s``),
+``clock_rate_ppm`` (0 unless significant), its source, the stamps' offset and jitter, ``accel_impacts_count``,
+lost blocks and samples.
 
 Restart: vibro/dic and vibro/accel are latched histories, so a fitter restarted mid-run receives every
 DicFrame and block again and reaches the same final results. A history that does not begin where its
@@ -226,9 +228,8 @@ class TrajectoryFitter(Node):
             self.health.count("accel_impacts")
         if found:
             self.clock.refine()
-        offset = self.clock.offset_s
         for imp in found:
-            self.stream.push_accel_impact(imp.t_s - offset)
+            self.stream.push_accel_impact(self.clock.to_camera_s(imp.t_s))
         self._last_block_at = time.monotonic()
         self._report_clock()
 
@@ -236,6 +237,8 @@ class TrajectoryFitter(Node):
         offset = self.clock.offset_s
         self.health.values["clock_offset_s"] = "" if offset is None else f"{offset:.7f}"
         self.health.values["clock_offset_source"] = self.clock.source
+        self.health.values["clock_rate_ppm"] = f"{self.clock.rate_ppm:.2f}"
+        self.health.values["clock_t_ref_s"] = f"{self.clock.t_ref_s:.6f}"
         stamps = self.block_check.stamp_offset_s
         self.health.values["clock_offset_from_stamps_s"] = "" if stamps is None else f"{stamps:.7f}"
         self.health.values["stamp_jitter_s"] = f"{self.block_check.stamp_jitter_s:.7f}"

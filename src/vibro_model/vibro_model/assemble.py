@@ -46,6 +46,8 @@ from vibro_model.statistics import normal_check
 
 #: ``cor_method`` of an impact measured by the paper's identification (Eq. 15-16)
 PAPER = "paper"
+#: added to ``cor_method`` for an impact measured under the final model with a local structure velocity
+LOCAL_STRUCTURE = "local_structure"
 #: an identified impact and a re-measured one are the same when their times agree this well (s): both are
 #: the same float read from the same results document
 SAME_IMPACT_S = 1e-9
@@ -108,13 +110,29 @@ class SimulationStage:
 
 
 @dataclass(frozen=True, kw_only=True)
+class LocalStructure:
+    """An impact the final model measured again where its one structure fit does not follow the measured
+    structure (a drive whose amplitude or phase moved during the take): its structure velocity there was off the
+    local structure's by ``structure_velocity_misfit_mps``, so the impact is measured with the local structure
+    velocity (the final model's flight law kept), which moved its COR by ``cor_shift`` from ``cor_global`` (the
+    value under the global structure, not kept). Named by the identification's time ``t_paper_s``."""
+
+    t_paper_s: float
+    cor_global: float
+    cor_shift: float
+    structure_velocity_misfit_mps: float
+
+
+@dataclass(frozen=True, kw_only=True)
 class Reidentification:
     """Impacts measured again under the discrepancy analysis' final model: ``effects`` the findings that change
     how an impact is measured (empty: every impact keeps the identification's values), ``impacts`` the
-    re-measured ones, each named by the identification's time (``t_paper_s``)."""
+    re-measured ones, each named by the identification's time (``t_paper_s``), and ``local_structure`` those
+    of them measured with a local structure velocity (:class:`LocalStructure`)."""
 
     effects: Sequence[str] = ()
     impacts: Sequence[Impact] = ()
+    local_structure: Sequence[LocalStructure] = ()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -173,8 +191,7 @@ def _with_later_stages(doc: ResultsDocument, stages: StageOutputs) -> ResultsDoc
         doc = replace(doc, simulation=stages.simulation.simulation)
     if stages.discrepancy is not None:
         redo = stages.discrepancy.reidentification
-        doc = apply_reidentification(replace(doc, discrepancy=stages.discrepancy.discrepancy), redo.effects,
-                                     redo.impacts)
+        doc = apply_reidentification(replace(doc, discrepancy=stages.discrepancy.discrepancy), redo)
     return doc
 
 
@@ -215,6 +232,8 @@ def _ordered_warnings(stages: StageOutputs, refused: bool) -> list[str]:
         return out
     for stage in (stages.simulation, stages.discrepancy):
         out += stage.warnings if stage is not None else []
+    if stages.discrepancy is not None and stages.discrepancy.reidentification.local_structure:
+        out.append(_local_structure_warning(stages.discrepancy.reidentification.local_structure))
     if stages.ball_spin is not None and stages.ball_spin.section is None:
         out.append(f"ball_spin: not reported: {stages.ball_spin.why_not}")
     return out
@@ -288,18 +307,54 @@ def _impacts_model_section(effects: Sequence[str], n_done: int, n_cor: int) -> d
     return section
 
 
-def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
-                           measured: Sequence[Impact]) -> ResultsDocument:
-    """``doc`` with its impacts measured under the final model: ``cor``, ``cor_std``, ``t``, ``t_std``,
-    ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
-    ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact; ``cor_summary`` from the new CORs; the
-    flights' opening/closing impact times from the new times; the top-level ``impacts_model`` section
-    saying which model produced ``cor``. With no ``effects`` every impact keeps the identification's
-    values (``cor_method`` "paper"). ``measured`` names each impact by the identification's time, its
-    ``t_paper_s``. The caller recomputes whatever else is derived from the CORs (``cor_statistics``, figures)."""
+def _by_time(entries: Iterable, name: str = "t_paper_s") -> dict[int, Any]:
+    """Entries keyed by their identification time (in units of :data:`SAME_IMPACT_S`)."""
+    return {round(getattr(e, name) / SAME_IMPACT_S): e for e in entries if getattr(e, name) is not None}
+
+
+def _local_stretches(impacts: Sequence[Impact], local: dict[int, LocalStructure]) -> list[dict[str, Any]]:
+    """Runs of consecutive impacts (time order; impacts without a COR do not break a run) measured with a local
+    structure velocity: where, how many, and by how much the global structure would have been off."""
+    stretches: list[list[tuple[Impact, LocalStructure]]] = []
+    open_run = False
+    for imp in impacts:
+        entry = local.get(round(imp.t_s / SAME_IMPACT_S)) if imp.t_s is not None else None
+        if entry is not None:
+            if not open_run:
+                stretches.append([])
+            stretches[-1].append((imp, entry))
+            open_run = True
+        elif imp.cor is not None:
+            open_run = False
+    return [{"t_start_s": run[0][0].t_s, "t_end_s": run[-1][0].t_s, "n_impacts": len(run),
+             "max_cor_shift": max(abs(k.cor_shift) for _, k in run),
+             "max_structure_velocity_misfit_mps": max(abs(k.structure_velocity_misfit_mps) for _, k in run)}
+            for run in stretches]
+
+
+def _local_structure_warning(local: Sequence[LocalStructure]) -> str:
+    """One line: how many impacts were measured with a local structure velocity, and why."""
+    worst = max(local, key=lambda k: abs(k.cor_shift))
+    return (f"impacts_model: {len(local)} impact(s) measured with the structure velocity of a fit local to each: "
+            f"there the final model's one structure fit does not follow the measured structure (its velocity off "
+            f"by up to {abs(worst.structure_velocity_misfit_mps) * 1e3:.3g} mm/s, which would move the COR by up "
+            f"to {abs(worst.cor_shift):.2g}); the drive changed during the take? (impacts_model.local_structure)")
+
+
+def apply_reidentification(doc: ResultsDocument, redo: Reidentification) -> ResultsDocument:
+    """``doc`` with its impacts measured under the final model (``redo``): ``cor``, ``cor_std``, ``t``,
+    ``t_std``, ``v_*`` replaced by the re-identified values, the identification's kept in ``cor_paper``,
+    ``cor_std_paper``, ``t_paper``; ``cor_method`` per impact (``"paper"`` for an impact the final model did not
+    measure; the effects and ``+local_structure`` for one measured with a local structure velocity,
+    ``redo.local_structure``, listed by stretch in ``impacts_model``);
+    ``cor_summary`` from the new CORs; the flights' opening/closing impact times from the new times; the
+    top-level ``impacts_model`` section saying which model produced ``cor``. With no ``redo.effects`` every
+    impact keeps the identification's values. The re-measured impacts name each impact by the identification's
+    time, their ``t_paper_s``."""
+    effects = redo.effects
     method = cor_method_name(effects)
-    by_time = ({round(r.t_paper_s / SAME_IMPACT_S): r for r in measured if r.t_paper_s is not None}
-               if effects else {})
+    by_time = _by_time(redo.impacts) if effects else {}
+    local = _by_time(redo.local_structure) if effects else {}
     impacts, n_done = [], 0
     for imp in doc.impacts:
         base = _keep_paper(imp)
@@ -308,12 +363,20 @@ def apply_reidentification(doc: ResultsDocument, effects: Sequence[str],
             impacts.append(base)
             continue
         n_done += 1
+        how = method + ("+" + LOCAL_STRUCTURE if round(imp.t_s / SAME_IMPACT_S) in local else "")
         impacts.append(replace(base, t_s=r.t_s, t_std_s=r.t_std_s, cor=r.cor, cor_std=r.cor_std,
                                v_ball_before_mps=r.v_ball_before_mps, v_ball_after_mps=r.v_ball_after_mps,
-                               v_structure_mps=r.v_structure_mps, cor_method=method))
+                               v_structure_mps=r.v_structure_mps, cor_method=how))
     n_cor = sum(i.cor is not None for i in doc.impacts)
+    section = _impacts_model_section(effects, n_done, n_cor)
+    if local:
+        section["local_structure"] = _local_stretches(doc.impacts, local)
+        section["description"] += (
+            f"; {len(local)} impact(s) with the structure velocity of a fit local to each, where the final model's "
+            "one structure fit does not follow the measured structure (local_structure; cor_method "
+            f"'{method}+{LOCAL_STRUCTURE}')")
     sections = dict(doc.sections)
-    sections["impacts_model"] = _impacts_model_section(effects, n_done, n_cor)
+    sections["impacts_model"] = section
     # flights' t_start/t_end are the impacts that open/close them (the contract): the re-measured times
     return replace(doc, flights=link_impacts(doc.flights, impacts), impacts=impacts,
                    cor_summary=CorSummary.of(impacts), sections=sections)

@@ -58,6 +58,11 @@ DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "defa
 #: checks; ``refused``, the one-line refusal when a check refused the run (no final impact was published)
 CONSISTENCY_KEY = "consistency"
 REFUSED_KEY = "refused"
+#: /diagnostics value of the discrepancy node's status once it ran: the JSON list of the impacts it measured with
+#: a local structure velocity, where its final model's structure does not follow the measured one
+#: (vibro_model.assemble.LocalStructure, as mappings); ``vibro results`` puts them in the document's impacts_model
+#: section as analyze does
+LOCAL_STRUCTURE_KEY = "local_structure"
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
               IMPACTS_FINAL_MODEL, STATUS, DIAGNOSTICS)

@@ -7,8 +7,13 @@ t_i with impulse J = m (v+ - v-) (N s), a decaying multi-mode burst
 
 (the impulse response of modes of modal mass m_k), with g_p = 1 on the plate that was
 hit and ``cross_gain`` on the other, plus Gaussian noise. The DAQ clock runs ahead of
-the camera clock by ``clock_offset_s``: the sample written with time t was taken at
-camera time t - clock_offset_s.
+the camera clock by ``clock_offset_s`` at camera time 0 and fast by ``clock_rate_ppm``
+(its crystal's error):
+
+    t_daq = t_camera + clock_offset_s + clock_rate_ppm * 1e-6 * t_camera
+
+so the sample written with time t (every 1 / rate_hz on the DAQ's clock) was taken at
+camera time (t - clock_offset_s) / (1 + clock_rate_ppm * 1e-6).
 """
 
 from __future__ import annotations
@@ -33,22 +38,33 @@ class AccelSignals:
 
 @dataclass(frozen=True, kw_only=True)
 class DaqSettings:
-    """The accelerometer DAQ: sample rate (Hz), noise std (m/s^2) and its clock's lead on the camera clock (s)."""
+    """The accelerometer DAQ: sample rate (Hz, on its own clock), noise std (m/s^2), its clock's lead on the
+    camera clock at camera time 0 (s) and how much faster its clock runs than the camera's (ppm)."""
 
     rate_hz: float
     noise_mps2: float
     clock_offset_s: float
+    clock_rate_ppm: float = 0.0
+
+    def daq_s(self, t_camera_s):
+        """DAQ-clock times (s) of camera times ``t_camera_s`` (s)."""
+        return t_camera_s + self.clock_offset_s + 1e-6 * self.clock_rate_ppm * t_camera_s
+
+    def camera_s(self, t_daq_s):
+        """Camera times (s) of DAQ-clock times ``t_daq_s`` (s): the inverse of :meth:`daq_s`."""
+        return (t_daq_s - self.clock_offset_s) / (1.0 + 1e-6 * self.clock_rate_ppm)
 
 
 def make_accel(structure, impacts, mass_kg: float, window_s: tuple[float, float], daq: DaqSettings,
                rng: np.random.Generator) -> AccelSignals:
-    """Samples on the DAQ clock covering the camera window ``window_s`` = (first, last) camera time (s)."""
+    """Samples on the DAQ clock covering the camera window ``window_s`` = (first, last) camera time (s), each the
+    rig's acceleration at the camera time it was taken (:class:`DaqSettings`: offset and rate of the DAQ clock)."""
     t_first_s, t_last_s = window_s
-    rate_hz, noise_mps2, clock_offset_s = daq.rate_hz, daq.noise_mps2, daq.clock_offset_s
-    n0 = int(math.ceil((t_first_s + clock_offset_s) * rate_hz))
-    n1 = int(math.floor((t_last_s + clock_offset_s) * rate_hz))
+    rate_hz, noise_mps2 = daq.rate_hz, daq.noise_mps2
+    n0 = int(math.ceil(daq.daq_s(t_first_s) * rate_hz))
+    n1 = int(math.floor(daq.daq_s(t_last_s) * rate_hz))
     t_daq = np.arange(n0, n1 + 1) / rate_hz
-    t_cam = t_daq - clock_offset_s
+    t_cam = daq.camera_s(t_daq)
     base = np.asarray(structure.acceleration(t_cam), dtype=float)
     upper = base.copy()
     lower = base.copy()

@@ -25,6 +25,17 @@ with where and what. They exist to test that; a lab recording may show any of th
   law has this shape: each gives every impact of a plate at one speed the same COR.
 
 Parameters: {effect: {parameter: (default, min, max)}}, SI except the explicit ``_um``.
+
+Not ball physics at all, so neither in the catalogue nor among the invented effects above (no ``unexplained``
+finding is expected of it): :data:`DRIVE_EFFECTS`,
+
+- ``drive_change``: the shaker does not hold its drive (closed-loop control over a long take): the amplitude
+  steps smoothly by ``amplitude_step_ratio`` (x the amplitude at t = 0) at ``amplitude_step_time_s`` (camera
+  time; logistic, 2 % to 98 % of the step within ``amplitude_ramp_s``) and the frequency drifts linearly by
+  ``frequency_drift_hz_per_s`` from the nominal at t = 0, the phase the integral of the frequency
+  (:class:`vibro_model.kinematics.DriveChange`; both plates, the lead-in included). The identification must
+  report the drive as not stationary (results.json ``drive``) and the discrepancy analysis must not take it
+  for a structure tone.
 """
 
 from __future__ import annotations
@@ -33,7 +44,7 @@ import math
 from dataclasses import dataclass, replace
 
 from vibro_model.constants import G_MPS2
-from vibro_model.kinematics import StructureKinematics, StructureWithTone
+from vibro_model.kinematics import DriveChange, StructureKinematics, StructureWithTone
 
 from ..forces import ForceLaw, PositionForce
 from ..restitution import RestitutionLaw
@@ -56,6 +67,18 @@ INVENTED_HELP = {
     "cor_parity": "the lower plate's COR alternates between cor_even and cor_odd on successive lower-plate impacts",
 }
 
+#: effects of the drive, not of the ball (module docstring): no finding expected, the identification's ``drive``
+DRIVE_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
+    "drive_change": {"amplitude_step_ratio": (0.1, -0.5, 0.5), "amplitude_step_time_s": (0.75, -100.0, 100.0),
+                     "amplitude_ramp_s": (0.1, 0.001, 100.0), "frequency_drift_hz_per_s": (0.0, -1.0, 1.0)},
+}
+
+DRIVE_HELP = {
+    "drive_change": ("the shaker's amplitude steps by amplitude_step_ratio at amplitude_step_time_s (within "
+                     "amplitude_ramp_s) and its frequency drifts by frequency_drift_hz_per_s (Hz/s): not ball "
+                     "physics, the identification reports the drive as not stationary"),
+}
+
 #: the tone must stay this far (Hz) from every drive harmonic 1..MAX_HARMONIC, else it is a harmonic
 TONE_CLEARANCE_HZ = 1.0
 MAX_HARMONIC = 5
@@ -64,6 +87,8 @@ MAX_HARMONIC = 5
 def check_invented(effects: dict[str, dict[str, float]], frequency_hz: float) -> str | None:
     """Why a set of invented-effect parameters cannot be simulated, or None."""
     tone = effects.get("structure_tone")
+    if tone is not None and "drive_change" in effects:
+        return "effects 'structure_tone' and 'drive_change' cannot be combined (one structure model holds one of them)"
     if tone is not None:
         f = tone["tone_frequency_hz"]
         for k in range(1, MAX_HARMONIC + 1):
@@ -151,3 +176,23 @@ def position_force(structure: StructureKinematics, cavity, base: ForceLaw, param
     added to the catalogue force ``base``; the weight is m g with the standard g."""
     return PositionForce(structure, cavity.free_play_m, cavity.mass_kg, G_MPS2, params["weight_fraction"],
                          params["decay_mm"], base)
+
+
+def drive_structure(S: StructureKinematics, drive: dict[str, float], horizon_s: float) -> DriveChange:
+    """``S`` with the ``drive_change`` effect's drive (amplitude step and frequency drift), its derivative bounds
+    valid for |t| <= ``horizon_s``. ValueError when the drifting frequency reaches 0 Hz within it."""
+    return DriveChange(**S.to_dict(), step_ratio=drive["amplitude_step_ratio"],
+                       step_time_s=drive["amplitude_step_time_s"], ramp_s=drive["amplitude_ramp_s"],
+                       drift_hz_per_s=drive["frequency_drift_hz_per_s"], horizon_s=horizon_s)
+
+
+def check_drive(effects: dict[str, dict[str, float]], frequency_hz: float, horizon_s: float) -> str | None:
+    """Why the ``drive_change`` parameters cannot be simulated over |t| <= ``horizon_s``, or None."""
+    drive = effects.get("drive_change")
+    if drive is None:
+        return None
+    k = drive["frequency_drift_hz_per_s"]
+    if frequency_hz - abs(k) * horizon_s <= 0:
+        return (f"parameter 'frequency_drift_hz_per_s' of effect 'drive_change' ({k} Hz/s) takes the "
+                f"{frequency_hz} Hz drive to 0 Hz within the simulated {horizon_s:.3g} s")
+    return None

@@ -23,11 +23,14 @@ from ..forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from ..params import BALL_DIAMETER_M, BALL_E_PA, BALL_MASS_KG, BALL_NU, GAP_M, PLATE_E_PA, PLATE_NU, BallCavity
 from ..restitution import Constant, PerPlate, RestitutionLaw, Scattered, VelocityDependent
 from .invented import (
+    DRIVE_EFFECTS,
     INVENTED_EFFECTS,
     DriftingCOR,
     ParityCOR,
+    check_drive,
     check_invented,
     drift_per_impact,
+    drive_structure,
     position_force,
     tone_structure,
 )
@@ -58,8 +61,8 @@ EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
                             "h3_phase_rad": (-0.8, -2 * math.pi, 2 * math.pi)},
 }
 # every effect the rig simulates: the catalogue's (contract names) and the invented ones outside it
-_ALL_EFFECTS = {**EFFECTS, **INVENTED_EFFECTS}
-EFFECT_NAMES = tuple(EFFECTS) + tuple(INVENTED_EFFECTS) + ("none",)
+_ALL_EFFECTS = {**EFFECTS, **INVENTED_EFFECTS, **DRIVE_EFFECTS}
+EFFECT_NAMES = tuple(EFFECTS) + tuple(INVENTED_EFFECTS) + tuple(DRIVE_EFFECTS) + ("none",)
 _PARAM_OWNER = {p: eff for eff, ps in _ALL_EFFECTS.items() for p in ps}
 _RESTITUTION = ("asymmetric_restitution", "velocity_dependent_restitution")
 _FORCES = ("coulomb_friction", "viscous_drag", "quadratic_drag")
@@ -95,7 +98,9 @@ class SynthConfig:
     flicker        relative amplitude of the illumination flicker (0.01).
     blur           motion blur over ``exposure_s`` centred on each frame time.
     exposure_s     exposure time used for blur (0.5 ms).
-    clock_offset_s accelerometer clock minus camera clock (s).
+    clock_offset_s accelerometer clock minus camera clock (s), at camera time 0.
+    daq_clock_ppm  the accelerometer DAQ's clock runs fast by this much against the camera's (ppm; a crystal's
+                   error): accel.csv time = camera time + clock_offset_s + daq_clock_ppm 1e-6 camera time.
     still          no motion at all (noise study); ``drift`` adds slow camera drift.
     drift_px       peak camera drift in pixels (vertical) when ``drift``.
     tiff16         write 16-bit TIFF instead of 8-bit PNG.
@@ -143,6 +148,7 @@ class SynthConfig:
     blur: bool = False
     exposure_s: float = 0.5e-3
     clock_offset_s: float = 0.0
+    daq_clock_ppm: float = 0.0
     still: bool = False
     drift: bool = False
     drift_px: float = 0.3
@@ -200,7 +206,12 @@ class SynthConfig:
             raise SynthError("synth option 'jpeg_quality' needs 8-bit frames (not tiff16)")
         if not math.isfinite(self.clock_offset_s) or abs(self.clock_offset_s) > 1.0:
             raise SynthError(f"synth option 'clock_offset_s' must be within +-1 s, got {self.clock_offset_s!r}")
+        if not math.isfinite(self.daq_clock_ppm) or abs(self.daq_clock_ppm) > 10_000.0:
+            raise SynthError(f"synth option 'daq_clock_ppm' must be within +-10000 ppm, got {self.daq_clock_ppm!r}")
         why = check_invented(self.effects, self.frequency_hz)
+        if why is not None:
+            raise SynthError(why)
+        why = check_drive(self.effects, self.frequency_hz, drive_horizon_s(self))
         if why is not None:
             raise SynthError(why)
 
@@ -313,6 +324,8 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
     if "structure_tone" in eff:
         structure = tone_structure(structure, eff["structure_tone"])
+    if "drive_change" in eff:
+        structure = drive_structure(structure, eff["drive_change"], drive_horizon_s(cfg))
     law, force = effect_laws(eff, scatter_seed=cfg.seed + 7919, baseline_cor=cfg.cor)
     if "position_force" in eff:
         force = position_force(structure, cavity, force, eff["position_force"])
@@ -369,5 +382,16 @@ def effects_truth(cfg: SynthConfig) -> list[dict[str, Any]]:
         if name in INVENTED_EFFECTS:
             # not a contract effect: the discrepancy analysis has no term for it and must report it unexplained
             row.update(out_of_catalogue=True, expected_finding="unexplained")
+        if name in DRIVE_EFFECTS:
+            # the drive, not the ball: results.json ``drive`` says it is not stationary; no finding for it
+            row.update(out_of_catalogue=True, expected_finding="none", expected_section="drive",
+                       convention=("A(t) = amplitude_mm [1 + amplitude_step_ratio (1 + tanh(4 (t - "
+                                   "amplitude_step_time_s) / amplitude_ramp_s)) / 2], f(t) = frequency_hz + "
+                                   "frequency_drift_hz_per_s t, th = phase_rad + 2 pi int_0^t f; structure.* at t = 0"))
         out.append(row)
     return out
+
+
+def drive_horizon_s(cfg: SynthConfig) -> float:
+    """|t| (s) within which the simulation stays (the lead-in before camera time 0, the frames after it)."""
+    return cfg.lead_in_s + cfg.frames / cfg.fps + 1.0

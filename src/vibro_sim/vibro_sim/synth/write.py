@@ -1,4 +1,5 @@
-"""Write a synthetic recording (rig.yaml, frames/, accel.csv) and its truth file beside it."""
+"""Write a synthetic recording (rig.yaml, frames/, accel.csv; or a lab's files, :mod:`.lab_files`) and its truth
+file beside it."""
 
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from vibro_io.rig import (
 from vibro_model.units import m_to_mm, um_to_mm
 
 from .accel import DaqSettings, make_accel
+from .lab_files import ACCEL_TDMS, LAB_OUTPUTS, MrawWriter, lab_files_truth, write_accel_tdms
 from .render import Renderer, choose_layout, quantise
 from .scenario import STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
 from .spin import spin_angle, spin_rate
@@ -49,19 +51,21 @@ def truth_path(out_dir: str | Path) -> Path:
     return out_dir.parent / (out_dir.name + ".truth.json")
 
 
-#: what a synthetic recording folder holds (what --overwrite may replace)
-RECORDING_OUTPUTS = ("rig.yaml", "accel.csv", "frames/*.png", "frames/*.tif")
+#: what a synthetic recording folder holds (what --overwrite may replace), lab files (--lab-files) included
+RECORDING_OUTPUTS = ("rig.yaml", "accel.csv", "frames/*.png", "frames/*.tif", *LAB_OUTPUTS)
 
 
-def _prepare_dir(out_dir: Path, overwrite: bool) -> None:
+def _prepare_dir(out_dir: Path, overwrite: bool, lab_files: bool = False) -> None:
     """An empty recording folder (an earlier synthetic recording only replaced with ``overwrite``), and
-    no truth file beside it (an earlier one removed with ``overwrite``, so it never outlives its frames)."""
+    no truth file beside it (an earlier one removed with ``overwrite``, so it never outlives its frames).
+    ``lab_files``: no frames/ folder (it would win over the camera file)."""
     tp = truth_path(out_dir)
     try:
         prepare_output_file(tp, overwrite=overwrite)
         prepare_output_dir(out_dir, overwrite=overwrite, owned=RECORDING_OUTPUTS, command="synth")
         tp.unlink(missing_ok=True)
-        (out_dir / "frames").mkdir()
+        if not lab_files:
+            (out_dir / "frames").mkdir()
     except OutputError as exc:
         raise SynthError(f"--out {exc}") from None
     except OSError as exc:
@@ -77,17 +81,22 @@ def _drift_mm(t: np.ndarray, cfg: SynthConfig, mm_per_px: float) -> np.ndarray:
 
 
 def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwrite: bool = False,
-               progress: bool | None = None) -> dict[str, Any]:
+               progress: bool | None = None, lab_files: bool = False) -> dict[str, Any]:
     """Write a complete synthetic recording to ``out_dir`` and ``out_dir.truth.json``.
 
     Returns the truth mapping (also written to the truth file). ``progress``: show a
-    tqdm bar on stderr (None = only when stderr is a terminal). Raises
-    :class:`SynthError` for bad configuration or an unusable output path.
+    tqdm bar on stderr (None = only when stderr is a terminal). ``lab_files``: the video as an 8-bit
+    Photron MRAW (video.mraw + video.cih, streamed frame by frame) and the accelerometers as an NI TDMS
+    (accel.tdms) instead of frames/ and accel.csv, and no rig.yaml (a lab makes it with ``vibro init``;
+    the truth's ``lab_files`` names the accelerometers block to add). Raises :class:`SynthError` for bad
+    configuration or an unusable output path.
     """
     cfg = config or SynthConfig()
     out_dir = Path(out_dir)
     if str(out_dir).strip() in ("", "."):
         raise SynthError("--out: give a new directory for the recording")
+    if lab_files and (cfg.tiff16 or cfg.bits12):
+        raise SynthError("--lab-files writes an 8-bit MRAW: leave out --tiff16 and --bits12")
     rng = np.random.default_rng(cfg.seed)
     phase = float(rng.uniform(0.0, 2 * math.pi)) if cfg.phase_rad is None else float(cfg.phase_rad)
     models = build_models(cfg, phase)
@@ -99,7 +108,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
                                drift_px=cfg.drift_px if cfg.still and cfg.drift else 0.0)
     except ValueError as exc:
         raise SynthError(f"image layout: {exc}") from None
-    _prepare_dir(out_dir, overwrite)
+    _prepare_dir(out_dir, overwrite, lab_files)
     render_rng = np.random.default_rng([cfg.seed, 1])
     noise_rng = np.random.default_rng([cfg.seed, 2])
     renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift, spin=models.spinning,
@@ -126,22 +135,34 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     check_rois_in_image(rig, cfg.height_px, cfg.width_px)
 
     angle = _ball_angle(models, traj)
-    _write_frames(out_dir / "frames", cfg, renderer, traj, drift, noise_rng, progress=progress, angle=angle)
+    images = _frame_images(cfg, renderer, traj, drift, noise_rng, angle)
+    if lab_files:
+        _write_mraw(out_dir, cfg, images, progress)
+    else:
+        _write_frames(out_dir / "frames", cfg, images, progress)
 
     if cfg.accel:
         daq = DaqSettings(rate_hz=cfg.accel_rate_hz, noise_mps2=cfg.accel_noise_mps2,
-                          clock_offset_s=cfg.clock_offset_s)
+                          clock_offset_s=cfg.clock_offset_s, clock_rate_ppm=cfg.daq_clock_ppm)
         sig = make_accel(S, traj.result.impacts, cfg.ball_mass_kg, (float(t[0]), float(t[-1])), daq, noise_rng)
-        with atomic_path(out_dir / "accel.csv") as tmp:
-            write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
+        if lab_files:
+            with atomic_path(out_dir / ACCEL_TDMS) as tmp:
+                write_accel_tdms(tmp, sig.t_daq_s, sig.upper_ms2, sig.lower_ms2, cfg.accel_rate_hz)
+        else:
+            with atomic_path(out_dir / "accel.csv") as tmp:
+                write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
 
     truth = _truth(cfg, models, traj, layout, phase, drift, rig)
     if models.spinning:
         truth["spin"] = _spin_truth(cfg, models, traj, truth)
-    # rig.yaml last: a synth interrupted while writing frames leaves no rig.yaml, so the half-written folder
-    # is refused as a recording instead of being read as a shorter one
-    with atomic_path(out_dir / "rig.yaml") as tmp:
-        write_rig(rig, tmp)
+    if lab_files:
+        truth["lab_files"] = lab_files_truth(cfg.accel)
+    else:
+        # rig.yaml last: a synth interrupted while writing frames leaves no rig.yaml, so the half-written
+        # folder is refused as a recording instead of being read as a shorter one (lab files: the MRAW's
+        # header is written last, :class:`MrawWriter`)
+        with atomic_path(out_dir / "rig.yaml") as tmp:
+            write_rig(rig, tmp)
     atomic_write_text(truth_path(out_dir), json.dumps(truth, indent=1))
     return truth
 
@@ -190,20 +211,43 @@ def _spin_truth(cfg: SynthConfig, models, traj, truth: dict[str, Any]) -> dict[s
             "frames_rot_rad": angle.tolist(), "flights": flights, "impacts": impacts}
 
 
-def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray,
-                  rng: np.random.Generator, progress: bool | None, angle=None) -> None:
+def _progress(images, n: int, progress: bool | None):
+    """``images`` behind a tqdm bar on stderr (``progress`` None: only when stderr is a terminal)."""
     from tqdm import tqdm
 
-    t = traj.frame_t_s
-    S = traj.result.structure
+    show = sys.stderr.isatty() if progress is None else progress
+    return tqdm(images, total=n, desc="synth frames", unit="frame", disable=not show, file=sys.stderr)
+
+
+def _write_frames(folder: Path, cfg: SynthConfig, images, progress: bool | None) -> None:
+    """One PNG (TIFF for 16-bit) per frame of ``images`` (:func:`_frame_images`) into ``folder``."""
     ext = ".tif" if cfg.tiff16 or cfg.bits12 else ".png"
     # OpenCV's PNG default (level 1, RLE): 1.6 ms a frame, against 2.7 ms with an explicit level 1
     params: list[int] = []
-    show = sys.stderr.isatty() if progress is None else progress
+    for k, image in enumerate(_progress(images, cfg.frames, progress)):
+        if not cv2.imwrite(str(folder / f"{k:06d}{ext}"), image, params):
+            raise SynthError(f"{folder / f'{k:06d}{ext}'}: cannot write frame")
+
+
+def _write_mraw(folder: Path, cfg: SynthConfig, images, progress: bool | None) -> None:
+    """``images`` (:func:`_frame_images`, 8-bit) streamed into folder/video.mraw, its .cih header last."""
+    try:
+        with MrawWriter(folder, cfg.frames, cfg.fps, cfg.exposure_s) as mraw:
+            for image in _progress(images, cfg.frames, progress):
+                mraw.write(image)
+    except OSError as exc:
+        raise SynthError(f"{folder}: cannot write the MRAW ({exc.strerror or exc})") from None
+
+
+def _frame_images(cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray, rng: np.random.Generator,
+                  angle=None):
+    """The recording's frames, rendered one at a time as they are asked for (quantised as written)."""
+    t = traj.frame_t_s
+    S = traj.result.structure
     flick_phase = float(rng.uniform(0, 2 * math.pi))
     if cfg.blur:
         offsets = cfg.exposure_s * (np.arange(BLUR_SUBSAMPLES) + 0.5 - BLUR_SUBSAMPLES / 2) / BLUR_SUBSAMPLES
-    for k in tqdm(range(t.size), desc="synth frames", unit="frame", disable=not show, file=sys.stderr):
+    for k in range(t.size):
         if cfg.blur and not cfg.still:
             ts = t[k] + offsets
             ball = m_to_mm(np.asarray(traj.result.sample(ts)))
@@ -217,10 +261,7 @@ def _write_frames(folder: Path, cfg: SynthConfig, renderer: Renderer, traj, drif
         img = img * gain
         if cfg.noise_gray > 0:
             img = img + rng.normal(0.0, cfg.noise_gray, img.shape)
-        ok = cv2.imwrite(str(folder / f"{k:06d}{ext}"), quantise(img, cfg.tiff16, cfg.jpeg_quality, cfg.bits12),
-                         params)
-        if not ok:
-            raise SynthError(f"{folder / f'{k:06d}{ext}'}: cannot write frame")
+        yield quantise(img, cfg.tiff16, cfg.jpeg_quality, cfg.bits12)
 
 
 def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
@@ -259,7 +300,8 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
         "g_eff_ms2": models.cavity.g_eff_mps2,
         "ball_mass_kg": models.cavity.mass_kg,
         "clock_offset_s": cfg.clock_offset_s,
-        "clock_convention": "accel.csv time_s = camera time + clock_offset_s",
+        "daq_clock_ppm": cfg.daq_clock_ppm,
+        "clock_convention": "accel.csv time_s = camera time + clock_offset_s + daq_clock_ppm * 1e-6 * camera time",
         "image": {"mm_per_px": layout.mm_per_px, "width_px": layout.width_px, "height_px": layout.height_px,
                   "ball_radius_px": layout.ball_radius_px, "row_mid": layout.row_mid,
                   "ball_roi": rig.dic.ball_roi.as_list(), "structure_roi": rig.dic.structure_roi.as_list()},
