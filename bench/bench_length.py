@@ -19,8 +19,8 @@ frames take 3.2 GB) unless ``--keep``; ``--reuse`` takes an existing recording o
 ``--lab-files``: the path a lab takes from its own camera and DAQ files (issue 38 item 5). ``vibro synth
 --lab-files`` writes the take as an 8-bit Photron MRAW (video.mraw + video.cih) and an NI TDMS of the
 accelerometers (50 kHz), without rig.yaml; then, each a child timed alone: ``vibro init RUN --ball-diameter-mm
-4.77 --gap-mm 16.6``, the TDMS's accelerometers block added to the rig.yaml it wrote (what a lab adds by hand:
-init writes none), and ``vibro analyze RUN --out OUT`` (with its report). The goal: init + analyze within
+4.77 --gap-mm 16.6`` (which finds the TDMS beside the video and names it in rig.yaml), and ``vibro analyze RUN
+--out OUT`` (with its report). The goal: init + analyze within
 60 s and 1 GB peak RSS each on 2 cores. The rows go to the ``lab_files`` key of --out (the rest of the file
 is kept), with the load average (1 min) before and after each step: the machine may be shared.
 
@@ -123,15 +123,6 @@ def timed_step(args: list[str]) -> dict:
     return res
 
 
-def add_tdms_block(rec: Path) -> None:
-    """Append the accelerometers block of the TDMS (from the truth file's ``lab_files``) to init's rig.yaml."""
-    import yaml
-
-    truth = json.loads(Path(f"{rec}.truth.json").read_text(encoding="utf-8"))
-    with (rec / "rig.yaml").open("a", encoding="utf-8") as fh:
-        fh.write(yaml.safe_dump({"accelerometers": truth["lab_files"]["accelerometers"]}, sort_keys=False))
-
-
 def one_length_lab(n: int, work: Path, seed: int, keep: bool) -> dict:
     """Lab files of ``n`` frames: synth --lab-files, then vibro init and vibro analyze, each timed alone."""
     rec, out = work / f"lab{n}", work / f"lab{n}_out"
@@ -144,7 +135,6 @@ def one_length_lab(n: int, work: Path, seed: int, keep: bool) -> dict:
     try:
         print(f"[{n}] vibro init", file=sys.stderr, flush=True)
         row["init"] = timed_step(["init", str(rec), "--ball-diameter-mm", BALL_DIAMETER_MM, "--gap-mm", GAP_MM])
-        add_tdms_block(rec)
         print(f"[{n}] vibro analyze", file=sys.stderr, flush=True)
         row["analyze"] = timed_step(["analyze", str(rec), "--out", str(out), "--overwrite", "--no-progress"])
         row["analyze"].update(results_summary(out))
@@ -191,7 +181,7 @@ def main_lab(args: argparse.Namespace) -> int:
     doc = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {"benchmark": "length"}
     doc["lab_files"] = {
         "what": "a lab's path: vibro synth --lab-files (8-bit MRAW + .cih, NI TDMS at 50 kHz, no rig.yaml), then "
-                "vibro init RUN --ball-diameter-mm 4.77 --gap-mm 16.6, the TDMS block added to rig.yaml, vibro "
+                "vibro init RUN --ball-diameter-mm 4.77 --gap-mm 16.6 (it names the TDMS in rig.yaml), vibro "
                 "analyze RUN --out OUT (report included); each a child process timed alone",
         "goal": {"init_plus_analyze_wall_s": GOAL["wall_s"], "peak_rss_mib": GOAL["rss_mib"]},
         "settings": {"lengths": lengths, "seed": args.seed, "fps": 1000.0, "cpus": os.cpu_count(),

@@ -3,9 +3,9 @@
 The recording folder holds what a lab's camera and DAQ give it: an 8-bit Photron MRAW (video.mraw + its
 video.cih header) and an NI TDMS of the two accelerometers, no rig.yaml (the truth file beside it, as
 always). The lab's path is then run as a lab runs it, each command a separate process that never sees the
-truth: ``vibro info`` on the camera file, ``vibro init RUN --ball-diameter-mm D --gap-mm G``, the
-accelerometers block for the TDMS added to the rig.yaml init wrote (init does not write one), ``vibro info
-RUN``, ``vibro analyze RUN --no-report``; results.json is scored against the truth.
+truth: ``vibro info`` on the camera file, ``vibro init RUN --ball-diameter-mm D --gap-mm G`` (which finds the
+TDMS beside the video and names its group and plate channels in rig.yaml), ``vibro info RUN``, ``vibro analyze
+RUN --no-report``; results.json is scored against the truth.
 
 Tolerances. The noise: 2 gray levels of read noise on a 160x480 px speckle gives DIC position noise of a
 few um, so a flight of ~20 frames measures the ball's velocity at an impact to ~1e-4 m/s and the COR to
@@ -49,7 +49,7 @@ def _vibro(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory) -> dict:
-    """A 600-frame take written as lab files, then the lab's path: info, init, the TDMS block, info, analyze."""
+    """A 600-frame take written as lab files, then the lab's path: info, init, info, analyze."""
     base = tmp_path_factory.mktemp("lab_files")
     rec, out = base / "run1", base / "run1_out"
     p = _vibro("synth", "--out", str(rec), "--frames", str(FRAMES), "--seed", str(SEED), "--cor-scatter", SCATTER,
@@ -60,9 +60,6 @@ def lab(tmp_path_factory) -> dict:
     init = _vibro("init", str(rec), "--ball-diameter-mm", BALL_DIAMETER_MM, "--gap-mm", GAP_MM)
     assert init.returncode == 0, init.stderr
     truth = json.loads(Path(f"{rec}.truth.json").read_text())
-    # what a lab does for its DAQ file: name the TDMS group and channels in the rig.yaml init wrote
-    with (rec / "rig.yaml").open("a", encoding="utf-8") as fh:
-        fh.write(yaml.safe_dump({"accelerometers": truth["lab_files"]["accelerometers"]}, sort_keys=False))
     info_rec = _vibro("info", str(rec), "--json")
     analyze = _vibro("analyze", str(rec), "--out", str(out), "--no-report", "--no-progress")
     assert analyze.returncode == 0, analyze.stderr
@@ -184,3 +181,12 @@ def test_a_synth_stopped_while_writing_frames_leaves_no_camera_file(tmp_path) ->
 def test_lab_files_refuse_deeper_pixels(tmp_path) -> None:
     p = _vibro("synth", "--out", str(tmp_path / "r"), "--frames", "10", "--lab-files", "--tiff16", "--no-progress")
     assert p.returncode != 0 and "8-bit MRAW" in p.stderr
+
+
+def test_init_names_the_daq_file_it_found_beside_the_video(lab) -> None:
+    """Typing only the ball's diameter and the gap, the lab's rig.yaml names the TDMS and its plate channels as
+    the DAQ wrote them (the truth file's lab_files block), and init says so."""
+    rig = yaml.safe_load((lab["rec"] / "rig.yaml").read_text())
+    want = lab["truth"]["lab_files"]["accelerometers"]
+    assert {k: rig["accelerometers"][k] for k in want} == want
+    assert "accelerometers: accel.tdms" in lab["init"].stdout

@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from vibro_app.init_accel import AccelChoice, AccelRequest, choose_accel
 from vibro_dic.mesh import mesh_points
 from vibro_io.camera_files import open_camera_file
 from vibro_io.frames import CAMERA_FILE_SUFFIXES, FrameSequence, find_frames_source
@@ -42,6 +43,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mesh-step-px", type=int, default=10, help="mesh point spacing (px; default 10)")
     p.add_argument("--out", default=None, help="rig.yaml to write (default: rig.yaml in the recording folder)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier rig.yaml and preview")
+    p.add_argument("--accel", default=None, metavar="FILE",
+                   help="the accelerometer file of this take in the recording folder (default: the one accel.csv "
+                        "or *.tdms there; rig.yaml's accelerometers block names it)")
+    p.add_argument("--accel-upper", default=None, metavar="NAME",
+                   help="the upper plate's column (CSV) or channel (TDMS) (default: the one named upper/top)")
+    p.add_argument("--accel-lower", default=None, metavar="NAME",
+                   help="the lower plate's column (CSV) or channel (TDMS) (default: the one named lower/bottom)")
+    p.add_argument("--no-accel", action="store_true",
+                   help="video only: no accelerometers block even when an accelerometer file is there")
     p.set_defaults(func=run)
 
 
@@ -244,6 +254,8 @@ def run(args: argparse.Namespace) -> int:
     src = _frames_source(source)
     out = Path(args.out) if args.out else _recording_dir(source) / "rig.yaml"
     preview = out.with_name(out.stem + "_preview.png")
+    accel = choose_accel(_recording_dir(source), AccelRequest(file=args.accel, upper=args.accel_upper,
+                                                              lower=args.accel_lower, none=args.no_accel))
     prepare_output_file(out, overwrite=args.overwrite)
     prepare_output_file(preview, overwrite=args.overwrite)
     fps = _fps(args, src)
@@ -256,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
         freq, note = p.frequency_hz, "estimated: " + p.frequency_note
     else:
         raise RecordingError(f"{src}: cannot estimate the shaker frequency ({p.frequency_note}): give --frequency-hz")
-    text = rig_yaml_text(p, args, fps, source, freq, note)
+    text = rig_yaml_text(p, args, fps, source, freq, note) + ("" if accel is None else "\n" + accel.yaml())
     import yaml
 
 
@@ -273,4 +285,14 @@ def run(args: argparse.Namespace) -> int:
     if p.ball.method == "outline":
         print(f"ball: plain, tracked by its outline (dic.ball_method outline): {outline_summary(p.ball_outline)}")
     print(f"ball_roi {p.ball_roi.as_list()}  structure_roi {p.structure_roi.as_list()}  frequency {freq:.4g} Hz")
+    print(_accel_line(accel, args.no_accel))
     return 0
+
+
+def _accel_line(accel: AccelChoice | None, asked_none: bool) -> str:
+    """What init did about the accelerometers, in one line."""
+    if accel is not None:
+        return f"accelerometers: {accel.file} ({', '.join(accel.lines[1:])})"
+    if asked_none:
+        return "accelerometers: none (--no-accel): video only"
+    return "accelerometers: no accel.csv or *.tdms beside the video: video only"
