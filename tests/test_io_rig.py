@@ -142,3 +142,23 @@ def test_old_and_new_acceleration_keys_together_are_refused(rig_data: dict) -> N
     with pytest.raises(RigError, match=r"r\.yaml: keys 'excitation\.acceleration_ms2' and "
                                        r"'excitation\.acceleration_mps2' both given"):
         parse_rig(data, "r.yaml")
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    # the accelerometers block under a misspelt name would be ignored: the run would go on without them
+    (lambda d: d.__setitem__("accelerometer", {"file": "accel.csv", "time_column": "time_s",
+                                               "upper_column": "upper_ms2", "lower_column": "lower_ms2"}),
+     r"unknown key 'accelerometer': misspelt 'accelerometers'\?"),
+    # a required key misspelt: the missing key is named with the misspelling beside it
+    (lambda d: d["camera"].__setitem__("mm_per_pix", d["camera"].pop("mm_per_px")),
+     r"missing required key 'camera.mm_per_px' \(it has 'camera.mm_per_pix': misspelt\?\)"),
+    (lambda d: d.__setitem__("camra", d.pop("camera")), r"missing required key 'camera' \(it has 'camra'"),
+    # an optional key misspelt would take its default silently
+    (lambda d: d["dic"].__setitem__("ball_metod", "outline"),
+     r"unknown key 'dic.ball_metod': misspelt 'dic.ball_method'"),
+])
+def test_a_misspelt_key_is_refused_naming_the_key_it_misspells(rig_data: dict, edit, message: str) -> None:
+    data = copy.deepcopy(rig_data)
+    edit(data)
+    with pytest.raises(RigError, match=message):
+        parse_rig(data, "r.yaml")

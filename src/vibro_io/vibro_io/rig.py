@@ -6,12 +6,13 @@ masses in kg, moduli in Pa. Every error names the file and the dotted key.
 
 from __future__ import annotations
 
+import difflib
 import logging
 import math
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import yaml
 
@@ -395,19 +396,40 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
                                f"of '{now}'; keep one")
             block = {(now if k == was else k): v for k, v in block.items()}
             spelled[now] = was
+    known = [*schema, *_OPTIONAL.get(name, {})]
+    unknown = [k for k in block if k not in known]
     out = {}
     for key, kind in schema.items():
         if key not in block:
-            raise RigError(f"{src}: missing required key '{name}.{key}'")
+            typo = next((k for k in unknown if misspelling_of(str(k), [key])), None)
+            hint = f" (it has '{name}.{typo}': misspelt?)" if typo is not None else ""
+            raise RigError(f"{src}: missing required key '{name}.{key}'{hint}")
         out[key] = _check(block[key], kind, f"{src}: key '{name}.{key}'")
     for key, kind in _OPTIONAL.get(name, {}).items():
         if key in block and block[key] is not None:
             where = f"{src}: key '{name}.{spelled.get(key, key)}'"
             out[key] = _check_unix_time(block[key], where) if kind == "unix_time" else _check(block[key], kind, where)
-    for key in block:
-        if key not in schema and key not in _OPTIONAL.get(name, {}):
-            log.warning("%s: unknown key '%s.%s' ignored", src, name, key)
+    for key in unknown:
+        _unknown_key(f"{name}.{key}", misspelling_of(str(key), known), name, src)
     return out
+
+
+def misspelling_of(key: str, known: Iterable[str]) -> str | None:
+    """The known key that ``key`` most likely misspells (difflib similarity >= 0.8: 'accelerometer' for
+    'accelerometers', 'mm_per_pix' for 'mm_per_px'), or None."""
+    close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.8)
+    return close[0] if close else None
+
+
+def _unknown_key(key: str, typo_of: str | None, section: str | None, src: str) -> None:
+    """An unknown rig.yaml key: ignored with a warning, or refused when it looks like a misspelt known key (the
+    key it was meant to be would silently be missing, or take its default)."""
+    if typo_of is None:
+        log.warning("%s: unknown key '%s' ignored", src, key)
+        return
+    meant = f"{section}.{typo_of}" if section else typo_of
+    raise RigError(f"{src}: unknown key '{key}': misspelt '{meant}'? (a misspelt key is refused, not ignored: "
+                   f"the value it holds would not be used)")
 
 
 #: Optional keys of the accelerometers block: the unit of the samples and the sensors' sensitivity.
@@ -476,11 +498,15 @@ def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
     """Validate a rig mapping (as parsed from YAML) into a :class:`RigConfig`."""
     if not isinstance(data, Mapping):
         raise RigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    for name in _SCHEMA:
+        typo = next((k for k in data if k not in _SCHEMA and misspelling_of(str(k), [name])), None)
+        if name not in data and typo is not None:
+            raise RigError(f"{source}: missing required key '{name}' (it has '{typo}': misspelt?)")
     sections = {name: _section(data, name, schema, source) for name, schema in _SCHEMA.items()}
     accel = _parse_accel(data, source)
     for key in data:
         if key not in _SCHEMA and key != "accelerometers":
-            log.warning("%s: unknown key '%s' ignored", source, key)
+            _unknown_key(str(key), misspelling_of(str(key), [*_SCHEMA, "accelerometers"]), None, source)
     rig = RigConfig(
         camera=CameraConfig(**sections["camera"]),
         ball=BallConfig(**sections["ball"]),
