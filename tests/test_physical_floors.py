@@ -206,3 +206,24 @@ def test_long_take_without_friction_is_neither_refused_nor_claimed(tmp_path):
     assert fr["floor_n"] == pytest.approx(FLOOR_N)
     assert doc["discrepancy"]["findings"] == []
     assert doc["cor_summary"]
+
+
+def test_a_tilt_the_scales_uncertainty_could_make_is_said_to_be_one_and_not_claimed() -> None:
+    """A scale off by x scales every flight's acceleration by 1 + x, as a tilt scales gravity by cos(tilt): with
+    rig.yaml's scale sigma (camera.mm_per_px_rel_std, vibro init writes it) a gravity change within 3 of them is
+    said to be either. A 0.3 % low scale looks like a 4.4 deg tilt; init's scale sigma is ~0.1 %."""
+    from types import SimpleNamespace
+
+    from vibro_discrepancy.engine import scale_could_explain
+    from vibro_discrepancy.library import FLIGHT_TERMS
+
+    tilt = next(t for t in FLIGHT_TERMS if t.effect == "gravity_tilt")
+    coulomb = next(t for t in FLIGHT_TERMS if t.effect == "coulomb_friction")
+    g = 9.80665
+    coef = g * (1 - math.cos(math.radians(4.4)))  # 0.29 % of g
+    meas = SimpleNamespace(g_mps2=g, scale_rel_std=0.0013)
+    note = scale_could_explain(tilt, coef, meas)
+    assert note["scale_could_explain"] and "off by -0.29 %" in note["scale_note"]
+    assert scale_could_explain(tilt, g * (1 - math.cos(math.radians(30.0))), meas) == {}  # 13 %: a tilt
+    assert scale_could_explain(tilt, coef, SimpleNamespace(g_mps2=g, scale_rel_std=0.0)) == {}  # sigma unknown
+    assert scale_could_explain(coulomb, coef, meas) == {}  # only gravity looks like a scale

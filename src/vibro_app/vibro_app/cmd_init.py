@@ -176,6 +176,7 @@ camera:
   fps: {fps!r}
   t0_s: 0.0
   mm_per_px: {sc.mm_per_px:.6g}    # ball and gap combined (see above)
+  mm_per_px_rel_std: {sc.rel_std:.2g}    # its relative 1-sigma: a tilt within 3 of it is not claimed
 ball:
   mass_kg: {a['ball_mass_kg']!r}    # ASSUMED
   diameter_mm: {args.ball_diameter_mm!r}

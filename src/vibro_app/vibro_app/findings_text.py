@@ -47,7 +47,8 @@ def shape_model_line(shape_model: Mapping[str, Any]) -> str:
 
 def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
     """The lines of results.json's ``discrepancy`` section (``findings: none`` when there are none); an
-    ``unexplained`` finding whose shape was modelled gets a second line (:func:`shape_model_line`)."""
+    ``unexplained`` finding whose shape was modelled gets a second line (:func:`shape_model_line`), a tilt that
+    the scale's uncertainty could make one that says so."""
     if not discrepancy:
         return ["findings: no discrepancy analysis in these results"]
     findings: Iterable[Mapping[str, Any]] = discrepancy.get("findings") or []
@@ -57,6 +58,8 @@ def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
                                   f["deviation_before"], f["deviation_after"]))
         if f.get("shape_model"):
             lines.append(shape_model_line(f["shape_model"]))
+        if f.get("scale_could_explain"):
+            lines.append(f"  {f['scale_note']}")
     return lines or ["findings: none (the model explains the recording within its noise)"]
 
 

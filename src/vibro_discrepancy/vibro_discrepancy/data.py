@@ -79,6 +79,7 @@ class Measured:
     structure_m: np.ndarray
     mass_kg: float
     free_play_m: float
+    scale_rel_std: float = 0.0  # rig.yaml camera.mm_per_px_rel_std (0: not given)
     g_mps2: float = G_MPS2
     notes: list[str] = field(default_factory=list)
     drive: Mapping[str, Any] | None = None   # results.json ``drive`` (the identification's windowed drive)
@@ -196,6 +197,7 @@ def measured_from_model(structure: StructureMotion | None, flights: Sequence[Fli
     notes = [f"only {len(samples)} usable free flights"] if len(samples) < 3 else []
     return Measured(structure=sine, flights=samples, impacts=usable, t_s=t, ball_m=ball, structure_m=struct,
                     mass_kg=float(rig.ball.mass_kg), free_play_m=mm_to_m(float(rig.free_play_mm)), notes=notes,
+                    scale_rel_std=float(rig.camera.mm_per_px_rel_std or 0.0),
                     drive=_drive_section(drive))
 
 

@@ -266,9 +266,34 @@ def explain_flights(chain: FindingChain, sel: Selection, terms: tuple[FlightTerm
         params, stds = term.contract_parameters(float(f_fit.coefs[idx]), float(math.sqrt(f_fit.cov[idx, idx])),
                                                 meas.mass_kg, meas.g_mps2)
         where = flight_term_where(meas, chain.current.steps, model, term, floors.cor)
+        extras = scale_could_explain(term, float(f_fit.coefs[idx]), meas)
+        if extras:
+            where += "; " + extras["scale_note"]
         chain = chain.explained(Explanation(effect=term.effect, model=model, parameters=params, stds=stds,
-                                            where=where))
+                                            where=where, extras=extras))
     return chain
+
+
+#: a gravity change within this many of the scale's relative sigmas (rig.yaml camera.mm_per_px_rel_std) is as
+#: much a scale error as a tilt
+SCALE_SIGMAS = 3.0
+
+
+def scale_could_explain(term: FlightTerm, coef_mps2: float, meas: Measured) -> dict[str, Any]:
+    """For ``gravity_tilt``: when the gravity change it fits (``coef_mps2``, m/s^2) lies within
+    :data:`SCALE_SIGMAS` of rig.yaml's scale uncertainty (``camera.mm_per_px_rel_std``), the finding says that a
+    scale error would give it as well (a scale off by x scales every flight's acceleration by 1 + x, which is
+    what a tilt does to gravity: the flights cannot tell them apart); the tilt is then not a claim. Empty
+    otherwise (another term, or no scale uncertainty given)."""
+    if term.effect != "gravity_tilt" or meas.scale_rel_std <= 0:
+        return {}
+    rel = coef_mps2 / meas.g_mps2
+    if abs(rel) > SCALE_SIGMAS * meas.scale_rel_std:
+        return {}
+    return {"scale_could_explain": True,
+            "scale_note": (f"or the scale camera.mm_per_px off by {-100 * rel:+.2f} %, within {SCALE_SIGMAS:g} of its "
+                           f"sigmas ({100 * meas.scale_rel_std:.2f} %, rig.yaml mm_per_px_rel_std): the flights "
+                           "cannot tell a tilt from a scale error, so no tilt is claimed")}
 
 
 def explain_cor(chain: FindingChain, sel: Selection, library: CandidateLibrary) -> FindingChain:

@@ -47,6 +47,10 @@ class CameraConfig:
     #: Wall-clock time (Unix s, UTC) of frame 0, when rig.yaml gives it (optional): the lab clock of the
     #: node graph's header stamps (vibro_ros.lab_clock). None: vibro graph uses its own start time.
     start_time_unix_s: float | None = None
+    #: Relative 1-sigma of ``mm_per_px`` (e.g. 0.0013 for 0.13 %), when rig.yaml gives it (optional; ``vibro
+    #: init`` writes its own). A scale error scales every length and acceleration alike: the flights' gravity
+    #: then looks tilted, so the discrepancy analysis claims no tilt within 3 of these sigmas. None: unknown.
+    mm_per_px_rel_std: float | None = None
 
     def frame_time_s(self, index: int) -> float:
         """Time (s) of frame ``index``: t0_s + index / fps."""
@@ -173,6 +177,8 @@ class RigConfig:
             out["accelerometers"] = self.accelerometers.to_dict()
         if self.camera.start_time_unix_s is None:
             out["camera"].pop("start_time_unix_s")
+        if self.camera.mm_per_px_rel_std is None:
+            out["camera"].pop("mm_per_px_rel_std")
         if self.excitation.acceleration_mps2 is None:
             out["excitation"].pop("acceleration_mps2")
         return out
@@ -360,7 +366,7 @@ def _check_number(value: Any, kind: str, where: str) -> float:
 
 
 #: Optional keys per section (kind, as in _SCHEMA): absent = None.
-_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time"},
+_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time", "mm_per_px_rel_std": "pos"},
                                         "excitation": {"acceleration_mps2": "pos"},
                                         "dic": {"ball_method": "ball_method"}}
 #: Keys renamed in vibro's own rig.yaml vocabulary, per section: old spelling -> new. A rig.yaml with the old
