@@ -51,6 +51,7 @@ from vibro_model.assemble import (
     StageOutputs,
     assemble_results,
 )
+from vibro_model.codec import ResultsError
 from vibro_model.results import Discrepancy, ResultsDocument, Simulation, results_text
 from vibro_ros import topics
 from vibro_ros.bags import deserialize, make_typestore, read_messages
@@ -91,6 +92,8 @@ class BagResults:
         self.consistency_problem = ""  # why a recorded consistency value could not be read
         self.local_structure: list[LocalStructure] = []  # the discrepancy node's (topics.LOCAL_STRUCTURE_KEY)
         self.local_structure_problem = ""  # why a recorded local_structure value could not be read
+        self.discrepancy: Discrepancy | None = None  # the discrepancy node's section (topics.DISCREPANCY_KEY)
+        self.discrepancy_problem = ""  # why a recorded discrepancy value could not be read
         store = make_typestore()
         wanted = {topics.STRUCTURE.name, topics.FLIGHTS.name, topics.IMPACTS.name, topics.SIMULATION.name,
                   topics.DISCREPANCY.name, topics.IMPACTS_FINAL_MODEL.name, topics.STATUS.name, topics.DIC.name,
@@ -148,6 +151,7 @@ class BagResults:
         wins)."""
         if str(status.name).rsplit("/", 1)[-1] != "discrepancy":
             return
+        self._note_discrepancy_section(status)
         value = next((kv.value for kv in status.values if kv.key == topics.LOCAL_STRUCTURE_KEY), None)
         if value is None:
             return
@@ -159,6 +163,20 @@ class BagResults:
             self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
                                             f"'{topics.LOCAL_STRUCTURE_KEY}' could not be read ({exc}); which "
                                             "impacts took a local structure velocity is not in this document")
+
+    def _note_discrepancy_section(self, status) -> None:
+        """results.json's ``discrepancy`` section as the discrepancy node computed it, carried by its /diagnostics
+        status once it ran (the latest wins; ``status`` is the node's)."""
+        value = next((kv.value for kv in status.values if kv.key == topics.DISCREPANCY_KEY), None)
+        if value is None:
+            return
+        where = f"the discrepancy node's /diagnostics value '{topics.DISCREPANCY_KEY}'"
+        try:
+            self.discrepancy, self.discrepancy_problem = Discrepancy.from_dict(json.loads(value), where), ""
+        except (ValueError, ResultsError) as exc:
+            self.discrepancy = None
+            self.discrepancy_problem = (f"{where} could not be read ({exc}); the discrepancy section holds the "
+                                        "findings published as messages only")
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]
@@ -279,11 +297,15 @@ def _consistency_stage(r: BagResults) -> ConsistencyStage | None:
 
 def _discrepancy_stage(r: BagResults, findings: list, redo: Reidentification) -> DiscrepancyStage:
     """The discrepancy node's findings (D before the first and after the last), and the impacts it re-measured."""
-    warnings = [r.local_structure_problem] if r.local_structure_problem else []
+    warnings = [w for w in (r.local_structure_problem, r.discrepancy_problem) if w]
+    if r.discrepancy is not None and len(r.discrepancy.findings) == len(findings):
+        # the node's own section: the baseline D and the engine's details beside the findings it published
+        return DiscrepancyStage(discrepancy=r.discrepancy, warnings=warnings, reidentification=redo)
     if "discrepancy" in r.finished and not findings:
-        # the discrepancy node publishes findings only: with none, the baseline D is not in the bag
-        warnings.append("discrepancy: no finding published; the baseline D is not recorded in a bag "
-                        "(baseline_deviation and final_deviation are null)")
+        # a bag recorded before the node carried its section on /diagnostics: findings only, no baseline D
+        warnings.append("discrepancy: no finding published and no discrepancy section on the node's /diagnostics "
+                        "(a bag recorded before it carried one); the baseline D is not recorded (baseline_deviation "
+                        "and final_deviation are null)")
     discrepancy = Discrepancy(findings[0].deviation_before if findings else None, findings,
                               findings[-1].deviation_after if findings else None)
     return DiscrepancyStage(discrepancy=discrepancy, warnings=warnings, reidentification=redo)
@@ -335,7 +357,7 @@ def run(args: argparse.Namespace) -> int:
         stream = sys.stderr  # stdout holds the JSON document
 
     consistency = doc.sections.get("consistency") or {}
-    if not consistency.get("refused"):  # a refused run never reached the discrepancy analysis
+    if doc.complete:  # a refused run never reached the discrepancy analysis; an incomplete one is not judged
         for line in findings_lines(json.loads(text).get("discrepancy")):
             print(line, file=stream)
     if consistency.get("refused"):

@@ -63,6 +63,10 @@ REFUSED_KEY = "refused"
 #: (vibro_model.assemble.LocalStructure, as mappings); ``vibro results`` puts them in the document's impacts_model
 #: section as analyze does
 LOCAL_STRUCTURE_KEY = "local_structure"
+#: /diagnostics value of the discrepancy node's status once it ran: the JSON of results.json's 'discrepancy'
+#: section as the node computed it (baseline and final D, the findings with their extras, the engine's details),
+#: which the DiscrepancyFinding messages alone do not carry; ``vibro results`` takes the section from it
+DISCREPANCY_KEY = "discrepancy"
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
               IMPACTS_FINAL_MODEL, STATUS, DIAGNOSTICS)
