@@ -20,6 +20,7 @@ import numpy as np  # noqa: E402
 from vibro_app.findings_text import effect_label, parameter_text, percent  # noqa: E402
 from vibro_app.report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
 from vibro_app.report_summary import simulation_rows, structure_rows, summary_html  # noqa: E402
+from vibro_app.report_tables import impacts_table_html, table2_html  # noqa: E402
 from vibro_fit.identify import Identification  # noqa: E402
 from vibro_fit.statistics import normal_check  # noqa: E402
 from vibro_io.dictrack import DicTrack  # noqa: E402
@@ -389,12 +390,14 @@ def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: 
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>vibro report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left;vertical-align:top}}
-#summary table{{font-size:1.1em}}</style></head><body>
+#summary table{{font-size:1.1em}}table.sortable thead th{{position:sticky;top:0;background:#fff}}</style></head><body>
 <h1>vibro analysis: {e(str(results.get('recording', '')))}</h1>
 {summary_html(results)}
 <h2>Structure (Eq. 2)</h2><p>{e(METHOD_WORDS.get(method, ""))}</p>
 <table>{_rows(structure_rows(results.get("structure")))}</table>
 <h2>COR per plate (Table 2)</h2><p>{e(impacts_model_text(results.get("impacts_model")))}</p>
+{table2_html(results.get("impacts") or [])}
+{impacts_table_html(results.get("impacts") or [])}
 {contacts_html(results.get("contacts"))}
 <h2>Simulation deviation D (Eq. 18)</h2><table>{_rows(simulation_rows(results.get("simulation")))}</table>
 {discrepancy_html(results.get("discrepancy") or {})}
