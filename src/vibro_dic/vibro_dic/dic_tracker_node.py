@@ -60,6 +60,7 @@ from vibro_ros.node_support import (
 )
 from vibro_ros.readiness import ReaderGate
 
+from .ball_method import resolve_ball_method
 from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats, cdr_stamp_ns
 from .quality import TrackQuality
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
@@ -442,15 +443,22 @@ class DicTrackerNode(Node):
 
     def _build_tracker(self, ref: np.ndarray, image: np.ndarray) -> None:
         """The DicTracker on reference ``ref`` with its texture check (noise from ``image`` against ``ref``)."""
+        # the ball's method: rig.yaml's, else chosen by the reference's texture as every tracking path does
+        choice = resolve_ball_method(ref, self.rig.dic)
+        if choice.source != "rig.yaml":
+            self.get_logger().info(f"ball: {choice.describe()}")
+            if choice.method == "outline":
+                self.health.warn(f"ball: {choice.describe()}")
         tracker = DicTracker.for_rig(ref, self.rig, method=self.method, zncc_min=self.zncc_min)
         # the texture check (vibro_dic.texture): noise from this image against the reference when they differ,
         # else from the reference alone (an upper bound on speckle); a refusal is raised like a bad ROI
-        texture, warnings = check_texture(ref, image, self.rig.dic, max_subset_sigma_px=self.max_subset_sigma_px)
+        texture, warnings = check_texture(ref, image, choice.dic, max_subset_sigma_px=self.max_subset_sigma_px)
         for w in warnings:
             self.get_logger().warning(f"texture: {w}")
             self.health.warn(f"texture: {w}")
         tracker.use_texture(texture)
         self.quality = TrackQuality(texture)
+        self.quality.ball_method = choice
         self.tracker = tracker
 
     def _on_status(self, msg: StreamStatus) -> None:

@@ -65,6 +65,8 @@ class TrackQuality:
         if not 0.0 < max_lost_fraction <= 1.0:
             raise RecordingError(f"max_lost_fraction must be in (0, 1], got {max_lost_fraction!r}")
         self.texture = texture
+        #: how the ball was tracked (:class:`vibro_dic.ball_method.BallMethodChoice`), when known
+        self.ball_method = None
         self.zncc_warn = zncc_warn
         self.max_lost_fraction = max_lost_fraction
         self.max_noise_ratio = max_noise_ratio
@@ -183,7 +185,12 @@ class TrackQuality:
 
 
 def dic_quality_section(texture: TextureReport | None, quality: TrackQuality | None) -> dict:
-    """The results.json ``dic_quality`` section: the texture check and the correlation quality."""
-    return {"texture": None if texture is None else texture.to_dict(),
-            "correlation": None if quality is None else quality.summary()}
+    """The results.json ``dic_quality`` section: the texture check and the correlation quality, and (when
+    known) how the ball was tracked: ``ball_method``, ``ball_method_source`` ("rig.yaml" or "texture check")
+    and ``ball_method_reason``."""
+    out = {"texture": None if texture is None else texture.to_dict(),
+           "correlation": None if quality is None else quality.summary()}
+    if quality is not None and quality.ball_method is not None:
+        out.update(quality.ball_method.to_dict())
+    return out
 

@@ -76,6 +76,7 @@ from vibro_io.rig import DicConfig, Roi, check_rois_in_image
 from vibro_model.errors import FrameError, RecordingError
 
 from . import kernels
+from .ball_method import BallMethodChoice, resolve_ball_method
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import CUBIC_IN_T, KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
@@ -526,9 +527,12 @@ class DicTracker:
     @classmethod
     def for_rig(cls, reference_image: np.ndarray, rig, **kwargs) -> "DicTracker":
         """The tracker of a rig (:class:`vibro_io.rig.Rig`): its DIC configuration and scale, and the structure
-        predicted as a sine at the excitation frequency (step 1). ``kwargs`` as for the constructor."""
+        predicted as a sine at the excitation frequency (step 1). ``kwargs`` as for the constructor. The ball is
+        tracked as rig.yaml ``dic.ball_method`` names, else as the texture of ``reference_image`` chooses
+        (:func:`vibro_dic.ball_method.choose_ball_method`)."""
         cycles = rig.excitation.frequency_hz / rig.camera.fps
-        return cls(reference_image, rig.dic, rig.camera.mm_per_px,
+        dic = resolve_ball_method(reference_image, rig.dic).dic
+        return cls(reference_image, dic, rig.camera.mm_per_px,
                    structure_drive_cycles_per_frame=cycles if cycles < 0.5 else None, **kwargs)
 
     def use_texture(self, texture: TextureReport) -> None:
@@ -596,8 +600,9 @@ def reference_texture(recording, *, max_subset_sigma_px: float = DEFAULT_MAX_SUB
     """The check before a pass over ``recording``, once per pass whoever tracks it: frame 0 (the reference)
     must decode and hold the ROIs; the texture check (:func:`vibro_dic.texture.check_texture`, noise from
     frames 0 and 1) logs its warnings and raises :class:`vibro_dic.texture.TextureError` when a body has too
-    few usable subsets. Returns the report (given to every tracker of the pass: :func:`track_slots`) and
-    hands it to ``quality``."""
+    few usable subsets. The ball's tracking method (rig.yaml ``dic.ball_method``, else chosen by the texture of
+    frame 0: :func:`vibro_dic.ball_method.choose_ball_method`) is logged once and checked with it. Returns the
+    report (given to every tracker of the pass: :func:`track_slots`) and hands it and the choice to ``quality``."""
     rig = recording.rig
     head = list(recording.frames.iter_slots(0, 2))
     if not head:
@@ -607,8 +612,9 @@ def reference_texture(recording, *, max_subset_sigma_px: float = DEFAULT_MAX_SUB
         raise FrameError(f"frame {first.index} (reference): {first.error or 'cannot be read'}")
     second = head[1].image if len(head) > 1 else None
     check_rois_in_image(rig, *np.asarray(first.image).shape[:2])  # before the texture check reads the ROIs
+    choice = log_ball_method(resolve_ball_method(first.image, rig.dic))
     frames = recording.frames  # the pixels' effective depth and the video's codec judge the noise estimate
-    texture, warnings = check_texture(first.image, second, rig.dic, max_subset_sigma_px=max_subset_sigma_px,
+    texture, warnings = check_texture(first.image, second, choice.dic, max_subset_sigma_px=max_subset_sigma_px,
                                       min_valid_fraction=min_valid_fraction,
                                       effective_bits=getattr(frames, "effective_bits", None),
                                       codec=getattr(frames, "codec", None))
@@ -616,7 +622,16 @@ def reference_texture(recording, *, max_subset_sigma_px: float = DEFAULT_MAX_SUB
         log.warning("texture: %s", w)
     if quality is not None:
         quality.texture = texture
+        quality.ball_method = choice
     return texture
+
+
+def log_ball_method(choice: BallMethodChoice) -> BallMethodChoice:
+    """Say once how the ball is tracked when the texture check chose it (a warning when it chose the outline:
+    rig.yaml should name it); returns ``choice``."""
+    if choice.source != "rig.yaml":
+        (log.warning if choice.method == "outline" else log.info)("ball: %s", choice.describe())
+    return choice
 
 
 def track_slots(recording, start: int = 0, stop: int | None = None, *, texture: TextureReport,

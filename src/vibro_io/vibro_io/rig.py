@@ -10,7 +10,7 @@ import difflib
 import logging
 import math
 import re
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -83,7 +83,8 @@ class ExcitationConfig:
 
 #: how the ball is tracked (rig.yaml ``dic.ball_method``): ``mesh``, the DIC mesh of subsets on a speckled
 #: ball (``ball_roi`` inside the disc); ``outline``, a plain ball by its outline (``ball_roi`` a box around the
-#: whole ball in frame 0, with a margin; :mod:`vibro_dic.outline`)
+#: whole ball in frame 0, with a margin; :mod:`vibro_dic.outline`). Absent from rig.yaml: the texture check of frame
+#: 0's ball ROI chooses (:func:`vibro_dic.ball_method.choose_ball_method`: plain -> outline, speckled -> mesh)
 BALL_METHODS = ("mesh", "outline")
 
 
@@ -94,6 +95,9 @@ class DicConfig:
     ball_roi: Roi
     structure_roi: Roi
     ball_method: str = "mesh"
+    #: False when rig.yaml does not name ``dic.ball_method``: ``ball_method`` is then only the default, and the
+    #: tracker chooses by the texture of frame 0's ball ROI (:func:`vibro_dic.ball_method.choose_ball_method`)
+    ball_method_named: bool = field(default=True, compare=False)
 
 
 @dataclass(frozen=True)
@@ -169,7 +173,8 @@ class RigConfig:
         out.pop("path")
         out["dic"]["ball_roi"] = self.dic.ball_roi.as_list()
         out["dic"]["structure_roi"] = self.dic.structure_roi.as_list()
-        if self.dic.ball_method == "mesh":  # the default: rig.yaml files stay as they were
+        out["dic"].pop("ball_method_named")
+        if self.dic.ball_method == "mesh" or not self.dic.ball_method_named:  # the default: files stay as they were
             out["dic"].pop("ball_method")
         if self.accelerometers is None:
             out.pop("accelerometers")
@@ -518,7 +523,7 @@ def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
         ball=BallConfig(**sections["ball"]),
         structure=StructureConfig(**sections["structure"]),
         excitation=ExcitationConfig(**sections["excitation"]),
-        dic=DicConfig(**sections["dic"]),
+        dic=DicConfig(**sections["dic"], ball_method_named="ball_method" in sections["dic"]),
         accelerometers=accel,
         path=source,
     )
