@@ -117,15 +117,17 @@ def keys_of(doc) -> set[str]:
 def analysed(tmp_path_factory):
     """A 400-frame recording whose plates restitute 0.6 (top) and 0.75 (bottom), COR scatter 0.03, with its
     accelerometers, analysed from its track (no DIC: a few seconds): (results.json, report.html path)."""
-    rec = tmp_path_factory.mktemp("rec")
+    base = tmp_path_factory.mktemp("report_summary")  # its own folder: dic.csv and out/ beside rec/, no other module's
+    rec = base / "rec"
+    rec.mkdir()
     rig = paper_rig(accelerometers=True)
     write_rig(rig, rec / "rig.yaml")
     truth = simulate(amplitude_m=3e-3, duration_s=0.45, cor_jitter=0.03, seed=9,
                      force_up_n=-0.04 * M_KG * 9.81, force_down_n=0.02 * M_KG * 9.81)
-    write_dic_csv(rec.parent / "dic.csv", track_rows(sample_track(truth, n_frames=400, noise_mm=0.0005)))
+    write_dic_csv(base / "dic.csv", track_rows(sample_track(truth, n_frames=400, noise_mm=0.0005)))
     write_accel(rec / "accel.csv", accel_signals(truth, duration_s=0.4, offset_s=0.003), rig.accelerometers)
-    out = rec.parent / "out"
-    assert main(["analyze", str(rec), "--out", str(out), "--track", str(rec.parent / "dic.csv"),
+    out = base / "out"
+    assert main(["analyze", str(rec), "--out", str(out), "--track", str(base / "dic.csv"),
                  "--no-progress"]) == 0
     return json.loads((out / "results.json").read_text()), out / "report.html"
 

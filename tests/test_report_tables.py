@@ -137,12 +137,14 @@ class Tables(HTMLParser):
 @pytest.fixture(scope="module")
 def analysed(tmp_path_factory):
     """A 400-frame synthetic recording analysed from its track (a few seconds): (results.json, report.html)."""
-    rec = tmp_path_factory.mktemp("rec")
+    base = tmp_path_factory.mktemp("report_tables")  # its own folder: dic.csv and out/ beside rec/, no other module's
+    rec = base / "rec"
+    rec.mkdir()
     write_rig(paper_rig(), rec / "rig.yaml")
     truth = simulate(amplitude_m=3e-3, duration_s=0.45, cor_jitter=0.03, seed=4)
-    write_dic_csv(rec.parent / "dic.csv", track_rows(sample_track(truth, n_frames=400, noise_mm=0.0005)))
-    out = rec.parent / "out"
-    assert main(["analyze", str(rec), "--out", str(out), "--track", str(rec.parent / "dic.csv"),
+    write_dic_csv(base / "dic.csv", track_rows(sample_track(truth, n_frames=400, noise_mm=0.0005)))
+    out = base / "out"
+    assert main(["analyze", str(rec), "--out", str(out), "--track", str(base / "dic.csv"),
                  "--no-progress"]) == 0
     return json.loads((out / "results.json").read_text()), out / "report.html"
 
