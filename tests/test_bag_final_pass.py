@@ -17,7 +17,7 @@ from vibro_msgs.msg import ImpactEstimate, StreamStatus, StructureMotion
 
 
 def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | None, lost: int = 0,
-         fitter_values: dict[str, str] | None = None) -> Path:
+         fitter_values: dict[str, str] | None = None, discrepancy_values: dict[str, str] | None = None) -> Path:
     from vibro_ros.bags import BagWriter
 
     writer = BagWriter(path)
@@ -29,12 +29,12 @@ def _bag(path: Path, *, streamed: list[int], final: list[int], announced: int | 
     if announced is not None:
         messages.append(("/vibro/status", "vibro_msgs/msg/StreamStatus",
                          StreamStatus(stream="impacts", items_sent=announced, items_lost=lost, finished=True)))
-    if fitter_values is not None:  # the trajectory_fitter's /diagnostics status
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    for node, values in (("/trajectory_fitter", fitter_values), ("/discrepancy", discrepancy_values)):
+        if values is not None:  # the node's /diagnostics status
+            from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-        status = DiagnosticStatus(name="/trajectory_fitter",
-                                  values=[KeyValue(key=k, value=v) for k, v in fitter_values.items()])
-        messages.append(("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DiagnosticArray(status=[status])))
+            status = DiagnosticStatus(name=node, values=[KeyValue(key=k, value=v) for k, v in values.items()])
+            messages.append(("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DiagnosticArray(status=[status])))
     for stamp, (topic, kind, msg) in enumerate(messages, start=1):
         writer.add_topic(topic, kind)
         writer.write(topic, stamp, serialize_message(msg))
@@ -88,3 +88,26 @@ def test_a_consistency_value_that_is_not_vibros_section_is_said_not_dropped(tmp_
                                                 topics.REFUSED_KEY: "COR outside [0, 1]"}))
     assert doc.sections["consistency"]["refused"] is True and doc.impacts == [] and doc.complete is False
     assert doc.warnings[0] == "refused: COR outside [0, 1]"
+
+
+def test_the_discrepancy_nodes_section_is_read_and_a_damaged_one_said(tmp_path: Path) -> None:
+    """The discrepancy node carries results.json's discrepancy section and its local-structure impacts on
+    /diagnostics; read whole when they parse, each named in a warning when it does not (never read as nothing)."""
+    import json
+
+    from vibro_app.bag_results import document_from_bag
+    from vibro_ros import topics
+
+    section = {"baseline_deviation": 0.0123, "findings": [], "final_deviation": 0.0123, "noise_floor": {"x": 1.0}}
+    doc = document_from_bag(_bag(tmp_path / "a", streamed=[0], final=[0], announced=1,
+                                 discrepancy_values={topics.DISCREPANCY_KEY: json.dumps(section),
+                                                     topics.LOCAL_STRUCTURE_KEY: "[]"}))
+    assert doc.discrepancy.baseline_deviation == 0.0123 and doc.discrepancy.details == {"noise_floor": {"x": 1.0}}
+    for i, (section_text, local_text) in enumerate((("{not json", '[{"t_paper_s": "soon"}]'),
+                                                    ('{"findings": "none"}', "[1, 2]"))):
+        doc = document_from_bag(_bag(tmp_path / f"b{i}", streamed=[0], final=[0], announced=1,
+                                     discrepancy_values={topics.DISCREPANCY_KEY: section_text,
+                                                         topics.LOCAL_STRUCTURE_KEY: local_text}))
+        assert doc.discrepancy.baseline_deviation is None
+        assert any(f"value '{topics.DISCREPANCY_KEY}' could not be read" in w for w in doc.warnings), doc.warnings
+        assert any(f"value '{topics.LOCAL_STRUCTURE_KEY}' could not be read" in w for w in doc.warnings), doc.warnings

@@ -14,6 +14,7 @@ import shutil
 import numpy as np
 import pytest
 import yaml
+from truth_impacts import measurable_impacts
 
 from vibro_app.cli import main
 from vibro_dic.ball_method import choose_ball_method, resolve_ball_method
@@ -44,19 +45,6 @@ def _analyze(rec, out) -> tuple[dict, str]:
     return json.loads((out / "results.json").read_text()), (out / "dic.csv").read_text()
 
 
-def _measurable(truth: dict) -> list[dict]:
-    """The truth's impacts whose flights before and after lie inside the recording."""
-    t0, t1 = truth["frames"]["t_s"][0], truth["frames"]["t_s"][-1]
-    flights = truth["flights"]
-    out = []
-    for imp in truth["impacts"]:
-        before = [f for f in flights if abs(f["t_end"] - imp["t"]) < 1e-9]
-        after = [f for f in flights if abs(f["t_start"] - imp["t"]) < 1e-9]
-        if before and after and before[0]["t_start"] >= t0 and after[0]["t_end"] <= t1:
-            out.append(imp)
-    return out
-
-
 @pytest.fixture(scope="module")
 def plain(tmp_path_factory):
     base = tmp_path_factory.mktemp("plain")
@@ -80,7 +68,7 @@ def test_plain_ball_without_the_key_is_tracked_by_its_outline(plain):
     lost = q["correlation"]["bodies"]["ball"]["frames_lost"]
     assert lost == doc_named["dic_quality"]["correlation"]["bodies"]["ball"]["frames_lost"] == 0
     t_found = np.array([i["t"] for i in doc["impacts"]])
-    for imp in _measurable(truth):
+    for imp in measurable_impacts(truth):
         assert np.min(np.abs(t_found - imp["t"])) < 2e-3, f"true impact at t = {imp['t']:.4f} s not found"
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from truth_impacts import measurable_impacts
 
 from vibro_app.cli import main
 from vibro_dic.outline import OutlineTracker, assess_outline, find_disc
@@ -52,19 +53,6 @@ def analysed(request, tmp_path_factory):
         rows = list(csv.DictReader(f))
     rig = yaml.safe_load((base / "rec" / "rig.yaml").read_text())
     return truth, doc, rows, rig
-
-
-def _measurable(truth: dict) -> list[dict]:
-    """The truth's impacts whose flights before and after lie inside the recording (Eq. 15 needs both)."""
-    t0, t1 = truth["frames"]["t_s"][0], truth["frames"]["t_s"][-1]
-    flights = truth["flights"]
-    out = []
-    for imp in truth["impacts"]:
-        before = [f for f in flights if abs(f["t_end"] - imp["t"]) < 1e-9]
-        after = [f for f in flights if abs(f["t_start"] - imp["t"]) < 1e-9]
-        if before and after and before[0]["t_start"] >= t0 and after[0]["t_end"] <= t1:
-            out.append(imp)
-    return out
 
 
 def test_plain_ball_recording_is_tracked_by_its_outline_in_every_frame(analysed):
@@ -103,7 +91,7 @@ def test_centre_error_is_within_the_predicted_sigma(analysed):
 
 def test_every_impact_is_found_and_its_cor_within_0_002(analysed):
     truth, doc, _, _ = analysed
-    measurable = _measurable(truth)
+    measurable = measurable_impacts(truth)
     assert len(measurable) >= 15
     t_found = np.array([i["t"] for i in doc["impacts"]])
     errors = []

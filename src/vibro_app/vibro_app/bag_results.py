@@ -106,7 +106,7 @@ class BagResults:
                     if pid is not None:
                         self.pids.setdefault(str(status.name).rsplit("/", 1)[-1], set()).add(str(pid))
                     self._note_consistency(status)
-                    self._note_local_structure(status)
+                    self._note_discrepancy_node(status)
             elif m.topic == topics.DIC.name:
                 self.frames.append(msg)
             elif m.topic == topics.STRUCTURE.name:
@@ -145,38 +145,32 @@ class BagResults:
         if values.get(topics.REFUSED_KEY):
             self.refused = values[topics.REFUSED_KEY]
 
-    def _note_local_structure(self, status) -> None:
-        """The impacts the discrepancy node measured with a local structure velocity (its final model's structure
-        does not follow the measured one there), carried by its /diagnostics status once it ran (the latest
-        wins)."""
+    def _note_discrepancy_node(self, status) -> None:
+        """What the discrepancy node's /diagnostics status carries once it ran (the latest wins): results.json's
+        ``discrepancy`` section as it computed it, and the impacts it measured with a local structure velocity.
+        A value that does not read is said in a warning, never read as nothing to report."""
         if str(status.name).rsplit("/", 1)[-1] != "discrepancy":
             return
-        self._note_discrepancy_section(status)
-        value = next((kv.value for kv in status.values if kv.key == topics.LOCAL_STRUCTURE_KEY), None)
-        if value is None:
-            return
-        try:
-            self.local_structure = [LocalStructure(**entry) for entry in json.loads(value)]
-            self.local_structure_problem = ""
-        except (ValueError, TypeError) as exc:
-            self.local_structure = []
-            self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
-                                            f"'{topics.LOCAL_STRUCTURE_KEY}' could not be read ({exc}); which "
-                                            "impacts took a local structure velocity is not in this document")
-
-    def _note_discrepancy_section(self, status) -> None:
-        """results.json's ``discrepancy`` section as the discrepancy node computed it, carried by its /diagnostics
-        status once it ran (the latest wins; ``status`` is the node's)."""
-        value = next((kv.value for kv in status.values if kv.key == topics.DISCREPANCY_KEY), None)
-        if value is None:
-            return
-        where = f"the discrepancy node's /diagnostics value '{topics.DISCREPANCY_KEY}'"
-        try:
-            self.discrepancy, self.discrepancy_problem = Discrepancy.from_dict(json.loads(value), where), ""
-        except (ValueError, ResultsError) as exc:
-            self.discrepancy = None
-            self.discrepancy_problem = (f"{where} could not be read ({exc}); the discrepancy section holds the "
-                                        "findings published as messages only")
+        values = {kv.key: kv.value for kv in status.values}
+        if topics.DISCREPANCY_KEY in values:
+            where = f"the discrepancy node's /diagnostics value '{topics.DISCREPANCY_KEY}'"
+            try:
+                self.discrepancy = Discrepancy.from_dict(json.loads(values[topics.DISCREPANCY_KEY]), where)
+                self.discrepancy_problem = ""
+            except (ValueError, ResultsError) as exc:
+                self.discrepancy = None
+                self.discrepancy_problem = (f"{where} could not be read ({exc}); the discrepancy section holds the "
+                                            "findings published as messages only")
+        if topics.LOCAL_STRUCTURE_KEY in values:
+            try:
+                self.local_structure = [LocalStructure(**{k: float(v) for k, v in entry.items()})
+                                        for entry in json.loads(values[topics.LOCAL_STRUCTURE_KEY])]
+                self.local_structure_problem = ""
+            except (ValueError, TypeError, AttributeError) as exc:
+                self.local_structure = []
+                self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
+                                                f"'{topics.LOCAL_STRUCTURE_KEY}' could not be read ({exc}); which "
+                                                "impacts took a local structure velocity is not in this document")
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]

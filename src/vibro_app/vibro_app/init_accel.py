@@ -81,8 +81,10 @@ def choose_accel(folder: Path, request: AccelRequest) -> AccelChoice | None:
     return _tdms_choice(path, request) if path.suffix.lower() == ".tdms" else _csv_choice(path, request)
 
 
-def _pick(names: list[str], given: str | None, words: tuple[str, ...], what: str, where: str) -> str:
-    """The one name of ``names`` that is ``given``, or else the one containing one of ``words`` (any case)."""
+def _pick(names: list[str], given: str | None, words: tuple[str, ...], what: str, where: str, *,
+          how_to_say: str = "name it so") -> str:
+    """The one name of ``names`` that is ``given``, or else the one containing one of ``words`` (any case);
+    refused with ``how_to_say`` (the option that names it) when none or several do."""
     if given is not None:
         if given not in names:
             raise RecordingError(f"{where}: no {what} '{given}' (there are: {', '.join(names)})")
@@ -90,10 +92,8 @@ def _pick(names: list[str], given: str | None, words: tuple[str, ...], what: str
     found = [n for n in names if any(w in n.lower() for w in words)]
     if len(found) != 1:
         how = "none" if not found else f"{len(found)} ({', '.join(found)})"
-        flag = {"upper": "give it with --accel-upper", "lower": "give it with --accel-lower"}.get(
-            what.split()[0], "name it so")
         raise RecordingError(f"{where}: which is the {what}? {how} of {', '.join(names)} has "
-                             f"{'/'.join(words)} in its name: {flag}")
+                             f"{'/'.join(words)} in its name: {how_to_say}")
     return found[0]
 
 
@@ -105,8 +105,10 @@ def _csv_choice(path: Path, request: AccelRequest) -> AccelChoice:
     if len(names) < 3:
         raise RecordingError(f"{path}: a header of at least 3 columns (time, upper, lower) expected, got {header}")
     time_col = _pick(names, None, TIME_WORDS, "time column", str(path))
-    upper = _pick(names, request.upper, UPPER_WORDS, "upper plate's column", str(path))
-    lower = _pick(names, request.lower, LOWER_WORDS, "lower plate's column", str(path))
+    upper = _pick(names, request.upper, UPPER_WORDS, "upper plate's column", str(path),
+                  how_to_say="give it with --accel-upper")
+    lower = _pick(names, request.lower, LOWER_WORDS, "lower plate's column", str(path),
+                  how_to_say="give it with --accel-lower")
     lines = [f"file: {path.name}", f"time_column: {time_col}", f"upper_column: {upper}", f"lower_column: {lower}"]
     units = {UNIT_SUFFIXES[s] for c in (upper, lower) for s in UNIT_SUFFIXES if c.lower().endswith(s)}
     if len(units) > 1:
@@ -134,8 +136,10 @@ def _tdms_choice(path: Path, request: AccelRequest) -> AccelChoice:
     if not channels:
         raise RecordingError(f"{path}: no channel in the TDMS file")
     labels = [c for _, c in channels]
-    upper = _pick(labels, request.upper, UPPER_WORDS, "upper plate's channel", str(path))
-    lower = _pick(labels, request.lower, LOWER_WORDS, "lower plate's channel", str(path))
+    upper = _pick(labels, request.upper, UPPER_WORDS, "upper plate's channel", str(path),
+                  how_to_say="give it with --accel-upper")
+    lower = _pick(labels, request.lower, LOWER_WORDS, "lower plate's channel", str(path),
+                  how_to_say="give it with --accel-lower")
     groups = {g for g, c in channels if c in (upper, lower)}
     if len(groups) != 1 or labels.count(upper) > 1 or labels.count(lower) > 1:
         raise RecordingError(f"{path}: the channels {upper} and {lower} are not one group's "

@@ -395,7 +395,8 @@ def _check_unix_time(value: Any, where: str) -> float:
 
 def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src: str) -> dict[str, Any]:
     if name not in data:
-        raise RigError(f"{src}: missing required key '{name}'")
+        unknown_top = [k for k in data if k not in _SCHEMA and k != "accelerometers"]
+        raise RigError(f"{src}: missing required key '{name}'{_typo_hint(name, unknown_top, '')}")
     block = data[name]
     if not isinstance(block, Mapping):
         raise RigError(f"{src}: key '{name}' must be a mapping, got {block!r}")
@@ -412,9 +413,7 @@ def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src:
     out = {}
     for key, kind in schema.items():
         if key not in block:
-            typo = next((k for k in unknown if misspelling_of(str(k), [key])), None)
-            hint = f" (it has '{name}.{typo}': misspelt?)" if typo is not None else ""
-            raise RigError(f"{src}: missing required key '{name}.{key}'{hint}")
+            raise RigError(f"{src}: missing required key '{name}.{key}'{_typo_hint(key, unknown, name + '.')}")
         out[key] = _check(block[key], kind, f"{src}: key '{name}.{key}'")
     for key, kind in _OPTIONAL.get(name, {}).items():
         if key in block and block[key] is not None:
@@ -430,6 +429,13 @@ def misspelling_of(key: str, known: Iterable[str]) -> str | None:
     'accelerometers', 'mm_per_pix' for 'mm_per_px'), or None."""
     close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.8)
     return close[0] if close else None
+
+
+def _typo_hint(missing: str, unknown: Iterable[Any], prefix: str) -> str:
+    """`` (it has '<prefix><key>': misspelt?)`` for the first of the ``unknown`` keys that misspells the
+    ``missing`` one (:func:`misspelling_of`), else ""."""
+    typo = next((k for k in unknown if misspelling_of(str(k), [missing])), None)
+    return "" if typo is None else f" (it has '{prefix}{typo}': misspelt?)"
 
 
 def _unknown_key(key: str, typo_of: str | None, section: str | None, src: str) -> None:
@@ -509,10 +515,6 @@ def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
     """Validate a rig mapping (as parsed from YAML) into a :class:`RigConfig`."""
     if not isinstance(data, Mapping):
         raise RigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
-    for name in _SCHEMA:
-        typo = next((k for k in data if k not in _SCHEMA and misspelling_of(str(k), [name])), None)
-        if name not in data and typo is not None:
-            raise RigError(f"{source}: missing required key '{name}' (it has '{typo}': misspelt?)")
     sections = {name: _section(data, name, schema, source) for name, schema in _SCHEMA.items()}
     accel = _parse_accel(data, source)
     for key in data:

@@ -197,11 +197,12 @@ def _with_later_stages(doc: ResultsDocument, stages: StageOutputs) -> ResultsDoc
 
 def _ordered_sections(stages: StageOutputs, doc: ResultsDocument, refused: bool) -> dict[str, Any]:
     """The document's top-level sections in their one order (module docstring); ``cor_statistics`` of the
-    document's final impacts."""
+    document's final impacts, none for a refused run."""
     out: dict[str, Any] = {}
     if stages.completeness is not None:
         out["completeness"] = stages.completeness.section
-    out["cor_statistics"] = cor_statistics_section(doc.impacts)
+    if not refused:  # a refused run's COR table is withheld, its statistics with it
+        out["cor_statistics"] = cor_statistics_section(doc.impacts)
     out.update(stages.identified.sections)
     if stages.dic_quality is not None:
         out["dic_quality"] = stages.dic_quality.section
@@ -243,7 +244,7 @@ def _withheld(doc: ResultsDocument, consistency: ConsistencyStage) -> ResultsDoc
     """A refused run's document: the COR table withheld (no impacts, an empty COR summary and statistics), the
     friction withheld when it is implausible, and the rig.yaml statements about ``consequence_keys`` only
     dropped from ``rig_consistency`` and the warnings (the refusal has named the key that is wrong)."""
-    sections = {k: v for k, v in doc.sections.items() if k != "cor_statistics"}
+    sections = dict(doc.sections)
     flights = doc.flights
     if consistency.withhold_friction:
         flights = [replace(f, friction_n=None, friction_std_n=None) for f in flights]
