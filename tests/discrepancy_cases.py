@@ -20,9 +20,13 @@ NOISE_MM = 2.5e-4
 
 
 def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float = NOISE_MM,
-              accel_mps2: float = 27.0, frequency_hz: float = 22.0, cor_scatter: float = 0.0):
+              accel_mps2: float = 27.0, frequency_hz: float = 22.0, cor_scatter: float = 0.0,
+              scale_error: float = 0.0):
     """(sections, track, rig, truth) for a synthetic recording with ``effects`` (contract names);
-    ``cor_scatter``: per-impact COR scatter of the rig (SynthConfig.cor_scatter)."""
+    ``cor_scatter``: per-impact COR scatter of the rig (SynthConfig.cor_scatter); ``scale_error``: the rig's
+    image scale off by this relative amount (every tracked displacement times 1 + scale_error, as a wrong
+    camera.mm_per_px gives)."""
+
     from vibro_fit.identify import identify
     from vibro_fit.results import results_document
     from vibro_fit.synthetic import paper_rig
@@ -37,11 +41,12 @@ def make_case(effects: dict, seed: int = 0, frames: int = 400, noise_mm: float =
     traj = simulate_window(cfg, models)
     ball = traj.ball_m * 1e3
     struct = traj.structure_m * 1e3
+    seen = 1.0 + scale_error
     noise = np.random.default_rng([seed, 99])
     n = ball.size
     track = DicTrack(frame=np.arange(n), t_s=traj.frame_t_s.copy(),
-                     ball_mm=ball - ball[0] + noise.normal(0, noise_mm, n),
-                     structure_mm=struct - struct[0] + noise.normal(0, noise_mm, n),
+                     ball_mm=seen * (ball - ball[0]) + noise.normal(0, noise_mm, n),
+                     structure_mm=seen * (struct - struct[0]) + noise.normal(0, noise_mm, n),
                      ball_valid=np.full(n, 4), structure_valid=np.full(n, 24), ball_zncc=np.ones(n),
                      structure_zncc=np.ones(n), lost=np.zeros(n, bool))
     rig = paper_rig(frequency_hz=frequency_hz)

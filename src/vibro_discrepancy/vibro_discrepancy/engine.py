@@ -51,6 +51,7 @@ import numpy as np
 
 from vibro_discrepancy.data import Measured, difference_sigma, measurement_of
 from vibro_discrepancy.fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure_harmonics
+from vibro_discrepancy.instrument_scale import scale_from_flights
 from vibro_discrepancy.library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm
 from vibro_discrepancy.locate import cor_law_where, flight_term_where, locate, structure_words
 from vibro_discrepancy.model import FittedModel, fit_model
@@ -788,7 +789,9 @@ class DiscrepancyEstimator:
 
     def fit(self, meas: Measured) -> DiscrepancyRun:
         """The discrepancy model of ``meas``: baseline -> select -> explain -> what is left -> shapes modelled;
-        each stage takes the chain the stage before it returned and returns a new one."""
+        each stage takes the chain the stage before it returned and returns a new one. The image scale's
+        share of the flights' gravity is the instrument's (:mod:`.instrument_scale`) before anything is looked for."""
+        meas, scale = scale_from_flights(meas)
         floors = noise_floors(meas)
         baseline = evaluate(meas, "baseline", fit_model(meas), floors)
         location = locate(baseline.steps, floors.cor)
@@ -808,6 +811,8 @@ class DiscrepancyEstimator:
         leftover = with_shape_models(leftover, shape_steps, chain.current)
         chain = mark_catalogue_under_shapes(chain, shape_steps)
         details = run_details(chain, location, selection.stages(), not_absorbed(left.patterns, shape_steps))
+        if scale is not None:
+            details["instrument_scale"] = scale.to_dict()
         return discrepancy_run(chain, order_findings(chain.findings, leftover, shape, cor_left), details)
 
 
