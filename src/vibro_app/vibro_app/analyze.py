@@ -60,17 +60,21 @@ def replay_models(document, track: DicTrack, rig: RigConfig) -> dict:
     """Simulate the COR and Hertz models with the identified parameters (a results document: structure,
     flights, impacts); D (Eq. 18) of each against the measured ball displacement (track coordinates since
     frame 0). Same core as the simulator node: :mod:`vibro_sim.measured` (SI); mm here only for the figures.
+    Where the windowed drive (``drive`` section) found the drive not stationary, the replayed structure follows
+    it (:class:`vibro_model.drive_envelope.DriveEnvelope`), as the simulator node's does.
 
     Returns {"t_s", "measured_mm", "curves": {name: mm}, "deviations": {name: D}, "errors": {name: msg}}.
     """
+    from vibro_model.drive_envelope import DriveEnvelope
     from vibro_sim.measured import replay_and_score, replay_inputs
 
     out = {"t_s": None, "measured_mm": None, "curves": {}, "deviations": {}, "errors": {}}
     good = track.good
     offset_m = document.structure.ball_offset_m or 0.0
     try:
+        envelope = DriveEnvelope.of_drive_section(document.sections.get("drive"), document.structure.offset_m or 0.0)
         inputs = replay_inputs(document.structure, document.flights, document.impacts, mm_to_m(rig.free_play_mm),
-                               float(track.t_s[good][-1]), offset_m)
+                               float(track.t_s[good][-1]), offset_m, envelope)
     except ValueError as exc:
         out["errors"]["all"] = str(exc)
         return out

@@ -16,6 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from vibro_model.codec import nan_if_none
+from vibro_model.drive_envelope import DriveEnvelope
 from vibro_model.results import Flight, Impact, SimulationRun, StructureMotion
 
 from .deviation import deviation
@@ -30,9 +31,12 @@ def _flight_state(flight: Flight, t_s: float) -> tuple[float, float]:
 
 
 def replay_inputs(structure: StructureMotion, flights: Sequence[Flight], impacts: Sequence[Impact],
-                  free_play_m: float, t_end_s: float, ball_offset_m: float | None = None) -> ReplayInputs:
+                  free_play_m: float, t_end_s: float, ball_offset_m: float | None = None,
+                  envelope: DriveEnvelope | None = None) -> ReplayInputs:
     """Start at the first free flight's first fitted frame with its fitted state; CORs and forces as
-    identified (a flight that is not free: no force). ``ball_offset_m`` defaults to the structure's."""
+    identified (a flight that is not free: no force). ``ball_offset_m`` defaults to the structure's.
+    ``envelope``: the drive as it moved over the take (:mod:`vibro_model.drive_envelope`, from the windowed
+    drive where it was found not stationary); the structure then follows it instead of the take's average sine."""
     free = [f for f in flights if f.free]
     if not free:
         raise ValueError("no free flight: nothing to replay")
@@ -40,7 +44,7 @@ def replay_inputs(structure: StructureMotion, flights: Sequence[Flight], impacts
         raise ValueError("no impact: nothing to replay")
     offset_m = structure.ball_offset_m if ball_offset_m is None else ball_offset_m
     t0 = nan_if_none(free[0].t_first_frame_s)
-    motion = structure.kinematics()
+    motion = structure.kinematics() if envelope is None else envelope.applied_to(structure.kinematics())
     y_m, v_mps = _flight_state(free[0], t0)
     y_rel_m = float(np.clip(y_m + nan_if_none(offset_m) - float(motion.position(t0)),
                             -0.999 * free_play_m, 0.999 * free_play_m))

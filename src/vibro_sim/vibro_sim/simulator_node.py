@@ -22,6 +22,7 @@ from vibro_model.units import mm_to_m
 from vibro_msgs.msg import SimulationResult
 from vibro_ros import topics
 from vibro_ros.convert import (
+    envelope_from_message,
     flight_from_message,
     impact_from_message,
     simulation_run_to_message,
@@ -83,9 +84,10 @@ class Simulator(Node):
         ball_m = mm_to_m(np.array([m.ball_mm for m in tracked], dtype=float))
         offset_m = nan_if_none(structure.ball_offset_m)
         try:
+            envelope = envelope_from_message(r.structure)
             inputs = replay_inputs(structure, [flight_from_message(f) for f in r.sorted_flights()],
                                    [impact_from_message(i) for i in r.sorted_impacts()], mm_to_m(self.rig.free_play_mm),
-                                   float(t_s[-1]), offset_m)
+                                   float(t_s[-1]), offset_m, envelope)
         except ValueError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"cannot simulate: {exc}")
