@@ -30,7 +30,6 @@ NOT_CARRIED = {
                    "JSON value, compared in tests/test_graph_refusal.py; their evidence numbers here come from "
                    "analyze's own DIC",
     "contacts": "identify()'s contact phases (a ball riding a plate): no message carries them",
-    "drive": "identify()'s windowed drive model (vibro_fit.drive): no message carries it",
     "dic_quality": "the tracker's texture and correlation checks: the node logs them and reports them on "
                    "/diagnostics (ZNCC medians, frames below the threshold); no message carries the summary",
 }

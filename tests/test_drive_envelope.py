@@ -93,19 +93,29 @@ def test_a_damaged_envelope_is_refused_with_what_is_wrong():
         DriveEnvelope(t_s=(0.0, 1.0), amplitude_ratio=(1.0,), phase_shift_rad=(0.0, 0.0), offset_shift_m=(0.0, 0.0))
 
 
-def test_the_envelope_travels_in_the_structure_message():
+def test_the_drive_travels_in_the_structure_message():
+    """The graph's simulator and discrepancy nodes (and a bag's results) read the windowed drive from the final
+    StructureMotion: the same envelope comes out as went in; a damaged field is refused by name."""
+    from types import SimpleNamespace
+
+    from vibro_model.errors import RecordingError
     from vibro_model.results import StructureMotion
-    from vibro_ros.convert import envelope_from_message, structure_from_message, structure_to_message
+    from vibro_ros.convert import drive_from_message, structure_from_message, structure_to_message
 
     _, sine, section, fit = _case(4000, 1, step_ratio=0.1, step_time_s=1.5, ramp_s=0.3)
     env = DriveEnvelope.of_drive_section(section, mm_to_m(fit.offset_mm))
     s = StructureMotion(amplitude_m=sine.amplitude_m, frequency_hz=sine.frequency_hz, phase_rad=sine.phase_rad,
                         offset_m=sine.offset_m)
-    msg = structure_to_message(s, 4.0, 0, env)
-    back = envelope_from_message(msg)
+    msg = structure_to_message(s, 4.0, 0, section)
+    back = DriveEnvelope.of_drive_section(drive_from_message(msg), mm_to_m(fit.offset_mm))
     assert back is not None and len(back.t_s) == len(env.t_s)
     for a, b in zip((env.t_s, env.amplitude_ratio, env.phase_shift_rad, env.offset_shift_m),
                     (back.t_s, back.amplitude_ratio, back.phase_shift_rad, back.offset_shift_m)):
-        assert np.allclose(a, b, rtol=0, atol=1e-12)
-    assert envelope_from_message(structure_to_message(s, 4.0, 0)) is None
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-15)
+    assert drive_from_message(structure_to_message(s, 4.0, 0)) is None
+    assert drive_from_message(SimpleNamespace()) is None          # a bag recorded before the field existed
     assert structure_from_message(msg).amplitude_m == pytest.approx(s.amplitude_m)
+    with pytest.raises(RecordingError, match="drive_json"):
+        drive_from_message(SimpleNamespace(drive_json="{broken"))
+    with pytest.raises(RecordingError, match="drive_json"):
+        drive_from_message(SimpleNamespace(drive_json="[1, 2]"))

@@ -10,16 +10,25 @@ from typing import Iterable
 from vibro_io.dictrack import DicTrack
 from vibro_model.assemble import Identified, StageOutputs, assemble_results
 from vibro_model.results import ResultsDocument
-from vibro_ros.convert import dic_track_from_messages, flight_from_message, impact_from_message, structure_from_message
+from vibro_ros.convert import (
+    dic_track_from_messages,
+    drive_from_message,
+    flight_from_message,
+    impact_from_message,
+    structure_from_message,
+)
 
 
 def stages_from_messages(structure, flights: Iterable, impacts: Iterable, recording: str = "graph run"
                          ) -> StageOutputs:
     """The identification stage of the fitter's final StructureMotion, FreeFlight and ImpactEstimate messages
-    (converted by :mod:`vibro_ros.convert`), as the results assembler takes it."""
+    (converted by :mod:`vibro_ros.convert`), as the results assembler takes it; the windowed drive the
+    StructureMotion carries is its ``drive`` section. Raises RecordingError when that drive's JSON is damaged."""
+    drive = drive_from_message(structure)
     identified = Identified(structure=structure_from_message(structure),
                             flights=list(map(flight_from_message, flights)),
-                            impacts=list(map(impact_from_message, impacts)))
+                            impacts=list(map(impact_from_message, impacts)),
+                            sections={"drive": drive} if drive is not None else {})
     return StageOutputs(recording=recording, identified=identified)
 
 

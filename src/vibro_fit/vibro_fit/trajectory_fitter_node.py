@@ -50,7 +50,6 @@ from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.rig import load_rig
 from vibro_model.assemble import StageOutputs, assemble_results
-from vibro_model.drive_envelope import DriveEnvelope
 from vibro_model.errors import RecordingError
 from vibro_model.results import ResultsDocument
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
@@ -357,8 +356,8 @@ class TrajectoryFitter(Node):
     def _publish_final(self, document: ResultsDocument, t_end_s: float | None, *, with_impacts: bool) -> None:
         """The final pass's structure, flights and (``with_impacts``: the run is not refused) impacts with their
         end-of-stream statuses (a refused run's impacts stream ends in :meth:`_refuse`)."""
-        envelope = DriveEnvelope.of_drive_section(document.sections.get("drive"), document.structure.offset_m or 0.0)
-        self.pub_structure.publish(structure_to_message(document.structure, t_end_s, self.time_origin_ns, envelope))
+        self.pub_structure.publish(structure_to_message(document.structure, t_end_s, self.time_origin_ns,
+                                                        document.sections.get("drive")))
         for flight in document.flights:
             self.pub_flights.publish(flight_to_message(flight, True, self.time_origin_ns))
         self.flights_status.publish(len(document.flights), 0, True)

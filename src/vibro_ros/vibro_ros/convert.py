@@ -19,14 +19,15 @@ first/last fitted frame only: the impacts that open/close a flight are linked ag
 
 from __future__ import annotations
 
+import json
 import math
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
 from vibro_io.dictrack import DicTrack, FrameTrack
-from vibro_model.codec import nan_if_none, none_if_nan
-from vibro_model.drive_envelope import DriveEnvelope
+from vibro_model.codec import json_value, nan_if_none, none_if_nan
+from vibro_model.errors import RecordingError
 from vibro_model.results import DiscrepancyFinding, Flight, Impact, SimulationRun, StructureMotion
 from vibro_model.units import m_to_mm, mm_to_m
 
@@ -95,9 +96,9 @@ def dic_track_from_messages(frames: Iterable[Any]) -> DicTrack:
 
 # ---------------------------------------------------------------- structure
 def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origin_ns: int = 0,
-                         envelope: DriveEnvelope | None = None):
-    """A StructureMotion message of the identified sine and, where the drive moved over the take, its
-    ``envelope`` (:mod:`vibro_model.drive_envelope`; the drive_* arrays, mm for the offset shift)."""
+                         drive: Mapping[str, Any] | None = None):
+    """A StructureMotion message of the identified sine and the identification's windowed ``drive`` (results.json's
+    ``drive`` section, carried as JSON in ``drive_json``; empty when None)."""
     from vibro_msgs.msg import StructureMotion as Msg
 
     msg = Msg(amplitude_mm=nan_if_none(m_to_mm(s.amplitude_m)), frequency_hz=nan_if_none(s.frequency_hz),
@@ -106,25 +107,24 @@ def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origi
               frequency_std_hz=nan_if_none(s.frequency_std_hz), phase_std_rad=nan_if_none(s.phase_std_rad),
               offset_std_mm=nan_if_none(m_to_mm(s.offset_std_m)),
               rms_residual_mm=nan_if_none(m_to_mm(s.rms_residual_m)), frames_used=int(s.n_points or 0),
-              ball_offset_mm=nan_if_none(m_to_mm(s.ball_offset_m)))
-    if envelope is not None:
-        msg.drive_window_t_s = [float(x) for x in envelope.t_s]
-        msg.drive_amplitude_ratio = [float(x) for x in envelope.amplitude_ratio]
-        msg.drive_phase_shift_rad = [float(x) for x in envelope.phase_shift_rad]
-        msg.drive_offset_shift_mm = [m_to_mm(float(x)) for x in envelope.offset_shift_m]
+              ball_offset_mm=nan_if_none(m_to_mm(s.ball_offset_m)),
+              drive_json=json.dumps(json_value(drive), allow_nan=False) if drive is not None else "")
     return _stamp(msg, stamp_s, origin_ns)
 
 
-def envelope_from_message(msg: Any) -> DriveEnvelope | None:
-    """The drive envelope a StructureMotion message carries (None: the drive held still). Raises ValueError
-    naming what is wrong with arrays that do not make an envelope (lengths, order, non-finite values). A
-    message of a bag recorded before the drive_* fields existed has none: None."""
-    if not len(getattr(msg, "drive_window_t_s", ())):
+def drive_from_message(msg: Any) -> dict[str, Any] | None:
+    """The windowed drive section a StructureMotion message carries (None: not known, or a bag recorded before
+    the field existed). Raises RecordingError naming the field when its JSON is damaged or not an object."""
+    text = getattr(msg, "drive_json", "") or ""
+    if not text:
         return None
-    return DriveEnvelope(t_s=tuple(float(x) for x in msg.drive_window_t_s),
-                         amplitude_ratio=tuple(float(x) for x in msg.drive_amplitude_ratio),
-                         phase_shift_rad=tuple(float(x) for x in msg.drive_phase_shift_rad),
-                         offset_shift_m=tuple(mm_to_m(float(x)) for x in msg.drive_offset_shift_mm))
+    try:
+        drive = json.loads(text)
+    except ValueError as exc:
+        raise RecordingError(f"StructureMotion.drive_json is not valid JSON ({exc})") from None
+    if not isinstance(drive, dict):
+        raise RecordingError(f"StructureMotion.drive_json must hold a JSON object, got {type(drive).__name__}")
+    return drive
 
 
 def structure_from_message(msg: Any) -> StructureMotion:

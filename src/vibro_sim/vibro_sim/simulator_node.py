@@ -17,12 +17,13 @@ from rclpy.node import Node
 
 from vibro_io.rig import load_rig
 from vibro_model.codec import nan_if_none
+from vibro_model.drive_envelope import DriveEnvelope
 from vibro_model.errors import RecordingError
 from vibro_model.units import mm_to_m
 from vibro_msgs.msg import SimulationResult
 from vibro_ros import topics
 from vibro_ros.convert import (
-    envelope_from_message,
+    drive_from_message,
     flight_from_message,
     impact_from_message,
     simulation_run_to_message,
@@ -84,11 +85,11 @@ class Simulator(Node):
         ball_m = mm_to_m(np.array([m.ball_mm for m in tracked], dtype=float))
         offset_m = nan_if_none(structure.ball_offset_m)
         try:
-            envelope = envelope_from_message(r.structure)
+            envelope = DriveEnvelope.of_drive_section(drive_from_message(r.structure), structure.offset_m or 0.0)
             inputs = replay_inputs(structure, [flight_from_message(f) for f in r.sorted_flights()],
                                    [impact_from_message(i) for i in r.sorted_impacts()], mm_to_m(self.rig.free_play_mm),
                                    float(t_s[-1]), offset_m, envelope)
-        except ValueError as exc:
+        except (ValueError, RecordingError) as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"cannot simulate: {exc}")
             self.status.publish(0, 0, True)
