@@ -47,6 +47,7 @@ from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
 from vibro_model.assemble import LocalStructure, Reidentification
+from vibro_model.model_error import ImpactSlopes, ModelError, flight_residual_slope
 from vibro_model.results import Impact, ResultsDocument
 
 #: a re-measured COR keeps the final model's structure velocity only where that velocity, carried into the COR,
@@ -254,6 +255,31 @@ def with_local_structure(meas: Measured, model: FittedModel, impact: Impact) -> 
                                  cor_shift=float(cor - impact.cor), structure_velocity_misfit_mps=misfit.dv_mps)
 
 
+def impact_slopes(meas: Measured, model: FittedModel, impact: Impact) -> ImpactSlopes:
+    """What ``model`` leaves in its residuals at ``impact`` (re-measured, :func:`reidentify_impacts`): the slopes
+    (m/s) of the smooth part of its flights' residuals before and after (:func:`flight_residual_slope`) and of its
+    structure's (:func:`structure_misfit`), each with its sigma (:mod:`vibro_model.model_error`)."""
+    residuals = getattr(model.flights, "residuals", None)
+    sides = []
+    for k in (impact.flight_before, impact.flight_after):
+        fl = meas.flights[k] if k is not None else None
+        r = np.asarray(residuals[k], dtype=float) if fl is not None and residuals is not None else None
+        ok = r is not None and len(residuals) == len(meas.flights) and r.shape == fl.tau_s.shape
+        sides.append(flight_residual_slope(fl.tau_s, r, float(impact.t_s) - fl.t_ref_s) if ok else (math.nan, math.nan))
+    misfit = structure_misfit(meas, model.motion, float(impact.t_s))
+    return ImpactSlopes(plate=impact.plate, before=sides[0], after=sides[1],
+                        structure=(misfit.dv_mps, misfit.std_mps))
+
+
+def with_model_error(impact: Impact, errors: ModelError, structure: bool) -> Impact:
+    """``impact`` with its COR sigma widened by what the final model leaves in its residuals at impacts of its
+    kind (:class:`vibro_model.model_error.ModelError`; ``structure`` False: its structure velocity came from a
+    local fit, whose own sigma it carries already)."""
+    var = errors.cor_variance(impact.plate, impact.v_ball_before_mps, impact.v_ball_after_mps,
+                              impact.v_structure_mps, structure)
+    return replace(impact, cor_std=math.sqrt((impact.cor_std or 0.0) ** 2 + var)) if var > 0 else impact
+
+
 def reidentification(findings: Iterable[object], run) -> Reidentification:
     """The re-identification stage of the results assembler (:class:`vibro_model.assemble.Reidentification`):
     the impacts of ``run`` (a :class:`~vibro_discrepancy.engine.DiscrepancyRun` or None) measured again under
@@ -264,9 +290,11 @@ def reidentification(findings: Iterable[object], run) -> Reidentification:
     if run is None or run.final is None or run.measured is None or not effects:
         return Reidentification()
     impacts, local = [], []
-    for imp in reidentify_impacts(run.measured, run.final):
+    remeasured = reidentify_impacts(run.measured, run.final)
+    errors = ModelError.of([impact_slopes(run.measured, run.final, imp) for imp in remeasured])
+    for imp in remeasured:
         measured, note = with_local_structure(run.measured, run.final, imp)
-        impacts.append(measured)
+        impacts.append(with_model_error(measured, errors, structure=note is None))
         local += [note] if note is not None else []
     return Reidentification(effects=tuple(effects), impacts=impacts, local_structure=local)
 

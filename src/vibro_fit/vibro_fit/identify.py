@@ -25,6 +25,7 @@ from .hops import HopChain
 from .impacts import ImpactFit
 from .landings import Landing
 from .methods import METHODS
+from .model_error import widened_pass
 from .motion_state import MotionState
 from .passes import (
     StreamingSettings,
@@ -172,6 +173,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         sf = run_streaming(track, settings, accel_times_s=acc.camera_times_s or (), contact_frames=cframes)
     impacts, levels = impact_pass(sf, track, rig, method, basis.noise_mm)
     hops = hop_pass(sf, impacts, levels, contacts=contacts, cframes=cframes, track=track, rig=rig, basis=basis)
+    hops = widened_pass(hops, track, rig)
     friction = friction_pass(sf.flights, basis.structure, rig.ball.mass_kg, cfg.g_mps2)
     flight_notes = flight_warnings(sf, levels, rig.free_play_mm)
     landings, landing_notes = landing_pass(sf, hops, levels=levels, track=track, structure=basis.structure,
