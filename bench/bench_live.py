@@ -1,7 +1,7 @@
 """Live at the camera's rate: the processing graph fed by a camera-like source, on this machine's cores.
 
     scripts/py bench/bench_live.py [--frames 1500] [--rates 250,500,1000] [--repeat 1] [--no-accel] \
-        [--hog START_S,DURATION_S] [--catch-up-ms MS]
+        [--hog START_S,DURATION_S] [--busy-core] [--catch-up-ms MS]
     scripts/py bench/bench_live.py --suite     # the live goals: 1000 Hz x 5, 2000 Hz x 2, 1000 Hz + hog x 2
 
 A camera process (bench/camera_peer.py) pre-loads a synthetic recording's frames (``vibro synth
@@ -20,8 +20,9 @@ process (bench/live_probe.py) records every DicFrame and ImpactEstimate as it ar
   needs); the excess over one flight is the graph's own delay (goal: under 5 ms);
 - each process's CPU ms/frame while streaming (/proc, bench/proc_cpu.py).
 
-Baseline in the same run: the in-process cost of one frame through dic_tracker (Image deserialization +
-DIC), whose inverse is the one-core ceiling of the tracker; the tracked rate is reported against it.
+Baseline in the same run: the in-process cost of one frame through dic_tracker (the serialized Image read in
+place and its pixels converted to float32, + DIC), whose inverse is the one-core ceiling of the tracker; the
+tracked rate is reported against it. Image deserialization (the tracker's path before issue 41) is given beside it.
 
 Live accelerometers (default; ``--no-accel``: camera only): a DAQ process (bench/daq_peer.py) plays the
 recording's accel.csv as 20 ms AccelBlocks at 50 kHz on the camera's schedule (``--start-at-unix-s`` shared
@@ -35,7 +36,10 @@ catch-up, never received, missing on vibro/dic) and whether in blocks (longest r
 ``--hog START_S,DURATION_S``: a CPU hog process pinned to core 0 from START_S after the camera's first frame for
 DURATION_S, and when tracking recovered after it stopped (the first frame published after the hog whose DicFrame
 lag is back under max(5 ms, 2 x the median lag before the hog), from the hog's end). ``--repeat N``: N runs per
-rate, fresh nodes each.
+rate, fresh nodes each. ``--busy-core``: a process spinning on core 0 for each whole run (started before the nodes,
+killed after them: another program keeping one of the two cores busy).
+Per run also the load average before and after it, the machine's busy cores while streaming and the CPU of
+the other processes (neither the graph's nor the bench's: others' work on a shared machine) in that time.
 Nothing is asserted: the numbers go to stdout and bench/results/live.json (every run).
 """
 
@@ -59,7 +63,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH))
 sys.path.insert(0, str(ROOT / "tests"))
-from proc_cpu import CpuSampler  # noqa: E402
+from proc_cpu import MACHINE, OTHERS, CpuSampler  # noqa: E402
 
 DOMAIN = os.environ.get("VIBRO_BENCH_DOMAIN", "79")
 CAMERA_TOPIC = "camera/image_raw"
@@ -70,6 +74,8 @@ GOAL_EXCESS_S = 0.005
 WITH_REFERENCE = "--first-image-reference" not in sys.argv
 #: dic_tracker parameters set from the command line (--catch-up-ms), on top of the launch file's
 TRACKER_PARAMETERS: dict[str, float] = {}
+#: --tracker-pythonpath: a folder put first on dic_tracker's PYTHONPATH (another vibro_dic, for an A/B)
+TRACKER_PATH = {"dir": ""}
 #: (s) from the peers' ready files to the camera's frame 0 (--camera-lead-s). A lab triggers a camera whose driver
 #: has been up for a while; a camera process just started blocked in its first publish calls (once at frame 1271),
 #: waiting (under 0.6 ms of CPU in 75-333 ms, no GC): with 0.3 s, 2 of 4 runs of 1500 frames lost 94 / 476 images to
@@ -117,11 +123,31 @@ def cached_recording(frames: int, accel: bool = True) -> Path:
 
 
 def tracker_cost_ms(rec: Path, n: int = 300) -> dict[str, float]:
-    """ms/frame of dic_tracker's work in one process: Image deserialization and DIC (IC-GN)."""
+    """ms/frame of dic_tracker's work in one process: the image read in place (``image_raw_decode_ms``), DIC
+    (IC-GN), and the Image deserialization of the path before issue 41."""
     from bench_graph import stage_costs
 
     costs = stage_costs(rec, n)
-    return {k: costs[k] for k in ("image_deserialize_ms", "dic_icgn_ms")}
+    out = {k: costs[k] for k in ("image_deserialize_ms", "dic_icgn_ms")}
+    out["image_raw_decode_ms"] = raw_decode_ms(rec, n)
+    return out
+
+
+def raw_decode_ms(rec: Path, n: int) -> float:
+    """ms/frame of what dic_tracker does with a serialized image before the DIC since issue 41: read it in place
+    (vibro_dic.raw_image) and convert its pixels into one float32 buffer."""
+    from rclpy.serialization import serialize_message
+
+    from vibro_dic.frame_source_node import image_message
+    from vibro_dic.raw_image import decode_image
+    from vibro_io.recording import open_recording
+
+    wire = [serialize_message(image_message(f, "camera")) for _, f in zip(range(n), open_recording(rec).frames)]
+    buf = np.empty(decode_image(wire[0]).pixels().shape, dtype=np.float32)
+    t = time.perf_counter()
+    for w in wire:
+        np.copyto(buf, decode_image(w).pixels())
+    return 1e3 * (time.perf_counter() - t) / len(wire)
 
 
 def start_nodes(rec: Path, folder: Path, env: dict[str, str], accel: bool
@@ -146,9 +172,13 @@ def start_nodes(rec: Path, folder: Path, env: dict[str, str], accel: bool
             n.parameters.update(TRACKER_PARAMETERS)
         params = folder / f"{n.spec.name}.params.yaml"
         params.write_text(yaml.safe_dump({"/**": {"ros__parameters": n.parameters}}))
+        node_env = env
+        if n.spec.name == "dic_tracker" and TRACKER_PATH["dir"]:
+            node_env = {**env, "PYTHONPATH": os.pathsep.join(p for p in (TRACKER_PATH["dir"], env.get("PYTHONPATH"))
+                                                              if p)}
         with (folder / f"{n.spec.name}.log").open("w") as log:
             procs[n.spec.name] = subprocess.Popen(launch_command(n, params), stdout=log,
-                                                  stderr=subprocess.STDOUT, env=env)
+                                                  stderr=subprocess.STDOUT, env=node_env)
     return procs, origins.pop()
 
 
@@ -167,6 +197,17 @@ def stop(procs: dict[str, subprocess.Popen]) -> dict[str, int]:
     return {name: p.returncode for name, p in procs.items()}
 
 
+#: ``--busy-core``: the core the spinner is pinned to (another program keeping one of the two cores busy)
+BUSY = {"core": None}
+
+
+def busy_core(cpu: int, env: dict[str, str]) -> subprocess.Popen:
+    """A process spinning on core ``cpu`` until killed (``--busy-core``: another program busy for the whole run),
+    at the nodes' priority; named ``busy_core`` so that its CPU is sampled beside theirs."""
+    code = f"import os; os.sched_setaffinity(0, {{{cpu}}})\nwhile True: pass"
+    return subprocess.Popen([sys.executable, "-c", code, "__node:=busy_core"], env=env)
+
+
 def hog(cpu: int, seconds: float) -> subprocess.Popen:
     """A process spinning on core ``cpu`` for ``seconds`` (a busy loop: another program on the lab PC)."""
     code = (f"import os, time; os.sched_setaffinity(0, {{{cpu}}}); end = time.monotonic() + {seconds}\n"
@@ -181,8 +222,9 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel
     folder.mkdir(parents=True)
     probe_out, ready, cam_out, daq_out = folder / "probe.json", folder / "probe.ready", folder / "camera.json", \
         folder / "daq.json"
-    facts: dict = {}
-    with CpuSampler(DOMAIN) as sampler:
+    facts: dict = {"load_average_before": [round(x, 2) for x in os.getloadavg()]}
+    spinner = busy_core(BUSY["core"], env) if BUSY["core"] is not None else None
+    with CpuSampler(DOMAIN, machine=True) as sampler:
         nodes, origin_ns = start_nodes(rec, folder, env, accel)
         with (folder / "probe.log").open("w") as log:
             probe = subprocess.Popen([sys.executable, str(BENCH / "live_probe.py"), str(probe_out), str(ready),
@@ -241,10 +283,20 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel
             died = {n: p.returncode for n, p in nodes.items() if p.poll() is not None}
         finally:
             stop({**nodes, "probe": probe})
+            if spinner is not None:
+                spinner.kill()
+                spinner.wait()
         cam = json.loads(cam_out.read_text())
         seen = json.loads(probe_out.read_text())
         end = max([a for a, *_ in seen["dic"]], default=cam["published_at_s"][-1])
         cpu = sampler.cpu_between(cam["published_at_s"][0], end)
+        facts["others_busiest_cpu_s"] = sampler.busiest_others(cam["published_at_s"][0], end)
+    facts["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
+    # the machine's busy CPU while streaming, and that of the processes neither the graph's nor the bench's
+    # (/proc/stat's tick counts: only roughly comparable with the processes' own CPU times)
+    window_s = max(end - cam["published_at_s"][0], 1e-9)
+    facts["machine_busy_cores"] = cpu.pop(MACHINE, math.nan) / window_s
+    facts["others_busy_cores"] = cpu.pop(OTHERS, math.nan) / window_s
     if died:
         raise SystemExit(f"node(s) exited while streaming at {rate_hz:g} Hz: {died}; logs in {folder}")
     if accel:
@@ -383,7 +435,8 @@ def summarize(rate_hz: float, cam: dict, seen: dict, cpu: dict[str, float], trut
         "flight_ms": {"median": ms(flight, np.median), "min": ms(flight, np.min)},
         "latency_minus_flight_ms": {"median": ms(excess, np.median), "max": ms(excess, np.max)},
         "cpu_ms_per_frame": per_frame,
-        "cpu_ms_per_frame_graph": sum(v for k, v in per_frame.items() if k not in ("camera_driver", "bench_probe")),
+        "cpu_ms_per_frame_graph": sum(v for k, v in per_frame.items()
+                                      if k not in ("camera_driver", "bench_probe", "busy_core")),
         "cpu_utilisation_of_cores": sum(cpu.values()) / (window * (os.cpu_count() or 1)),
     }
 
@@ -407,6 +460,12 @@ def main() -> int:
     parser.add_argument("--first-image-reference", action="store_true",
                         help="give dic_tracker no reference file: it builds its tracker on the first image (A/B of "
                              "the start-up)")
+    parser.add_argument("--busy-core", action="store_true",
+                        help="a process spinning on core 0 for each whole run (another program keeping one of the "
+                             "cores busy), started before the nodes and killed after them")
+    parser.add_argument("--tracker-pythonpath", default="",
+                        help="a folder put first on dic_tracker's PYTHONPATH: another vibro_dic package there is the "
+                             "one it runs (A/B of the tracker node against a copy of an earlier version)")
     parser.add_argument("--suite", action="store_true",
                         help="the live goals' three scenarios in one run, all to --out: 1000 Hz x 5, 2000 Hz x 2, "
                              "1000 Hz with a 0.3 s hog on core 0 x 2 (--rates/--repeat/--hog are then ignored)")
@@ -414,6 +473,9 @@ def main() -> int:
     if not args.camera_lead_s > 0:
         parser.error("--camera-lead-s must be > 0")
     CAMERA_LEAD["s"] = args.camera_lead_s
+    if args.busy_core:
+        BUSY["core"] = 0
+    TRACKER_PATH["dir"] = str(Path(args.tracker_pythonpath).resolve()) if args.tracker_pythonpath else ""
     if args.camera_shm_segment_mb is not None:
         if not args.camera_shm_segment_mb > 0:
             parser.error("--camera-shm-segment-mb must be > 0")
@@ -457,9 +519,12 @@ def run_scenario(args: argparse.Namespace, rates: list[float], repeat: int, hog_
                     else None, "hog": {"start_s": hog_window[0], "duration_s": hog_window[1], "core": 0}
                     if hog_window else None, "command": " ".join(sys.argv),
                     "dic_tracker_parameters": dict(TRACKER_PARAMETERS), "camera_env": dict(CAMERA_ENV),
-                    "camera_lead_s": CAMERA_LEAD["s"]}
+                    "camera_lead_s": CAMERA_LEAD["s"], "busy_core": BUSY["core"],
+                    "tracker_pythonpath": TRACKER_PATH["dir"]}
     result["tracker_in_process_ms_per_frame"] = tracker_cost_ms(rec)
-    one_core = 1e3 / sum(result["tracker_in_process_ms_per_frame"].values())
+    # the tracker's own work per image now: read in place + DIC (the deserialization is the path before issue 41)
+    one_core = 1e3 / (result["tracker_in_process_ms_per_frame"]["image_raw_decode_ms"]
+                      + result["tracker_in_process_ms_per_frame"]["dic_icgn_ms"])
     result["tracker_one_core_ceiling_frames_per_s"] = one_core
     runs = []
     logs = rec.parent / "runs"  # kept for a look after the run; replaced by the next one
@@ -472,12 +537,17 @@ def run_scenario(args: argparse.Namespace, rates: list[float], repeat: int, hog_
             run["tracked_vs_one_core_ceiling_ratio"] = run["frames_per_s_tracked"] / one_core
             run.update(after_ready(camera_log, seen, facts, truth_impacts_s, cam.t0_s, cam.fps,
                                    float(truth.get("clock_offset_s", 0.0))))
+            run.update({k: facts[k] for k in ("load_average_before", "load_average_after", "machine_busy_cores",
+                                              "others_busy_cores", "others_busiest_cpu_s")})
+            run["busy_core"] = BUSY["core"]
+            run["dic_tracker_cpu_ms_per_frame"] = run["cpu_ms_per_frame"].get("dic_tracker", math.nan)
             runs.append(run)
     result["runs"] = runs
 
     c = result["tracker_in_process_ms_per_frame"]
-    print(f"baseline, dic_tracker's work in one process: deserialize {c['image_deserialize_ms']:.3f} + DIC "
-          f"{c['dic_icgn_ms']:.3f} ms/frame = {one_core:.0f} frames/s on one core")
+    print(f"baseline, dic_tracker's work in one process: image read in place {c['image_raw_decode_ms']:.3f} (before "
+          f"issue 41 deserialized: {c['image_deserialize_ms']:.3f}) + DIC {c['dic_icgn_ms']:.3f} ms/frame = "
+          f"{one_core:.0f} frames/s on one core")
     for r in runs:
         lag, lat, ex = r["dic_lag_ms"], r["impact_latency_ms"], r["latency_minus_flight_ms"]
         print(f"camera {r['target_rate_hz']:5.0f} Hz (run {r['repeat'] + 1}): published at "
@@ -515,6 +585,14 @@ def run_scenario(args: argparse.Namespace, rates: list[float], repeat: int, hog_
             print(f"    hog {h['window_s'][1]:.2f} s on core 0: {h['lost_during']} of {h['frames_during']} frames "
                   f"lost during it; recovered {h['recovered_after_hog_ms']} ms after it stopped "
                   f"(lag under {h['recovered_lag_limit_ms']:.1f} ms)")
+    print(f"per run{' (a process spinning on core 0 throughout)' if BUSY['core'] is not None else ''}:")
+    for r in runs:
+        print(f"    {r['target_rate_hz']:g} Hz run {r['repeat'] + 1}: lost {r['lost_after_ready']} of "
+              f"{r['published_after_ready']} {r['lost_reasons']}, impacts streamed {r['impacts_streamed']}"
+              f"{' (accel ' + str(r['accel']['impacts_streamed']) + ')' if 'accel' in r else ''}, dic_tracker "
+              f"{r['dic_tracker_cpu_ms_per_frame']:.3f} ms CPU/frame, load average {r['load_average_before'][0]:.2f}"
+              f" -> {r['load_average_after'][0]:.2f}, others' processes {r['others_busy_cores']:.2f} cores "
+              f"(machine {r['machine_busy_cores']:.2f})")
     return result
 
 

@@ -30,6 +30,8 @@ NOT_CARRIED = {
                    "JSON value, compared in tests/test_graph_refusal.py; their evidence numbers here come from "
                    "analyze's own DIC",
     "contacts": "identify()'s contact phases (a ball riding a plate): no message carries them",
+    "provenance": "vibro analyze's command line and the SHA-256 of its input files: a graph run is not one "
+                  "command on files (its bag's metadata records the run)",
     "dic_quality": "the tracker's texture and correlation checks: the node logs them and reports them on "
                    "/diagnostics (ZNCC medians, frames below the threshold); no message carries the summary",
 }

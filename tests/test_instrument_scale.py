@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 from discrepancy_cases import make_case
 
@@ -65,3 +66,29 @@ def test_a_real_tilt_is_far_beyond_the_scale_and_still_found():
     # the scale's sigma on the tilt: d(cos) = 3 sigma_s -> d(tilt) = 3 sigma_s / sin(tilt)
     allowance_deg = math.degrees(SCALE_SIGMAS * SCALE_SIGMA / math.sin(math.radians(tilt_deg)))
     assert abs(tilt["parameters"]["tilt_deg"] - tilt_deg) <= allowance_deg
+
+
+def test_the_scales_share_of_every_flights_friction_is_taken_out():
+    """Eq. 17 measures each flight's friction against the nominal g; with the scale off by e the flights fall at
+    g (1 + e), so every friction holds m g e (0.5 % of the weight here, five times the friction floor): taken out
+    where the scale was taken as the instrument's, the Eq. 17 value kept beside."""
+    from vibro_discrepancy.reidentify import reidentification
+    from vibro_model.assemble import apply_reidentification
+    from vibro_model.results import ResultsDocument
+
+    e = 0.005
+    sections, track, rig = _case({}, e)
+    doc = ResultsDocument.from_dict(sections)
+    run = run_discrepancy(doc, track, rig)
+    assert run.document["instrument_scale"]["absorbed"] and run.document["findings"] == []
+    final = apply_reidentification(doc, reidentification(run.result.findings, run))
+    weight = rig.ball.mass_kg * 9.81
+    free = [f for f in final.flights if f.friction_n is not None]
+    before = np.array([f.friction_paper_n for f in free])
+    after = np.array([f.friction_n for f in free])
+    sd = np.median([f.friction_std_n for f in free])
+    # the premise: every Eq. 17 friction is -m g e (the flights fall faster than g), within a flight's sigma
+    assert np.median(before) == pytest.approx(-weight * e, abs=3 * sd / np.sqrt(len(free)) + 0.1 * weight * e)
+    # taken out: the synthetic rig has no friction
+    assert abs(np.median(after)) < 3 * sd / np.sqrt(len(free)) + 0.1 * weight * e
+    assert final.sections["friction_model"]["friction_method"] == "instrument_scale"

@@ -203,3 +203,47 @@ def test_a_stalled_trackers_reader_keeps_image_queue_depth_images(tiny_recording
     for k in range(n - kept):
         assert rows[k].lost and rows[k].status != SKIPPED and "image" in rows[k].status, (k, rows[k].status)
     assert "skipped" not in node.health.counters
+
+
+@pytest.mark.parametrize("released", [False, True])
+@pytest.mark.parametrize("live", [True, False])
+def test_unreadable_images_are_answered_lost_naming_the_field(tiny_recording: Path, close_rclpy, ros_domain,
+                                                              live: bool, released: bool) -> None:
+    """Images arrive serialized (a raw subscription). One cut short, one of another encoding, one whose bytes end
+    before its stamp: each slot is answered exactly once, in order, the first two lost with the field that could
+    not be read, the third lost as never received once a later image comes (it has no readable stamp, so no slot);
+    the good images around them are tracked. Live (camera) and from a recording alike; held as messages until the
+    readers match, or (``released``) published as the CDR bytes the node writes itself."""
+    import copy
+
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from vibro_msgs.msg import DicFrame
+
+    node = _node(tiny_recording, "-p", f"live_camera:={str(live).lower()}", "-p",
+                 f"reference_image:={tiny_recording / 'frames' / '000000.png'}")
+    close_rclpy.append(node)
+    node.gate.open = released  # else results held, to read them below
+    sent = []
+    if released:
+        assert node._raw_dic  # the node's start check: its bytes read back as rclpy's
+        node.pub = type("Capture", (), {"publish": lambda _self, m: sent.append(m)})()
+    images = _images(tiny_recording)
+    other = copy.deepcopy(images[2])
+    other.encoding = "bgr8"
+    feed = [serialize_message(images[0]), serialize_message(images[1])[:-10], serialize_message(other),
+            serialize_message(images[3])[:11], serialize_message(images[4])]
+    for raw in feed:
+        node._on_image(raw)
+    if released:
+        assert not node._held and all(isinstance(m, bytes) for m in sent)
+    msgs = [deserialize_message(m, DicFrame) for m in sent] if released else node._held
+    rows = [(int(m.frame_index), bool(m.lost), m.status) for m in msgs]
+    assert [k for k, _, _ in rows] == [0, 1, 2, 3, 4]
+    assert not rows[0][1] and not rows[4][1]
+    assert rows[1][1] and rows[1][2].startswith("image data: ") and "truncated" in rows[1][2], rows[1]
+    assert rows[2][1] and rows[2][2] == "image encoding 'bgr8' not supported (mono8 or mono16)", rows[2]
+    assert rows[3][1] and rows[3][2].startswith("no image received"), rows[3]
+    assert node.health.counters["unreadable"] == 1 and node.lost == 3 and node.published == 5
+    assert all(m.reference_frame_index == 0 and m.header.frame_id == "camera" for m in msgs)
+    assert abs(msgs[4].ball_mm - (-0.4)) < 1e-3  # frame 4's displacement (the fixture: -0.1 mm per frame)

@@ -35,11 +35,14 @@ class Page(HTMLParser):
         self._key: str | None = None
         self._cell: list[str] | None = None
         self._skip = 0
+        self._verbatim: str | None = None   # a quoted user file or command (data-verbatim): the user's words
 
     def handle_starttag(self, tag, attrs):
         attrs = dict(attrs)
         if tag in ("style", "title", "script"):
             self._skip += 1
+        if "data-verbatim" in attrs:
+            self._skip, self._verbatim = self._skip + 1, tag
         if tag == "section" and attrs.get("id") == "summary":
             self._in_summary = 1
         elif self._in_summary and tag == "section":
@@ -58,6 +61,8 @@ class Page(HTMLParser):
     def handle_endtag(self, tag):
         if tag in ("style", "title", "script"):
             self._skip -= 1
+        if tag == self._verbatim:
+            self._skip, self._verbatim = self._skip - 1, None
         if self._key and tag in ("th", "td") and self._cell is not None:
             self.rows[self._key].append(" ".join("".join(self._cell).split()))
             self._cell = None

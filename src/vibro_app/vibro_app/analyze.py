@@ -17,15 +17,20 @@ from __future__ import annotations
 
 import logging
 import sys
-from dataclasses import dataclass, replace
+from contextvars import ContextVar
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from vibro_app.cmd_track import DIC_CSV
-from vibro_app.report_files import FIGURE_FILES, REPORT_HTML
+from vibro_app.report_files import FIGURE_FILES, REPORT_HTML, vector_twin, with_vector_twins
+from vibro_app.report_provenance import provenance_section
 from vibro_dic.chunked import track_rows
 from vibro_dic.quality import TrackQuality, dic_quality_section
+from vibro_dic.texture import DEFAULT_MAX_SUBSET_SIGMA_PX
+from vibro_dic.tracker import DEFAULT_TRACKING, RESEED_EVERY_FRAMES
 from vibro_fit.cross_checks import consistency_checks, consistency_section
 from vibro_fit.plausibility import consistency_stage
+from vibro_fit.segmentation import SegmentationConfig
 from vibro_fit.spin import ball_spin_section
 from vibro_io.dictrack import DicTrack, read_dic_csv, write_dic_csv
 from vibro_io.frames import find_frames_source
@@ -41,6 +46,7 @@ from vibro_model.assemble import (
     StageOutputs,
     assemble_results,
 )
+from vibro_model.drive_envelope import DriveEnvelope
 from vibro_model.errors import RecordingError
 from vibro_model.results import ResultsDocument, Simulation
 from vibro_model.units import m_to_mm, mm_to_m
@@ -65,7 +71,6 @@ def replay_models(document, track: DicTrack, rig: RigConfig) -> dict:
 
     Returns {"t_s", "measured_mm", "curves": {name: mm}, "deviations": {name: D}, "errors": {name: msg}}.
     """
-    from vibro_model.drive_envelope import DriveEnvelope
     from vibro_sim.measured import replay_and_score, replay_inputs
 
     out = {"t_s": None, "measured_mm": None, "curves": {}, "deviations": {}, "errors": {}}
@@ -95,7 +100,30 @@ DISCREPANCY_PNG = "discrepancy.png"
 
 def analyze_outputs() -> tuple[str, ...]:
     """Every file ``vibro analyze`` may write into its output folder (what ``--overwrite`` replaces)."""
-    return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *FIGURE_FILES.values(), DISCREPANCY_PNG, REPORT_HTML)
+    return (RESULTS_JSON, DIC_CSV, *CSV_TABLES, *with_vector_twins((*FIGURE_FILES.values(), DISCREPANCY_PNG)),
+            REPORT_HTML)
+
+
+#: the command line of the ``vibro analyze`` running now (set by :mod:`vibro_app.cmd_analyze`; None from Python)
+COMMAND_LINE: ContextVar[tuple[str, ...] | None] = ContextVar("vibro_analyze_command_line", default=None)
+#: the identification's flight segmentation and accelerometer high-pass, as every ``vibro analyze`` runs them
+SEGMENTATION = SegmentationConfig()
+ACCEL_HIGHPASS_HZ = 100.0
+
+
+def analysis_settings(dic: DicPlan, fit: FitPlan, tracked: bool) -> dict:
+    """The options and thresholds an analysis runs with, for results.json's ``provenance.settings``: the DIC's
+    (None when a track replaced it) and the identification's."""
+    from vibro_fit.streaming import StreamingTuning
+
+    dic_settings = None if not tracked else {
+        "tracking": asdict(replace(DEFAULT_TRACKING, method=dic.method)), "reseed_every_frames": RESEED_EVERY_FRAMES,
+        "max_subset_sigma_px": DEFAULT_MAX_SUBSET_SIGMA_PX, "workers": dic.workers, "scheduler": dic.scheduler}
+    return {"dic": dic_settings,
+            "identification": {"method": fit.method, "weights": fit.weights or "none",
+                               "segmentation": asdict(SEGMENTATION), "accel_highpass_hz": ACCEL_HIGHPASS_HZ,
+                               # None: one nominal drive period (1 / excitation.frequency_hz)
+                               "local_structure_history_s": StreamingTuning().history_s}}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -166,9 +194,9 @@ class _NoFigure(Exception):
 def _write_discrepancy_figure(disc_run, path: Path) -> Path | None:
     from vibro_discrepancy.figures import write_discrepancy_figure
 
-    try:
-        with atomic_path(path) as tmp:
-            if write_discrepancy_figure(disc_run, tmp) is None:
+    try:   # the PNG and its vector twin (SVG) beside it, both or neither
+        with atomic_path(path) as tmp, atomic_path(vector_twin(path)) as svg:
+            if write_discrepancy_figure(disc_run, tmp, svg_path=svg) is None:
                 raise _NoFigure
     except _NoFigure:
         return None
@@ -224,10 +252,14 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         dic_stage = None if quality is None else _dic_quality_stage(quality)  # refuses a body lost in most frames
         bar.update(1)
         bar.set_description("identify")
-        ident = identify(track, rig, accel=accel, method=fit.method, weights=fit.weights)
+        ident = identify(track, rig, accel=accel, method=fit.method, weights=fit.weights, config=SEGMENTATION,
+                         highpass_hz=ACCEL_HIGHPASS_HZ)
         stages = _checked_identification(ident, track, rig, accel,
                                          recording=str(recording_dir), dic_quality=dic_stage,
                                          frames_name=_frames_source_name(recording_dir, track_csv))
+        stages = replace(stages, provenance=provenance_section(
+            recording_dir, track_csv, command=COMMAND_LINE.get(),
+            settings=analysis_settings(dic, fit, tracked=track_csv is None), rig=rig))
         bar.update(1)
         if stages.consistency.refusal is not None:
             _write_refused(stages, out)
@@ -308,7 +340,7 @@ def _with_ball_spin(stages: StageOutputs, track: DicTrack) -> ResultsDocument:
 
 
 def _write_report(document: ResultsDocument, ident, track: DicTrack, sim: dict, disc_run, out: Path) -> None:
-    """The figures (PNG) and report.html of an analysed recording."""
+    """The figures (PNG, each with an SVG twin) and report.html of an analysed recording."""
     from vibro_app.report import REPORT_HTML, write_figures, write_html  # matplotlib: only for the report
 
     figs = write_figures(track, ident, out, sim, impacts=document.impacts)

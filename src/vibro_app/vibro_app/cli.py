@@ -20,6 +20,7 @@ SUBCOMMAND_MODULES = (
     "vibro_app.cmd_info",
     "vibro_app.cmd_init",
     "vibro_app.cmd_synth",
+    "vibro_app.cmd_calibrate",
     "vibro_app.cmd_track",
     "vibro_app.cmd_fit",
     "vibro_app.cmd_analyze",
@@ -68,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.command_line = ["vibro", *(sys.argv[1:] if argv is None else argv)]   # as typed (results' provenance)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vibro_app.analyze import DicPlan, FitPlan, analyze_recording
+from vibro_app.analyze import COMMAND_LINE, DicPlan, FitPlan, analyze_recording
 from vibro_app.findings_text import findings_lines
 from vibro_dic.cluster import add_cluster_args
 from vibro_fit.methods import METHODS
@@ -35,8 +35,12 @@ def run(args: argparse.Namespace) -> int:
     progress = not args.no_progress and sys.stderr.isatty()
     dic = DicPlan(method=args.dic_method, workers=args.workers, scheduler=args.scheduler)
     fit = FitPlan(method=args.method, weights=args.weights)
-    doc = analyze_recording(args.recording, args.out, progress=progress, fit=fit, track_csv=args.track, dic=dic,
-                            report=not args.no_report, overwrite=args.overwrite)
+    token = COMMAND_LINE.set(tuple(getattr(args, "command_line", None) or ()) or None)  # provenance's command
+    try:
+        doc = analyze_recording(args.recording, args.out, progress=progress, fit=fit, track_csv=args.track, dic=dic,
+                                report=not args.no_report, overwrite=args.overwrite)
+    finally:
+        COMMAND_LINE.reset(token)
     summ = doc["cor_summary"]
     sim = doc["simulation"]
 

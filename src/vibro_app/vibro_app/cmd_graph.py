@@ -184,8 +184,9 @@ def _print_results(s: GraphSummary) -> None:
         _print_cor_table(s)
     for model, d in sorted(s.deviations.items()):
         print(f"D {model:12s} {100 * d:6.2f} %")
-    if not s.findings:
-        print("findings: none published")
+    if not s.findings:   # no impact: nothing was analysed, which is not "no finding"
+        print("findings: none published" + ("" if s.final_impacts or s.impacts else
+                                            " (no impact identified: the discrepancy analysis had nothing to compare)"))
     for f in s.findings:
         sigmas = dict(zip(f.parameter_names, f.parameter_std))
         print(finding_line(f.effect, dict(zip(f.parameter_names, f.parameter_values)), sigmas,

@@ -62,7 +62,9 @@ def human_lines(info: dict[str, Any]) -> list[str]:
     if rig:
         lines.append(f"rig            {rig['mm_per_px']:g} mm/px; ball {rig['ball_diameter_mm']:g} mm, "
                      f"{rig['ball_mass_kg']:g} kg; gap {rig['gap_mm']:g} mm (free play b = {rig['free_play_mm']:.3f} "
-                     f"mm); excitation {rig['excitation_hz']:g} Hz (nominal)")
+                     f"mm); excitation {rig['excitation_hz']:g} Hz (nominal)"
+                     + (f"; axis {rig['axis_tilt_deg']:g} deg from vertical (setup.axis_tilt_deg: gravity along it "
+                        f"{rig['axis_gravity_mps2']:.3g} m/s^2)" if rig.get("axis_tilt_deg") else ""))
     if "accelerometers" in info:
         acc = info["accelerometers"]
         if acc is None:

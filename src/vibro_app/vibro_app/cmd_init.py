@@ -39,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: the camera file's header)")
     p.add_argument("--frequency-hz", type=float, default=None,
                    help="shaker frequency (default: estimated from the structure's motion)")
+    p.add_argument("--axis-tilt-deg", type=float, default=0.0, metavar="THETA",
+                   help="the rig's motion axis from vertical as mounted, 0..90 (0 vertical, default; 45 tilted; 90 "
+                        "horizontal): rig.yaml setup.axis_tilt_deg; not measurable from the video")
     p.add_argument("--subset-px", type=int, default=31, help="DIC subset side (odd, px; default 31)")
     p.add_argument("--mesh-step-px", type=int, default=10, help="mesh point spacing (px; default 10)")
     p.add_argument("--out", default=None, help="rig.yaml to write (default: rig.yaml in the recording folder)")
@@ -109,6 +112,10 @@ def _check_args(args: argparse.Namespace) -> None:
         raise RecordingError(f"--subset-px must be a positive odd integer, got {args.subset_px}")
     if args.mesh_step_px <= 0:
         raise RecordingError(f"--mesh-step-px must be a positive integer, got {args.mesh_step_px}")
+    tilt = getattr(args, "axis_tilt_deg", 0.0)
+    if not (math.isfinite(tilt) and 0.0 <= tilt <= 90.0):
+        raise RecordingError(f"--axis-tilt-deg (rig.yaml setup.axis_tilt_deg) must be in [0, 90] degrees from "
+                             f"vertical (0 vertical, 90 horizontal), got {tilt:g}")
 
 
 def read_first_frames(src: Path, fps: float, n: int = MAX_FRAMES_EXAMINED) -> tuple[list[tuple[int, np.ndarray]], int]:
@@ -154,6 +161,9 @@ radius {b.radius_px:.3f} +- {b.fit_radius_std_px:.4f} px
         ball_cr = f"ball {p.ball_cramer_rao_px:.4f} px,\n#         structure"
     method = "\n  ball_method: outline    # a plain ball, tracked by its outline (docs/real-footage.md)" \
         if b.method == "outline" else ""
+    tilt = float(getattr(args, "axis_tilt_deg", 0.0))
+    tilt_note = ("--axis-tilt-deg" if tilt else "ASSUMED vertical: --axis-tilt-deg for a tilted or horizontal rig") + \
+        "; gravity along the axis g cos(tilt)"
     return f"""# rig.yaml proposed by `vibro init` from {source}
 # Measured on frame 0 ({p.width_px}x{p.height_px} px) and the motion over {p.motion.frames.size} frames:
 {ball_lines.rstrip()}
@@ -177,6 +187,8 @@ camera:
   t0_s: 0.0
   mm_per_px: {sc.mm_per_px:.6g}    # ball and gap combined (see above)
   mm_per_px_rel_std: {sc.rel_std:.2g}    # its relative 1-sigma: a tilt within 3 of it is not claimed
+setup:
+  axis_tilt_deg: {tilt!r}    # the motion axis from vertical as mounted (0 vertical, 90 horizontal); {tilt_note}
 ball:
   mass_kg: {a['ball_mass_kg']!r}    # ASSUMED
   diameter_mm: {args.ball_diameter_mm!r}

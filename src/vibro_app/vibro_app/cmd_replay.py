@@ -16,6 +16,7 @@ from vibro_app.bag_results import document_from_bag
 from vibro_app.cmd_graph import add_run_options, foxglove_parameters, print_summary
 from vibro_bringup.graph_runner import GraphRun, bag_outputs, execute_graph, new_bag_path, prepare_environment
 from vibro_bringup.graph_spec import BAG_SOURCE, RunSetup, bag_time_origin_ns, frames_topic_of_bag, reference_from_bag
+from vibro_io.camera_calibration import write_recorded_calibration
 from vibro_io.outputs import atomic_write_text, prepare_output_dir
 from vibro_io.results_file import write_results
 from vibro_model.errors import RecordingError
@@ -23,7 +24,8 @@ from vibro_ros import topics
 from vibro_ros.bags import read_custom_data
 
 REPLAY_BAG = "bag"
-REPLAY_OUTPUTS = ("rig.yaml", "results.json", *bag_outputs(REPLAY_BAG))  # what --overwrite may replace
+#: what --overwrite may replace (camera_info.yaml: the lens calibration the recorded rig.yaml names, by that name)
+REPLAY_OUTPUTS = ("rig.yaml", "camera_info.yaml", "results.json", *bag_outputs(REPLAY_BAG))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     foxglove = foxglove_parameters(args)
     prepare_output_dir(out, overwrite=args.overwrite, owned=REPLAY_OUTPUTS, command="replay", inputs=[source_bag])
     atomic_write_text(out / "rig.yaml", rig_text)
+    write_recorded_calibration(out, rig_text, read_custom_data(source_bag))  # the lens calibration rig.yaml names
     bag = new_bag_path(out / REPLAY_BAG)
     env = prepare_environment(args.domain_id)
     with_accel = "accelerometers:" in rig_text

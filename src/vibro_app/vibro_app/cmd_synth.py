@@ -8,6 +8,7 @@ import sys
 
 from vibro_sim.synth import EFFECT_NAMES, EFFECTS, SynthConfig, SynthError, parse_effect_args
 from vibro_sim.synth.invented import INVENTED_EFFECTS, INVENTED_HELP
+from vibro_sim.synth.scenario import HORIZONTAL_ACCEL_MPS2, HORIZONTAL_FROM_DEG
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,14 @@ def register(sub) -> None:
                    help="the baseline's constant COR (default 0.7); with a drive near g, e.g. --cor 0.5 "
                         "--accel-mps2 13 --frequency-hz 10: chatter with sticking on the lower plate")
     p.add_argument("--accel-mps2", "--accel-ms2", dest="accel_mps2", type=float, default=None,
-                   help="shaker acceleration amplitude (m/s^2; default 27: two impacts per cycle)")
+                   help="shaker acceleration amplitude (m/s^2; default 27: two impacts per cycle; 40 with "
+                        "--axis-tilt-deg 78 or more, where no gravity along the axis holds that rhythm)")
+    p.add_argument("--axis-tilt-deg", type=float, default=0.0, metavar="THETA",
+                   help="the rig's motion axis from vertical as mounted, 0..90 (0 vertical, default; 90 horizontal: "
+                        "the paper's Fig. 11 study): written to rig.yaml setup.axis_tilt_deg and simulated with "
+                        "gravity g cos(THETA) along the axis. --effect gravity_tilt --param tilt_deg=T conceals a "
+                        "true tilt T from vertical instead (e.g. 50 on a rig declared at 45). A horizontal rig's "
+                        "guide rods: add --effect coulomb_friction")
     p.add_argument("--noise", type=float, default=2.0, metavar="GRAY", help="read noise sigma (gray levels)")
     p.add_argument("--blur", action="store_true", help="motion blur over a 0.5 ms exposure")
     p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="T",
@@ -73,6 +81,15 @@ def register(sub) -> None:
     p.add_argument("--jpeg-quality", type=int, default=0, metavar="Q",
                    help="pass every frame through JPEG at quality Q (1-100) before writing it (lossy video; "
                         "default 0: none)")
+    p.add_argument("--lens-k1", type=float, default=0.0, metavar="K",
+                   help="see the frames through a lens with radial distortion k1 (plumb_bob; fx = fy = 1000 px, "
+                        "principal point at the image centre; -0.18: a barrel lens whose scale at the lower plate "
+                        "is ~1.5 %% below the centre's), and write its calibration camera_info.yaml, named in "
+                        "rig.yaml camera.calibration (default 0: no lens)")
+    p.add_argument("--lens-k2", type=float, default=0.0, metavar="K", help="the lens's k2 (default 0)")
+    p.add_argument("--no-calibration-file", action="store_true",
+                   help="with --lens-k1/--lens-k2: write no camera_info.yaml and leave camera.calibration out of "
+                        "rig.yaml (a lab that forgot to calibrate its camera)")
     p.add_argument("--frames", type=int, default=1500, help="number of frames (1000 fps)")
     p.add_argument("--still", action="store_true", help="nothing moves (noise study)")
     p.add_argument("--drift", action="store_true", help="with --still: slow camera drift")
@@ -102,6 +119,14 @@ def config_from_args(args: argparse.Namespace) -> SynthConfig:
         kw["accel_mps2"] = args.accel_mps2
     if args.cor is not None:
         kw["cor"] = args.cor
+    if getattr(args, "no_calibration_file", False) and not (args.lens_k1 or args.lens_k2):
+        raise SynthError("--no-calibration-file needs a lens (--lens-k1 or --lens-k2)")
+    kw.update(lens_k1=getattr(args, "lens_k1", 0.0), lens_k2=getattr(args, "lens_k2", 0.0),
+              lens_calibration_file=not getattr(args, "no_calibration_file", False))
+    tilt = getattr(args, "axis_tilt_deg", 0.0)
+    kw["axis_tilt_deg"] = tilt
+    if args.accel_mps2 is None and tilt >= HORIZONTAL_FROM_DEG:
+        kw["accel_mps2"] = HORIZONTAL_ACCEL_MPS2
     return SynthConfig(effects=effects, seed=args.seed, frequency_hz=args.frequency_hz,
                        noise_gray=args.noise, blur=args.blur, clock_offset_s=args.clock_offset_ms * 1e-3,
                        daq_clock_ppm=args.daq_clock_ppm,

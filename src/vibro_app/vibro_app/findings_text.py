@@ -46,11 +46,16 @@ def shape_model_line(shape_model: Mapping[str, Any]) -> str:
 
 
 def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
-    """The lines of results.json's ``discrepancy`` section (``findings: none`` when there are none); an
-    ``unexplained`` finding whose shape was modelled gets a second line (:func:`shape_model_line`), a tilt that
-    the scale's uncertainty could make one that says so."""
+    """The lines of results.json's ``discrepancy`` section (``findings: none`` when the analysis ran and found
+    nothing; ``findings: not analysed: <why>`` when it was skipped, e.g. no impacts, or failed: never "none" for
+    an analysis that did not run); an ``unexplained`` finding whose shape was modelled gets a second line
+    (:func:`shape_model_line`), a tilt that the scale's uncertainty could make one that says so, a mismatch the
+    camera's lens explains (:mod:`vibro_discrepancy.optics`) one that names the remedy."""
     if not discrepancy:
         return ["findings: no discrepancy analysis in these results"]
+    why = discrepancy.get("skipped") or discrepancy.get("error")
+    if why and not discrepancy.get("findings"):
+        return [f"findings: not analysed: {why}"]
     findings: Iterable[Mapping[str, Any]] = discrepancy.get("findings") or []
     lines = []
     for f in findings:
@@ -60,6 +65,11 @@ def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
             lines.append(shape_model_line(f["shape_model"]))
         if f.get("scale_could_explain"):
             lines.append(f"  {f['scale_note']}")
+        if f.get("probable_cause") == "lens_distortion":
+            lens = f.get("lens") or {}
+            lines.append("  probably the camera's lens, not physics"
+                         + (f" (also taken for: {', '.join(f['not_claimed'])})" if f.get("not_claimed") else "")
+                         + f": {lens.get('remedy', 'calibrate the camera')}")
     return lines or ["findings: none (the model explains the recording within its noise)"]
 
 

@@ -92,7 +92,8 @@ def _describe_recording(path: Path) -> dict[str, Any]:
     out["dic_sigma_px"] = _dic_sigma(frames, images[0], rig, out["noise_gray"])
     out["rig"] = {"mm_per_px": rig.camera.mm_per_px, "ball_diameter_mm": rig.ball.diameter_mm,
                   "ball_mass_kg": rig.ball.mass_kg, "gap_mm": rig.structure.gap_mm,
-                  "free_play_mm": rig.free_play_mm, "excitation_hz": rig.excitation.frequency_hz}
+                  "free_play_mm": rig.free_play_mm, "excitation_hz": rig.excitation.frequency_hz,
+                  "axis_tilt_deg": rig.setup.axis_tilt_deg, "axis_gravity_mps2": rig.g_axis_mps2}
     out["accelerometers"] = _accel_part(rec, out["t0_s"], out["duration_s"])
     return out
 

@@ -1,4 +1,5 @@
-"""Figures (matplotlib, Agg) and one self-contained HTML report (PNGs inlined as base64).
+"""Figures (matplotlib, Agg) and one self-contained HTML report (PNGs inlined as base64, each figure also saved as
+SVG beside its PNG and linked).
 
 Figures follow the paper: displacements with fits and impact instants (Fig. 9), COR per impact
 (Fig. 10), friction per flight (Fig. 12), accelerometer spectrum (Fig. 7), histogram + normal Q-Q
@@ -9,7 +10,11 @@ from __future__ import annotations
 
 import base64
 import html
+import time
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
+from typing import Iterator
 
 import matplotlib
 
@@ -18,7 +23,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vibro_app.findings_text import effect_label, parameter_text, percent  # noqa: E402
-from vibro_app.report_files import FIGURE_FILES, REPORT_HTML  # noqa: E402,F401  (re-exported)
+from vibro_app.report_files import FIGURE_FILES, REPORT_HTML, vector_twin  # noqa: E402,F401  (re-exported)
+from vibro_app.report_lost import lost_html  # noqa: E402
+from vibro_app.report_methods import discrepancy_measures_html, methods_html, uncertainty_html  # noqa: E402
+from vibro_app.report_provenance import reproduce_html  # noqa: E402
 from vibro_app.report_summary import simulation_rows, structure_rows, summary_html  # noqa: E402
 from vibro_app.report_tables import impacts_table_html, table2_html  # noqa: E402
 from vibro_fit.identify import Identification  # noqa: E402
@@ -46,12 +54,43 @@ def figure_formats() -> set[str]:
     return set(FigureCanvasAgg.get_supported_filetypes())
 
 
+#: inside :func:`vector_twins`: the seconds each SVG twin took (None outside: PNG only)
+_TWIN_SECONDS: ContextVar[list[float] | None] = ContextVar("vibro_report_twin_seconds", default=None)
+
+
+@contextmanager
+def vector_twins() -> Iterator[list[float]]:
+    """Within the block, every figure :func:`save_figure` writes as PNG is also written as SVG beside it
+    (:func:`vibro_app.report_files.vector_twin`); yields the list of the seconds each SVG took."""
+    seconds: list[float] = []
+    token = _TWIN_SECONDS.set(seconds)
+    try:
+        yield seconds
+    finally:
+        _TWIN_SECONDS.reset(token)
+
+
+def save_svg(fig, path: Path) -> Path:
+    """Write ``fig`` as SVG to ``path`` atomically, its text as text (searchable, selectable), no date (the same
+    figure gives the same file)."""
+    with plt.rc_context({"svg.fonttype": "none", "svg.hashsalt": "vibro"}), atomic_path(path) as tmp:
+        fig.savefig(tmp, format="svg", metadata={"Date": None})
+    return path
+
+
 def save_figure(fig, path: Path) -> Path:
-    """Lay out ``fig``, write it to ``path`` atomically (110 dpi; format from the suffix) and close it."""
+    """Lay out ``fig``, write it to ``path`` atomically (110 dpi; format from the suffix) and close it; inside
+    :func:`vector_twins` a PNG also gets its SVG twin."""
     fig.tight_layout()
+    path = Path(path)
     try:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)
+        twins = _TWIN_SECONDS.get()
+        if twins is not None and path.suffix.lower() == ".png":
+            t0 = time.perf_counter()
+            save_svg(fig, vector_twin(path))
+            twins.append(time.perf_counter() - t0)
     finally:
         plt.close(fig)
     return path
@@ -159,13 +198,13 @@ def fig_friction(ident: Identification, path: Path) -> Path:
     for d, color in (("up", "tab:purple"), ("down", "tab:olive")):
         fls = [f for f in ident.flights if f.is_free and f.direction == d]
         if fls:
-            fr = [f.friction_n(ident.mass_kg) for f in fls]
+            fr = [f.friction_n(ident.mass_kg, ident.g_axis_mps2) for f in fls]
             ax.errorbar([f.index for f in fls], [n_to_mn(v) for v, _ in fr], yerr=[n_to_mn(s) for _, s in fr], fmt="s",
                         ms=4, color=color, label=f"{d} flights")
     ax.axhline(0, color="0.5", lw=0.5)
     ax.set_xlabel("flight index")
     ax.set_ylabel("friction force (mN, positive up)")
-    ax.set_title("Friction per free flight, Eq. 17: F = m (2a + g)")
+    ax.set_title("Friction per free flight, Eq. 17: F = m (2a + g cos(axis tilt))")
     _legend(ax)
     return save_figure(fig, path)
 
@@ -220,10 +259,10 @@ def fig_simulated(t_s: np.ndarray, measured_mm: np.ndarray, sims: dict[str, np.n
     ax.plot(t_s, measured_mm, ".", ms=2, color="0.3", label="measured ball")
     for name, y in sims.items():
         d = deviations.get(name)
-        ax.plot(t_s, y, "-", lw=0.8, label=f"{name} (D = {100 * d:.2f} %)" if d is not None else name)
+        ax.plot(t_s, y, "-", lw=0.8, label=f"{name} (D = {percent(d)})" if d is not None else name)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("ball displacement (mm)")
-    ax.set_title("Simulated vs measured ball displacement (Eq. 18)")
+    ax.set_title("Simulated vs measured ball displacement (Eq. 18, free-running, each impact's measured COR)")
     ax.legend(fontsize=8)
     return save_figure(fig, path)
 
@@ -245,11 +284,15 @@ def fig_errorbars(rows: list[dict], path: Path) -> Path:
 
 def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, sim: dict | None = None,
                   impacts=None) -> dict[str, Path]:
-    """Write the PNG figures into ``out_dir``; ``sim`` = {"t_s", "measured_mm", "curves": {name: mm},
-    "deviations": {name: D}} for the simulated-vs-measured figure; ``impacts``: the CORs the COR figures
-    show (the results document's, re-identified under the final model; default the identification's).
-    Returns {name: path}."""
-    out = Path(out_dir)
+    """Write the PNG figures, each with its SVG twin, into ``out_dir``; ``sim`` = {"t_s", "measured_mm",
+    "curves": {name: mm}, "deviations": {name: D}} for the simulated-vs-measured figure; ``impacts``: the CORs the
+    COR figures show (the results document's, re-identified under the final model; default the identification's).
+    Returns {name: PNG path}."""
+    with vector_twins():
+        return _write_figures(track, ident, Path(out_dir), sim, impacts)
+
+
+def _write_figures(track: DicTrack, ident: Identification, out: Path, sim: dict | None, impacts) -> dict[str, Path]:
     files = {name: out / file for name, file in FIGURE_FILES.items()}
     impacts = ident.impacts if impacts is None else [i for i in impacts if i.cor is not None]
     figs: dict[str, Path | None] = {
@@ -266,8 +309,12 @@ def write_figures(track: DicTrack, ident: Identification, out_dir: str | Path, s
 
 
 def _img(path: Path) -> str:
+    """The PNG inlined, and a link to its SVG twin when there is one beside it."""
     data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
-    return f'<img src="data:image/png;base64,{data}" style="max-width:100%">'
+    svg = vector_twin(path)
+    link = (f'<p class="vector"><a href="{html.escape(svg.name)}">vector: SVG</a></p>'
+            if Path(path).suffix.lower() == ".png" and svg.is_file() else "")
+    return f'<img src="data:image/png;base64,{data}" style="max-width:100%">{link}'
 
 
 def clauses(text: str) -> list[str]:
@@ -319,7 +366,8 @@ def discrepancy_html(disc: dict) -> str:
         "recording to within the measurement noise.</p>"
     err = f"<p><b>{e(disc['error'])}</b></p>" if disc.get("error") else ""
     model = disc.get("model")
-    return (f"<h2>Discrepancy analysis (baseline: constant COR, gravity only, pure sine, vertical)</h2>{err}"
+    return (f'<h2 id="discrepancy">Discrepancy analysis (baseline: constant COR, gravity only, pure sine, vertical)'
+            f"</h2>{err}"
             f"<p>D baseline {percent(disc.get('baseline_deviation'))}, final {percent(disc.get('final_deviation'))}"
             f" (final model: {e(effect_label(model)) if model and model != 'baseline' else 'the baseline'}).</p>"
             + (f"<p>Where the baseline disagrees: {e(loc)}</p>" if loc else "") + table)
@@ -376,16 +424,19 @@ def _rows(rows: list[tuple[str, str]]) -> str:
 
 
 def write_html(results: ResultsDocument | dict, figures: dict[str, Path], path: str | Path) -> Path:
-    """One self-contained HTML page: the summary (:mod:`vibro_app.report_summary`), then the details (structure,
-    COR, simulation, discrepancy, DIC quality) and the figures (inlined). ``results``: the document, or a
-    results.json mapping (validated by the codec)."""
+    """One self-contained HTML page: the summary (:mod:`vibro_app.report_summary`), what was lost
+    (:mod:`vibro_app.report_lost`), the methods as run (:mod:`vibro_app.report_methods`), then the details
+    (structure, COR and its uncertainty, simulation, discrepancy, DIC quality), the figures (inlined, each linked
+    to its SVG twin) and how to reproduce the results (:mod:`vibro_app.report_provenance`). ``results``: the
+    document, or a results.json mapping (validated by the codec)."""
     e = html.escape
     results = as_document(results).to_dict()
     titles = {"displacements": "Displacements with fits and impact instants", "cor": "COR per impact",
               "friction": "Friction per flight", "accelerometer_spectrum": "Accelerometer spectrum",
               "histogram_qq": "Histogram and normal Q-Q", "simulated_vs_measured": "Simulated vs measured",
-              "discrepancy": "Discrepancy: residual before/after and where the mismatch was"}
-    figs = "".join(f"<h2>{e(titles.get(k, k))}</h2>{_img(p)}" for k, p in figures.items())
+              "discrepancy": "Discrepancy: residual of D (restarted per flight) before/after, and where the "
+                             "mismatch was"}
+    figs = "".join(f'<h2 id="figure-{e(k)}">{e(titles.get(k, k))}</h2>{_img(p)}' for k, p in figures.items())
     method = (results.get("identification") or {}).get("method")
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>vibro report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}table{{border-collapse:collapse}}
@@ -393,15 +444,21 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left;vertical-align:top}
 #summary table{{font-size:1.1em}}table.sortable thead th{{position:sticky;top:0;background:#fff}}</style></head><body>
 <h1>vibro analysis: {e(str(results.get('recording', '')))}</h1>
 {summary_html(results)}
+{lost_html(results)}
+{methods_html(results)}
 <h2>Structure (Eq. 2)</h2><p>{e(METHOD_WORDS.get(method, ""))}</p>
 <table>{_rows(structure_rows(results.get("structure")))}</table>
 <h2>COR per plate (Table 2)</h2><p>{e(impacts_model_text(results.get("impacts_model")))}</p>
 {table2_html(results.get("impacts") or [])}
+{uncertainty_html(results)}
 {impacts_table_html(results.get("impacts") or [])}
 {contacts_html(results.get("contacts"))}
-<h2>Simulation deviation D (Eq. 18)</h2><table>{_rows(simulation_rows(results.get("simulation")))}</table>
+<h2>Simulation deviation D (Eq. 18, free-running with each impact's measured COR)</h2>
+<table>{_rows(simulation_rows(results.get("simulation")))}</table>
 {discrepancy_html(results.get("discrepancy") or {})}
+{discrepancy_measures_html(results)}
 {dic_quality_html(results.get("dic_quality"))}
 {figs}
+{reproduce_html(results.get("provenance"))}
 </body></html>"""
     return atomic_write_text(path, page)

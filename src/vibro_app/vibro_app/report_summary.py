@@ -73,6 +73,8 @@ def _finding_rows(disc: Mapping[str, Any]) -> list[tuple[str, str, str]]:
     if disc.get("error"):
         return [("finding", "Finding", e(f"the discrepancy analysis failed: {disc['error']}"))]
     findings = disc.get("findings") or []
+    if disc.get("skipped") and not findings:   # not run (no impacts, an inconsistent rig): never "none"
+        return [("finding", "Finding", e(f"not analysed: {disc['skipped']}"))]
     if findings:
         label = "Finding" if len(findings) == 1 else "Findings"
         return [(f"finding.{k}", label if k == 0 else "", e(finding_sentence(f))) for k, f in enumerate(findings)]

@@ -24,14 +24,9 @@ PLATES = ("top", "bottom")
 #: Shapiro-Wilk's range in scipy.stats.shapiro (below 3 undefined, above 5000 the p-value is inexact)
 SHAPIRO_N = (3, 5000)
 
-#: what each impact's sigma contains, one sentence under Table 2 (vibro_fit.impacts, vibro_fit.flight_fit)
-SIGMA_SENTENCE = ("Each impact's sigma is the DIC noise propagated to first order (numerical Jacobian) through the "
-                  "two flight parabola fits around it (their covariance from the fit residuals, Eq. 3, 14) and "
-                  "the local structure sine fit (Eq. 2) to the impact time and the COR (Eq. 15-16); the image "
-                  "scale (mm per pixel) multiplies both relative velocities and cancels in the COR ratio (Eq. 16), "
-                  "so its uncertainty is not in the sigma. Where a COR was re-measured with the local "
-                  "structure velocity (flag: local structure), its sigma also includes how much the value rests "
-                  "on that local model.")
+#: under Table 2: where the page says what each impact's sigma contains (vibro_app.report_methods.uncertainty_html)
+SIGMA_POINTER = ('What each impact\'s sigma contains and what it does not: <a href="#uncertainty">Uncertainty of the '
+                 "COR</a>.")
 
 
 @dataclass(frozen=True)
@@ -118,8 +113,8 @@ def _num(v: float | None, spec: str) -> str:
 
 
 def table2_html(impacts: Iterable[Mapping[str, Any]], confidence: float = 0.95) -> str:
-    """Table 2 per plate (n, mean, std, standard error, interval of the mean, Q-Q r, Shapiro-Wilk p) and the
-    sentence on what each impact's sigma contains; empty without impacts."""
+    """Table 2 per plate (n, mean, std, standard error, interval of the mean, Q-Q r, Shapiro-Wilk p) and a link to
+    what each impact's sigma contains; empty without impacts."""
     stats = plate_statistics(impacts, confidence)
     if not any(s.n or s.n_missing for s in stats.values()):
         return ""
@@ -134,7 +129,7 @@ def table2_html(impacts: Iterable[Mapping[str, Any]], confidence: float = 0.95) 
     return ('<table id="table2"><tr><th>plate</th><th>n</th><th>mean COR</th><th>std (ddof=1)</th>'
             f"<th>std. error of the mean</th><th>{pct} interval of the mean (Student t)</th>"
             "<th>normal Q-Q r</th><th>Shapiro-Wilk p</th></tr>" + "".join(rows) + "</table>"
-            f"<p>{html.escape(SIGMA_SENTENCE)}</p>")
+            f"<p>{SIGMA_POINTER}</p>")
 
 
 def _rel(imp: Mapping[str, Any], key: str) -> float | None:

@@ -1,10 +1,11 @@
 """How a live tracker that falls behind keeps up: which images it tracks, which it reports lost.
 
 No rclpy here. ``dic_tracker`` (live camera), each time it is handed an image, first takes every image already
-waiting in its subscription's queue (raw, unread: only their stamps are read, :func:`cdr_stamp_ns`) into its own
-backlog. It then tracks one image of the backlog and reports the older ones it passed over lost, with
-:data:`SKIPPED` as the reason; the next image tracked is predicted across the gap from the motion history
-(vibro_dic.tracker, step 1: quadratic for the ball, the drive's sine for the structure).
+waiting in its subscription's queue (raw, unread: only their stamps are read,
+:func:`vibro_dic.raw_image.cdr_stamp_ns`) into its own backlog. It then tracks one image of the backlog and reports
+the older ones it passed over lost, with :data:`SKIPPED` as the reason; the next image tracked is predicted across
+the gap from the motion history (vibro_dic.tracker, step 1: quadratic for the ball, the drive's sine for the
+structure).
 
 Which one (:func:`stride_for`, :class:`CatchUpPolicy`): the backlog must be worked off within ``catch_up_s`` (the
 node's ``catch_up_ms``) of the moment the tracker first found more images waiting than a few milliseconds'
@@ -33,20 +34,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
+from .raw_image import cdr_stamp_ns  # noqa: F401  (the stamp of a serialized image: read here, kept there)
+
 #: reason of a DicFrame whose image was received but passed over for a newer one
 SKIPPED = "skipped: the tracker fell behind and jumped to the newest image"
-
-
-def cdr_stamp_ns(raw: bytes) -> int:
-    """The header stamp (ns) of a serialized message whose first field is a std_msgs/Header (sensor_msgs/Image):
-    CDR encapsulation (4 bytes: representation id, options), then int32 sec and uint32 nanosec in its byte
-    order. Reads 12 bytes; the image itself is never deserialized."""
-    if len(raw) < 12:
-        raise ValueError(f"a serialized message of {len(raw)} bytes has no header stamp")
-    order = "little" if raw[1] & 1 else "big"  # 0x0001 CDR_LE, 0x0000 CDR_BE (and their PL_ variants 2/3)
-    sec = int.from_bytes(raw[4:8], order, signed=True)
-    nanosec = int.from_bytes(raw[8:12], order)
-    return sec * 1_000_000_000 + nanosec
 
 
 #: (ms) dic_tracker's default ``catch_up_ms``: the time within which a tracker that fell behind has worked off its

@@ -21,6 +21,13 @@ lag is worked off in ``catch_up_ms``. Images passed over are answered with lost 
 :data:`vibro_dic.catch_up.SKIPPED`; /diagnostics counts them (``skipped_count``, ``catch_up_episodes``,
 ``catch_up_largest``, ``catch_up_last``) and gives the latest stride (``catch_up_stride``, 1 = every image)
 and the tracker's own work per frame (``work_ms_per_frame``).
+
+Images are taken serialized (a raw subscription) and read in place (:mod:`vibro_dic.raw_image`: the stamp, size,
+encoding and step from the CDR bytes, the pixels a view into them, converted into one float32 buffer for the DIC);
+an image that cannot be read (cut short, another encoding, a step or size that does not fit) is answered with a
+lost DicFrame whose status names the field. DicFrames are written as CDR bytes (:mod:`vibro_dic.dic_frame_cdr`) and
+published raw once the readers have matched; the bytes are checked against rclpy's serialization at start, and the
+node publishes messages instead if they differ.
 """
 
 from __future__ import annotations
@@ -33,8 +40,9 @@ import numpy as np
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 
+from vibro_io.camera_calibration import calibration_of_rig
 from vibro_io.dictrack import FrameTrack
 from vibro_io.frames import read_image
 from vibro_io.rig import check_rois_in_image, load_rig
@@ -53,16 +61,17 @@ from vibro_ros.node_support import (
     history_depth_parameter,
     history_qos,
     run_node,
-    seconds_from_stamp,
     sensor_qos,
-    stamp_ns,
     time_origin_parameter,
 )
 from vibro_ros.readiness import ReaderGate
 
 from .ball_method import resolve_ball_method
-from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats, cdr_stamp_ns
+from .catch_up import DEFAULT_CATCH_UP_MS, SKIPPED, CatchUpPolicy, CatchUpStats
+from .dic_frame_cdr import DicFrameEncoder
+from .live_calibration import LiveCalibration
 from .quality import TrackQuality
+from .raw_image import ImageDecodeError, RawImage, cdr_stamp_ns, decode_image
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, check_texture
 from .tracker import METHODS, DicTracker, compile_kernels
 
@@ -70,6 +79,8 @@ from .tracker import METHODS, DicTracker, compile_kernels
 MAX_RUN_S = 86400.0
 #: (s) the longest a live tracker works through its backlog in one callback before its timers get a turn
 WORK_SLICE_S = 0.02
+#: the status (and log line) of a frame slot whose image was received but could not be read (its reason after it)
+UNREADABLE = "image unreadable"
 _DTYPES = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16}
 
 
@@ -176,16 +187,30 @@ class DicTrackerNode(Node):
         self.guard = InputGuard(self)
         self.guard.watch(topics.FRAMES)
         self.pub = self.create_publisher(DicFrame, topics.DIC.name, history_qos(history_depth_parameter(self)))
+        # DicFrames written as CDR bytes and published raw (vibro_dic.dic_frame_cdr), if they read back as rclpy's
+        self._encoders: dict[tuple[int, int], DicFrameEncoder] = {}
+        self._raw_dic = DicFrameEncoder((0, 0), self.time_origin_ns).matches(
+            serialize_message, lambda b: deserialize_message(b, DicFrame),
+            lambda row, status, ref, run_id: dic_message(row, (0, 0), status, ref, run_id, self.time_origin_ns))
+        if not self._raw_dic:
+            self.get_logger().warning("DicFrame CDR bytes written here differ from rclpy's (DicFrame.msg changed?): "
+                                      "publishing messages (more CPU per frame)")
         results_subscription(self, StreamStatus, topics.STATUS.name, self._on_status)
         self.catch_up = CatchUpStats()
         self._skipped: set[int] = set()  # frame indices received and passed over for a newer image (live)
-        self._backlog: list[tuple[int, Image | bytes]] = []  # live: images taken, not yet tracked (oldest first)
+        self._backlog: list[tuple[int, bytes]] = []  # live: serialized images taken, not yet tracked (oldest first)
+        self._pixels: np.ndarray | None = None  # the float32 buffer every image is converted into for the DIC
+        # serialized images (raw): read in place (vibro_dic.raw_image), never deserialized into messages
         self._image_sub = self.create_subscription(
             Image, topics.FRAMES.name, self._on_image, sensor_qos(image_queue_depth) if live else STREAM_QOS,
-            event_callbacks=SubscriptionEventCallbacks(matched=self._on_image_publishers))
+            event_callbacks=SubscriptionEventCallbacks(matched=self._on_image_publishers), raw=True)
         self.create_timer(1.0, self._report)
-        if live:  # a backlog left when a work slice ended and no image came after it (the end of the stream)
-            self.create_timer(WORK_SLICE_S / 4, self._resume_backlog)
+        self.calibration = self._lens_calibration(live)
+        self._resume_timer = None
+        if live:  # a backlog left when a work slice ended and no image came after it (the end of the stream): run
+            # only while one is left (a timer firing every 5 ms cost the idle tracker ~0.02 ms of CPU per frame)
+            self._resume_timer = self.create_timer(WORK_SLICE_S / 4, self._resume_backlog)
+            self._resume_timer.cancel()
         self._held: list[DicFrame] = []  # results kept back until every declared reader of vibro/dic matched
         # readers (the fitter, simulator, discrepancy, recorder, the frame source's acknowledgements) by name;
         # the node exits once they have acknowledged everything (file mode)
@@ -213,8 +238,8 @@ class DicTrackerNode(Node):
 
     def _warm_up(self) -> float:
         """Every per-image path once, on the reference as frames 0-3 (so the prediction path runs too): the image
-        serialized and read back (its stamp from the raw bytes as the catch-up reads it), its pixels, DIC, the
-        DicFrame; then the motion history is forgotten. The first call of each costs a multiple of the next
+        serialized and read in place as a camera's are (its stamp, its pixels into the float32 buffer), DIC, the
+        DicFrame's bytes; then the motion history is forgotten. The first call of each costs a multiple of the next
         (imports, caches, allocations) and must not fall on the camera's first images. Returns its ms."""
         t0 = time.perf_counter()
         ref = self.reference
@@ -223,12 +248,13 @@ class DicTrackerNode(Node):
                     data=ref.tobytes())
         raw = serialize_message(msg)
         cdr_stamp_ns(raw)
-        image = image_array(deserialize_message(raw, Image))
+        image = self._float_pixels(decode_image(raw))
         cam = self.rig.camera
+        mesh = self._mesh_points()
         for k in range(4):
             row = self.tracker.track_image(k, cam.frame_time_s(k), image)
-            dic_message(row, (len(self.tracker.ball.points), len(self.tracker.structure.points)), "", 0,
-                        self.guard.run_id, self.time_origin_ns)
+            dic_message(row, mesh, "", 0, self.guard.run_id, self.time_origin_ns)
+            self._encoder(mesh).encode(row, "", 0, self.guard.run_id)
         for mesh in (self.tracker.ball, self.tracker.structure):
             mesh.reseed()
             for counter in ("n_widened", "n_global", "n_predicted"):
@@ -259,21 +285,63 @@ class DicTrackerNode(Node):
             self._announce_ready()
         self._maybe_finish()
 
-    def _index_of(self, msg: Image) -> int:
-        return self._index_of_ns(stamp_ns(msg.header))
-
     def _index_of_ns(self, stamp: int) -> int:
         cam = self.rig.camera
         return int(round(((stamp - self.time_origin_ns) / 1e9 - cam.t0_s) * cam.fps))
 
-    def _on_image(self, msg: Image) -> None:
-        """An image from the frame topic; live, it joins the backlog with every image already waiting behind it,
+    def _on_image(self, msg: bytes | Image) -> None:
+        """An image from the frame topic, serialized (the subscription is raw; an Image message, as a test may
+        hand over, is serialized first); live, it joins the backlog with every image already waiting behind it,
         which is tracked oldest first within ``catch_up_ms`` (:mod:`vibro_dic.catch_up`)."""
+        raw = msg if isinstance(msg, bytes) else serialize_message(msg)
         if not self.live_camera:
-            self._take(msg)
+            self._take(raw)
             return
-        self._backlog.append((self._index_of(msg), msg))
+        self._queue(raw)
         self._work_backlog()
+
+    def _queue(self, raw: bytes) -> None:
+        """A serialized image into the backlog by its stamp's frame index; one whose stamp cannot be read is
+        reported (it has no frame slot: its slot is answered lost as not received, once a later image comes)."""
+        try:
+            self._backlog.append((self._index_of_ns(cdr_stamp_ns(raw)), raw))
+        except ValueError as exc:
+            self._unreadable_stamp(exc)
+
+    def _unreadable_stamp(self, exc: Exception) -> None:
+        message = f"{UNREADABLE}: {exc}; its frame slot is answered lost once a later image comes"
+        self.health.count("unreadable")
+        self.health.warn(message)
+        self.get_logger().error(message)
+
+    def _lens_calibration(self, live: bool) -> LiveCalibration:
+        """The lens calibration: rig.yaml's, else (live) the camera driver's CameraInfo (vibro_dic.live_calibration),
+        subscribed to beside the image topic unless ``camera_info_topic`` names one."""
+        topic = str(declare(
+            self, "camera_info_topic", "", "live: the sensor_msgs/CameraInfo topic of the camera's calibration, used "
+            "when rig.yaml names no camera.calibration (latched or sensor QoS); empty = camera_info beside the image "
+            "topic (/camera/image_raw -> /camera/camera_info)"))
+        required = bool(declare(
+            self, "camera_info_required", False, "live: answer images as lost until a calibration is known (rig.yaml "
+            "camera.calibration or a CameraInfo); false: track them without undistortion"))
+        if not topic:
+            topic = self._image_sub.topic_name.rsplit("/", 1)[0] + "/camera_info"
+        calibration = LiveCalibration(calibration_of_rig(self.rig), topic if live else None,
+                                      required=live and required, warn=self._warn, values=self.health.values)
+        if live:  # keyword arguments: --help lists the topic under the parameter camera_info_topic
+            results_subscription(node=self, msg_type=CameraInfo, topic=topic, callback=self._on_camera_info,
+                                 profile=history_qos(1))
+        return calibration
+
+    def _warn(self, message: str) -> None:
+        self.get_logger().warning(message)
+        self.health.warn(message)
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        """The camera driver's calibration (:mod:`vibro_dic.live_calibration`), given to the tracker once built."""
+        self.calibration.offer(msg.width, msg.height, msg.k, msg.d, msg.distortion_model)
+        if self.tracker is not None:
+            self.calibration.attach(self.tracker)
 
     def _on_image_publishers(self, info) -> None:
         """A camera (image publisher) matched or left this reader: logged and on /diagnostics
@@ -290,18 +358,18 @@ class DicTrackerNode(Node):
     def _resume_backlog(self) -> None:
         if self._backlog:
             self._work_backlog()
+        if not self._backlog:
+            self._resume_timer.cancel()
 
     def _take_waiting(self) -> None:
         """The images queued in the subscription meanwhile, serialized, into the backlog: only their stamps are
         read."""
+        take = self._image_sub.handle.take_message
         while True:
-            got = self._image_sub.handle.take_message(Image, True)
+            got = take(Image, True)
             if got is None:
                 return
-            try:
-                self._backlog.append((self._index_of_ns(cdr_stamp_ns(got[0])), got[0]))
-            except ValueError:
-                continue
+            self._queue(got[0])
 
     def _work_backlog(self) -> None:
         """Track the backlog, oldest first or thinned (:class:`vibro_dic.catch_up.CatchUpPolicy`; the images passed
@@ -329,42 +397,54 @@ class DicTrackerNode(Node):
                 self.health.values["catch_up_episodes"] = self.catch_up.episodes
                 self.health.values["catch_up_largest"] = self.catch_up.largest
                 self.health.values["catch_up_last"] = f"frames {self.catch_up.last[0]}..{self.catch_up.last[1]}"
-            image = self._backlog[n_skip][1]
+            raw = self._backlog[n_skip][1]
             del self._backlog[:n_skip + 1]
             work_started = time.thread_time()  # this thread's CPU: a frame's own work, not the time others took
-            self._take(image if isinstance(image, Image) else deserialize_message(image, Image))
+            self._take(raw)
             self.catch_up_policy.worked(time.thread_time() - work_started)
-            self.health.values["catch_up_stride"] = self.catch_up_policy.stride
-            work_s = self.catch_up_policy.cost_s
-            if work_s is not None:  # None while every image tracked came after a gap (catch_up_ms 0)
-                self.health.values["work_ms_per_frame"] = round(1e3 * work_s, 3)
             if time.monotonic() - started > WORK_SLICE_S:
+                if self._backlog and self._resume_timer is not None:
+                    self._resume_timer.reset()  # the rest after the timers' turn, even if no image comes
                 return
 
-    def _plausible(self, k: int, msg: Image) -> bool:
-        """False (and the node stops, exit code 2) for a frame whose stamp is not within a day after the
+    def _plausible(self, k: int, stamp: int) -> bool:
+        """False (and the node stops, exit code 2) for a frame whose stamp (ns) is not within a day after the
         time origin: a camera driver stamping with its wall clock while ``time_origin_unix_ns`` is not
         the wall time of its frame 0 (the index would be negative or count billions of missing frames)."""
-        t_s = seconds_from_stamp(msg.header, self.time_origin_ns)
+        t_s = (stamp - self.time_origin_ns) * 1e-9  # vibro_ros.lab_clock.data_time_from_stamp_ns
         if k >= 0 and t_s - self.rig.camera.t0_s <= MAX_RUN_S:
             return True
         if not self.guard.check_publishers():  # a foreign camera explains the stamp: it is named instead
             return False
-        self.guard.fail(f"{topics.FRAMES.name}: image stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} s "
+        sec, nanosec = divmod(stamp, 1_000_000_000)
+        self.guard.fail(f"{topics.FRAMES.name}: image stamp {sec}.{nanosec:09d} s "
                         f"is {t_s:.3f} s from time_origin_unix_ns={self.time_origin_ns} (frame index {k}): set "
                         "time_origin_unix_ns to the wall time (ns) of the camera's frame 0 minus rig.yaml t0_s",
                         topics.FRAMES.name)
         return False
 
+    def _mesh_points(self) -> tuple[int, int]:
+        return (len(self.tracker.ball.points), len(self.tracker.structure.points)) if self.tracker else (0, 0)
+
+    def _encoder(self, mesh: tuple[int, int]) -> DicFrameEncoder:
+        enc = self._encoders.get(mesh)
+        if enc is None:
+            enc = self._encoders[mesh] = DicFrameEncoder(mesh, self.time_origin_ns)
+        return enc
+
     def _publish(self, row: FrameTrack, status: str = "") -> None:
-        mesh = (len(self.tracker.ball.points), len(self.tracker.structure.points)) if self.tracker else (0, 0)
+        mesh = self._mesh_points()
         if self.reference_index is None:  # no reference file: the stream begins at the first frame answered
             self.reference_index = row.frame
-        msg = dic_message(row, mesh, status, self.reference_index, self.guard.run_id, self.time_origin_ns)
         if self._released:
-            self.pub.publish(msg)
+            if self._raw_dic:  # the CDR bytes, written here: no message object, no conversion in rclpy
+                self.pub.publish(self._encoder(mesh).encode(row, status, self.reference_index, self.guard.run_id))
+            else:
+                self.pub.publish(dic_message(row, mesh, status, self.reference_index, self.guard.run_id,
+                                             self.time_origin_ns))
         else:
-            self._held.append(msg)
+            self._held.append(dic_message(row, mesh, status, self.reference_index, self.guard.run_id,
+                                          self.time_origin_ns))
             self.gate.start_clock()
         self.published += 1
         if row.lost:
@@ -372,9 +452,17 @@ class DicTrackerNode(Node):
             self.health.count("lost")
         self.health.count("tracked")
 
-    def _take(self, msg: Image) -> None:
-        k = self._index_of(msg)
-        if not self._plausible(k, msg):
+    def _take(self, raw: bytes) -> None:
+        """One serialized image: its frame slot from the stamp, the slots before it answered (lost: never received
+        or passed over), then tracked, or answered lost with the reason it cannot be (unreadable, no calibration
+        yet)."""
+        try:
+            stamp = cdr_stamp_ns(raw)
+        except ValueError as exc:
+            self._unreadable_stamp(exc)
+            return
+        k = self._index_of_ns(stamp)
+        if not self._plausible(k, stamp):
             return
         if not self.guard.accept(topics.FRAMES.name, index=k, what="frame"):
             return
@@ -382,21 +470,20 @@ class DicTrackerNode(Node):
         self._last_image_at = time.monotonic()
         t = self.rig.camera.frame_time_s(k)
         try:
-            image = image_array(msg)
+            image = decode_image(raw)
             if not self._started:
                 if k > self.rig.camera.fps * LEADING_SLOTS_S and self.live_camera:
-                    hint = live_origin_hint(k, stamp_ns(msg.header), self.rig.camera.t0_s)
+                    hint = live_origin_hint(k, stamp, self.rig.camera.t0_s)
                     self.get_logger().warning(hint)
                     self.health.warn(hint)
-                self._start_tracker(k, image)
+                self._start_tracker(k, image.native())
+            pixels = self._float_pixels(image)
+            error = ""
         except RecordingError as exc:
-            self.health.error(str(exc))
-            self.get_logger().error(f"frame {k}: {exc}")
-            self._publish(FrameTrack(frame=k, t_s=t, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
-                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
-                                     str(exc))
-            self.next_index = k + 1
-            return
+            if not self._started:  # no tracker yet: the stream begins at a later image
+                self._refuse(k, t, exc)
+                return
+            error = str(exc)
         why = ("no image received (dropped or unreadable upstream)" if self.received > 1 else
                "before the first image received (the camera started before the tracker, or its first images "
                "were dropped)")
@@ -406,7 +493,18 @@ class DicTrackerNode(Node):
                                      structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
                           SKIPPED if gap in self._skipped else why)
         self._skipped.clear()
-        row = self.tracker.track_image(k, t, image)
+        if error:
+            self._refuse(k, t, error)
+            return
+        if self.live_camera:
+            self.calibration.tracked_without()
+        if self.calibration.waiting:
+            self._publish(FrameTrack(frame=k, t_s=t, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
+                                     structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True),
+                          self.calibration.waiting_status)
+            self.next_index = k + 1
+            return
+        row = self.tracker.track_image(k, t, pixels)
         self.quality.add(k, self.tracker.last_results)
         reasons = "; ".join(r.reason for r in self.tracker.last_results.values() if r.lost and r.reason)
         self._publish(row, reasons)
@@ -414,9 +512,32 @@ class DicTrackerNode(Node):
         self.next_index = k + 1
         self._maybe_finish()
 
+    def _refuse(self, k: int, t: float, exc: Exception | str) -> None:
+        """Frame ``k``'s image received but not usable: a lost DicFrame with the reason, logged and on
+        /diagnostics."""
+        self.health.error(str(exc))
+        self.get_logger().error(f"frame {k}: {exc}")
+        self._publish(FrameTrack(frame=k, t_s=t, ball_mm=math.nan, structure_mm=math.nan, ball_valid=0,
+                                 structure_valid=0, ball_zncc=math.nan, structure_zncc=math.nan, lost=True), str(exc))
+        self.next_index = k + 1
+
+    def _float_pixels(self, image: RawImage) -> np.ndarray:
+        """The pixels of ``image`` in the tracker's float32 buffer (one for the run: the DIC reads the image only
+        while tracking it); ImageDecodeError when its size or pixel type is not the reference's."""
+        buf = self._pixels
+        if (image.height, image.width) != buf.shape:
+            raise ImageDecodeError(f"image height/width: {image.width}x{image.height} differs from the "
+                                   f"reference's {buf.shape[1]}x{buf.shape[0]}")
+        if image.dtype.itemsize != self._pixel_bytes:
+            raise ImageDecodeError(f"image encoding {image.encoding!r}: {8 * image.dtype.itemsize}-bit pixels, the "
+                                   f"reference's are {8 * self._pixel_bytes}-bit")
+        np.copyto(buf, image.pixels())
+        return buf
+
     def _start_tracker(self, k: int, image: np.ndarray) -> None:
         """Build the DicTracker on the reference file (checked against this first image) or on ``image``
         (a tracker built ahead, live, is only checked)."""
+        image = np.array(image)  # its own copy: the view into the message's bytes is read-only and short-lived
         if self.reference is not None:
             ref = self.reference
             if ref.shape != image.shape or ref.dtype != image.dtype:
@@ -457,6 +578,9 @@ class DicTrackerNode(Node):
             self.get_logger().warning(f"texture: {w}")
             self.health.warn(f"texture: {w}")
         tracker.use_texture(texture)
+        self.calibration.attach(tracker)  # the camera driver's, when rig.yaml names none
+        self._pixels = np.empty(ref.shape, dtype=np.float32)
+        self._pixel_bytes = ref.dtype.itemsize
         self.quality = TrackQuality(texture)
         self.quality.ball_method = choice
         self.tracker = tracker
@@ -517,6 +641,11 @@ class DicTrackerNode(Node):
     def _report(self) -> None:
         self._maybe_finish()
         self._progress()
+        if self.live_camera:  # the catch-up's state, once a second (not per frame: that cost CPU per frame)
+            self.health.values["catch_up_stride"] = self.catch_up_policy.stride
+            work_s = self.catch_up_policy.cost_s
+            if work_s is not None:  # None while every image tracked came after a gap (catch_up_ms 0)
+                self.health.values["work_ms_per_frame"] = round(1e3 * work_s, 3)
         self.health.values["frames_lost"] = self.lost
         self.status.publish(self.published, self.lost, self.finished and self._released)
 

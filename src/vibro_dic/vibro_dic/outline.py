@@ -430,6 +430,12 @@ def sector_count(radius_px: float) -> int:
     return int(np.clip(round(2 * math.pi * radius_px / SECTOR_ARC_PX), MIN_SECTORS, MAX_SECTORS))
 
 
+def edge_points(fit: OutlineFit) -> np.ndarray:
+    """(K, 2) px: the edge points P_k = c + e_k u_k of the sectors the circle fit kept."""
+    sec = fit.sectors
+    return (sec.centre[None, :] + sec.edge_px[:, None] * sec.direction)[fit.circle.kept]
+
+
 def band_width(blur_px: float) -> float:
     """Half-width (px) of the edge band about the radius for an edge of sigma ``blur_px``."""
     return float(np.clip(BAND_SIGMAS * blur_px + BAND_EXTRA_PX, MIN_BAND_PX, MAX_BAND_PX))
@@ -486,6 +492,7 @@ class OutlineResult:
     sigma_px: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # (2,) of u, from the residuals
     radius_px: float = math.nan
     radius_sigma_px: float = math.nan
+    fit: OutlineFit | None = None  # the outline fitted (its edge points: a lens calibration undistorts them)
 
 
 class OutlineTracker:
@@ -655,7 +662,7 @@ class OutlineTracker:
                             reason="",
                             point_u_px=np.broadcast_to(u, (self.n_sectors, 2)).copy(), point_valid=fit.circle.kept,
                             point_zncc=zn, sigma_px=sig, radius_px=fit.circle.radius_px,
-                            radius_sigma_px=float(fit.circle.sigma_px[2]))
+                            radius_sigma_px=float(fit.circle.sigma_px[2]), fit=fit)
         self.history.append((k, u.copy()))
         return out
 

@@ -54,6 +54,13 @@ Pipeline for each mesh (ball, structure) and each frame:
    fewer than ``min_valid_fraction`` of the points kept. A lost mesh reports NaN
    displacement and 0 valid points; it is never extrapolated. The frame is flagged lost
    if either mesh is lost or the image is missing (the other mesh keeps its value).
+8. **Lens distortion** (rig.yaml ``camera.calibration``, a ROS camera_info; :meth:`DicTracker.use_calibration`):
+   after steps 1-7, which work in the camera's own pixels, each kept subset's centre now and in the reference is
+   undistorted (:func:`vibro_io.camera_calibration.undistort_px`: pixels of the same focal length) and the mesh's
+   displacement is corrected by the mean of (undistorted translation - measured translation) over its kept
+   points; an outline's circle is refitted through its undistorted edge points. One vectorised OpenCV call per
+   frame on the subset centres (edge points); the compiled kernels are untouched. Without a calibration nothing
+   of this runs.
 
 Output conventions (:class:`vibro_io.dictrack.FrameTrack`): displacement since frame 0 in
 mm, POSITIVE UP; image rows grow downward, so ``up_mm = -u_y_px * mm_per_px``.
@@ -70,6 +77,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from vibro_io.camera_calibration import CameraCalibration, calibration_of_rig, undistort_points
 from vibro_io.dictrack import FrameTrack
 from vibro_io.frames import Frame
 from vibro_io.rig import DicConfig, Roi, check_rois_in_image
@@ -80,7 +88,7 @@ from .ball_method import BallMethodChoice, resolve_ball_method
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import CUBIC_IN_T, KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
-from .outline import OutlineTracker
+from .outline import OutlineResult, OutlineTracker, edge_points, fit_circle
 from .quality import TrackQuality
 from .rotation import MIN_ARM_SPREAD_PX2, rotation_lever_arms
 from .search import SearchResult, half_resolution, whole_image_search, zncc_search
@@ -433,6 +441,14 @@ class MeshTracker:
                           point_u_px=u, point_valid=valid, point_zncc=zncc, rot_rad=theta, rot_std_rad=theta_std)
 
 
+def _circle_centre(points: np.ndarray, radius_px: float) -> np.ndarray | None:
+    """(2,) px: the centre of the circle through ``points`` (K, 2) (the outline's robust geometric fit, equal
+    weights), from their mean and ``radius_px``; None when it cannot be fitted."""
+    n = len(points)
+    fit = fit_circle(points, np.ones(n), np.ones(n, dtype=bool), points.mean(axis=0), radius_px)
+    return None if fit is None else fit.centre
+
+
 def compile_kernels() -> float:
     """Compile the tracker's numba kernels (:mod:`vibro_dic.kernels`) for the types it passes, or load them from
     numba's cache beside the module: a mesh on a synthetic speckle tracked through every per-frame path (search,
@@ -523,6 +539,8 @@ class DicTracker:
                                      dic_config.mesh_step_px, tracking=tracking,
                                      drive_rad_per_frame=None if drive is None else 2.0 * math.pi * drive)
         self.last_results: dict[str, MeshResult] = {}
+        self.calibration: CameraCalibration | None = None
+        self._reference_undistorted: dict[str, np.ndarray] = {}
 
     @classmethod
     def for_rig(cls, reference_image: np.ndarray, rig, **kwargs) -> "DicTracker":
@@ -532,8 +550,52 @@ class DicTracker:
         (:func:`vibro_dic.ball_method.choose_ball_method`)."""
         cycles = rig.excitation.frequency_hz / rig.camera.fps
         dic = resolve_ball_method(reference_image, rig.dic).dic
-        return cls(reference_image, dic, rig.camera.mm_per_px,
-                   structure_drive_cycles_per_frame=cycles if cycles < 0.5 else None, **kwargs)
+        tracker = cls(reference_image, dic, rig.camera.mm_per_px,
+                      structure_drive_cycles_per_frame=cycles if cycles < 0.5 else None, **kwargs)
+        shape = np.asarray(reference_image).shape
+        tracker.use_calibration(calibration_of_rig(rig, (shape[1], shape[0])))  # rig.yaml camera.calibration
+        return tracker
+
+    def use_calibration(self, calibration: CameraCalibration | None) -> None:
+        """Undistort the tracked positions with ``calibration`` (None: no more; module doc, step 8). Raises
+        :class:`vibro_io.camera_calibration.CameraInfoError` when it was made at another image size."""
+        self._reference_undistorted = {}
+        self.calibration = calibration
+        if calibration is None:
+            return
+        calibration.check_image_size(self.shape[1], self.shape[0], "the reference image's")
+        for mesh in (self.ball, self.structure):
+            if isinstance(mesh, OutlineTracker):  # the centre of the undistorted outline
+                ref = _circle_centre(undistort_points(calibration, edge_points(mesh.reference_fit)), mesh.radius0)
+                self._reference_undistorted[mesh.name] = mesh.centre0 if ref is None else ref
+            else:
+                self._reference_undistorted[mesh.name] = undistort_points(calibration, mesh.points)
+
+    def _undistort(self, results: tuple[MeshResult, MeshResult]) -> None:
+        """The (ball, structure) results' ``u_px`` replaced by their displacement in the undistorted image (module
+        doc, step 8). A mesh's: corrected by the mean over its kept subsets of (undistorted centre now -
+        undistorted centre in the reference - measured displacement); the rotation's share stays as measured. An
+        outline's: the circle through its undistorted edge points, less the reference's (a lens turns the ball's
+        circle into an oval whose fitted centre is not the distorted centre: a barrel lens moves it by
+        3 k1 y R^2 / f^2 at y from the principal point). One vectorised call for every point of both bodies."""
+        bodies = [(r, mesh) for r, mesh in zip(results, (self.ball, self.structure)) if not r.lost]
+        if not bodies:
+            return
+        chunks = [edge_points(r.fit) if isinstance(r, OutlineResult) else mesh.points[r.point_valid]
+                  + r.point_u_px[r.point_valid] for r, mesh in bodies]
+        now = undistort_points(self.calibration, np.concatenate(chunks))
+        start = 0
+        for (r, mesh), chunk in zip(bodies, chunks):
+            points = now[start:start + len(chunk)]
+            start += len(chunk)
+            ref = self._reference_undistorted[mesh.name]
+            if isinstance(r, OutlineResult):
+                centre = _circle_centre(points, r.radius_px)
+                if centre is not None:
+                    r.u_px = centre - ref
+            else:
+                u = r.point_u_px[r.point_valid]
+                r.u_px = r.u_px + (points - ref[r.point_valid] - u).mean(axis=0)
 
     def use_texture(self, texture: TextureReport) -> None:
         """Leave out the subsets the texture check found unusable (:mod:`vibro_dic.texture`)."""
@@ -565,6 +627,8 @@ class DicTracker:
         img = image.astype(np.float32, copy=False)
         b = self.ball.track(img, index)
         s = self.structure.track(img, index)
+        if self.calibration is not None:  # after the tracking: its prediction stays in the camera's pixels
+            self._undistort((b, s))
         self.last_results = {"ball": b, "structure": s}
         for r in (b, s):
             if r.lost:

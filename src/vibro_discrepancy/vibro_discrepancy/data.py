@@ -80,7 +80,9 @@ class Measured:
     mass_kg: float
     free_play_m: float
     scale_rel_std: float = 0.0  # rig.yaml camera.mm_per_px_rel_std (0: not given)
-    g_mps2: float = G_MPS2
+    calibrated: bool = False    # rig.yaml names a camera calibration (camera.calibration): positions undistorted
+    g_mps2: float = G_MPS2      # gravity along the motion axis as declared, g cos(rig.yaml setup.axis_tilt_deg)
+    axis_tilt_deg: float = 0.0  # rig.yaml setup.axis_tilt_deg: the axis' declared tilt from vertical (deg)
     notes: list[str] = field(default_factory=list)
     drive: Mapping[str, Any] | None = None   # results.json ``drive`` (the identification's windowed drive)
 
@@ -96,6 +98,13 @@ class Measured:
     @property
     def t_last_s(self) -> float:
         return float(self.t_s[-1])
+
+
+def noise_std(impact: Impact) -> float:
+    """The noise share of an identified impact's COR std: its model error (``cor_std_model``,
+    :mod:`vibro_model.model_error`) taken out, since the mismatch the model error is made of is what the analysis
+    looks for (0 when unknown)."""
+    return impact.cor_std_noise or 0.0
 
 
 def speed_mps(impact: Impact) -> float:
@@ -198,6 +207,8 @@ def measured_from_model(structure: StructureMotion | None, flights: Sequence[Fli
     return Measured(structure=sine, flights=samples, impacts=usable, t_s=t, ball_m=ball, structure_m=struct,
                     mass_kg=float(rig.ball.mass_kg), free_play_m=mm_to_m(float(rig.free_play_mm)), notes=notes,
                     scale_rel_std=float(rig.camera.mm_per_px_rel_std or 0.0),
+                    calibrated=getattr(rig.camera, "calibration", None) is not None, g_mps2=float(rig.g_axis_mps2),
+                    axis_tilt_deg=float(rig.setup.axis_tilt_deg),
                     drive=_drive_section(drive))
 
 

@@ -49,13 +49,14 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from vibro_discrepancy.data import Measured, difference_sigma, measurement_of
+from vibro_discrepancy.data import Measured, difference_sigma, measurement_of, noise_std
 from vibro_discrepancy.fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure_harmonics
 from vibro_discrepancy.instrument_scale import scale_from_flights
-from vibro_discrepancy.library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm
+from vibro_discrepancy.library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm, vertical_gravity_mps2
 from vibro_discrepancy.locate import cor_law_where, flight_term_where, locate, structure_words
 from vibro_discrepancy.model import FittedModel, fit_model
 from vibro_discrepancy.onestep import OneStep, one_step
+from vibro_discrepancy.optics import lens_check, lens_findings
 from vibro_discrepancy.runs import FullRun, full_run, restarted_run
 from vibro_discrepancy.select import UNEXPLAINED_RATIO, StageResult, StagewiseSelector, law_variance_share
 from vibro_discrepancy.shape import ShapeCheck, check_flight_shape
@@ -107,11 +108,12 @@ class NoiseFloors:
 
 def noise_floors(meas: Measured) -> NoiseFloors:
     """Ball: 3rd differences within the flights (5th over the whole track if that fails); structure: 5th
-    differences of its track; COR: the median of the identified COR stds (0 without any)."""
+    differences of its track; COR: the median of the identified COR stds' noise share (:func:`noise_std`; 0
+    without any)."""
     ball = difference_sigma([(f.t_s, f.y_m) for f in meas.flights], 3)
     if not math.isfinite(ball) or ball <= 0:
         ball = difference_sigma([(meas.t_s, meas.ball_m)], 5)
-    stds = [i.cor_std for i in meas.impacts if i.cor_std > 0]
+    stds = [noise for i in meas.impacts if (noise := noise_std(i)) > 0]
     return NoiseFloors(ball, difference_sigma([(meas.t_s, meas.structure_m)], 5),
                        float(np.median(stds)) if stds else 0.0)
 
@@ -265,11 +267,15 @@ def explain_flights(chain: FindingChain, sel: Selection, terms: tuple[FlightTerm
         model = fit_model(meas, structure=chain.current.model.structure, flights=fset)
         idx = f_fit.names.index(term.effect)
         params, stds = term.contract_parameters(float(f_fit.coefs[idx]), float(math.sqrt(f_fit.cov[idx, idx])),
-                                                meas.mass_kg, meas.g_mps2)
+                                                meas.mass_kg, meas.g_mps2, meas.axis_tilt_deg)
         where = flight_term_where(meas, chain.current.steps, model, term, floors.cor)
         extras = scale_could_explain(term, float(f_fit.coefs[idx]), meas)
         if extras:
             where += "; " + extras["scale_note"]
+        tilt = declared_tilt_words(term, params, meas)
+        if tilt:
+            extras = {**extras, **tilt}
+            where += "; " + tilt["tilt_note"]
         chain = chain.explained(Explanation(effect=term.effect, model=model, parameters=params, stds=stds,
                                             where=where, extras=extras))
     return chain
@@ -286,8 +292,8 @@ def scale_could_explain(term: FlightTerm, coef_mps2: float, meas: Measured) -> d
     scale error would give it as well (a scale off by x scales every flight's acceleration by 1 + x, which is
     what a tilt does to gravity: the flights cannot tell them apart); the tilt is then not a claim. Empty
     otherwise (another term, or no scale uncertainty given)."""
-    if term.effect != "gravity_tilt" or meas.scale_rel_std <= 0:
-        return {}
+    if term.effect != "gravity_tilt" or meas.scale_rel_std <= 0 or abs(meas.g_mps2) < 1e-9:
+        return {}   # a scale error scales the gravity along the axis: with none (horizontal) it makes no tilt
     rel = coef_mps2 / meas.g_mps2
     if abs(rel) > SCALE_SIGMAS * meas.scale_rel_std:
         return {}
@@ -295,6 +301,21 @@ def scale_could_explain(term: FlightTerm, coef_mps2: float, meas: Measured) -> d
             "scale_note": (f"or the scale camera.mm_per_px off by {-100 * rel:+.2f} %, within {SCALE_SIGMAS:g} of its "
                            f"sigmas ({100 * meas.scale_rel_std:.2f} %, rig.yaml mm_per_px_rel_std): the flights "
                            "cannot tell a tilt from a scale error, so no tilt is claimed")}
+
+
+def declared_tilt_words(term: FlightTerm, params: Mapping[str, float], meas: Measured) -> dict[str, Any]:
+    """For ``gravity_tilt`` on a rig declared tilted (rig.yaml ``setup.axis_tilt_deg`` > 0, i.e. ``meas.g_mps2`` <
+    g): the finding's ``tilt_deg`` is the axis' TOTAL tilt from vertical; this says the declared part and the
+    undeclared rest ({"declared_axis_tilt_deg", "undeclared_tilt_deg", "tilt_note"}). Empty otherwise."""
+    declared = float(meas.axis_tilt_deg)
+    if term.effect != "gravity_tilt" or declared <= 0.0:
+        return {}
+    total = float(params["tilt_deg"])
+    g = vertical_gravity_mps2(meas.g_mps2, declared)
+    return {"declared_axis_tilt_deg": declared, "undeclared_tilt_deg": total - declared,
+            "tilt_note": (f"tilt_deg is the axis' total tilt from vertical, {total:.2f} deg: {total - declared:+.2f} "
+                          f"deg beyond the declared setup.axis_tilt_deg {declared:g} deg (gravity along the axis "
+                          f"{g * math.cos(math.radians(total)):.3f} m/s^2, not the declared {meas.g_mps2:.3f})")}
 
 
 def explain_cor(chain: FindingChain, sel: Selection, library: CandidateLibrary) -> FindingChain:
@@ -551,7 +572,7 @@ def _position_extras(meas: Measured, floors: NoiseFloors, fit: PositionFit, test
     chi = max(catalogue.sse - fit.sse, 0.0) / floors.ball_m ** 2
     term_params = []
     for t, c, sd in zip(fit.terms, fit.flights.coefs, fit.term_stds):
-        tp, ts = t.contract_parameters(float(c), float(sd), meas.mass_kg, fit.flights.g_mps2)
+        tp, ts = t.contract_parameters(float(c), float(sd), meas.mass_kg, fit.flights.g_mps2, meas.axis_tilt_deg)
         term_params.append({"effect": t.effect, "parameters": tp, "parameters_std": ts})
     return {"term_tests": [t.to_dict() for t in tests], "form_check": form, "term_parameters": term_params,
             "fit": {"sse_mm2": fit.sse * 1e6, "dof": fit.dof, "noise_floor_mm": floors.ball_m * 1e3,
@@ -762,6 +783,8 @@ class DiscrepancyRun:
     baseline_steps: OneStep | None = None
     final_steps: OneStep | None = None
     chain: list[tuple[str, FittedModel, FullRun]] = field(default_factory=list)
+    baseline_restarted: FullRun | None = None   # the D_r runs (the block's baseline/final_deviation)
+    final_restarted: FullRun | None = None
 
     @cached_property
     def document(self) -> dict:
@@ -777,7 +800,8 @@ def discrepancy_run(chain: FindingChain, findings: list[DiscrepancyFinding], det
                          json_value(details))
     return DiscrepancyRun(result=result, measured=chain.meas, baseline=base.model, final=cur.model,
                           baseline_run=base.run, final_run=cur.run, baseline_steps=base.steps, final_steps=cur.steps,
-                          chain=[(s.label, s.model, s.run) for s in chain.steps])
+                          chain=[(s.label, s.model, s.run) for s in chain.steps], baseline_restarted=base.restarted,
+                          final_restarted=cur.restarted)
 
 
 @dataclass(frozen=True)
@@ -813,7 +837,11 @@ class DiscrepancyEstimator:
         details = run_details(chain, location, selection.stages(), not_absorbed(left.patterns, shape_steps))
         if scale is not None:
             details["instrument_scale"] = scale.to_dict()
-        return discrepancy_run(chain, order_findings(chain.findings, leftover, shape, cor_left), details)
+        lens = lens_check(meas)
+        if lens is not None:
+            details["lens_check"] = lens.to_dict()
+        findings = lens_findings(order_findings(chain.findings, leftover, shape, cor_left), lens)
+        return discrepancy_run(chain, findings, details)
 
 
 # ---------------------------------------------------------------- entry points

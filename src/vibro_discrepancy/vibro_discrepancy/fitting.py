@@ -9,7 +9,10 @@ impact) and all flights share gravity g and the coefficients theta of the chosen
 which is linear in (y0, v0, theta) for a given velocity history v_k(u). The velocity history starts
 from the identified parabola and is updated from the fitted model (fixed point, 3 passes: the
 neglected change of v from the extra force is second order). theta >= 0 (non-negative least squares
-after projecting out each flight's [1, tau]): a force that speeds the ball up is not this physics.
+after projecting out each flight's [1, tau]): a force that speeds the ball up is not this physics. The one
+exception is the tilt's change of gravity, bounded below by g_axis - g (:meth:`FlightTerm.lower_bound`): on a
+rig declared tilted (g_axis = g cos theta < g) the true tilt may be smaller than declared, and on a horizontal
+one the constant is a force along the axis either way (the bound is shifted out: NNLS on theta - bound).
 
 Structure: B + sum_k (a_k sin k w t + b_k cos k w t) over the orders used, linear for a given
 frequency, which is refined by a 1-D search (variable projection).
@@ -28,7 +31,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar, nnls
 
-from vibro_discrepancy.data import FlightSamples, Measured
+from vibro_discrepancy.data import FlightSamples, Measured, noise_std
 from vibro_discrepancy.library import FlightTerm, ImpactTerm
 from vibro_model.constants import G_MPS2
 from vibro_model.kinematics import StructureKinematics
@@ -163,8 +166,9 @@ def fit_flights(meas: Measured, terms: Sequence[FlightTerm] = (), passes: int = 
         elif p:
             scale = np.sqrt(np.sum(X ** 2, axis=0))
             scale[scale == 0] = 1.0
-            sol, _ = nnls(X / scale, R)
-            coefs = sol / scale
+            lower = np.array([t.lower_bound(g, meas.axis_tilt_deg) for t in terms])   # 0 but a tilted axis' tilt
+            sol, _ = nnls(X / scale, R - X @ lower)
+            coefs = sol / scale + lower
         # local states and the updated velocity history
         y0 = np.empty(len(flights))
         v0 = np.empty(len(flights))
@@ -319,7 +323,7 @@ class ImpactSet:
     v_after: np.ndarray
     v_structure: np.ndarray
     cor: np.ndarray
-    cor_std: np.ndarray
+    cor_std: np.ndarray        # the identified COR stds' noise share (data.noise_std: model error out)
 
     @property
     def speed(self) -> np.ndarray:
@@ -365,7 +369,7 @@ def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: Struct
         if abs(den) < 1e-6:
             continue
         e = -(va - vs) / den
-        rows.append((imp.index, t, imp.plate, vb, va, vs, e, imp.cor_std))
+        rows.append((imp.index, t, imp.plate, vb, va, vs, e, noise_std(imp)))
     if not rows:
         z = np.zeros(0)
         return ImpactSet(index=z.astype(int), t_s=z, plate=np.array([], dtype=object), v_before=z, v_after=z,

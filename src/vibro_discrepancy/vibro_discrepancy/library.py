@@ -5,9 +5,12 @@ Each term states its parameters (SI, contract names), its signature (how it show
 what it modifies: the flight force law, the effective gravity, the COR law or the structure motion.
 
 Flight terms add an acceleration ``coef * basis(v)`` (m/s^2, v = ball velocity in the lab frame, m/s,
-positive up) to the ball's free flight y'' = -g + ...; the coefficient is in the term's own SI unit
-(force terms: N, N s/m, N s^2/m^2, divided by the ball mass in ``basis``; tilt: the upward change of
-acceleration g (1 - cos tilt) in m/s^2). Impact terms are linear COR laws e = X(plate, speed) @ coefs.
+positive up) to the ball's free flight y'' = -g_axis + ...; g_axis = g cos(theta) is the gravity along the
+axis as declared (rig.yaml ``setup.axis_tilt_deg`` theta, 0 when vertical). The coefficient is in the term's own
+SI unit (force terms: N, N s/m, N s^2/m^2, divided by the ball mass in ``basis``; tilt: the upward change of
+acceleration c = g (cos theta - cos theta_total) in m/s^2, an UNDECLARED tilt beyond the declared one; its
+contract parameter ``tilt_deg`` is the total tilt from vertical, theta_total = acos(cos theta - c / g), g the
+nominal 9.81). Impact terms are linear COR laws e = X(plate, speed) @ coefs.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vibro_model.constants import G_MPS2
 from vibro_sim.forces import Coulomb, ForceLaw, NoForce, Quadratic, Viscous
 from vibro_sim.restitution import PLATES, Constant, PerPlate, RestitutionLaw, VelocityDependent
 
@@ -68,8 +72,10 @@ class FlightTerm(Term):
         """Acceleration (m/s^2) per unit coefficient at ball velocity ``v_mps``."""
         raise NotImplementedError
 
-    def contract_parameters(self, coef: float, std: float, mass_kg: float, g_mps2: float) -> tuple[dict, dict]:
-        """(parameters, their 1-sigma std) in contract names."""
+    def contract_parameters(self, coef: float, std: float, mass_kg: float, g_mps2: float,
+                            axis_tilt_deg: float = 0.0) -> tuple[dict, dict]:
+        """(parameters, their 1-sigma std) in contract names (``g_mps2``: the gravity along the axis the flights
+        were fitted with; ``axis_tilt_deg``: the axis' declared tilt, rig.yaml setup.axis_tilt_deg)."""
         name = self.parameters[0]
         return {name: float(coef)}, {name: float(std)}
 
@@ -78,10 +84,17 @@ class FlightTerm(Term):
         any speed; the drags grow with it): ``mass_kg`` |coef basis(speed)|."""
         return float(mass_kg * abs(coef * self.basis(np.array([abs(speed_mps)]), mass_kg)[0]))
 
-    def negligible(self, coef: float, speed_mps: float, mass_kg: float, g_mps2: float) -> bool:
+    def negligible(self, coef: float, speed_mps: float, mass_kg: float, g_mps2: float = G_MPS2) -> bool:
         """True when the term's force at the fastest measured speed ``speed_mps`` is below the physical floor
-        :data:`FORCE_FLOOR_OF_WEIGHT` m g: not a finding, however significant."""
+        :data:`FORCE_FLOOR_OF_WEIGHT` m g (``g_mps2``: g, the ball's weight, whatever the axis' orientation): not
+        a finding, however significant."""
         return self.peak_force_n(coef, speed_mps, mass_kg) < FORCE_FLOOR_OF_WEIGHT * mass_kg * g_mps2
+
+    def lower_bound(self, g_axis_mps2: float, axis_tilt_deg: float = 0.0) -> float:
+        """The least coefficient this physics can have (term units) when the flights are fitted with gravity
+        ``g_axis_mps2`` along an axis declared ``axis_tilt_deg`` from vertical: 0 (a force that speeds the ball up
+        is not this physics; a tilt: see :class:`GravityTilt`)."""
+        return 0.0
 
 
 class CoulombFriction(FlightTerm):
@@ -125,19 +138,48 @@ class GravityTilt(FlightTerm):
     modifies = "effective gravity"
     parameters = ("tilt_deg",)
     unit = "m/s^2"
-    signature = ("every flight accelerates downwards by less than g by the same amount, whatever its direction "
-                 "or speed (effective gravity g cos(tilt))")
+    signature = ("every flight accelerates along the axis by the same amount more or less than the declared "
+                 "gravity g cos(setup.axis_tilt_deg), whatever its direction or speed (an undeclared tilt: "
+                 "effective gravity g cos(tilt))")
 
     def basis(self, v_mps, mass_kg):
         return np.ones_like(np.asarray(v_mps, dtype=float))
 
-    def contract_parameters(self, coef, std, mass_kg, g_mps2):
-        x = min(max(1.0 - coef / g_mps2, -1.0), 1.0)
-        tilt = math.degrees(math.acos(x))
-        # d tilt / d coef = 1 / (g sin(tilt)), in degrees
+    def lower_bound(self, g_axis_mps2: float, axis_tilt_deg: float = 0.0) -> float:
+        """A tilt cannot make gravity along the axis exceed g: c >= g_axis - g (0 on an axis declared vertical; on
+        one declared tilted the true tilt may be smaller than declared, c < 0; on a horizontal one the constant
+        is a force along the axis either way, the axis tilted short of or beyond horizontal). g here is the one
+        the flights' gravity was scaled with (:func:`vertical_gravity_mps2`)."""
+        return min(float(g_axis_mps2) - vertical_gravity_mps2(g_axis_mps2, axis_tilt_deg), 0.0)
+
+    def contract_parameters(self, coef, std, mass_kg, g_mps2, axis_tilt_deg=0.0):
+        """``tilt_deg``: the axis' TOTAL tilt from vertical, theta_total = acos(cos theta - c / g) with theta the
+        declared tilt (rig.yaml setup.axis_tilt_deg), c the fitted coefficient and g the nominal 9.81
+        (:func:`total_tilt_deg`); its std d theta / d c = 1 / (g sin theta_total) (deg)."""
+        tilt = total_tilt_deg(coef, g_mps2, axis_tilt_deg)
         s = math.sin(math.radians(tilt))
-        std_deg = math.degrees(std / (g_mps2 * s)) if s > 1e-9 else float("inf")
+        g = vertical_gravity_mps2(g_mps2, axis_tilt_deg)
+        std_deg = math.degrees(std / (g * s)) if s > 1e-9 else float("inf")
         return {"tilt_deg": tilt}, {"tilt_deg": std_deg}
+
+
+def vertical_gravity_mps2(g_axis_mps2: float, axis_tilt_deg: float = 0.0) -> float:
+    """The full gravity g that the gravity ``g_axis_mps2`` along an axis declared ``axis_tilt_deg`` from vertical is
+    the axial part of: g_axis / cos(theta); the nominal :data:`~vibro_model.constants.G_MPS2` on an axis within 3
+    deg of horizontal. It is g itself, unless the image scale's uncertainty scaled the flights' gravity
+    (:mod:`.instrument_scale`): then g by the same factor."""
+    c = math.cos(math.radians(float(axis_tilt_deg)))
+    return float(g_axis_mps2) / c if c > 0.05 else G_MPS2
+
+
+def total_tilt_deg(coef_mps2: float, g_axis_mps2: float, axis_tilt_deg: float = 0.0) -> float:
+    """The axis' total tilt from vertical (deg, 0..180) when the flights fall at g_axis - c along it:
+    theta_total = acos((g_axis - c) / g) = acos(cos theta - c / g), ``g_axis_mps2`` = g cos(theta) the gravity
+    along the axis declared ``axis_tilt_deg`` = theta from vertical, ``coef_mps2`` = c the gravity_tilt
+    coefficient (up), g = :func:`vertical_gravity_mps2` (the nominal 9.81)."""
+    g = vertical_gravity_mps2(g_axis_mps2, axis_tilt_deg)
+    x = min(max((float(g_axis_mps2) - float(coef_mps2)) / g, -1.0), 1.0)
+    return math.degrees(math.acos(x))
 
 
 FLIGHT_TERMS: tuple[FlightTerm, ...] = (CoulombFriction(), ViscousDrag(), QuadraticDrag(), GravityTilt())

@@ -6,7 +6,6 @@ law ("none") equal to the mean measured COR. Candidate models add terms from the
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +30,8 @@ from vibro_discrepancy.library import (
     cor_values,
     force_law,
     restitution_law,
+    total_tilt_deg,
+    vertical_gravity_mps2,
 )
 from vibro_model.kinematics import StructureKinematics
 from vibro_sim.params import BallCavity
@@ -49,6 +50,7 @@ class FittedModel:
     cor: CorModelFit
     g_mps2: float
     fixed_motion: StructureKinematics | None = None   # a known structure motion (the true model in proofs)
+    axis_tilt_deg: float = 0.0    # rig.yaml setup.axis_tilt_deg: the axis' declared tilt (g_mps2 its gravity)
 
     @property
     def motion(self) -> StructureKinematics:
@@ -56,8 +58,10 @@ class FittedModel:
 
     @property
     def tilt_deg(self) -> float:
-        da = self.flights.coef_of("gravity_tilt")
-        return math.degrees(math.acos(min(max(1.0 - da / self.g_mps2, -1.0), 1.0)))
+        """The axis' total tilt from vertical (deg): the declared one (``axis_tilt_deg``, ``g_mps2`` its gravity)
+        with the gravity_tilt term's change c, acos(cos theta - c / g)
+        (:func:`~vibro_discrepancy.library.total_tilt_deg`)."""
+        return total_tilt_deg(self.flights.coef_of("gravity_tilt"), self.g_mps2, self.axis_tilt_deg)
 
     def accel(self, v_mps: np.ndarray, mass_kg: float) -> np.ndarray:
         """Free-flight acceleration (m/s^2) at ball velocity v (lab frame)."""
@@ -89,8 +93,9 @@ class FittedModel:
         return restitution_law(self.cor.kind, self.cor.coefs)
 
     def cavity(self, meas: Measured, free_play_m: float) -> BallCavity:
-        return BallCavity(mass_kg=meas.mass_kg, free_play_m=free_play_m, gravity_mps2=self.g_mps2,
-                          tilt_deg=self.tilt_deg)
+        # g and the total tilt: g cos(tilt) is the declared axis' gravity with the tilt term's change
+        return BallCavity(mass_kg=meas.mass_kg, free_play_m=free_play_m,
+                          gravity_mps2=vertical_gravity_mps2(self.g_mps2, self.axis_tilt_deg), tilt_deg=self.tilt_deg)
 
     def label(self) -> str:
         parts = self.structure.label_terms()
@@ -108,7 +113,8 @@ def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] 
     f = flights if flights is not None else fit_flights(meas, flight_terms)
     imp = recompute_impacts(meas, f, s.motion())
     c = fit_cor(imp, COR_TERMS[cor_kind], cor_kind)
-    return FittedModel(structure=s, flights=f, impacts=imp, cor=c, g_mps2=meas.g_mps2)
+    return FittedModel(structure=s, flights=f, impacts=imp, cor=c, g_mps2=meas.g_mps2,
+                       axis_tilt_deg=meas.axis_tilt_deg)
 
 
 def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:

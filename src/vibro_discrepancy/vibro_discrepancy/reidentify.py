@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Iterable
+from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -46,7 +46,8 @@ from vibro_discrepancy.fitting import StructureModelFit
 from vibro_discrepancy.library import FLIGHT_TERMS
 from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
-from vibro_model.assemble import LocalStructure, Reidentification
+from vibro_model.assemble import FrictionCorrection, LocalStructure, Reidentification
+from vibro_model.constants import G_MPS2
 from vibro_model.model_error import ImpactSlopes, ModelError, flight_residual_slope
 from vibro_model.results import Impact, ResultsDocument
 
@@ -277,7 +278,9 @@ def with_model_error(impact: Impact, errors: ModelError, structure: bool) -> Imp
     local fit, whose own sigma it carries already)."""
     var = errors.cor_variance(impact.plate, impact.v_ball_before_mps, impact.v_ball_after_mps,
                               impact.v_structure_mps, structure)
-    return replace(impact, cor_std=math.sqrt((impact.cor_std or 0.0) ** 2 + var)) if var > 0 else impact
+    if var <= 0:
+        return replace(impact, cor_std_model=None)
+    return replace(impact, cor_std=math.sqrt((impact.cor_std or 0.0) ** 2 + var), cor_std_model=math.sqrt(var))
 
 
 def reidentification(findings: Iterable[object], run) -> Reidentification:
@@ -287,8 +290,10 @@ def reidentification(findings: Iterable[object], run) -> Reidentification:
     a local fit where the final model's structure does not follow the measured one (:func:`with_local_structure`);
     else none (every impact keeps the identification's values, ``cor_method`` "paper")."""
     effects = measurement_effects(findings)
-    if run is None or run.final is None or run.measured is None or not effects:
+    if run is None or run.final is None or run.measured is None:
         return Reidentification()
+    if not effects:
+        return Reidentification(friction=friction_correction(run, effects))
     impacts, local = [], []
     remeasured = reidentify_impacts(run.measured, run.final)
     errors = ModelError.of([impact_slopes(run.measured, run.final, imp) for imp in remeasured])
@@ -296,7 +301,57 @@ def reidentification(findings: Iterable[object], run) -> Reidentification:
         measured, note = with_local_structure(run.measured, run.final, imp)
         impacts.append(with_model_error(measured, errors, structure=note is None))
         local += [note] if note is not None else []
-    return Reidentification(effects=tuple(effects), impacts=impacts, local_structure=local)
+    return Reidentification(effects=tuple(effects), impacts=impacts, local_structure=local,
+                            friction=friction_correction(run, effects))
+
+
+def scale_friction_correction(run) -> FrictionCorrection | None:
+    """The constant force the image scale's error puts into every flight's Eq. 17 friction, where the discrepancy
+    analysis took the flights' apparent gravity as the scale's (``instrument_scale`` absorbed,
+    :mod:`.instrument_scale`): Eq. 17 measures F = m (a + g) against the nominal g while the flights fall at
+    g_scale = g (1 + e), so F holds m (g - g_scale) besides the friction (to first order in e). None otherwise."""
+    scale = (getattr(run.result, "details", None) or {}).get("instrument_scale") or {}
+    g_nom, g_used = scale.get("nominal_gravity_mps2"), scale.get("gravity_used_mps2")
+    if not scale.get("absorbed") or g_nom is None or g_used is None or g_used == g_nom:
+        return None
+    force = float(run.measured.mass_kg) * (float(g_nom) - float(g_used))
+    words = (f"friction_n of every free flight corrected for the image scale (instrument_scale: the flights fall at "
+             f"{g_used:.4g} m/s^2 against g {g_nom:.4g} m/s^2 along the axis, the scale's error): Eq. 17 against g "
+             f"holds m (g - g_scale) = {force:.3g} N, subtracted; friction_paper_n keeps the Eq. 17 value")
+    return FrictionCorrection(effect="instrument_scale", force_n=force, force_std_n=0.0, words=words)
+
+
+def friction_correction(run, effects: Sequence[str]) -> FrictionCorrection | None:
+    """What the results take out of every flight's Eq. 17 friction: an undeclared tilt's force
+    (:func:`tilt_friction_correction`, with ``gravity_tilt`` among ``effects``) and the image scale's
+    (:func:`scale_friction_correction`), summed; None when neither."""
+    tilt = tilt_friction_correction(run.measured, run.final) if "gravity_tilt" in effects else None
+    scale = scale_friction_correction(run)
+    if tilt is None or scale is None:
+        return tilt or scale
+    return FrictionCorrection(effect=f"{tilt.effect}+{scale.effect}", force_n=tilt.force_n + scale.force_n,
+                              force_std_n=tilt.force_std_n, words=f"{tilt.words}; {scale.words}")
+
+
+def tilt_friction_correction(meas: Measured, model: FittedModel) -> FrictionCorrection | None:
+    """The force an undeclared tilt puts into every flight's Eq. 17 friction: the final model's ``gravity_tilt``
+    acceleration change c (up) times the ball's mass, m c (N), with its sigma; None when the model has no tilt.
+    Eq. 17 measures F = m (a + g cos theta) against the declared tilt theta; with the axis truly at theta_total
+    every flight falls at g cos(theta_total) = g cos(theta) - c, so F holds m c besides the friction."""
+    names = model.flights.names
+    if "gravity_tilt" not in names:
+        return None
+    k = names.index("gravity_tilt")
+    c = float(model.flights.coefs[k])
+    var = float(model.flights.cov[k, k]) if model.flights.cov.size else 0.0
+    sd = math.sqrt(var) if math.isfinite(var) and var > 0 else 0.0
+    m = float(meas.mass_kg)
+    total = model.tilt_deg
+    words = (f"friction_n of every free flight corrected for the axis' undeclared tilt (gravity_tilt: the axis at "
+             f"{total:.2f} deg from vertical, setup.axis_tilt_deg {meas.axis_tilt_deg:g} deg): Eq. 17 against the "
+             f"declared gravity {meas.g_mps2:.3f} m/s^2 holds the tilt's constant force m c = {m * c:.3g} N "
+             f"({m * c / (m * G_MPS2):+.3g} m g), subtracted; friction_paper_n keeps the Eq. 17 value")
+    return FrictionCorrection(effect="gravity_tilt", force_n=m * c, force_std_n=m * sd, words=words)
 
 
 def reidentified_from_impacts(doc: ResultsDocument, corrected: Iterable[Impact]) -> list[Impact]:

@@ -48,6 +48,7 @@ from vibro_discrepancy.library import (
 )
 from vibro_discrepancy.model import COR_TERMS
 from vibro_model.codec import json_number as _f
+from vibro_model.constants import G_MPS2
 from vibro_model.tail_probability import chi2_sf, f_sf
 from vibro_sim.deviation import cor_variance_share
 
@@ -160,9 +161,19 @@ def _fastest_speed(meas: Measured) -> float:
 def _negligible(fit: FlightModelFit, meas: Measured, speed: float) -> list[str]:
     """The terms of ``fit`` whose force at ``speed`` is below the physical floor (:data:`FORCE_FLOOR_OF_WEIGHT`
     m g), each as "effect F = x m g"; empty when every term matters."""
-    weight = meas.mass_kg * meas.g_mps2
+    weight = meas.mass_kg * G_MPS2   # the ball's weight, whatever the axis' orientation
     return [f"{t.effect} {t.peak_force_n(float(c), speed, meas.mass_kg) / weight:.2g} m g" for t, c in
-            zip(fit.terms, fit.coefs) if t.negligible(float(c), speed, meas.mass_kg, meas.g_mps2)]
+            zip(fit.terms, fit.coefs) if t.negligible(float(c), speed, meas.mass_kg, G_MPS2)]
+
+
+def _active(fit: FlightModelFit, axis_tilt_deg: float = 0.0) -> bool:
+    """Every term of ``fit`` is in play: off its lower bound (:meth:`FlightTerm.lower_bound`: 0 for a force, which
+    NNLS leaves at 0 when the data do not want it; a tilt on a tilted axis may be negative, never 0)."""
+    for t, c in zip(fit.terms, fit.coefs):
+        lb = t.lower_bound(fit.g_mps2, axis_tilt_deg)
+        if not (c > lb and (c > 0.0 if lb == 0.0 else c != 0.0)):
+            return False
+    return True
 
 
 def _summary(fit: FlightModelFit) -> FlightModelFit:
@@ -200,7 +211,7 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         p = chi2_sf(chi, 1)
         ex = _explained_rms(base.sse, f.sse, n) / sigma_m
         small = _negligible(f, meas, speed) if p < ALPHA else []
-        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(f.coefs > 0)) and not small
+        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and _active(f, meas.axis_tilt_deg) and not small
         stage.decisions.append(Decision(label=key[0], statistic=chi, p_value=p, explained=ex, accepted=ok,
                                         note=f"explains {ex:.2f} x noise floor per frame" + _floor_note(small)))
     ranked = sorted(singles.items(), key=lambda kv: kv[1].sse)
@@ -208,7 +219,7 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
     best_dec = next(d for d in stage.decisions if d.label == best_key[0])
     chosen, current = (), base
     explained = base    # the residual is judged after a term below its floor too: not a mismatch left unexplained
-    if not best_dec.accepted and _floor_only(best_dec, best):
+    if not best_dec.accepted and _floor_only(best_dec, best, meas.axis_tilt_deg):
         explained = best
         stage.notes.append(f"{best_key[0]} significant but negligible (below its physical floor): not a finding; "
                            "the residual is judged with it")
@@ -232,7 +243,7 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
         p = chi2_sf(chi, max(dp, 1))
         ex = _explained_rms(ref.sse, pf.sse, n) / sigma_m
         small = _negligible(pf, meas, speed) if p < ALPHA else []
-        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and bool(np.all(pf.coefs > 0)) and not small
+        ok = p < ALPHA and ex >= MIN_EXPLAINED_SIGMA and _active(pf, meas.axis_tilt_deg) and not small
         stage.decisions.append(Decision(label=" + ".join(pk), statistic=chi, p_value=p, explained=ex, accepted=ok,
                                         note=f"against {' + '.join(chosen) or 'baseline'}: explains {ex:.2f} x noise"
                                         + _floor_note(small)))
@@ -245,9 +256,9 @@ def select_flights(meas: Measured, sigma_m: float, terms: tuple[FlightTerm, ...]
     return current, stage
 
 
-def _floor_only(decision: Decision, fit: FlightModelFit) -> bool:
+def _floor_only(decision: Decision, fit: FlightModelFit, axis_tilt_deg: float = 0.0) -> bool:
     """True when ``decision`` was refused by the physical floor alone (significant, visible, positive)."""
-    return (decision.p_value < ALPHA and decision.explained >= MIN_EXPLAINED_SIGMA and bool(np.all(fit.coefs > 0))
+    return (decision.p_value < ALPHA and decision.explained >= MIN_EXPLAINED_SIGMA and _active(fit, axis_tilt_deg)
             and "negligible" in decision.note)
 
 

@@ -75,14 +75,14 @@ class ShapeCheck:
         near, far = float(a[0]), float(a[-1])
         towards = "towards the lower plate" if near < 0 else "towards the upper plate"
         if self.exponential is not None:
-            size = (f"force {100 * abs(self.exponential['accel_at_contact_mps2']) / self.g_mps2:.0f} % of the weight "
+            size = (f"force {100 * abs(self.exponential['accel_at_contact_mps2']) / G_MPS2:.0f} % of the weight "
                     f"{towards} at contact, decaying with the distance from the lower plate (over "
                     f"{self.exponential['decay_mm']:.1f} mm)")
         else:
             trend = ("decaying with the distance from the lower plate" if abs(near) > abs(far)
                      else "growing with the distance from the lower plate")
-            size = (f"force {100 * abs(near) / self.g_mps2:.0f} % of the weight {towards} near the lower plate, "
-                    f"{100 * abs(far) / self.g_mps2:.0f} % near the upper plate, {trend}")
+            size = (f"force {100 * abs(near) / G_MPS2:.0f} % of the weight {towards} near the lower plate, "
+                    f"{100 * abs(far) / G_MPS2:.0f} % near the upper plate, {trend}")
         dirn = ("and a part that changes sign with the direction of motion" if self.direction_dependent
                 else "independent of the direction of motion")
         terms = " + ".join(self.model_terms) or "gravity alone"

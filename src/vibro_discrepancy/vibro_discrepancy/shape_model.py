@@ -65,6 +65,7 @@ from vibro_discrepancy.runs import FullRun
 from vibro_discrepancy.select import ALPHA, ALPHA_COR, MIN_COR_RMS, MIN_EXPLAINED_SIGMA, law_variance_share
 from vibro_discrepancy.shape import EXP_SHARE, column_rank, ols_fit, position_bins
 from vibro_discrepancy.systematic import parity_signs
+from vibro_model.constants import G_MPS2
 from vibro_model.tail_probability import chi2_sf, f_sf
 from vibro_sim.deviation import Restart, restarted_deviation
 from vibro_sim.forces import PositionForce
@@ -155,8 +156,8 @@ class ShapeModel(FittedModel):
         if p is None:
             return base
         # PositionForce: F = base(v) - weight_fraction m g exp(-d / decay), d = y - Y_s + b in the cavity frame
-        return PositionForce(self.motion, p.free_play_m, p.mass_kg, self.g_mps2,
-                             -p.accel_at_contact_mps2 / self.g_mps2, 1e3 * p.decay_m, base)
+        return PositionForce(self.motion, p.free_play_m, p.mass_kg, G_MPS2,
+                             -p.accel_at_contact_mps2 / G_MPS2, 1e3 * p.decay_m, base)
 
     def restitution_law(self):
         if self.parity is None:
@@ -193,7 +194,7 @@ def as_shape_model(model: FittedModel) -> ShapeModel:
     if isinstance(model, ShapeModel):
         return model
     return ShapeModel(structure=model.structure, flights=model.flights, impacts=model.impacts, cor=model.cor,
-                      g_mps2=model.g_mps2, fixed_motion=model.fixed_motion)
+                      g_mps2=model.g_mps2, fixed_motion=model.fixed_motion, axis_tilt_deg=model.axis_tilt_deg)
 
 
 # ---------------------------------------------------------------- position force: the fit
@@ -527,12 +528,13 @@ def position_parameters(fit: PositionFit, meas: Measured) -> tuple[dict, dict]:
     plate (-A / g), the decay length, and the kept catalogue terms' contract parameters."""
     g = fit.flights.g_mps2
     A, sA = fit.accel_mps2, fit.accel_std_mps2
-    params = {"accel_at_contact_mps2": A, "force_at_contact_n": A * meas.mass_kg, "weight_fraction": -A / g,
+    # a fraction of the ball's weight m g, whatever the axis' orientation (g along it may be 0)
+    params = {"accel_at_contact_mps2": A, "force_at_contact_n": A * meas.mass_kg, "weight_fraction": -A / G_MPS2,
               "decay_mm": 1e3 * fit.decay_m}
-    stds = {"accel_at_contact_mps2": sA, "force_at_contact_n": sA * meas.mass_kg, "weight_fraction": sA / g,
+    stds = {"accel_at_contact_mps2": sA, "force_at_contact_n": sA * meas.mass_kg, "weight_fraction": sA / G_MPS2,
             "decay_mm": 1e3 * fit.decay_std_m}
     for t, c, s in zip(fit.terms, fit.flights.coefs, fit.term_stds):
-        p, sd = t.contract_parameters(float(c), float(s), meas.mass_kg, g)
+        p, sd = t.contract_parameters(float(c), float(s), meas.mass_kg, g, meas.axis_tilt_deg)
         params.update(p)
         stds.update(sd)
     return params, stds

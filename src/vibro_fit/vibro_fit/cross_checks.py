@@ -303,7 +303,7 @@ def consistency_checks(ident, track, rig, accel=None, source: str = "the video")
     ``rig``, ``accel`` the AccelData or None): time base (step, drift), physical plausibility, accelerometer
     drive tone and plate attribution. Returns (findings, refusing ones first; evidence of the checks that
     passed too: {"time_base": .., "friction": .., "accelerometers": .., "plates": ..})."""
-    from .plausibility import friction_balance, physical_plausibility
+    from .plausibility import axis_gravity, friction_balance, physical_plausibility
 
     moves = ident.motion.structure_moves if ident.motion is not None else True
     out: list[Finding] = []
@@ -321,9 +321,14 @@ def consistency_checks(ident, track, rig, accel=None, source: str = "the video")
         drift = time_base_drift(ident.rig_consistency, float(t[-1] - t[0]) if t.size else 0.0)
         if drift is not None:
             out.append(drift)
-    flights = [f.model(ident.mass_kg) for f in ident.flights]
+    flights = [f.model(ident.mass_kg, ident.g_axis_mps2) for f in ident.flights]
     out += physical_plausibility([i.model() for i in ident.impacts], flights, ident.structure, rig,
                                  ident.rig_consistency, moves)
+    axis = axis_gravity(ident.flights, g_axis_mps2=ident.g_axis_mps2, axis_tilt_deg=float(rig.setup.axis_tilt_deg),
+                        noise_mm=ident.noise_mm, motion_state=ident.motion.state if ident.motion else None,
+                        n_cor_impacts=sum(i.cor is not None and np.isfinite(i.cor) for i in ident.impacts))
+    if axis is not None:   # the declared orientation contradicts the flights: named, refused
+        out.append(axis)
     # the friction's dissipative part against its sigma and its physical floor, refused or not (below the
     # floor: zero within it, said here and nowhere claimed)
     friction = friction_balance(flights, float(rig.ball.mass_kg))

@@ -58,7 +58,8 @@ class FlightFit:
         return 2.0 * mm_to_m(float(np.sqrt(max(self.cov[0, 0], 0.0))))
 
     def friction_n(self, mass_kg: float, g_mps2: float = G_MPS2) -> tuple[float, float]:
-        """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N)."""
+        """Eq. 17: F = m (2a + g) (N, positive up) and its standard deviation (N); ``g_mps2`` the gravity along
+        the motion axis, g cos(setup.axis_tilt_deg) (:attr:`vibro_io.rig.RigConfig.g_axis_mps2`)."""
         return mass_kg * (self.acceleration_mps2 + g_mps2), mass_kg * self.acceleration_std_mps2
 
     def abs_coefficients(self) -> tuple[float, float, float]:
@@ -67,11 +68,11 @@ class FlightFit:
         r = self.t_ref_s
         return a_, b_ - 2.0 * a_ * r, a_ * r * r - b_ * r + c_
 
-    def model(self, mass_kg: float) -> Flight:
+    def model(self, mass_kg: float, g_mps2: float = G_MPS2) -> Flight:
         """The fitted flight as the model type (SI, NaN -> None); friction from Eq. 17 with the ball mass
-        ``mass_kg``, only for a free flight."""
+        ``mass_kg`` and the gravity along the axis ``g_mps2`` (m/s^2), only for a free flight."""
         a, b, c = (mm_to_m(none_if_nan(v)) for v in self.abs_coefficients())
-        f_n, f_std = self.friction_n(mass_kg)
+        f_n, f_std = self.friction_n(mass_kg, g_mps2)
         return Flight(index=int(self.index), t_first_frame_s=none_if_nan(self.t_start_s),
                       t_last_frame_s=none_if_nan(self.t_end_s), a_mps2=a, b_mps=b, c_m=c,
                       direction=self.direction or "", friction_n=none_if_nan(f_n) if self.is_free else None,

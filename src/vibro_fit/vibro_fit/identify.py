@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack
 from vibro_io.rig import RigConfig
+from vibro_model.constants import G_MPS2
 from vibro_model.results import StructureMotion
 
 from .accel_impacts import AccelAnalysis, ClockOffset
@@ -48,7 +49,7 @@ from .passes import (
 )
 from .regimes import Regime
 from .rig_consistency import RigStatement
-from .segmentation import SegmentationConfig
+from .segmentation import SegmentationConfig, segmentation_config
 from .statistics import cor_summary
 from .streaming import Cluster
 from .structure_fit import StructureFit
@@ -72,6 +73,7 @@ class Identification:
     noise_mm: float
     method: str
     mass_kg: float
+    g_axis_mps2: float = G_MPS2     # gravity along the motion axis as mounted, g cos(setup.axis_tilt_deg)
     short_flights: list[FlightFit] = field(default_factory=list)
     clusters: list[Cluster] = field(default_factory=list)
     accel: AccelAnalysis | None = None
@@ -120,7 +122,8 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         ``"paper"`` (Eq. 15-16 on separate parabola fits) or ``"joint"`` (pairs of flights refitted with the
         constraint that they meet on the plate).
     config : SegmentationConfig, optional
-        Thresholds of the flight segmentation (default: :class:`SegmentationConfig`'s).
+        Thresholds of the flight segmentation (default: :class:`SegmentationConfig`'s); its gravity along the
+        axis is always the rig's, g cos(setup.axis_tilt_deg) (:func:`~vibro_fit.segmentation.segmentation_config`).
     highpass_hz : float
         Corner of the accelerometers' high-pass filter (Hz).
     weights : str, optional
@@ -159,7 +162,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     Every later pass reads the last run.
     """
     validate_inputs(track, method, weights)
-    cfg = config or SegmentationConfig()
+    cfg = segmentation_config(rig, config)
     basis = structure_pass(track, rig)
     drive, drive_notes = drive_pass(track, basis)
     settings = StreamingSettings(frequency_hz=rig.excitation.frequency_hz, noise_mm=basis.noise_mm, method=method,
@@ -188,6 +191,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
     return Identification(structure=basis.structure, flights=hops.flights, impacts=hops.impacts, friction=friction,
                           cor_summary=cor_summary(hops.impacts), regime=regime, plate_levels=levels,
                           noise_mm=float(basis.noise_mm), method=method, mass_kg=rig.ball.mass_kg,
+                          g_axis_mps2=cfg.g_mps2,
                           short_flights=list(sf.short_flights), clusters=list(sf.clusters),
                           accel=acc.analysis, clock_offset=acc.offset, warnings=warnings, weights=weights or "none",
                           coverage=acc.coverage, motion=motion, landings=landings, accel_unseen_s=unseen,

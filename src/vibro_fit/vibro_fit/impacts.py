@@ -51,7 +51,7 @@ class ImpactFit(Impact):
                       v_structure_mps=none_if_nan(self.v_structure_mps),
                       t_std_s=none_if_nan(self.t_std_s), flight_before=int(self.flight_before),
                       flight_after=int(self.flight_after), method=self.method, in_gap=self.in_gap,
-                      gap_lost_frames=self.gap_lost_frames)
+                      gap_lost_frames=self.gap_lost_frames, cor_std_model=self.cor_std_model)
 
 
 def _shift(coef: np.ndarray, t_ref: float, t_new: float) -> tuple[float, float, float]:

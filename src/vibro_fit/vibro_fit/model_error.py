@@ -73,7 +73,8 @@ def model_error_pass(impacts: list[ImpactFit], flights: list[FlightFit], track: 
     for imp in impacts:
         var = errors.cor_variance(imp.plate, imp.v_ball_before_mps, imp.v_ball_after_mps, imp.v_structure_mps) \
             if math.isfinite(imp.cor) and math.isfinite(imp.cor_std) else 0.0
-        out.append(replace(imp, cor_std=math.sqrt(imp.cor_std ** 2 + var)) if var > 0 else imp)
+        out.append(replace(imp, cor_std=math.sqrt(imp.cor_std ** 2 + var), cor_std_model=math.sqrt(var))
+                   if var > 0 else imp)
     return out, errors
 
 

@@ -148,7 +148,7 @@ def structure_pass(track: DicTrack, rig: RigConfig) -> MotionBasis:
                         f"{f_nom:g} Hz (rig.yaml excitation.frequency_hz) by more than 5 %")
     if good.sum() < len(track):
         warnings.append(f"{int(len(track) - good.sum())} lost/invalid frames excluded")
-    noise = noise_sigma_mm(t[good], track.ball_mm[good])
+    noise = noise_sigma_mm(t[good], track.ball_mm[good], rig.g_axis_mps2)
     if not np.isfinite(noise):
         noise = 0.0
     return MotionBasis(structure=structure, moving=moving, f_motion_hz=structure.frequency_hz if moving else f_nom,

@@ -38,6 +38,8 @@ import numpy as np
 from vibro_model.assemble import ConsistencyStage
 from vibro_model.constants import G_MPS2
 
+from .segmentation import SegmentationConfig
+
 #: family-wise probability of a false alarm of one test family (impacts, plates, all)
 FALSE_ALARM = 1e-3
 #: a local structure velocity differs from the whole recording's sine by more than this fraction of the
@@ -113,14 +115,22 @@ def _weighted_mean(values: np.ndarray, sigmas: np.ndarray) -> tuple[float, float
     return float(np.sum(w * values) / np.sum(w)), float(1.0 / math.sqrt(np.sum(w)))
 
 
+def _noise_std(impact) -> float:
+    """An impact's COR sigma without its model error (:attr:`vibro_model.results.Impact.cor_std_noise`): a COR
+    outside [0, 1] by more than the noise is what a wrong model or rig makes, and the model error is made of it."""
+    noise = getattr(impact, "cor_std_noise", None)
+    return float(noise if noise is not None else (impact.cor_std or 0.0))
+
+
 def cor_outside_bounds(impacts: Sequence) -> dict | None:
     """Where the CORs leave [0, 1] beyond their sigma and beyond :data:`COR_FLOOR`: per impact, per plate
     (weighted mean), all together.
 
-    ``impacts``: anything with ``index``, ``plate``, ``cor``, ``cor_std``. Returns None when none does, else
-    {"impacts": [(index, plate, cor, cor_std, z)], "plates": {plate: (mean, std, z)}, "all": (mean, std, z),
+    ``impacts``: anything with ``index``, ``plate``, ``cor``, ``cor_std`` (its noise share is judged:
+    :func:`_noise_std`). Returns None when none does, else {"impacts": [(index, plate, cor, cor_std, z)],
+    "plates": {plate: (mean, std, z)}, "all": (mean, std, z),
     "z_limit": {...}, "floor"} listing only the tests that fail (z: distance beyond the bound in sigmas)."""
-    rows = [(int(i.index), i.plate, float(i.cor), float(i.cor_std or 0.0)) for i in impacts
+    rows = [(int(i.index), i.plate, float(i.cor), float(_noise_std(i))) for i in impacts
             if i.cor is not None and np.isfinite(i.cor)]
     if not rows:
         return None
@@ -354,6 +364,59 @@ def _structure_cause(impacts, structure, rig, local, freq, structure_moves: bool
                 "excitation.frequency_hz)"), [], ev
     return ("no rig.yaml key explains it (check the ball track, dic.ball_roi, and the camera's time base)",
             [], ev)
+
+
+#: a flight falling faster than g by more than this fraction is a scale or time-base error (rig_consistency), not
+#: an orientation: a tilt only takes gravity away
+FASTER_THAN_G_TOL = 0.05
+
+
+def axis_gravity(flights: Sequence, *, g_axis_mps2: float, axis_tilt_deg: float, noise_mm: float,
+                 motion_state: str | None, n_cor_impacts: int) -> Finding | None:
+    """The rig's declared orientation (rig.yaml ``setup.axis_tilt_deg``) against what the flights show; a refusing
+    :class:`Finding` naming the key, or None.
+
+    - Most fitted flights (at least 3) that are parabolas within the noise fall at an acceleration whose median
+      is farther from the declared axis' gravity g cos(theta) than a free flight's force allows
+      (``max_friction_g`` of the weight, the segmentation's bound), and at most g (a tilt only takes gravity
+      away; faster is a scale or time-base error, :mod:`.rig_consistency`): the axis is not where rig.yaml says
+      (a horizontal rig described as vertical finds no free flight, hence no impact). The tilt the fall implies,
+      acos(-a / g), is named.
+    - An axis declared tilted (theta > 0) on which the ball moves but no impact gets a COR: vibro cannot measure
+      this motion there (flights too short, or a force in flight beyond the free-flight bound); it is said, not
+      published as a recording without impacts.
+
+    ``flights``: the identification's FlightFits; ``noise_mm`` the ball's position noise (mm)."""
+    cfg = SegmentationConfig()
+    limit = cfg.rms_factor * float(noise_mm or 0.0) + cfg.rms_floor_mm
+    shaped = [f for f in flights if f.fitted and np.isfinite(f.acceleration_mps2) and f.rms_residual_mm <= limit]
+    off = [f for f in shaped if abs(f.acceleration_mps2 + g_axis_mps2) > cfg.max_friction_g * G_MPS2]
+    key = "setup.axis_tilt_deg"
+    if len(off) >= 3 and len(off) >= 0.5 * len(shaped):
+        a_med = float(np.median([f.acceleration_mps2 for f in off]))
+        if abs(a_med + g_axis_mps2) > cfg.max_friction_g * G_MPS2 and abs(a_med) <= (1 + FASTER_THAN_G_TOL) * G_MPS2:
+            implied = math.degrees(math.acos(min(max(-a_med / G_MPS2, -1.0), 1.0)))
+            ev = {"fall_acceleration_mps2": -a_med, "declared_axis_gravity_mps2": g_axis_mps2,
+                  "declared_axis_tilt_deg": axis_tilt_deg, "implied_axis_tilt_deg": implied,
+                  "flights_off": len(off), "flights_fitted": len(shaped)}
+            return Finding("axis_gravity",
+                           f"the flights fall at {-a_med:.2f} m/s^2 along the axis ({len(off)} of {len(shaped)} "
+                           f"parabolas), not at the {g_axis_mps2:.2f} m/s^2 = g cos({axis_tilt_deg:g} deg) of rig.yaml "
+                           f"{key} {axis_tilt_deg:g}: no flight is free under that gravity, so no impact can be "
+                           f"measured; the axis is about {implied:.0f} deg from vertical: set {key} (0 vertical, 90 "
+                           "horizontal) and run again", [key], ev, "refuse")
+    if axis_tilt_deg > 0.0 and n_cor_impacts == 0 and motion_state in ("ball_moving", "impacting"):
+        reasons = sorted({f.reason.split(":")[0] for f in flights if not f.is_free and f.reason})
+        ev = {"declared_axis_tilt_deg": axis_tilt_deg, "declared_axis_gravity_mps2": g_axis_mps2,
+              "flights_fitted": len(shaped), "flights_free": sum(bool(f.is_free) for f in flights)}
+        return Finding("axis_gravity",
+                       f"the ball moves but no impact could be measured on the axis rig.yaml {key} declares "
+                       f"{axis_tilt_deg:g} deg from vertical (gravity along it {g_axis_mps2:.2f} m/s^2): "
+                       f"{ev['flights_free']} free flight(s) of {len(flights)} fitted"
+                       + (f" ({'; '.join(reasons[:3])})" if reasons else "")
+                       + f"; check {key}; an impact needs a free flight on each side (on a horizontal axis a "
+                       "straight line, the guide rods' friction below half the ball's weight)", [key], ev, "refuse")
+    return None
 
 
 #: rig.yaml keys whose statement rests on the impacts' local structure fits (the free play)

@@ -28,6 +28,7 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
         "regime": ident.regime.to_dict(),
         "contacts": [c.to_dict() for c in ident.contacts],
         "identification": {"method": ident.method, "weights": ident.weights, "noise_mm": ident.noise_mm,
+                           "axis_gravity_mps2": ident.g_axis_mps2,   # g cos(setup.axis_tilt_deg): Eq. 17's g
                            "plate_levels_mm": dict(ident.plate_levels),
                            "short_flights": [{"t_start": f.t_start_s, "t_end": f.t_end_s, "n_points": f.n_points}
                                              for f in ident.short_flights],
@@ -75,7 +76,8 @@ def _accel_camera_times(acc, off) -> list[float | None]:
 def identified_stage(ident: Identification) -> Identified:
     """The identification as the results assembler takes it (:class:`vibro_model.assemble.Identified`): the
     structure, flights and impacts as results types, its warnings, and the sections only it fills."""
-    return Identified(structure=ident.structure_motion(), flights=[f.model(ident.mass_kg) for f in ident.flights],
+    flights = [f.model(ident.mass_kg, ident.g_axis_mps2) for f in ident.flights]
+    return Identified(structure=ident.structure_motion(), flights=flights,
                       impacts=[i.model() for i in ident.impacts], warnings=list(ident.warnings),
                       sections=identification_extras(ident))
 

@@ -4,7 +4,9 @@ Three measured quantities can contradict rig.yaml:
 - the free play b (half the ball's travel between the plates, from the impacts' relative positions) vs
   ``(structure.gap_mm - ball.diameter_mm) / 2``: ratio k_b;
 - the flights' free-fall acceleration (mean of the up and down flights' median 2a, so that a friction
-  opposing the motion cancels) vs g: ratio k_a;
+  opposing the motion cancels) vs the gravity along the axis as mounted, g cos(setup.axis_tilt_deg): ratio k_a
+  (its std includes the declared tilt's own uncertainty, ``TILT_STD_DEG``: tan(theta) d(theta); on an axis
+  within ``FALL_MIN_COS`` of horizontal the flights barely fall and k_a is not measured);
 - the structure frequency on the camera clock vs ``excitation.frequency_hz`` and, with accelerometers,
   vs the excitation frequency on the DAQ clock (the accelerometers ride on the plates).
 
@@ -30,11 +32,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vibro_model.constants import G_MPS2
+
 GEOMETRY_TOL = 0.02
 ACCEL_TOL = 0.01
 FREQ_TOL = 0.05
 CLOCK_TOL = 0.005
 N_SIGMA = 3.0
+#: how well a rig's mounted tilt (rig.yaml setup.axis_tilt_deg) is known (deg, 1 sigma): g cos(theta) is then
+#: known to g sin(theta) d(theta), 1.7 % of g cos(theta) per degree at 45 deg
+TILT_STD_DEG = 1.0
+#: below this cos(theta) (theta > 84 deg) the gravity along the axis is too small to test the scale with
+FALL_MIN_COS = 0.1
 
 
 @dataclass
@@ -69,8 +78,13 @@ def free_play_ratio(impacts, free_play_rig_mm: float, noise_mm: float) -> tuple[
 
 
 def fall_ratio(flights, g_mps2: float) -> tuple[float, float, int] | None:
-    """(k_a, std, n) = |mean of the up and down flights' median acceleration| / g over the free flights
-    (one direction alone when the other has none)."""
+    """(k_a, std, n) = |mean of the up and down flights' median acceleration| / g_mps2 over the free flights
+    (one direction alone when the other has none); ``g_mps2`` the gravity along the axis as mounted, g cos(theta),
+    whose uncertainty from the declared tilt (:data:`TILT_STD_DEG`) is in the std. None without free flights or
+    on an axis within :data:`FALL_MIN_COS` of horizontal."""
+    cos_t = min(float(g_mps2) / G_MPS2, 1.0)
+    if cos_t < FALL_MIN_COS:
+        return None
     meds, vars_ = [], []
     n = 0
     for d in ("up", "down"):
@@ -86,7 +100,8 @@ def fall_ratio(flights, g_mps2: float) -> tuple[float, float, int] | None:
         return None
     a_mean = float(np.mean(meds))
     sd = math.sqrt(sum(vars_)) / len(meds)
-    return abs(a_mean) / g_mps2, sd / g_mps2, n
+    tilt_rel = math.sqrt(max(1.0 - cos_t ** 2, 0.0)) / cos_t * math.radians(TILT_STD_DEG)   # 0 when vertical
+    return abs(a_mean) / g_mps2, math.hypot(sd / g_mps2, tilt_rel), n
 
 
 def excitation_on_daq_clock_hz(accel, nominal_hz: float) -> float | None:

@@ -8,9 +8,10 @@ track itself, which is cheaper to test frame by frame and does not need the stru
 
 1. For every good frame j with good neighbours i < j < k, the ball acceleration is estimated from the
    second divided difference acc_j = 2 [ (y_k - y_j)/(t_k - t_j) - (y_j - y_i)/(t_j - t_i) ] / (t_k - t_i).
-   In free flight acc_j = -g + F/m (a few % of g). An impact between frames k and k+1 makes the
+   In free flight acc_j = -g_axis + F/m (a few % of g), g_axis = g cos(theta) the gravity along the motion axis
+   (rig.yaml ``setup.axis_tilt_deg`` theta: g vertical, 0 horizontal). An impact between frames k and k+1 makes the
    estimates at k and k+1 jump by about dv/dt_frame (hundreds of m/s^2).
-2. Frame j is a *contact frame* when |acc_j + g| > max(k_sigma * sigma_acc_j, min_threshold_mps2), with
+2. Frame j is a *contact frame* when |acc_j + g_axis| > max(k_sigma * sigma_acc_j, min_threshold_mps2), with
    sigma_acc_j the noise of that estimate from the position noise sigma (itself from the median absolute
    deviation of the second differences of the whole track, or of a warm-up window when streaming).
    Frames next to an accelerometer impact time (the last before and the first after) are contact frames
@@ -21,18 +22,21 @@ track itself, which is cheaper to test frame by frame and does not need the stru
    contact phase (ball resting on or carried by a plate).
 4. The runs of frames between clusters are the flights. A flight with fewer than ``min_points`` frames is
    reported, not fitted. A fitted flight is *free* when its parabola residual RMS is at most
-   ``rms_factor * sigma + rms_floor_mm`` and |2a + g| <= ``max_friction_g * g``; no COR is published
-   from a flight that is not free.
+   ``rms_factor * sigma + rms_floor_mm`` and |2a + g_axis| <= ``max_friction_g * g`` (a force in flight of at
+   most that fraction of the ball's weight m g, whatever the orientation); no COR is published from a flight
+   that is not free. On a horizontal axis a free flight is a straight line (plus the guide rods' friction) and
+   an impact a kink where the velocity reverses: the same rule with g_axis = 0.
 5. Two flights whose parabolas do not reverse the relative velocity were split by a spurious cluster
    (an outlier frame): they are merged and refitted.
 
 Defaults (:class:`SegmentationConfig`): k_sigma 6, min_threshold 3 m/s^2, max_impact_frames 4,
-min_points 6, rms_factor 3, rms_floor 0.002 mm, max_friction 0.5 g, g = 9.81 m/s^2.
+min_points 6, rms_factor 3, rms_floor 0.002 mm, max_friction 0.5 g, g_axis = 9.81 m/s^2 (vertical);
+:func:`segmentation_config` sets g_axis from the rig (the one place the identification's config meets rig.yaml).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,14 +55,21 @@ class SegmentationConfig:
     rms_factor: float = 3.0
     rms_floor_mm: float = 0.002
     max_friction_g: float = 0.5
+    #: gravity along the motion axis (m/s^2): what a free flight falls at, g cos(setup.axis_tilt_deg)
     g_mps2: float = G_MPS2
 
 
-def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray) -> float:
+def segmentation_config(rig, base: SegmentationConfig | None = None) -> SegmentationConfig:
+    """The segmentation's config for ``rig`` (a :class:`vibro_io.rig.RigConfig`): ``base`` (default: the
+    defaults) with the gravity along the motion axis as mounted, g cos(setup.axis_tilt_deg)."""
+    return replace(base or SegmentationConfig(), g_mps2=float(rig.g_axis_mps2))
+
+
+def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray, g_mps2: float = G_MPS2) -> float:
     """Position noise sigma (mm) of a track from the MAD of its second differences (uniform steps only).
 
     For white noise of std sigma, a second difference has std sqrt(6) sigma; MAD * 1.4826 estimates the
-    std robustly (impacts are a minority of frames).
+    std robustly (impacts are a minority of frames). ``g_mps2``: the free flights' fall along the axis (m/s^2).
     """
     t_s = np.asarray(t_s, float)
     y_mm = np.asarray(y_mm, float)
@@ -73,7 +84,7 @@ def noise_sigma_mm(t_s: np.ndarray, y_mm: np.ndarray) -> float:
     if d2.size < 3:
         return float("nan")
     # remove the free-flight gravity term before the MAD
-    d2 = d2 + m_to_mm(G_MPS2) * dt * dt
+    d2 = d2 + m_to_mm(g_mps2) * dt * dt
     mad = float(np.median(np.abs(d2 - np.median(d2))))
     return 1.4826 * mad / np.sqrt(6.0)
 

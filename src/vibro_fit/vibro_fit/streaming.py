@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vibro_io.dictrack import FrameTrack
+from vibro_model.constants import G_MPS2
 
 from .flight_fit import FlightFit, fit_flight
 from .gaps import GapEvidence, GapVerdict, gap_impact
@@ -131,7 +132,7 @@ class StreamingFitter:
         if self.noise_mm is None:
             if len(self.t) < self.warmup_frames:
                 return []
-            self.noise_mm = noise_sigma_mm(np.array(self.t), np.array(self.ball))
+            self.noise_mm = noise_sigma_mm(np.array(self.t), np.array(self.ball), self.cfg.g_mps2)
             if not np.isfinite(self.noise_mm):
                 self.noise_mm = 0.0
         return self._advance()
@@ -141,7 +142,7 @@ class StreamingFitter:
         if self._finished:
             return []
         if self.noise_mm is None:
-            self.noise_mm = noise_sigma_mm(np.array(self.t), np.array(self.ball)) if self.t else 0.0
+            self.noise_mm = noise_sigma_mm(np.array(self.t), np.array(self.ball), self.cfg.g_mps2) if self.t else 0.0
             if not np.isfinite(self.noise_mm):
                 self.noise_mm = 0.0
         out = self._advance()
@@ -310,9 +311,12 @@ class StreamingFitter:
         if fl.rms_residual_mm > limit:
             fl.is_free = False
             fl.reason = f"residual {fl.rms_residual_mm:.4f} mm > {limit:.4f} mm: not a parabola (contact?)"
-        elif abs(fl.acceleration_mps2 + c.g_mps2) > c.max_friction_g * c.g_mps2:
+        elif abs(fl.acceleration_mps2 + c.g_mps2) > c.max_friction_g * G_MPS2:
+            # the bound is a force, a fraction of the ball's weight m g, whatever the axis' orientation: on a
+            # horizontal axis (g_mps2 = 0) a free flight is a straight line plus the guide rods' friction
             fl.is_free = False
-            fl.reason = (f"acceleration {fl.acceleration_mps2:.2f} m/s^2 too far from -g: not a free flight")
+            fl.reason = (f"acceleration {fl.acceleration_mps2:.2f} m/s^2 too far from the axis' gravity "
+                         f"-{c.g_mps2:.2f} m/s^2: not a free flight")
 
     def _structure_window(self, p: FlightFit, q: FlightFit):
         # good frames with t in [t_start(p) - history_s, t_end(q)], found backwards from the end

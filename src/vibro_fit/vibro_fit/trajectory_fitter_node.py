@@ -50,6 +50,7 @@ from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack, FrameTrack
 from vibro_io.rig import load_rig
 from vibro_model.assemble import StageOutputs, assemble_results
+from vibro_model.constants import G_MPS2
 from vibro_model.errors import RecordingError
 from vibro_model.results import ResultsDocument
 from vibro_msgs.msg import AccelBlock, DicFrame, FreeFlight, ImpactEstimate, StreamStatus, StructureMotion
@@ -78,13 +79,15 @@ from .impacts import ImpactFit
 from .live_accel import LIVE_RATE_GUESS_HZ, AccelStreamRefused, BlockCheck, LiveClockOffset
 from .plausibility import consistency_stage
 from .results import identified_stage
+from .segmentation import segmentation_config
 from .streaming import StreamingFitter
 
 
-def flight_message(fl: FlightFit, mass_kg: float, final: bool = False, origin_ns: int = 0) -> FreeFlight:
+def flight_message(fl: FlightFit, mass_kg: float, final: bool = False, origin_ns: int = 0,
+                   g_axis_mps2: float = G_MPS2) -> FreeFlight:
     """A fitted flight as published (``final``: the end-of-stream fit), stamped at its last frame on the lab
-    clock of ``origin_ns``."""
-    return flight_to_message(fl.model(mass_kg), final, origin_ns)
+    clock of ``origin_ns``; its friction (Eq. 17) against the gravity along the axis ``g_axis_mps2``."""
+    return flight_to_message(fl.model(mass_kg, g_axis_mps2), final, origin_ns)
 
 
 def impact_message(est: ImpactFit, final: bool = False, origin_ns: int = 0) -> ImpactEstimate:
@@ -128,7 +131,8 @@ class TrajectoryFitter(Node):
         self.clock = LiveClockOffset(self.offset_tol_s)
         self.accel_detector: AccelImpactDetector | None = None
         self.stream = StreamingFitter(self.rig.excitation.frequency_hz,
-                                      method="paper" if self.method == "joint" else self.method)
+                                      method="paper" if self.method == "joint" else self.method,
+                                      config=segmentation_config(self.rig))
         self.rows: list[FrameTrack] = []
         self.blocks: dict[int, AccelBlock] = {}
         self.dic_announced: int | None = None
@@ -186,7 +190,8 @@ class TrajectoryFitter(Node):
                 self.clock.add_dic(est.t_s)
                 self._report_clock()
         for fl in self.stream.pop_flights():
-            self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg, origin_ns=self.time_origin_ns))
+            self.pub_flights.publish(flight_message(fl, self.rig.ball.mass_kg, origin_ns=self.time_origin_ns,
+                                                    g_axis_mps2=self.rig.g_axis_mps2))
 
     def _on_block(self, msg: AccelBlock) -> None:
         live = self.block_check is not None

@@ -16,9 +16,11 @@ from typing import Any, Iterable, Mapping
 
 import yaml
 
+from vibro_model.constants import axial_gravity_mps2
 from vibro_model.errors import FrameError, RigError
 
 from .accel_checks import VOLTAGE_UNITS, canonical_unit
+from .camera_calibration import calibration_of_rig
 from .camera_files import CAMERA_FILE_SUFFIXES, merge_camera_header, open_camera_file
 from .frames_source import find_frames_source
 from .paths import relative_name_problem
@@ -51,6 +53,9 @@ class CameraConfig:
     #: init`` writes its own). A scale error scales every length and acceleration alike: the flights' gravity
     #: then looks tilted, so the discrepancy analysis claims no tilt within 3 of these sigmas. None: unknown.
     mm_per_px_rel_std: float | None = None
+    #: The camera's intrinsic calibration, a ROS camera_info YAML named relative to rig.yaml (optional;
+    #: :mod:`vibro_io.camera_calibration`): tracked positions are undistorted with it before the scale applies.
+    calibration: str | None = None
 
     def frame_time_s(self, index: int) -> float:
         """Time (s) of frame ``index``: t0_s + index / fps."""
@@ -79,6 +84,25 @@ class ExcitationConfig:
     #: nominal shaker acceleration amplitude (m/s^2), when rig.yaml gives it (optional): what a campaign
     #: sweeps beside the frequency; vibro identifies the structure's actual motion itself
     acceleration_mps2: float | None = None
+
+
+#: rig.yaml ``setup.axis_tilt_deg``'s range: 0 the motion axis vertical (the default), 90 horizontal
+AXIS_TILT_RANGE_DEG = (0.0, 90.0)
+
+
+@dataclass(frozen=True)
+class SetupConfig:
+    """How the rig is mounted (rig.yaml ``setup``, optional): ``axis_tilt_deg``, the motion axis from vertical
+    (0 vertical, the default; 45 tilted; 90 horizontal: the paper's Fig. 11 study). A declared orientation is
+    a known property of the rig, not a finding: gravity along the axis is g cos(axis_tilt_deg)
+    (:attr:`g_axis_mps2`), what the flights fall at and what friction per flight (Eq. 17) is measured against."""
+
+    axis_tilt_deg: float = 0.0
+
+    @property
+    def g_axis_mps2(self) -> float:
+        """Gravity along the motion axis, g cos(axis_tilt_deg) (m/s^2; 0 for a horizontal axis)."""
+        return axial_gravity_mps2(self.axis_tilt_deg)
 
 
 #: how the ball is tracked (rig.yaml ``dic.ball_method``): ``mesh``, the DIC mesh of subsets on a speckled
@@ -161,6 +185,12 @@ class RigConfig:
     dic: DicConfig
     accelerometers: AccelConfig | None = None
     path: str | None = None
+    setup: SetupConfig = field(default_factory=SetupConfig)
+
+    @property
+    def g_axis_mps2(self) -> float:
+        """Gravity along the motion axis as mounted (m/s^2): g cos(setup.axis_tilt_deg)."""
+        return self.setup.g_axis_mps2
 
     @property
     def free_play_mm(self) -> float:
@@ -184,8 +214,14 @@ class RigConfig:
             out["camera"].pop("start_time_unix_s")
         if self.camera.mm_per_px_rel_std is None:
             out["camera"].pop("mm_per_px_rel_std")
+        if self.camera.calibration is None:
+            out["camera"].pop("calibration")
         if self.excitation.acceleration_mps2 is None:
             out["excitation"].pop("acceleration_mps2")
+        setup = out.pop("setup")   # optional: written only when it says more than the default (vertical)
+        if self.setup != SetupConfig():
+            out = {**{k: v for k, v in out.items() if k in ("camera",)}, "setup": setup,
+                   **{k: v for k, v in out.items() if k not in ("camera",)}}
         return out
 
 
@@ -297,7 +333,9 @@ def load_rig(path: str | Path) -> RigConfig:
         source = None  # open_recording reports a missing or ambiguous video
     if source is not None and source.suffix.lower() in CAMERA_FILE_SUFFIXES:
         data = merge_camera_header(data, open_camera_file(source).header, str(path))
-    return parse_rig(data, str(path))
+    rig = parse_rig(data, str(path))
+    calibration_of_rig(rig)  # camera.calibration: the file read and checked now, before any work
+    return rig
 
 
 def _check(value: Any, kind: str, where: str) -> Any:
@@ -371,7 +409,8 @@ def _check_number(value: Any, kind: str, where: str) -> float:
 
 
 #: Optional keys per section (kind, as in _SCHEMA): absent = None.
-_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time", "mm_per_px_rel_std": "pos"},
+_OPTIONAL: dict[str, dict[str, str]] = {"camera": {"start_time_unix_s": "unix_time", "mm_per_px_rel_std": "pos",
+                                                   "calibration": "relpath"},
                                         "excitation": {"acceleration_mps2": "pos"},
                                         "dic": {"ball_method": "ball_method"}}
 #: Keys renamed in vibro's own rig.yaml vocabulary, per section: old spelling -> new. A rig.yaml with the old
@@ -395,7 +434,7 @@ def _check_unix_time(value: Any, where: str) -> float:
 
 def _section(data: Mapping[str, Any], name: str, schema: Mapping[str, str], src: str) -> dict[str, Any]:
     if name not in data:
-        unknown_top = [k for k in data if k not in _SCHEMA and k != "accelerometers"]
+        unknown_top = [k for k in data if k not in _SCHEMA and k not in ("accelerometers", "setup")]
         raise RigError(f"{src}: missing required key '{name}'{_typo_hint(name, unknown_top, '')}")
     block = data[name]
     if not isinstance(block, Mapping):
@@ -511,15 +550,43 @@ def _parse_accel(data: Mapping[str, Any], src: str) -> AccelConfig | None:
     return cfg
 
 
+def _parse_setup(data: Mapping[str, Any], src: str) -> SetupConfig:
+    """The optional ``setup`` block (how the rig is mounted): ``axis_tilt_deg`` in [0, 90] degrees from vertical
+    (absent: 0, vertical). Refused naming the key: not a mapping, not a number, outside [0, 90]."""
+    block = data.get("setup")
+    if block is None:
+        return SetupConfig()
+    if not isinstance(block, Mapping):
+        raise RigError(f"{src}: key 'setup' must be a mapping (e.g. 'setup: {{axis_tilt_deg: 45}}'), got {block!r}")
+    known = [f.name for f in SetupConfig.__dataclass_fields__.values()]
+    for key in block:
+        if key not in known:
+            _unknown_key(f"setup.{key}", misspelling_of(str(key), known), "setup", src)
+    tilt = block.get("axis_tilt_deg")
+    if tilt is None:
+        return SetupConfig()
+    where = f"{src}: key 'setup.axis_tilt_deg'"
+    lo, hi = AXIS_TILT_RANGE_DEG
+    if isinstance(tilt, bool) or not isinstance(tilt, (int, float)) or not math.isfinite(tilt):
+        raise RigError(f"{where}: expected the motion axis' angle from vertical in degrees, a number in [{lo:g}, "
+                       f"{hi:g}] (0 vertical, 90 horizontal), got {tilt!r}")
+    if not lo <= float(tilt) <= hi:
+        raise RigError(f"{where}: expected the motion axis' angle from vertical in [{lo:g}, {hi:g}] degrees (0 "
+                       f"vertical, 45 tilted, 90 horizontal: the axis from the lower plate to the upper one), "
+                       f"got {tilt!r}")
+    return SetupConfig(axis_tilt_deg=float(tilt))
+
+
 def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
     """Validate a rig mapping (as parsed from YAML) into a :class:`RigConfig`."""
     if not isinstance(data, Mapping):
         raise RigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
     sections = {name: _section(data, name, schema, source) for name, schema in _SCHEMA.items()}
     accel = _parse_accel(data, source)
+    setup = _parse_setup(data, source)
     for key in data:
-        if key not in _SCHEMA and key != "accelerometers":
-            _unknown_key(str(key), misspelling_of(str(key), [*_SCHEMA, "accelerometers"]), None, source)
+        if key not in _SCHEMA and key not in ("accelerometers", "setup"):
+            _unknown_key(str(key), misspelling_of(str(key), [*_SCHEMA, "accelerometers", "setup"]), None, source)
     rig = RigConfig(
         camera=CameraConfig(**sections["camera"]),
         ball=BallConfig(**sections["ball"]),
@@ -528,6 +595,7 @@ def parse_rig(data: Any, source: str = "rig.yaml") -> RigConfig:
         dic=DicConfig(**sections["dic"], ball_method_named="ball_method" in sections["dic"]),
         accelerometers=accel,
         path=source,
+        setup=setup,
     )
     if rig.structure.gap_mm <= rig.ball.diameter_mm:
         raise RigError(

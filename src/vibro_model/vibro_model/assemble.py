@@ -8,7 +8,7 @@ where the stage outputs come from; the rules below are written here once:
 
 - **sections** in one order: ``completeness``, ``cor_statistics``, the identification's own sections (regime,
   contacts, identification, rig_consistency, motion, accelerometers), ``dic_quality``, ``consistency``,
-  ``impacts_model``, ``ball_spin``;
+  ``impacts_model``, ``ball_spin``, ``provenance``;
 - **warnings** in one order: the refusal first (``refused: ...``), then what the run lost (completeness), the
   identification's, the DIC's, the cross-checks', the simulation's, the discrepancy analysis', ``ball_spin``'s;
 - **refusal** (a cross-check that withholds the results, :class:`ConsistencyStage`): no COR table (no impacts,
@@ -19,7 +19,8 @@ where the stage outputs come from; the rules below are written here once:
 - **re-identification** (:func:`apply_reidentification`): with a discrepancy stage, the impacts the final model
   measured again replace the identification's, which stay beside them (``cor_paper``, ``t_paper``), and the
   ``impacts_model`` section says which model each ``cor`` comes from; ``cor_summary`` and ``cor_statistics``
-  are of the final CORs.
+  are of the final CORs; a constant force along the axis that a finding names (an undeclared tilt) is taken
+  out of every flight's Eq. 17 friction (:func:`apply_friction_correction`, the ``friction_model`` section).
 
 Plain module (numpy only; no rclpy, no scipy at import): the fitter node and the CLI load it alike.
 """
@@ -133,6 +134,38 @@ class Reidentification:
     effects: Sequence[str] = ()
     impacts: Sequence[Impact] = ()
     local_structure: Sequence[LocalStructure] = ()
+    friction: "FrictionCorrection | None" = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrictionCorrection:
+    """A constant force along the axis that the discrepancy analysis found and named (``effect``: an undeclared
+    tilt, ``gravity_tilt``): Eq. 17 measures each flight's friction against the declared gravity g cos(theta),
+    so every flight's ``friction_n`` holds it; the results subtract ``force_n`` (N, + up: m c, c the term's
+    acceleration change) from each, with its sigma ``force_std_n`` added in quadrature, and say so (``words``,
+    results.json ``friction_model``)."""
+
+    effect: str
+    force_n: float
+    force_std_n: float
+    words: str = ""
+
+
+def apply_friction_correction(flights: Sequence[Flight], corr: FrictionCorrection | None
+                              ) -> tuple[list[Flight], dict[str, Any] | None]:
+    """The flights with each free flight's ``friction_n`` corrected by ``corr`` (``friction_paper_n`` the Eq. 17
+    value, ``friction_method`` the effect) and the ``friction_model`` section; (flights, None) without one."""
+    if corr is None:
+        return list(flights), None
+    out = [replace(f, friction_paper_n=f.friction_n, friction_method=corr.effect,
+                   friction_n=f.friction_n - corr.force_n,
+                   friction_std_n=None if f.friction_std_n is None else float(np.hypot(f.friction_std_n,
+                                                                                       corr.force_std_n)))
+           if f.friction_n is not None else f for f in flights]
+    section = {"friction_method": corr.effect, "force_subtracted_n": json_number(corr.force_n),
+               "force_subtracted_std_n": json_number(corr.force_std_n),
+               "n_corrected": sum(f.friction_n is not None for f in flights), "description": corr.words}
+    return out, section
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -165,6 +198,7 @@ class StageOutputs:
     simulation: SimulationStage | None = None
     discrepancy: DiscrepancyStage | None = None
     ball_spin: BallSpinStage | None = None
+    provenance: dict[str, Any] | None = None   # where the run came from (vibro analyze: command, inputs' SHA-256)
 
 
 # ---------------------------------------------------------------- the assembler
@@ -210,8 +244,12 @@ def _ordered_sections(stages: StageOutputs, doc: ResultsDocument, refused: bool)
         out["consistency"] = stages.consistency.section
     if "impacts_model" in doc.sections:
         out["impacts_model"] = doc.sections["impacts_model"]
+    if "friction_model" in doc.sections:
+        out["friction_model"] = doc.sections["friction_model"]
     if stages.ball_spin is not None and stages.ball_spin.section is not None and not refused:
         out["ball_spin"] = stages.ball_spin.section
+    if stages.provenance is not None:
+        out["provenance"] = stages.provenance
     return out
 
 
@@ -366,6 +404,7 @@ def apply_reidentification(doc: ResultsDocument, redo: Reidentification) -> Resu
         n_done += 1
         how = method + ("+" + LOCAL_STRUCTURE if round(imp.t_s / SAME_IMPACT_S) in local else "")
         impacts.append(replace(base, t_s=r.t_s, t_std_s=r.t_std_s, cor=r.cor, cor_std=r.cor_std,
+                               cor_std_model=r.cor_std_model,
                                v_ball_before_mps=r.v_ball_before_mps, v_ball_after_mps=r.v_ball_after_mps,
                                v_structure_mps=r.v_structure_mps, cor_method=how))
     n_cor = sum(i.cor is not None for i in doc.impacts)
@@ -378,6 +417,9 @@ def apply_reidentification(doc: ResultsDocument, redo: Reidentification) -> Resu
             f"'{method}+{LOCAL_STRUCTURE}')")
     sections = dict(doc.sections)
     sections["impacts_model"] = section
+    flights, friction = apply_friction_correction(doc.flights, redo.friction)   # an undeclared tilt's force
+    if friction is not None:
+        sections["friction_model"] = friction
     # flights' t_start/t_end are the impacts that open/close them (the contract): the re-measured times
-    return replace(doc, flights=link_impacts(doc.flights, impacts), impacts=impacts,
+    return replace(doc, flights=link_impacts(flights, impacts), impacts=impacts,
                    cor_summary=CorSummary.of(impacts), sections=sections)

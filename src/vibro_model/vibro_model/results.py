@@ -11,6 +11,7 @@ plain JSON in ``sections`` / ``details``.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -88,7 +89,9 @@ class StructureMotion:
 class Flight:
     """One fitted flight: Y_b[m] = a t^2 + b t + c, t absolute camera time (s); friction (Eq. 17, N, + up)
     only for a free flight. ``t_start_s``/``t_end_s`` are the impacts that open/close it when known,
-    else its first/last fitted frame."""
+    else its first/last fitted frame. ``friction_method`` (None: Eq. 17 as identified) names the discrepancy
+    finding the friction was corrected for (``gravity_tilt``: an undeclared tilt's constant force m c along the
+    axis subtracted), ``friction_paper_n`` then keeps the identification's Eq. 17 value."""
 
     index: int
     t_first_frame_s: float | None
@@ -105,6 +108,8 @@ class Flight:
     reason: str = ""
     t_opening_impact_s: float | None = None
     t_closing_impact_s: float | None = None
+    friction_method: str | None = None
+    friction_paper_n: float | None = None
 
     @property
     def t_start_s(self) -> float | None:
@@ -121,6 +126,8 @@ class Flight:
                "direction": self.direction or "up", "friction_n": self.friction_n,
                "friction_std_n": self.friction_std_n, "rms_residual_mm": m_to_mm(self.rms_residual_m),
                "n_points": self.n_points, "free": self.free, "reason": self.reason}
+        if self.friction_method is not None:
+            out.update({"friction_method": self.friction_method, "friction_paper_n": self.friction_paper_n})
         return {k: json_number(v) if not isinstance(v, str) else v for k, v in out.items()}
 
     @classmethod
@@ -137,6 +144,8 @@ class Flight:
                    rms_residual_m=mm_to_m(f.number("rms_residual_mm")),
                    n_points=f.integer("n_points", False, nullable=True), free=f.boolean("free", friction is not None),
                    reason=f.string("reason", False, default=""),
+                   friction_method=f.string("friction_method", False),
+                   friction_paper_n=f.number("friction_paper_n", False),
                    t_opening_impact_s=t_start if t_start != first else None,
                    t_closing_impact_s=t_end if t_end != last else None)
 
@@ -155,6 +164,10 @@ class Impact:
     The one impact type: the identification's estimates (:class:`vibro_fit.impacts.ImpactFit` adds the fit
     context), the simulators' impact events (:mod:`vibro_sim.cor_model`, ``cor_std`` None) and the synthetic
     truth (:mod:`vibro_fit.synthetic`) are all Impacts.
+
+    ``cor_std_model`` is the share of ``cor_std`` that is model error: what the model leaves in its residuals
+    near the impact (:mod:`vibro_model.model_error`; cor_std^2 = noise^2 + cor_std_model^2), None (not written)
+    where none was found.
 
     ``in_gap`` is true for an impact found inside a run of lost frames from the flights on both sides
     (:mod:`vibro_fit.gaps`), ``gap_lost_frames`` the frames lost between those flights; its sigmas are
@@ -178,6 +191,17 @@ class Impact:
     t_paper_s: float | None = None
     in_gap: bool | None = None
     gap_lost_frames: int | None = None
+    cor_std_model: float | None = None   # the share of cor_std that is model error (vibro_model.model_error)
+
+    @property
+    def cor_std_noise(self) -> float | None:
+        """The noise share of ``cor_std``: its model error (``cor_std_model``) taken out (None when unknown). The
+        checks that look for what the model misses (a COR outside [0, 1], the discrepancy analysis' floors) judge
+        against it: the model error is made of that miss."""
+        if self.cor_std is None:
+            return None
+        model = self.cor_std_model or 0.0
+        return math.sqrt(max(self.cor_std * self.cor_std - model * model, 0.0))
 
     @property
     def v_rel_before_mps(self) -> float:
@@ -200,6 +224,8 @@ class Impact:
         if self.cor_method is not None:
             out.update({"cor_method": self.cor_method, "cor_paper": json_number(self.cor_paper),
                         "cor_std_paper": json_number(self.cor_std_paper), "t_paper": json_number(self.t_paper_s)})
+        if self.cor_std_model is not None:
+            out["cor_std_model"] = json_number(self.cor_std_model)
         if self.in_gap is not None:
             out["in_gap"] = bool(self.in_gap)
             out["gap_lost_frames"] = None if self.gap_lost_frames is None else int(self.gap_lost_frames)
@@ -218,7 +244,8 @@ class Impact:
                    cor_method=f.string("cor_method", False), cor_paper=f.number("cor_paper", False),
                    cor_std_paper=f.number("cor_std_paper", False),
                    t_paper_s=f.number("t_paper", False), in_gap=f.boolean("in_gap", None),  # type: ignore[arg-type]
-                   gap_lost_frames=f.integer("gap_lost_frames", False, True))
+                   gap_lost_frames=f.integer("gap_lost_frames", False, True),
+                   cor_std_model=f.number("cor_std_model", False))
 
 
 @dataclass

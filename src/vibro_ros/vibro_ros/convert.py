@@ -175,7 +175,8 @@ def impact_to_message(i: Impact, final: bool = False, origin_ns: int = 0):
                          v_ball_before_m_per_s=nan_if_none(i.v_ball_before_mps),
                          v_ball_after_m_per_s=nan_if_none(i.v_ball_after_mps),
                          v_structure_m_per_s=nan_if_none(i.v_structure_mps), flight_before=int(i.flight_before),
-                         flight_after=int(i.flight_after), final=bool(final))
+                         flight_after=int(i.flight_after), final=bool(final),
+                         cor_std_model=nan_if_none(i.cor_std_model))
     return _stamp(msg, i.t_s, origin_ns)
 
 
@@ -186,7 +187,8 @@ def impact_from_message(msg: Any) -> Impact:
                   v_ball_after_mps=none_if_nan(msg.v_ball_after_m_per_s),
                   v_structure_mps=none_if_nan(msg.v_structure_m_per_s), t_std_s=none_if_nan(msg.t_std_s),
                   flight_before=int(msg.flight_before),
-                  flight_after=int(msg.flight_after))
+                  flight_after=int(msg.flight_after),
+                  cor_std_model=none_if_nan(getattr(msg, "cor_std_model", math.nan)))
 
 
 # ---------------------------------------------------------------- simulation

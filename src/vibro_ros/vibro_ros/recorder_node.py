@@ -20,6 +20,7 @@ import time
 
 from rclpy.node import Node
 
+from vibro_io.camera_calibration import calibration_custom_data
 from vibro_model.errors import RecordingError
 from vibro_ros import topics
 from vibro_ros.adaptive_qos import ResultsSubscription, discovered_offers, publishers_identified
@@ -63,6 +64,7 @@ class Recorder(Node):
             from pathlib import Path
 
             custom["vibro.rig_yaml"] = Path(rig_file).read_text(encoding="utf-8")
+            custom.update(calibration_custom_data(rig_file))  # rig.yaml's camera.calibration, for a replay
         # the lab clock of the header stamps (stamp = origin + data time), so a replay stamps identically
         custom[BAG_TIME_ORIGIN_KEY] = str(time_origin_parameter(self))
         self.writer = BagWriter(bag, chunk_size=chunk_kb * 1024, custom_data=custom,

@@ -22,7 +22,8 @@ class BallCavity:
     """A ball of mass m and radius R in a cavity with free play b (m) each side of centre.
 
     The ball centre touches the upper plate at Y_b - Y_s = +b and the lower at -b.
-    ``tilt_deg`` tilts the motion axis from vertical: effective gravity g cos(tilt).
+    ``tilt_deg`` tilts the motion axis from vertical: effective gravity g cos(tilt) (90: a horizontal axis, no
+    gravity along it; beyond 90 the upper plate is the lower one: gravity pulls towards it).
     Material data (Young's moduli in Pa, Poisson ratios) feed the Hertz contact.
     """
 
@@ -49,12 +50,14 @@ class BallCavity:
                 raise ValueError(f"BallCavity.{name} must be in (-1, 0.5), got {getattr(self, name)}")
         if self.gravity_mps2 < 0:
             raise ValueError(f"BallCavity.gravity_mps2 must be >= 0, got {self.gravity_mps2}")
-        if not -90.0 <= self.tilt_deg <= 90.0:
-            raise ValueError(f"BallCavity.tilt_deg must be in [-90, 90], got {self.tilt_deg}")
+        if not -180.0 <= self.tilt_deg <= 180.0:
+            raise ValueError(f"BallCavity.tilt_deg must be in [-180, 180], got {self.tilt_deg}")
 
     @property
     def g_eff_mps2(self) -> float:
-        """Gravity along the motion axis, g cos(tilt) (m/s^2, pulls down)."""
+        """Gravity along the motion axis, g cos(tilt) (m/s^2, pulls down; exactly 0 for a horizontal axis)."""
+        if abs(self.tilt_deg) == 90.0:
+            return 0.0
         return self.gravity_mps2 * math.cos(math.radians(self.tilt_deg))
 
     @property
@@ -70,8 +73,12 @@ class BallCavity:
         return 4.0 * math.sqrt(self.radius_m) / (3.0 * math.pi * (k_b + k_s))
 
     @classmethod
-    def from_rig(cls, rig, gravity_mps2: float = G_MPS2, tilt_deg: float = 0.0) -> "BallCavity":
-        """Build from a :class:`vibro_io.rig.RigConfig` (mm in the rig -> m here)."""
+    def from_rig(cls, rig, gravity_mps2: float = G_MPS2, tilt_deg: float | None = None) -> "BallCavity":
+        """Build from a :class:`vibro_io.rig.RigConfig` (mm in the rig -> m here); ``tilt_deg`` None: the rig's
+        declared orientation, rig.yaml ``setup.axis_tilt_deg``."""
+        if tilt_deg is None:
+            setup = getattr(rig, "setup", None)
+            tilt_deg = float(setup.axis_tilt_deg) if setup is not None else 0.0
         return cls(
             mass_kg=rig.ball.mass_kg,
             radius_m=0.5e-3 * rig.ball.diameter_mm,

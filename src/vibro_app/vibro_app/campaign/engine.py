@@ -20,7 +20,7 @@ from vibro_app.campaign.report import (
     write_report_html,
 )
 from vibro_app.campaign.runs import RunSpec, find_runs
-from vibro_app.campaign.summary import flag_disagreeing, run_summary
+from vibro_app.campaign.summary import flag_disagreeing, orientation_groups, run_summary
 from vibro_app.campaign.task import analyze_run
 from vibro_io.outputs import OutputError
 
@@ -143,6 +143,7 @@ def run_campaign(source: str | Path, out: str | Path, *, workers: int | None = N
         "timing": timing,
         "runs": rows,
     }
+    document["orientation"] = orientation_groups(rows)   # COR per rig orientation (setup.axis_tilt_deg)
     figures = write_figures(out, rows)
     document["figures"] = {k: FIGURES[k] for k in figures}
     document["timing"]["wall_s"] = time.perf_counter() - start

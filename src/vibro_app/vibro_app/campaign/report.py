@@ -1,5 +1,7 @@
 """The campaign report in OUT/: campaign.json (everything), campaign.csv (one row per run, a table a paper
-can use), cor_vs_speed.png and cor_vs_excitation.png (matplotlib), report.html (self-contained).
+can use), cor_vs_speed.png and cor_vs_excitation.png (matplotlib), cor_by_orientation.png when the runs hold more
+than one rig orientation (rig.yaml ``setup.axis_tilt_deg``: the paper's Fig. 11 study), report.html
+(self-contained).
 
 Units: COR dimensionless; impact speed = |v_ball_before - v_structure| (m/s, the relative speed at contact);
 excitation frequency Hz, acceleration amplitude m/s^2 (rig.yaml's nominal values); structure amplitude mm.
@@ -14,19 +16,30 @@ import io
 import json
 from pathlib import Path
 
-from vibro_app.campaign.summary import MIN_GROUP, PLATES, Z_FLAG, excitation_key, excitation_label
+from vibro_app.campaign.summary import (
+    MIN_GROUP,
+    PLATES,
+    Z_FLAG,
+    excitation_key,
+    excitation_label,
+    orientation_groups,
+    orientation_key,
+)
 from vibro_io.outputs import atomic_open, atomic_write_text
 
 CAMPAIGN_JSON = "campaign.json"
 CAMPAIGN_CSV = "campaign.csv"
 REPORT_HTML = "report.html"
-FIGURES = {"cor_vs_speed": "cor_vs_speed.png", "cor_vs_excitation": "cor_vs_excitation.png"}
+FIGURES = {"cor_vs_speed": "cor_vs_speed.png", "cor_vs_excitation": "cor_vs_excitation.png",
+           "cor_by_orientation": "cor_by_orientation.png"}
 SCHEMA = "vibro.campaign/1"
-FLAG_RULE = (f"per plate, among runs of the same nominal excitation (rig.yaml frequency_hz and acceleration_mps2; "
+FLAG_RULE = (f"per plate, among runs of the same nominal excitation and orientation (rig.yaml frequency_hz, "
+             f"acceleration_mps2 and setup.axis_tilt_deg; "
              f"groups of at least {MIN_GROUP} runs): z = (run's mean COR - group median) / max(1.4826 x MAD, "
              f"median standard error sigma/sqrt(n) of the group's runs); |z| > {Z_FLAG:g} flags the run")
 
 CSV_COLUMNS = ("run", "status", "reason", "resumed", "excitation_frequency_hz", "excitation_acceleration_mps2",
+               "axis_tilt_deg",
                "structure_amplitude_mm", "structure_frequency_hz", "n_impacts",
                "cor_top_mean", "cor_top_std", "cor_top_n", "cor_bottom_mean", "cor_bottom_std", "cor_bottom_n",
                "flagged", "findings", "findings_where", "outputs")
@@ -64,6 +77,7 @@ def write_campaign_csv(out: Path, rows: list[dict]) -> Path:
             writer.writerow([
                 r["name"], r["status"], r["reason"], int(bool(r.get("resumed"))),
                 _fmt(r["excitation"]["frequency_hz"]), _fmt(r["excitation"]["acceleration_mps2"]),
+                _fmt(orientation_key(r)),
                 _fmt(r["structure"].get("amplitude_mm")), _fmt(r["structure"].get("frequency_hz")),
                 "" if r["n_impacts"] is None else r["n_impacts"],
                 _fmt(c["top"]["mean"]), _fmt(c["top"]["std"]), c["top"]["n"],
@@ -126,7 +140,37 @@ def write_figures(out: Path, rows: list[dict]) -> dict[str, Path]:
     axes[0].set_ylabel("COR (run mean ± σ)")
     fig.suptitle("COR per run against the excitation (red: flagged)")
     paths["cor_vs_excitation"] = save_figure(fig, out / FIGURES["cor_vs_excitation"])
+    groups = orientation_groups(rows)
+    if len(groups) >= 2:
+        paths["cor_by_orientation"] = orientation_figure(groups, out / FIGURES["cor_by_orientation"])
     return paths
+
+
+def orientation_figure(groups: list[dict], path: Path) -> Path:
+    """COR top and bottom per rig orientation (:func:`.summary.orientation_groups`): the pooled impacts' mean
+    with its 95 % confidence interval, one x position per ``setup.axis_tilt_deg`` (the paper's Fig. 11)."""
+    import matplotlib.pyplot as plt
+
+    from vibro_app.report import save_figure
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    x = list(range(len(groups)))
+    for plate, dx, colour in (("top", -0.08, "C3"), ("bottom", 0.08, "C0")):
+        pts = [(xi + dx, g["cor"][plate]) for xi, g in zip(x, groups) if g["cor"][plate]["mean"] is not None]
+        if not pts:
+            continue
+        ax.errorbar([p[0] for p in pts], [c["mean"] for _, c in pts],
+                    yerr=[c["ci95_half_width"] or 0.0 for _, c in pts], fmt="o", ms=6, capsize=4, color=colour,
+                    label=f"{plate} plate")
+    ax.set_xticks(x, [f"{g['axis_tilt_deg']:g}°\n({sum(g['cor'][p]['n'] for p in PLATES)} impacts, "
+                      f"{len(g['runs'])} run{'s' if len(g['runs']) != 1 else ''})" for g in groups], fontsize=8)
+    ax.set_xlim(-0.5, len(groups) - 0.5)
+    ax.set_xlabel("rig orientation: motion axis from vertical (rig.yaml setup.axis_tilt_deg)")
+    ax.set_ylabel("COR (mean ± 95 % CI of the mean)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.suptitle("COR per plate and orientation (impacts pooled over the runs at each orientation)")
+    return save_figure(fig, path)
 
 
 def _img(path: Path) -> str:
@@ -162,7 +206,8 @@ def write_report_html(out: Path, document: dict, figures: dict[str, Path]) -> Pa
             f"{k} = {_fmt(p['value'], '.4g')}" + ("" if p["std"] is None else f" ± {_fmt(p['std'], '.2g')}")
             for k, p in f["parameters"].items())) + f"<br><small>{e(f['where'])}</small>" for f in r["findings"])
         note = e(r["reason"]) if r["status"] != "ok" else e(flags_text(r))
-        buf.write(f"<tr class='{cls}'><td>{link}</td><td>{e(excitation_label(excitation_key(r)))}</td>"
+        setting = excitation_label(excitation_key(r) + (orientation_key(r),))
+        buf.write(f"<tr class='{cls}'><td>{link}</td><td>{e(setting)}</td>"
                   f"<td>{e(struct)}</td><td>{'' if r['n_impacts'] is None else r['n_impacts']}</td>"
                   f"<td>{e(cor['top'])}</td><td>{e(cor['bottom'])}</td><td>{finds}</td><td>{note}</td></tr>")
     buf.write("</table>")

@@ -1,12 +1,19 @@
 """One row per campaign run (from its results.json and rig.yaml), and the runs that disagree with the rest.
 
 Disagreement rule (per plate, top and bottom): runs are grouped by their nominal excitation (rig.yaml's
-``excitation.frequency_hz`` and ``excitation.acceleration_mps2``, when given); in a group of at least
+``excitation.frequency_hz`` and ``excitation.acceleration_mps2``, when given) and the rig's orientation
+(``setup.axis_tilt_deg``: a run at another orientation is another experiment, not a disagreeing one); in a group
+of at least
 :data:`MIN_GROUP` runs with a COR on that plate, a run's robust z-score is
 ``z = (mean COR - median of the group) / scale`` with ``scale = max(1.4826 x MAD, median of the runs'
 standard errors sigma/sqrt(n))`` (MAD: median absolute deviation from the group median; the floor keeps runs
 that agree better than their own noise from flagging a difference within it). ``|z| > Z_FLAG`` (3.5, as
 Iglewicz and Hoaglin recommend for modified z-scores) flags the run, naming plate, z and the group median.
+
+Orientation study (the paper's Fig. 11: one test repeated vertical, tilted and horizontal):
+:func:`orientation_groups` pools the impacts' CORs of the runs at each ``setup.axis_tilt_deg``, per plate: mean,
+sample std and the 95 % confidence interval of the mean, mean +- t(0.975, n - 1) std / sqrt(n) (Student t; the
+impacts taken as independent draws of the contact's COR).
 """
 
 from __future__ import annotations
@@ -39,13 +46,15 @@ def run_summary(record: dict, run_dir: Path) -> dict:
     excitation (rig.yaml), the identified structure motion, impacts, COR per plate and the findings read
     from ``run_dir/results.json``. A run whose results cannot be read becomes failed, saying why."""
     row = dict(record)
-    row.update(excitation={"frequency_hz": None, "acceleration_mps2": None}, structure={}, n_impacts=None,
+    row.update(excitation={"frequency_hz": None, "acceleration_mps2": None}, setup={"axis_tilt_deg": None},
+               structure={}, n_impacts=None,
                cor={p: {"mean": None, "std": None, "n": 0} for p in PLATES}, impacts=[], findings=[],
                flags=[], outputs=None)
     try:
         rig = load_rig(Path(record["recording"]) / "rig.yaml")
         row["excitation"] = {"frequency_hz": rig.excitation.frequency_hz,
                              "acceleration_mps2": rig.excitation.acceleration_mps2}
+        row["setup"] = {"axis_tilt_deg": rig.setup.axis_tilt_deg}
     except RecordingError:
         pass  # a failed run's rig.yaml may be what failed; its reason says so
     if row["status"] != "ok":
@@ -86,8 +95,44 @@ def excitation_key(row: dict) -> tuple:
 
 
 def excitation_label(key: tuple) -> str:
-    f, a = key
-    return ("? Hz" if f is None else f"{f:g} Hz") + ("" if a is None else f", {a:g} m/s²")
+    f, a = key[:2]
+    tilt = key[2] if len(key) > 2 else None
+    return (("? Hz" if f is None else f"{f:g} Hz") + ("" if a is None else f", {a:g} m/s²")
+            + ("" if not tilt else f", axis {tilt:g}°"))
+
+
+def orientation_key(row: dict) -> float | None:
+    """The run's rig orientation, rig.yaml ``setup.axis_tilt_deg`` (deg from vertical; None: rig.yaml unread)."""
+    tilt = (row.get("setup") or {}).get("axis_tilt_deg")
+    return None if tilt is None else float(f"{float(tilt):.6g}")
+
+
+def orientation_groups(rows: list[dict]) -> list[dict]:
+    """The analysed runs grouped by orientation (``setup.axis_tilt_deg``, ascending): per group the runs and, per
+    plate, the pooled impacts' COR: n, mean, std and the 95 % confidence interval of the mean (module doc;
+    ``ci95_low``/``ci95_high`` None with fewer than 2 impacts)."""
+    from scipy.stats import t as student_t
+
+    groups: dict[float, list[dict]] = {}
+    for r in rows:
+        if r["status"] == "ok" and orientation_key(r) is not None:
+            groups.setdefault(orientation_key(r), []).append(r)
+    out = []
+    for tilt in sorted(groups):
+        members = groups[tilt]
+        plates = {}
+        for plate in PLATES:
+            cors = np.array([m["cor"] for r in members for m in r["impacts"]
+                             if m["plate"] == plate and m["cor"] is not None], float)
+            n = int(cors.size)
+            mean = float(cors.mean()) if n else None
+            std = float(cors.std(ddof=1)) if n >= 2 else None
+            half = float(student_t.ppf(0.975, n - 1) * std / math.sqrt(n)) if n >= 2 else None
+            plates[plate] = {"n": n, "mean": mean, "std": std, "ci95_half_width": half,
+                             "ci95_low": None if half is None else mean - half,
+                             "ci95_high": None if half is None else mean + half}
+        out.append({"axis_tilt_deg": tilt, "runs": [r["name"] for r in members], "cor": plates})
+    return out
 
 
 def robust_z(values: np.ndarray, std_errors: np.ndarray) -> tuple[np.ndarray, float, float]:
@@ -106,7 +151,7 @@ def flag_disagreeing(rows: list[dict]) -> None:
     groups: dict[tuple, list[dict]] = {}
     for row in rows:
         if row["status"] == "ok":
-            groups.setdefault(excitation_key(row), []).append(row)
+            groups.setdefault(excitation_key(row) + (orientation_key(row),), []).append(row)
     for key, members in groups.items():
         for plate in PLATES:
             have = [r for r in members if r["cor"][plate]["mean"] is not None and r["cor"][plate]["n"] > 0]

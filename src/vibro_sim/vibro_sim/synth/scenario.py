@@ -55,7 +55,9 @@ EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "asymmetric_restitution": {"cor_top": (0.6, 0.0, 1.0), "cor_bottom": (0.75, 0.0, 1.0),
                                "cor_sigma": (0.04, 0.0, 0.3)},
     "velocity_dependent_restitution": {"cor_at_zero": (0.85, 0.0, 1.0), "slope_s_per_m": (0.15, -1.0, 5.0)},
-    "gravity_tilt": {"tilt_deg": (30.0, -89.0, 89.0)},
+    # the axis' TRUE tilt from vertical, concealed (not in rig.yaml); with a declared setup.axis_tilt_deg
+    # (SynthConfig.axis_tilt_deg) it is the total tilt, e.g. 50 on a rig declared at 45
+    "gravity_tilt": {"tilt_deg": (30.0, -89.0, 179.0)},
     "structure_harmonics": {"h2_ratio": (0.05, 0.0, 0.5), "h3_ratio": (0.02, 0.0, 0.5),
                             "h2_phase_rad": (0.5, -2 * math.pi, 2 * math.pi),
                             "h3_phase_rad": (-0.8, -2 * math.pi, 2 * math.pi)},
@@ -74,6 +76,15 @@ _FORCES = ("coulomb_friction", "viscous_drag", "quadratic_drag")
 # 40 with the harmonics. At 27 the impact phases also repeat cycle to cycle (period 1,
 # spread < 0.05 rad without COR scatter). A = 27 / (2 pi 22)^2 = 1.41 mm.
 DEFAULT_ACCEL_MPS2 = 27.0
+#: The same for a rig mounted (nearly) horizontal (axis tilt >= ``HORIZONTAL_FROM_DEG``): no gravity brings the
+#: ball back, the drive alone keeps it crossing the cavity once per half period (a period-1 orbit, one impact
+#: on each plate per cycle). At 27 m/s^2 a Coulomb friction of 2e-4 N (the guide rods) loses that orbit for
+#: some drive phases; 40 kept it for 12 phases x Coulomb 0, 2e-4 and 1e-4 N at 80-90 deg (scan of
+#: :func:`vibro_sim.synth.trajectory.simulate_window`; 5e-4 N loses it for a few phases)
+HORIZONTAL_ACCEL_MPS2 = 40.0
+#: from this axis tilt (deg) on, gravity along the axis (< 0.2 g) cannot bring the ball to a plate within the
+#: lead-in: the ball starts at the speed that crosses the cavity in half a drive period (4 b f)
+HORIZONTAL_FROM_DEG = 78.0
 
 
 @dataclass
@@ -88,7 +99,11 @@ class SynthConfig:
                    with a drive near g (e.g. cor 0.5, accel_mps2 13 at 10 Hz) gives chatter with sticking:
                    each cycle a flight, hops decaying on the lower plate, then the ball rides the plate
                    until its downward acceleration exceeds g (truth ``contacts``).
-    accel_mps2     shaker acceleration amplitude A w^2 (27 m/s^2: two impacts/cycle).
+    accel_mps2     shaker acceleration amplitude A w^2 (27 m/s^2: two impacts/cycle; ``vibro synth`` takes
+                   HORIZONTAL_ACCEL_MPS2 for a rig mounted horizontal).
+    axis_tilt_deg  the rig's motion axis from vertical as mounted, declared in rig.yaml ``setup.axis_tilt_deg``
+                   (0..90: 0 vertical, 90 horizontal): gravity along the axis g cos(axis_tilt_deg). The concealed
+                   ``gravity_tilt`` effect, when chosen, is the axis' true tilt instead (total, from vertical).
     phase_rad      structure phase at camera time 0; None = drawn from the seed.
     seed           seeds every random draw (phase, speckle, noise, COR scatter).
     frames         number of frames (1500 = 1.5 s at 1000 fps).
@@ -132,12 +147,20 @@ class SynthConfig:
                    COR change per rad/s of spin change at the impact (0: the COR ignores the spin); see
                    :mod:`.spin`. DIC follows a rotation of up to a few 0.01 rad from frame 0 (its
                    subsets are translation-only): keep the angle there.
+    lens_k1, lens_k2
+                   radial distortion (plumb_bob k1, k2) of the lens the frames are seen through (:mod:`.lens`: fx =
+                   fy = 1000 px, principal point at the image centre; k1 -0.18 gives a barrel lens whose scale at
+                   the lower plate's ROI is ~1.5 % below the centre's). Default 0: no lens, the frames as before.
+    lens_calibration_file
+                   with a lens: write its calibration (camera_info.yaml) and name it in rig.yaml
+                   (``camera.calibration``); False: the recording of a lab that forgot to calibrate.
     """
 
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     frequency_hz: float = 22.0
     cor: float = BASELINE_COR
     accel_mps2: float = DEFAULT_ACCEL_MPS2
+    axis_tilt_deg: float = 0.0
     phase_rad: float | None = None
     seed: int = 0
     frames: int = 1500
@@ -167,6 +190,9 @@ class SynthConfig:
     ball_surface: str = "speckle"
     light_deg: float = 30.0
     jpeg_quality: int = 0
+    lens_k1: float = 0.0
+    lens_k2: float = 0.0
+    lens_calibration_file: bool = True
     ball_mass_kg: float = BALL_MASS_KG
     ball_diameter_mm: float = m_to_mm(BALL_DIAMETER_M)
     gap_mm: float = m_to_mm(GAP_M)
@@ -176,6 +202,8 @@ class SynthConfig:
         checks = [
             ("frequency_hz", self.frequency_hz > 0, "> 0"),
             ("cor", 0.0 <= self.cor <= 1.0, "in [0, 1]"), ("accel_mps2", self.accel_mps2 >= 0, ">= 0"),
+            ("axis_tilt_deg", 0.0 <= self.axis_tilt_deg <= 90.0,
+             "in [0, 90] degrees from vertical (0 vertical, 90 horizontal)"),
             ("frames", isinstance(self.frames, int) and self.frames >= 2, "an integer >= 2"),
             ("fps", self.fps > 0, "> 0"), ("lead_in_s", self.lead_in_s >= 0, ">= 0"),
             ("noise_gray", self.noise_gray >= 0, ">= 0"), ("flicker", 0 <= self.flicker < 0.5, "in [0, 0.5)"),
@@ -193,6 +221,7 @@ class SynthConfig:
             ("light_deg", 0.0 <= self.light_deg < 180.0, "in [0, 180) degrees"),
             ("jpeg_quality", isinstance(self.jpeg_quality, int) and 0 <= self.jpeg_quality <= 100,
              "an integer in [0, 100] (0 = no JPEG)"),
+            ("lens_k1", abs(self.lens_k1) <= 2.0, "within +-2"), ("lens_k2", abs(self.lens_k2) <= 2.0, "within +-2"),
         ]
         for name, ok, expect in checks:
             value = getattr(self, name)
@@ -320,7 +349,7 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
                                     h3_phase_rad=h.get("h3_phase_rad", 0.0))
     cavity = BallCavity(mass_kg=cfg.ball_mass_kg, radius_m=0.5 * mm_to_m(cfg.ball_diameter_mm),
                         free_play_m=0.5 * mm_to_m(cfg.gap_mm - cfg.ball_diameter_mm),
-                        tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", 0.0),
+                        tilt_deg=eff.get("gravity_tilt", {}).get("tilt_deg", cfg.axis_tilt_deg),
                         ball_E_pa=BALL_E_PA, ball_nu=BALL_NU, plate_E_pa=PLATE_E_PA, plate_nu=PLATE_NU)
     if "structure_tone" in eff:
         structure = tone_structure(structure, eff["structure_tone"])

@@ -11,7 +11,7 @@ from vibro_model.results import Impact
 
 from ..cor_model import FlightRecord, SimResult, simulate_cor
 from .invented import IndexShifted, stepped_cavity
-from .scenario import Models, SynthConfig
+from .scenario import HORIZONTAL_FROM_DEG, Models, SynthConfig
 
 
 @dataclass
@@ -35,9 +35,21 @@ def frame_times(cfg: SynthConfig) -> np.ndarray:
     return np.arange(cfg.frames) / cfg.fps
 
 
+def start_speed_mps(models: Models) -> float:
+    """The ball's speed at the start of the lead-in (m/s, up): 0 (at rest at the cavity centre, gravity brings it
+    to the lower plate) unless the axis is within 90 - :data:`HORIZONTAL_FROM_DEG` deg of horizontal (gravity along
+    it below 0.2 g); then 4 b f, the speed that crosses the cavity (2 b) in half a drive period: at rest in
+    mid-cavity with no gravity along the axis the ball would never reach a plate."""
+    cav = models.cavity
+    if abs(cav.g_eff_mps2) >= cav.gravity_mps2 * math.cos(math.radians(HORIZONTAL_FROM_DEG)):
+        return 0.0
+    return 4.0 * cav.free_play_m * models.structure.frequency_hz
+
+
 def simulate_window(cfg: SynthConfig, models: Models) -> Trajectory:
-    """Run the COR model from ``-lead_in_s`` (ball at rest at the cavity centre) to the
-    last frame plus one exposure; keep impacts and flights inside the frame window."""
+    """Run the COR model from ``-lead_in_s`` (ball at the cavity centre, at rest or with
+    :func:`start_speed_mps` on a horizontal axis) to the last frame plus one exposure; keep impacts and flights
+    inside the frame window."""
     t_frames = frame_times(cfg)
     S = models.structure
     t_start = -cfg.lead_in_s
@@ -59,7 +71,8 @@ def simulate_window(cfg: SynthConfig, models: Models) -> Trajectory:
         res = _simulate_pieces(models, [t_start] + splits + [t_end], float(t_frames[0]))
     else:
         res = simulate_cor(S, models.cavity, models.restitution, models.force,
-                           y0_m=float(S.position(t_start)), v0_mps=0.0, t0_s=t_start, t_end_s=t_end)
+                           y0_m=float(S.position(t_start)), v0_mps=start_speed_mps(models), t0_s=t_start,
+                           t_end_s=t_end)
     lo, hi = float(t_frames[0]), float(t_frames[-1])
     impacts = [i for i in res.impacts if lo <= i.t_s <= hi]
     flights = [f for f in res.flights if f.t_end_s > lo and f.t_start_s < hi]
@@ -77,7 +90,7 @@ def _simulate_pieces(models: Models, bounds: list[float], t_window_s: float) -> 
     S = models.structure
     step_t = float(models.plate_step["step_time_s"]) if models.plate_step is not None else math.inf
     pieces: list[SimResult] = []
-    y, v = float(S.position(bounds[0])), 0.0
+    y, v = float(S.position(bounds[0])), start_speed_mps(models)
     n_imp = 0
     law = models.restitution
     for a, b in zip(bounds[:-1], bounds[1:]):

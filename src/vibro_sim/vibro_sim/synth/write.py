@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from vibro_io.accel import AccelData, write_accel
+from vibro_io.camera_calibration import write_camera_info
 from vibro_io.outputs import OutputError, atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_io.rig import (
     AccelConfig,
@@ -23,6 +24,7 @@ from vibro_io.rig import (
     ExcitationConfig,
     RigConfig,
     Roi,
+    SetupConfig,
     StructureConfig,
     check_rois_in_image,
     write_rig,
@@ -31,6 +33,7 @@ from vibro_model.units import m_to_mm, um_to_mm
 
 from .accel import DaqSettings, make_accel
 from .lab_files import ACCEL_TDMS, LAB_OUTPUTS, MrawWriter, lab_files_truth, write_accel_tdms
+from .lens import CAMERA_INFO_FILE, Lens, lens_truth, synth_calibration
 from .render import Renderer, choose_layout, quantise
 from .scenario import STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
 from .spin import spin_angle, spin_rate
@@ -52,7 +55,7 @@ def truth_path(out_dir: str | Path) -> Path:
 
 
 #: what a synthetic recording folder holds (what --overwrite may replace), lab files (--lab-files) included
-RECORDING_OUTPUTS = ("rig.yaml", "accel.csv", "frames/*.png", "frames/*.tif", *LAB_OUTPUTS)
+RECORDING_OUTPUTS = ("rig.yaml", "accel.csv", "frames/*.png", "frames/*.tif", CAMERA_INFO_FILE, *LAB_OUTPUTS)
 
 
 def _prepare_dir(out_dir: Path, overwrite: bool, lab_files: bool = False) -> None:
@@ -113,6 +116,10 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     noise_rng = np.random.default_rng([cfg.seed, 2])
     renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift, spin=models.spinning,
                         ball_surface=cfg.ball_surface, light_deg=cfg.light_deg)
+    # the lens the frames are seen through (vibro synth --lens-k1): none by default
+    lens = Lens(synth_calibration(cfg.width_px, cfg.height_px, cfg.lens_k1, cfg.lens_k2)) \
+        if cfg.lens_k1 or cfg.lens_k2 else None
+    calibration = CAMERA_INFO_FILE if lens is not None and cfg.lens_calibration_file else None
 
     t = traj.frame_t_s
     ball_mm = m_to_mm(traj.ball_m)
@@ -120,7 +127,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     drift = _drift_mm(t, cfg, layout.mm_per_px)
 
     rig = RigConfig(
-        camera=CameraConfig(fps=cfg.fps, t0_s=0.0, mm_per_px=layout.mm_per_px),
+        camera=CameraConfig(fps=cfg.fps, t0_s=0.0, mm_per_px=layout.mm_per_px, calibration=calibration),
         ball=BallConfig(mass_kg=cfg.ball_mass_kg, diameter_mm=cfg.ball_diameter_mm,
                         youngs_modulus_pa=models.cavity.ball_E_pa, poisson_ratio=models.cavity.ball_nu),
         structure=StructureConfig(gap_mm=cfg.gap_mm, mass_kg=STRUCTURE_MASS_KG,
@@ -131,11 +138,12 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
         dic=_dic_config(cfg, renderer, ball_mm[0] + drift[0], struct_mm[0] + drift[0]),
         accelerometers=ACCEL_COLUMNS if cfg.accel else None,
         path=str(out_dir / "rig.yaml"),
+        setup=SetupConfig(axis_tilt_deg=float(cfg.axis_tilt_deg)),
     )
     check_rois_in_image(rig, cfg.height_px, cfg.width_px)
 
     angle = _ball_angle(models, traj)
-    images = _frame_images(cfg, renderer, traj, drift, noise_rng, angle)
+    images = _frame_images(cfg, renderer, traj, drift, noise_rng, angle, lens=lens)
     if lab_files:
         _write_mraw(out_dir, cfg, images, progress)
     else:
@@ -153,6 +161,11 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
                 write_accel(tmp, AccelData(sig.t_daq_s, sig.upper_ms2, sig.lower_ms2), ACCEL_COLUMNS)
 
     truth = _truth(cfg, models, traj, layout, phase, drift, rig)
+    if lens is not None:
+        truth["lens"] = lens_truth(lens.calib, calibration, rig.dic.structure_roi)
+        if calibration is not None:
+            with atomic_path(out_dir / calibration) as tmp:
+                write_camera_info(tmp, lens.calib, comment="vibro synth: the synthetic camera's lens (exact)")
     if models.spinning:
         truth["spin"] = _spin_truth(cfg, models, traj, truth)
     if lab_files:
@@ -240,8 +253,9 @@ def _write_mraw(folder: Path, cfg: SynthConfig, images, progress: bool | None) -
 
 
 def _frame_images(cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray, rng: np.random.Generator,
-                  angle=None):
-    """The recording's frames, rendered one at a time as they are asked for (quantised as written)."""
+                  angle=None, lens: Lens | None = None):
+    """The recording's frames, rendered one at a time as they are asked for (quantised as written); seen through
+    ``lens`` (:mod:`.lens`) when given, before the sensor's flicker and noise."""
     t = traj.frame_t_s
     S = traj.result.structure
     flick_phase = float(rng.uniform(0, 2 * math.pi))
@@ -256,6 +270,8 @@ def _frame_images(cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray,
         else:
             img = renderer.render(m_to_mm(traj.structure_m[k]), m_to_mm(traj.ball_m[k]), drift[k],
                                   0.0 if angle is None else float(angle(t[k])))
+        if lens is not None:
+            img = lens.apply(img)
         gain = 1.0 + cfg.flicker * (0.7 * math.sin(2 * math.pi * 100.0 * t[k] + flick_phase)
                                     + 0.3 * float(rng.standard_normal()))
         img = img * gain
@@ -306,7 +322,10 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
                   "ball_radius_px": layout.ball_radius_px, "row_mid": layout.row_mid,
                   "ball_roi": rig.dic.ball_roi.as_list(), "structure_roi": rig.dic.structure_roi.as_list()},
         "models": {"restitution": repr(models.restitution), "force": repr(models.force)},
-        "baseline": {"cor": cfg.cor, "force": "none", "gravity": "vertical",
+        "axis_tilt_deg": float(cfg.axis_tilt_deg),   # declared in rig.yaml setup.axis_tilt_deg
+        "baseline": {"cor": cfg.cor, "force": "none",
+                     "gravity": ("vertical" if cfg.axis_tilt_deg == 0 else
+                                 f"along the axis declared {cfg.axis_tilt_deg:g} deg from vertical: g cos(tilt)"),
                      "structure": "pure sine", "note": "what the effects modify"},
         "regime": regime(traj, cfg.frequency_hz) if not cfg.still else None,
         # the ball riding a plate (COR model: a rebound slower than its stick speed): from the landing to the
