@@ -13,11 +13,16 @@ FIXTURES = REPO / "tests" / "fixtures"
 SHARED = REPO.parent / "shared"
 
 
-#: test files that take longest (tens of seconds to minutes), run first so that the two pytest-xdist workers
-#: (``--dist loadfile``) do not end with one of them alone on a long file
-LONGEST_FIRST = ("test_discrepancy_prove.py", "test_isolation.py", "test_graph_faults.py", "test_graph.py",
-                 "test_restart_recovery.py", "test_reidentify.py", "test_structure_tone.py", "test_launch_order.py",
-                 "test_bags_rosbag2.py", "test_replay_live.py")
+#: test files that take longest (tens of seconds to minutes), longest first (from ``make test``'s --durations,
+#: summed per file), so that the pytest-xdist workers (``--dist loadfile``) do not end with one of them alone on a
+#: long file: list scheduling, longest first
+LONGEST_FIRST = ("test_physical_floors.py", "test_drive_change.py", "test_discrepancy_prove.py",
+                 "test_graph_faults.py", "test_orientation.py", "test_restart_recovery.py", "test_live_accel.py",
+                 "test_long_recordings.py", "test_camera_calibration.py", "test_drive_correction.py",
+                 "test_graph.py", "test_synth_lab_files.py", "test_isolation.py", "test_replay_live.py",
+                 "test_report_methods.py", "test_campaign.py", "test_launch_order.py", "test_reidentify.py",
+                 "test_structure_tone.py", "test_bags_rosbag2.py", "test_optics.py", "test_init_plain.py",
+                 "test_init.py", "test_outline_ball.py")
 
 
 def pytest_sessionstart(session) -> None:
