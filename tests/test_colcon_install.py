@@ -57,6 +57,17 @@ def script(install: Path, spec: NodeSpec) -> Path:
     return install / spec.package / "lib" / spec.package / spec.executable
 
 
+def test_the_readmes_setup_line_works_in_bash(colcon_install: Path) -> None:
+    """README.md and docs/install.md say ``source install/setup.bash`` after ``colcon build``: that file exists
+    (colcon-bash, in requirements.txt) and, sourced by bash exactly so, puts the installed packages first."""
+    assert (colcon_install / "setup.bash").is_file()
+    res = subprocess.run(["bash", "-c", f"cd {colcon_install.parent} && source install/setup.bash && "
+                          f"{sys.executable} -c 'import vibro_app; print(vibro_app.__file__)'"],
+                         capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().startswith(str(colcon_install)), res.stdout
+
+
 def test_installed_console_scripts_print_usage(colcon_install: Path) -> None:
     specs = [*NODES, BAG_SOURCE]
     config = yaml.safe_load((colcon_install / "vibro_bringup" / "share" / "vibro_bringup" / "config" /
