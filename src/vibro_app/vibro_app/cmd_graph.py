@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -220,4 +221,18 @@ def run(args: argparse.Namespace) -> int:
                                          setup=RunSetup(base=args.params, foxglove=foxglove))
     print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
-    return 0 if ok else 1
+    return incomplete_exit(bag, "vibro graph") if ok else 1
+
+
+def incomplete_exit(bag: Path, command: str) -> int:
+    """0 when the recorded run is complete, else 1 with the reason on stderr: the exit code ``vibro results`` gives
+    the same bag (:func:`vibro_app.bag_results.document_from_bag`), so every path ends a run that lost data
+    alike (a tracker killed and restarted mid-run leaves frames without DIC: the run's results are incomplete)."""
+    from vibro_app.bag_results import document_from_bag
+
+    doc = document_from_bag(bag)
+    if doc.complete:
+        return 0
+    print(f"{command}: error: the run is incomplete ({doc.warnings[0]}); `vibro results {bag}` writes its results "
+          "marked \"complete\": false", file=sys.stderr)
+    return 1
