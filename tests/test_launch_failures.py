@@ -219,3 +219,15 @@ def test_a_live_camera_started_before_the_graph_is_told_its_origin() -> None:
     assert round((data_time_from_stamp_ns(origin, stamp) - t0_s) * fps) == 0
     assert origin == stamp - 12_500_000 and "frame 4246" in hint
     assert A.time_origin_ns(str(origin)) == origin  # the launch argument takes it as printed
+
+
+def test_an_incomplete_run_ends_the_launch_as_it_ends_vibro_graph(launch_file, tiny_recording, tmp_path) -> None:
+    """Exit code 3 (vibro_ros.exit_codes.INCOMPLETE: the discrepancy node found frame slots the graph never
+    tracked and judged nothing): never restarted, the run ends with one line saying it is incomplete, under ros2
+    launch as under vibro graph (the same verdict)."""
+    from vibro_ros.exit_codes import INCOMPLETE
+
+    run = RunEndedCheck(launch_file, tiny_recording, bag=str(tmp_path / "bag"))
+    line = run.ends_run("discrepancy", INCOMPLETE)
+    assert "discrepancy: the run is incomplete (exit code 3" in line, line
+    assert exit_verdict("discrepancy", "processing", INCOMPLETE, restarts_done=0, respawn_max=2).action == END_RUN

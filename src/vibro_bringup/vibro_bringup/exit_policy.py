@@ -4,7 +4,8 @@ One rule for both process supervisors of the graph: ``vibro graph`` (:mod:`vibro
 launch file's event handlers (``launch/vibro.launch.py``) call :func:`exit_verdict`, so a lab's ``ros2 launch``
 ends a run exactly where ``vibro graph`` does. Exit codes of the nodes (:func:`vibro_ros.node_support.run_node`):
 0 finished (its stream ended, or SIGINT/SIGTERM), :data:`REFUSED` (2) bad input or parameters, or another run's
-data (vibro_ros.guard): a restart would refuse again; anything else (1, or a signal: negative) a crash.
+data (vibro_ros.guard): a restart would refuse again; :data:`INCOMPLETE` (3) the run lost frames the graph never
+tracked, so the end-of-run judges (discrepancy) judged nothing; anything else (1, or a signal: negative) a crash.
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ from __future__ import annotations
 import signal
 from dataclasses import dataclass
 
-#: exit code of a node that refused its input, its parameters or another run's messages (never restarted)
-REFUSED = 2
+from vibro_ros.exit_codes import INCOMPLETE, REFUSED
+
+__all__ = ["END_RUN", "FINISHED", "INCOMPLETE", "REFUSED", "RESTART", "ExitVerdict", "describe_exit", "exit_verdict"]
 
 FINISHED = "finished"
 RESTART = "restart"
@@ -55,6 +57,9 @@ def exit_verdict(name: str, role: str, code: int, *, restarts_done: int, respawn
     if code == REFUSED:
         return ExitVerdict(END_RUN, f"{name} refused its input or parameters (exit code {REFUSED}; its log says "
                                     "why): not restarted, the run ends")
+    if code == INCOMPLETE:
+        return ExitVerdict(END_RUN, f"{name}: the run is incomplete (exit code {INCOMPLETE}; its log says which frames "
+                                    "were never tracked): its results are not judged, the run ends")
     if code == 0 and not live:
         return ExitVerdict(FINISHED)
     how = "stopped (exit code 0)" if code == 0 else describe_exit(code)

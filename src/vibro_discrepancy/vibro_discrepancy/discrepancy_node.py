@@ -30,6 +30,7 @@ from vibro_model.errors import RecordingError
 from vibro_msgs.msg import DiscrepancyFinding, ImpactEstimate
 from vibro_ros import topics
 from vibro_ros.convert import finding_to_message, impact_to_message
+from vibro_ros.exit_codes import INCOMPLETE
 from vibro_ros.fit_results import FinalFitResults
 from vibro_ros.node_support import RESULTS_QOS, Health, StatusPublisher, declare, run_node, time_origin_parameter
 from vibro_ros.readiness import ReaderGate
@@ -72,6 +73,14 @@ class Discrepancy(Node):
 
     def analyse(self) -> None:
         r = self.results
+        incomplete = r.incomplete_words()
+        if incomplete:  # judged on part of the run, a "no finding" would be a claim about frames never seen
+            self.health.warn(incomplete)
+            self.get_logger().error(incomplete)
+            self.final_model_status.publish(0, 0, True)
+            self.status.publish(0, 0, True)
+            self.exit_code = INCOMPLETE
+            return
         if r.structure is None or not r.frames or not r.flights:
             self.health.warn("nothing to analyse (no structure fit, flights or DIC frames received)")
             self.get_logger().warning("nothing to analyse: no structure fit, flight or DIC frame received")

@@ -102,6 +102,24 @@ class FinalFitResults:
     def sorted_impacts(self) -> list[ImpactEstimate]:
         return [self.impacts[k] for k in sorted(self.impacts)]
 
+    def unanswered_frames(self) -> list[int]:
+        """Frame slots between the reference frame and the last DicFrame received that no DicFrame answered (the
+        tracker answers every slot, a lost frame as ``lost``: a slot without an answer is a frame the graph never
+        tracked, e.g. sent while a killed tracker was down). The run is then incomplete."""
+        if not self.frames:
+            return []
+        first = min(int(m.reference_frame_index) for m in self.frames.values())
+        return sorted(set(range(first, max(self.frames) + 1)) - set(self.frames))
+
+    def incomplete_words(self) -> str:
+        """Why the run's results are not judged ("" when every frame slot was answered)."""
+        missing = self.unanswered_frames()
+        if not missing:
+            return ""
+        return (f"the run is incomplete: {len(missing)} frame slot(s) without any DIC result ({missing[0]}.."
+                f"{missing[-1]}); its simulation and discrepancy are not judged (vibro results marks the run "
+                "\"complete\": false)")
+
     def tracked_frames(self) -> list[DicFrame]:
         """DIC frames that carry a displacement, in frame order."""
         return [self.frames[k] for k in sorted(self.frames) if not self.frames[k].lost]

@@ -74,6 +74,11 @@ class Simulator(Node):
 
     def simulate(self) -> None:
         r = self.results
+        if r.incomplete_words():  # D over part of the run is no model's deviation: not computed
+            self.health.warn(r.incomplete_words())
+            self.get_logger().warning(r.incomplete_words())
+            self.status.publish(0, 0, True)
+            return
         tracked = r.tracked_frames()
         if r.structure is None or not r.impacts or not tracked:
             self.health.warn("nothing to simulate (no structure fit, impacts or DIC data received)")
