@@ -37,7 +37,8 @@ catch-up, never received, missing on vibro/dic) and whether in blocks (longest r
 DURATION_S, and when tracking recovered after it stopped (the first frame published after the hog whose DicFrame
 lag is back under max(5 ms, 2 x the median lag before the hog), from the hog's end). ``--repeat N``: N runs per
 rate, fresh nodes each. ``--busy-core``: a process spinning on core 0 for each whole run (started before the nodes,
-killed after them: another program keeping one of the two cores busy).
+killed after them: another program keeping one of the two cores busy). ``--tracker-pythonpath DIR``: dic_tracker
+runs the vibro_dic package in DIR (a copy with an earlier dic_tracker_node.py: an A/B of the node in one session).
 Per run also the load average before and after it, the machine's busy cores while streaming and the CPU of
 the other processes (neither the graph's nor the bench's: others' work on a shared machine) in that time.
 Nothing is asserted: the numbers go to stdout and bench/results/live.json (every run).
@@ -46,6 +47,7 @@ Nothing is asserted: the numbers go to stdout and bench/results/live.json (every
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -201,11 +203,21 @@ def stop(procs: dict[str, subprocess.Popen]) -> dict[str, int]:
 BUSY = {"core": None}
 
 
-def busy_core(cpu: int, env: dict[str, str]) -> subprocess.Popen:
-    """A process spinning on core ``cpu`` until killed (``--busy-core``: another program busy for the whole run),
-    at the nodes' priority; named ``busy_core`` so that its CPU is sampled beside theirs."""
+@contextlib.contextmanager
+def busy_core(cpu: int | None, env: dict[str, str]):
+    """A process spinning on core ``cpu`` while the block runs, killed when it ends however it ends
+    (``--busy-core``: another program busy for the whole run; None: none), at the nodes' priority; named
+    ``busy_core`` so that its CPU is sampled beside theirs."""
+    if cpu is None:
+        yield None
+        return
     code = f"import os; os.sched_setaffinity(0, {{{cpu}}})\nwhile True: pass"
-    return subprocess.Popen([sys.executable, "-c", code, "__node:=busy_core"], env=env)
+    spinner = subprocess.Popen([sys.executable, "-c", code, "__node:=busy_core"], env=env)
+    try:
+        yield spinner
+    finally:
+        spinner.kill()
+        spinner.wait()
 
 
 def hog(cpu: int, seconds: float) -> subprocess.Popen:
@@ -223,8 +235,7 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel
     probe_out, ready, cam_out, daq_out = folder / "probe.json", folder / "probe.ready", folder / "camera.json", \
         folder / "daq.json"
     facts: dict = {"load_average_before": [round(x, 2) for x in os.getloadavg()]}
-    spinner = busy_core(BUSY["core"], env) if BUSY["core"] is not None else None
-    with CpuSampler(DOMAIN, machine=True) as sampler:
+    with busy_core(BUSY["core"], env), CpuSampler(DOMAIN, machine=True) as sampler:
         nodes, origin_ns = start_nodes(rec, folder, env, accel)
         with (folder / "probe.log").open("w") as log:
             probe = subprocess.Popen([sys.executable, str(BENCH / "live_probe.py"), str(probe_out), str(ready),
@@ -283,9 +294,6 @@ def run_rate(rec: Path, rate_hz: float, folder: Path, env: dict[str, str], accel
             died = {n: p.returncode for n, p in nodes.items() if p.poll() is not None}
         finally:
             stop({**nodes, "probe": probe})
-            if spinner is not None:
-                spinner.kill()
-                spinner.wait()
         cam = json.loads(cam_out.read_text())
         seen = json.loads(probe_out.read_text())
         end = max([a for a, *_ in seen["dic"]], default=cam["published_at_s"][-1])
