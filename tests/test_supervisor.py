@@ -84,15 +84,16 @@ def test_starts_sink_then_processing_then_sources_and_sees_them_finish(make) -> 
 
 
 def test_a_processing_node_is_restarted_then_given_up_with_its_log(make, tmp_path: Path) -> None:
-    sup = make({"proc": ("processing", "3", 0.05), "rec": ("sink", "run", 0)}, respawn=2)
+    # a crash: exit code 5 (2 is a refusal and 3 an incomplete run, vibro_ros.exit_codes: never restarted)
+    sup = make({"proc": ("processing", "5", 0.05), "rec": ("sink", "run", 0)}, respawn=2)
     sup.start_all()
     failures = _run_until(sup, lambda f: f)
-    assert [f.name for f in failures] == ["proc"] and failures[0].code == 3 and failures[0].restarts == 2
+    assert [f.name for f in failures] == ["proc"] and failures[0].code == 5 and failures[0].restarts == 2
     assert sup.restarts == {"proc": 2}
     assert sum(1 for _, what, n in _journal(make.journal) if what == "start" and n == "proc") == 3
     log = (tmp_path / "proc.log").read_text()
     assert log.count("restarted (") == 2 and "restarted (2/2)" in log
-    assert "proc: boom, giving up with 3" in failures[0].describe()
+    assert "proc: boom, giving up with 5" in failures[0].describe()
     assert not sup.all_finished()
     sup.stop(grace_s=5)
 

@@ -837,7 +837,8 @@ class DiscrepancyEstimator:
         details = run_details(chain, location, selection.stages(), not_absorbed(left.patterns, shape_steps))
         if scale is not None:
             details["instrument_scale"] = scale.to_dict()
-        lens = lens_check(meas)
+        flights = selection.flight_stage
+        lens = lens_check(meas, flights.residual_ratio if flights is not None else math.inf)
         if lens is not None:
             details["lens_check"] = lens.to_dict()
         findings = lens_findings(order_findings(chain.findings, leftover, shape, cor_left), lens)

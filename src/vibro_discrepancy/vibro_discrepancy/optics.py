@@ -11,7 +11,8 @@ calibration (``vibro calibrate``, or ROS camera_calibration) named in rig.yaml `
 The test (:func:`lens_check`), for a rig without a calibration: the flights' residual against gravity (each
 flight's state free, gravity free for a scale or tilt) is regressed on the static position columns
 (Y - Ybar)^2 and (Y - Ybar)^3 along each flight's fitted path. A lens leaves the noise
-(residual <= :data:`NOISE_RATIO` noise floors after, from more than that before); a force does not, because its
+(residual <= :data:`NOISE_RATIO` noise floors after, from more than that before, where the catalogue's flight
+terms leave the flights unexplained); a force does not, because its
 effect on a flight is the double integral of the force along the path, not a function of the position alone
 (measured: a position force of 25 % of the weight leaves 2.7 noise floors, a drag 13, a Coulomb friction 11; a
 barrel lens k1 = -0.18 leaves 0.99). Where the signature holds, the findings are reported as a probable optical
@@ -85,9 +86,12 @@ def _columns(meas: Measured) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(rows), np.vstack(cols)
 
 
-def lens_check(meas: Measured) -> LensCheck | None:
+def lens_check(meas: Measured, catalogue_x_noise: float = math.inf) -> LensCheck | None:
     """The lens test (module docstring) of ``meas``; None for a calibrated camera, too few flights or no noise
-    floor."""
+    floor. ``catalogue_x_noise``: what the catalogue's chosen flight model leaves of the flights, in noise floors
+    (the selection's flight stage): a lens is named only where the catalogue leaves the flights unexplained and the
+    position columns explain them (a small Coulomb friction, which a quadratic in position also follows, is the
+    catalogue's)."""
     if meas.calibrated or len(meas.flights) < MIN_FLIGHTS:
         return None
     noise = difference_sigma([(f.t_s, f.y_m) for f in meas.flights], 3)
@@ -109,7 +113,8 @@ def lens_check(meas: Measured) -> LensCheck | None:
     kappa = 2.0 * float(coef[1])
     return LensCheck(before_x_noise=before_x, after_x_noise=after_x, kappa_per_m=kappa,
                      kappa_std_per_m=math.sqrt(max(kappa_var, 0.0)),
-                     signature=before_x > NOISE_RATIO and after_x <= NOISE_RATIO)
+                     signature=before_x > NOISE_RATIO and after_x <= NOISE_RATIO
+                     and catalogue_x_noise > NOISE_RATIO)
 
 
 def lens_findings(findings: Sequence[DiscrepancyFinding], check: LensCheck | None) -> list[DiscrepancyFinding]:
