@@ -82,13 +82,14 @@ class InstrumentScale:
 
 def apparent_gravity(meas: Measured, ceiling_mps2: float) -> tuple[float, float] | None:
     """(apparent gravity, its sigma) in m/s^2 from the flights with every library flight term free: gravity
-    ``ceiling_mps2`` minus the constant (tilt) column's coefficient. None when the fit cannot separate the terms
-    (a singular covariance) or the apparent gravity sits at the ceiling (it is above it)."""
+    ``ceiling_mps2`` minus the constant (tilt) column's coefficient (at the ceiling when the data would put it above:
+    the coefficient is held >= 0 on a vertical rig, and the gate then finds it beyond the scale's reach). None when
+    the fit cannot separate the terms (a singular covariance)."""
     fit = fit_flights(meas, FLIGHT_TERMS, g_mps2=ceiling_mps2)
     k = next(i for i, t in enumerate(fit.terms) if isinstance(t, GravityTilt))
     c = float(fit.coefs[k])
     var = float(fit.cov[k, k]) if fit.cov.size else math.inf
-    if not (math.isfinite(var) and var > 0) or c <= 0.0:
+    if not (math.isfinite(var) and var > 0):
         return None
     return ceiling_mps2 - c, math.sqrt(var)
 
