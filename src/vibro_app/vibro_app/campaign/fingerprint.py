@@ -48,10 +48,14 @@ def code_version() -> str:
     return f"{release}+src.{digest.hexdigest()[:16]}"
 
 
-def input_fingerprint(recording: str | Path, options: dict, version: str | None = None) -> str:
+def input_fingerprint(recording: str | Path, options: dict, version: str | None = None, *,
+                      sizes: dict | None = None) -> str:
     """The fingerprint (hex) of ``recording`` analysed with ``options`` by vibro ``version`` (module doc).
-    A recording folder that is missing has a fingerprint too (it is never stored: that run fails)."""
+    A recording folder that is missing has a fingerprint too (it is never stored: that run fails).
+    ``sizes``, when given, receives ``bytes``: the recording's files' total size (the campaign's estimate of
+    a run's cost, from the same walk)."""
     recording = Path(recording)
+    total = 0
     digest = hashlib.sha256()
     digest.update(json.dumps({"version": version or code_version(), "options": options}, sort_keys=True).encode())
     rig = recording / "rig.yaml"
@@ -71,6 +75,9 @@ def input_fingerprint(recording: str | Path, options: dict, version: str | None 
                 continue
             rel = path.relative_to(recording).as_posix()
             digest.update(f"{rel}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            total += st.st_size
+    if sizes is not None:
+        sizes["bytes"] = total
     return digest.hexdigest()
 
 
