@@ -44,6 +44,7 @@ from vibro_model.assemble import (
     CompletenessStage,
     ConsistencyStage,
     DiscrepancyStage,
+    FrictionCorrection,
     Identified,
     LocalStructure,
     Reidentification,
@@ -93,6 +94,7 @@ class BagResults:
         self.consistency_problem = ""  # why a recorded consistency value could not be read
         self.local_structure: list[LocalStructure] = []  # the discrepancy node's (topics.LOCAL_STRUCTURE_KEY)
         self.local_structure_problem = ""  # why a recorded local_structure value could not be read
+        self.friction: FrictionCorrection | None = None  # the discrepancy node's (topics.FRICTION_CORRECTION_KEY)
         self.discrepancy: Discrepancy | None = None  # the discrepancy node's section (topics.DISCREPANCY_KEY)
         self.discrepancy_problem = ""  # why a recorded discrepancy value could not be read
         store = make_typestore()
@@ -162,6 +164,8 @@ class BagResults:
                 self.discrepancy = None
                 self.discrepancy_problem = (f"{where} could not be read ({exc}); the discrepancy section holds the "
                                             "findings published as messages only")
+        if values.get(topics.FRICTION_CORRECTION_KEY):
+            self._note_friction(values[topics.FRICTION_CORRECTION_KEY])
         if topics.LOCAL_STRUCTURE_KEY in values:
             try:
                 self.local_structure = [LocalStructure(**{k: float(v) for k, v in entry.items()})
@@ -172,6 +176,20 @@ class BagResults:
                 self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
                                                 f"'{topics.LOCAL_STRUCTURE_KEY}' could not be read ({exc}); which "
                                                 "impacts took a local structure velocity is not in this document")
+
+    def _note_friction(self, text: str) -> None:
+        """The friction correction the discrepancy node applied (a mapping of FrictionCorrection's fields); one that
+        does not read is said in a warning (the flights then keep their Eq. 17 friction)."""
+        try:
+            entry = json.loads(text)
+            self.friction = FrictionCorrection(effect=str(entry["effect"]), force_n=float(entry["force_n"]),
+                                               force_std_n=float(entry["force_std_n"]),
+                                               words=str(entry.get("words", "")))
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            self.friction = None
+            self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
+                                            f"'{topics.FRICTION_CORRECTION_KEY}' could not be read ({exc}); the "
+                                            "flights keep their Eq. 17 friction")
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]
@@ -261,7 +279,7 @@ def bag_stages(r: BagResults) -> StageOutputs:
     identified_doc = assemble_results(StageOutputs(recording=r.bag, identified=identified))
     redo = Reidentification(effects=tuple(measurement_effects(findings)),
                             impacts=reidentified_from_impacts(identified_doc, remeasured),
-                            local_structure=r.local_structure)
+                            local_structure=r.local_structure, friction=r.friction)
     return StageOutputs(
         recording=r.bag, identified=identified, completeness=_completeness_stage(r, len(impacts)),
         consistency=_consistency_stage(r),

@@ -100,6 +100,7 @@ class Discrepancy(Node):
         block = run.result
         redo = reidentification(block.findings, run)
         self.health.values[topics.LOCAL_STRUCTURE_KEY] = json.dumps([asdict(k) for k in redo.local_structure])
+        self.health.values[topics.FRICTION_CORRECTION_KEY] = json.dumps(asdict(redo.friction)) if redo.friction else ""
         self.health.values[topics.DISCREPANCY_KEY] = json.dumps(block.to_dict())
         self.health.publish()
         final = assemble_results(replace(stages, discrepancy=DiscrepancyStage(discrepancy=block,

@@ -67,6 +67,10 @@ LOCAL_STRUCTURE_KEY = "local_structure"
 #: section as the node computed it (baseline and final D, the findings with their extras, the engine's details),
 #: which the DiscrepancyFinding messages alone do not carry; ``vibro results`` takes the section from it
 DISCREPANCY_KEY = "discrepancy"
+#: /diagnostics value of the discrepancy node's status once it ran: the JSON of the constant force it takes out of
+#: every flight's Eq. 17 friction (an undeclared tilt, the image scale: vibro_model.assemble.FrictionCorrection as a
+#: mapping; "" when none), which ``vibro results`` applies as analyze does
+FRICTION_CORRECTION_KEY = "friction_correction"
 
 ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SIMULATION, DISCREPANCY,
               IMPACTS_FINAL_MODEL, STATUS, DIAGNOSTICS)
