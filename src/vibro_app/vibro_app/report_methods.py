@@ -360,6 +360,12 @@ def uncertainty_html(results: Mapping[str, Any]) -> str:
     if local:
         contains.append(f"For the {local} impacts measured with the local structure velocity, also how much the value "
                         "rests on that local model.")
+    model = sorted(float(i["cor_std_model"]) for i in impacts if i.get("cor_std_model") is not None)
+    if model:
+        contains.append(f"For the {len(model)} impacts near which the model leaves a significant smooth residual (the "
+                        "flights' or the structure's, pooled per plate and side), what that residual's slope does to "
+                        f"the velocities: model error, median {_num(statistics.median(model), '.2g')} "
+                        "(cor_std_model in impacts.csv and results.json).")
     scale_text = (f"The image scale ({_num(scale)} mm/px"
                   + (f", ± {_num(100 * rel, '.2g')} %" if rel is not None else "")
                   + ") multiplies the relative velocities before and after the impact alike and cancels in their "
@@ -369,8 +375,8 @@ def uncertainty_html(results: Mapping[str, Any]) -> str:
         scale_text += (" Under the final model, whose flights share a fixed g, a scale error would show as a constant "
                        "flight force instead (the discrepancy analysis says where a scale error could explain a "
                        "finding).")
-    not_in = ("Not in the sigma: model error (the flight law between frames and the structure's motion as the "
-              "model has them; the discrepancy analysis judges that model: D "
+    not_in = ("Not in the sigma: model error the residuals do not show (the flight law between frames and the "
+              "structure's motion as the model has them; the discrepancy analysis judges that model: D "
               f"{percent(_get(results, 'discrepancy', 'final_deviation'))} for the final one), systematic DIC errors "
               "(interpolation bias, motion out of the image plane) and the impact's own duration (the frames next "
               "to it are left out; the contact is taken as instantaneous).")

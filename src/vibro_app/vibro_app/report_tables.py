@@ -108,6 +108,14 @@ def plate_statistics(impacts: Iterable[Mapping[str, Any]], confidence: float = 0
     return out
 
 
+def _decimals(sem: float | None, least: int = 4) -> int:
+    """Decimals that show ``sem`` (a standard error or deviation) to its second significant digit, at least
+    ``least``: a COR scatter of 1e-5 is not printed as 0.0000."""
+    if sem is None or not math.isfinite(sem) or sem <= 0:
+        return least
+    return max(least, 1 - math.floor(math.log10(sem)))
+
+
 def _num(v: float | None, spec: str) -> str:
     return "n/a" if v is None or not math.isfinite(v) else format(v, spec)
 
@@ -122,9 +130,10 @@ def table2_html(impacts: Iterable[Mapping[str, Any]], confidence: float = 0.95) 
     rows = []
     for s in stats.values():
         n = f"{s.n}" + (f" (+{s.n_missing} without COR)" if s.n_missing else "")
-        ci = "n/a" if s.ci is None else f"[{s.ci[0]:.4f}, {s.ci[1]:.4f}]"
-        rows.append(f'<tr data-plate="{s.plate}"><th>{s.plate}</th><td>{n}</td><td>{_num(s.mean, ".4f")}</td>'
-                    f"<td>{_num(s.std, '.4f')}</td><td>{_num(s.sem, '.4f')}</td><td>{ci}</td>"
+        fixed = _decimals(s.sem)   # the mean and its interval to the standard error's second digit
+        ci = "n/a" if s.ci is None else f"[{s.ci[0]:.{fixed}f}, {s.ci[1]:.{fixed}f}]"
+        rows.append(f'<tr data-plate="{s.plate}"><th>{s.plate}</th><td>{n}</td><td>{_num(s.mean, f".{fixed}f")}</td>'
+                    f"<td>{_num(s.std, f'.{_decimals(s.std)}f')}</td><td>{_num(s.sem, f'.{fixed}f')}</td><td>{ci}</td>"
                     f"<td>{_num(s.qq_r, '.4f')}</td><td>{_num(s.shapiro_p, '.3g')}</td></tr>")
     return ('<table id="table2"><tr><th>plate</th><th>n</th><th>mean COR</th><th>std (ddof=1)</th>'
             f"<th>std. error of the mean</th><th>{pct} interval of the mean (Student t)</th>"
