@@ -79,7 +79,7 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "cv2": "pytho
 #: README lists them under "Python dependencies".
 PIP_ONLY = {"mcap": "mcap", "rosbags": "rosbags", "pysindy": "pysindy",
             "nptdms": "nptdms", "pyMRAW": "pymraw", "pycine": "pycine", "foxglove": "foxglove-sdk",
-            "distributed": "distributed"}
+            "distributed": "distributed", "dask": "dask"}
 #: ROS packages imported under their own name (the rosdep key is the package name).
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "std_msgs", "sensor_msgs", "diagnostic_msgs", "launch", "launch_ros",
                 "ament_index_python", "vibro_msgs", *PYTHON_PACKAGES}
