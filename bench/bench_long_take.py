@@ -76,6 +76,7 @@ def one_seed(seed: int, frames: int, work: Path) -> dict:
     rec, out = work / f"take{seed}", work / f"take{seed}_out"
     for p in (rec, out):
         shutil.rmtree(p, ignore_errors=True)
+    Path(f"{rec}.truth.json").unlink(missing_ok=True)   # beside the recording: a second run would refuse it
     row: dict = {"seed": seed, "frames": frames}
     print(f"[seed {seed}] vibro synth --lab-files ({frames} frames)", file=sys.stderr, flush=True)
     row["synth"] = run_child(["synth", "--out", str(rec), "--frames", str(frames), "--seed", str(seed),
