@@ -119,3 +119,16 @@ def test_the_drive_travels_in_the_structure_message():
         drive_from_message(SimpleNamespace(drive_json="{broken"))
     with pytest.raises(RecordingError, match="drive_json"):
         drive_from_message(SimpleNamespace(drive_json="[1, 2]"))
+
+
+def test_one_time_at_a_time_is_the_same_motion():
+    """The simulator asks one time at a time (a scalar path without arrays): the same values as the array path,
+    inside the windows, between them and outside, for every derivative."""
+    env = DriveEnvelope(t_s=(0.1, 0.5, 0.9, 1.3), amplitude_ratio=(1.0, 1.0, 1.1, 1.1),
+                        phase_shift_rad=(0.0, 0.02, 0.05, 0.04), offset_shift_m=(0.0, 1e-5, -2e-5, 0.0))
+    S = env.applied_to(StructureKinematics(1.4e-3, 22.0, 0.3, 1e-4, 0.05, 0.02, 0.5, -0.8))
+    t = np.array([-0.3, 0.1, 0.2345, 0.5, 0.77, 1.3, 1.9])
+    for f in (S.position, S.velocity, S.acceleration, S.jerk):
+        arr = np.asarray(f(t))
+        one = np.array([f(float(x)) for x in t])
+        assert np.allclose(one, arr, rtol=1e-12, atol=1e-15)

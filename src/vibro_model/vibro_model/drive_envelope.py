@@ -18,6 +18,7 @@ Units: m, s, rad.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -100,9 +101,45 @@ class EnvelopedDrive(StructureKinematics):
                 out = out + ratio * k ** order * np.sin(k * theta + ph + order * 0.5 * math.pi)
         return self.amplitude_m * out
 
-    def _sum(self, t, order: int):
-        t = np.asarray(t, dtype=float)
+    def _scalar(self, t: float, order: int) -> float:
+        """:meth:`_sum` at one time (the simulator's event loop asks one time at a time: plain floats, no arrays)."""
         env = self.envelope
+        x = env.t_s
+        k = min(max(bisect_right(x, t), 1), len(x) - 1)
+        inside = x[0] <= t <= x[-1]
+
+        def segment(y: tuple[float, ...]) -> tuple[float, float]:
+            if not inside:
+                return (y[0] if t < x[0] else y[-1]), 0.0
+            slope = (y[k] - y[k - 1]) / (x[k] - x[k - 1])
+            return y[k - 1] + slope * (t - x[k - 1]), slope
+
+        r, dr = segment(env.amplitude_ratio)
+        dphi, ddphi = segment(env.phase_shift_rad)
+        theta = self.omega_rad_s * t + self.phase_rad + dphi
+        rate = self.omega_rad_s + ddphi
+
+        def harmonics(n: int) -> float:
+            out = 0.0
+            for h, ratio, ph in ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad),
+                                 (3, self.h3_ratio, self.h3_phase_rad)):
+                if ratio != 0.0:
+                    out += ratio * h ** n * math.sin(h * theta + ph + n * 0.5 * math.pi)
+            return self.amplitude_m * out
+
+        out = r * harmonics(order) * rate ** order
+        if order >= 1:
+            out += order * dr * harmonics(order - 1) * rate ** (order - 1)
+        if order <= 1:
+            shift, dshift = segment(env.offset_shift_m)
+            out += shift if order == 0 else dshift
+        return out
+
+    def _sum(self, t, order: int):
+        env = self.envelope
+        if env is not None and np.ndim(t) == 0:
+            return self._scalar(float(t), order)
+        t = np.asarray(t, dtype=float)
         if env is None:
             return super()._sum(t, order)
         r, dr = _segments(env.t_s, env.amplitude_ratio, t)
