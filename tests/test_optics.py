@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import yaml
 from discrepancy_cases import make_case
 
 from vibro_discrepancy.data import measured_from_sections
@@ -32,13 +34,22 @@ def _vibro(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def through_a_lens(tmp_path_factory) -> dict:
+    """One recording through the lens, analysed with its calibration and, from a copy whose rig.yaml lost the
+    ``camera.calibration`` line (the lab that forgot), without it: the same frames both ways."""
     base = tmp_path_factory.mktemp("lens")
+    calibrated = base / "calibrated"
+    p = _vibro("synth", "--out", str(calibrated), "--frames", "700", "--seed", "3", "--lens-k1", "-0.18", "--no-accel",
+               "--no-progress")
+    assert p.returncode == 0, p.stderr
+    forgotten = base / "forgotten"
+    shutil.copytree(calibrated, forgotten)
+    rig = yaml.safe_load((forgotten / "rig.yaml").read_text())
+    assert rig["camera"].pop("calibration")           # the premise: synth named it
+    (forgotten / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
+    (forgotten / "camera_info.yaml").unlink(missing_ok=True)
     out = {}
-    for name, extra in (("forgotten", ["--no-calibration-file"]), ("calibrated", [])):
-        rec, res = base / name, base / f"{name}_out"
-        p = _vibro("synth", "--out", str(rec), "--frames", "700", "--seed", "3", "--lens-k1", "-0.18", "--no-accel",
-                   "--no-progress", *extra)
-        assert p.returncode == 0, p.stderr
+    for name, rec in (("forgotten", forgotten), ("calibrated", calibrated)):
+        res = base / f"{name}_out"
         a = _vibro("analyze", str(rec), "--out", str(res), "--no-progress", "--no-report")
         assert a.returncode == 0, a.stderr
         out[name] = {"doc": json.loads((res / "results.json").read_text()), "stdout": a.stdout}
