@@ -48,7 +48,7 @@ from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
 from vibro_model.assemble import FrictionCorrection, LocalStructure, Reidentification
 from vibro_model.constants import G_MPS2
-from vibro_model.model_error import ImpactSlopes, ModelError, flight_residual_slope
+from vibro_model.model_error import ImpactSlopes, ModelError, flight_residual_slope, local_sine_slope
 from vibro_model.results import Impact, ResultsDocument
 
 #: a re-measured COR keeps the final model's structure velocity only where that velocity, carried into the COR,
@@ -174,22 +174,6 @@ def reidentify_impacts(meas: Measured, model: FittedModel) -> list[Impact]:
     return out
 
 
-def _local_slope(tau: np.ndarray, r: np.ndarray, w: float, ramp: bool) -> tuple[float, float]:
-    """(slope at tau = 0, its std) of c0 + c1 tau + a sin(w tau) + b cos(w tau) fitted to ``r``, with
-    (a + a1 tau) and (b + b1 tau) when ``ramp``; NaN when singular."""
-    s, c = np.sin(w * tau), np.cos(w * tau)
-    cols = [np.ones_like(tau), tau, s, c] + ([tau * s, tau * c] if ramp else [])
-    X = np.column_stack(cols)
-    coef, *_ = np.linalg.lstsq(X, r, rcond=None)
-    s2 = float(np.sum((r - X @ coef) ** 2)) / max(tau.size - X.shape[1], 1)
-    try:
-        cov = s2 * np.linalg.inv(X.T @ X)
-    except np.linalg.LinAlgError:
-        return math.nan, math.nan
-    grad = np.array([0.0, 1.0, w, 0.0] + ([0.0, 1.0] if ramp else []))
-    return float(grad @ coef), math.sqrt(max(float(grad @ cov @ grad), 0.0))
-
-
 @dataclass(frozen=True)
 class StructureMisfit:
     """How far a model's structure velocity is from the measured structure's at one time: ``dv_mps`` (m/s),
@@ -221,8 +205,8 @@ def structure_misfit(meas: Measured, motion, t_s: float) -> StructureMisfit:
     tau = meas.t_s[sel] - t_s
     w = 2.0 * math.pi * meas.frequency_hz
     r = meas.structure_m[sel] - np.asarray(motion.position(meas.t_s[sel]), dtype=float)
-    dv, dv_std = _local_slope(tau, r, w, ramp=True)
-    dv_flat, _ = _local_slope(tau, r, w, ramp=False)
+    dv, dv_std = local_sine_slope(tau, r, w, ramp=True)
+    dv_flat, _ = local_sine_slope(tau, r, w)
     return StructureMisfit(dv, dv_std, abs(dv - dv_flat))
 
 

@@ -78,18 +78,22 @@ def flight_residual_slope(tau_s: np.ndarray, residual: np.ndarray, tau_at_s: flo
     return _slope_of_fit(X, r, grad)
 
 
-def local_sine_slope(tau_s: np.ndarray, residual: np.ndarray, omega_rad_s: float) -> tuple[float, float]:
+def local_sine_slope(tau_s: np.ndarray, residual: np.ndarray, omega_rad_s: float,
+                     ramp: bool = False) -> tuple[float, float]:
     """(d, sd): the slope at tau = 0 (residual unit / s) of c0 + c1 tau + a sin(w tau) + b cos(w tau) fitted to a
     structure model's ``residual`` around the impact (tau = t - t_impact, within about one drive period), and its
-    1-sigma. NaN with fewer than :data:`MIN_STRUCTURE_FRAMES` finite frames."""
+    1-sigma; with ``ramp``, (a + a1 tau) and (b + b1 tau): a drive changing across the window. NaN with fewer than
+    :data:`MIN_STRUCTURE_FRAMES` finite frames or a singular fit."""
     tau, r = np.asarray(tau_s, dtype=float), np.asarray(residual, dtype=float)
     ok = np.isfinite(tau) & np.isfinite(r)
     tau, r = tau[ok], r[ok]
     if tau.size < MIN_STRUCTURE_FRAMES:
         return math.nan, math.nan
     w = float(omega_rad_s)
-    X = np.column_stack([np.ones_like(tau), tau, np.sin(w * tau), np.cos(w * tau)])
-    return _slope_of_fit(X, r, np.array([0.0, 1.0, w, 0.0]))
+    s, c = np.sin(w * tau), np.cos(w * tau)
+    cols = [np.ones_like(tau), tau, s, c] + ([tau * s, tau * c] if ramp else [])
+    grad = [0.0, 1.0, w, 0.0] + ([0.0, 1.0] if ramp else [])
+    return _slope_of_fit(np.column_stack(cols), r, np.array(grad))
 
 
 def pooled_bias_variance(slopes: Iterable[tuple[float, float]]) -> float:
