@@ -53,6 +53,19 @@ def tiny_recording() -> Path:
 
 
 @pytest.fixture
+def close_rclpy():
+    """rclpy nodes a test made in its own process (append them): destroyed, and rclpy shut down, after it."""
+    import rclpy
+
+    nodes = []
+    yield nodes
+    for n in nodes:
+        n.destroy_node()
+    if rclpy.ok():
+        rclpy.shutdown()
+
+
+@pytest.fixture
 def ros_domain(monkeypatch: pytest.MonkeyPatch) -> str:
     """A private ROS_DOMAIN_ID so parallel test runs on this machine do not cross-talk."""
     domain = private_domain()

@@ -21,7 +21,7 @@ def _status(value: str):
 
 def _bag() -> BagResults:
     r = BagResults.__new__(BagResults)   # the /diagnostics bookkeeping only, no bag read
-    r.friction, r.local_structure, r.local_structure_problem = None, [], ""
+    r.friction, r.friction_problem, r.local_structure, r.local_structure_problem = None, "", [], ""
     r.discrepancy, r.discrepancy_problem = None, ""
     return r
 
@@ -30,10 +30,10 @@ def test_the_nodes_friction_correction_is_read_back():
     corr = FrictionCorrection(effect="gravity_tilt", force_n=1.15e-4, force_std_n=2e-9, words="the tilt's force")
     r = _bag()
     r._note_discrepancy_node(_status(json.dumps(asdict(corr))))
-    assert r.friction == corr and r.local_structure_problem == ""
+    assert r.friction == corr and r.friction_problem == ""
 
 
 def test_a_damaged_value_is_said_not_taken_for_none():
     r = _bag()
     r._note_discrepancy_node(_status('{"effect": "gravity_tilt"}'))
-    assert r.friction is None and topics.FRICTION_CORRECTION_KEY in r.local_structure_problem
+    assert r.friction is None and topics.FRICTION_CORRECTION_KEY in r.friction_problem

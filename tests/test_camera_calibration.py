@@ -446,18 +446,6 @@ def test_no_calibration_file_leaves_the_lens_uncorrected(tmp_path: Path) -> None
 ORIGIN_NS = 1_764_000_000_000_000_000
 
 
-@pytest.fixture
-def rclpy_nodes():
-    import rclpy
-
-    nodes = []
-    yield nodes
-    for n in nodes:
-        n.destroy_node()
-    if rclpy.ok():
-        rclpy.shutdown()
-
-
 def _tracker_node(rec: Path, *params: str):
     import rclpy
 
@@ -497,7 +485,7 @@ def _images(rec: Path) -> dict:
     return {f.index: image_message(f, "camera", ORIGIN_NS) for f in open_recording(rec).frames if f.ok}
 
 
-def test_live_tracker_takes_the_drivers_camera_info(tmp_path: Path, tiny_recording: Path, rclpy_nodes,
+def test_live_tracker_takes_the_drivers_camera_info(tmp_path: Path, tiny_recording: Path, close_rclpy,
                                                     ros_domain) -> None:
     """rig.yaml names no calibration: the driver's CameraInfo (sensor QoS, /camera/camera_info beside
     /camera/image_raw) is used from its arrival; until then, with camera_info_required, images are answered lost
@@ -508,7 +496,7 @@ def test_live_tracker_takes_the_drivers_camera_info(tmp_path: Path, tiny_recordi
 
     rec = _recording_with(tmp_path, tiny_recording, None, None)
     node = _tracker_node(rec, "-p", "camera_info_required:=true", "-r", "vibro/frames:=/camera/image_raw")
-    rclpy_nodes.append(node)
+    close_rclpy.append(node)
     assert node.calibration.topic == "/camera/camera_info"
     images = _images(rec)
     node._on_image(images[0])  # before any calibration: lost, and said so
@@ -517,7 +505,7 @@ def test_live_tracker_takes_the_drivers_camera_info(tmp_path: Path, tiny_recordi
     assert node.health.values["frames_before_camera_info"] == 1
     assert node.health.values["camera_calibration"].startswith("none yet")
     driver = rclpy.create_node("camera_driver")
-    rclpy_nodes.append(driver)
+    close_rclpy.append(driver)
     pub = driver.create_publisher(CameraInfo, "/camera/camera_info", qos_profile_sensor_data)
     info = _tiny_info()
     _publish_until(node, pub, _camera_info_message(info), lambda: node.tracker.calibration is not None)
@@ -529,7 +517,7 @@ def test_live_tracker_takes_the_drivers_camera_info(tmp_path: Path, tiny_recordi
 
 
 def test_live_tracker_keeps_rig_yamls_calibration_and_warns_once(tmp_path: Path, tiny_recording: Path,
-                                                                  rclpy_nodes, ros_domain) -> None:
+                                                                  close_rclpy, ros_domain) -> None:
     """rig.yaml names one; a driver latching another (reliable, transient local): warned about once, rig.yaml's
     stays."""
     import rclpy
@@ -540,11 +528,11 @@ def test_live_tracker_keeps_rig_yamls_calibration_and_warns_once(tmp_path: Path,
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     warnings = []
     node = _tracker_node(rec)
-    rclpy_nodes.append(node)
+    close_rclpy.append(node)
     node.get_logger().warning = warnings.append
     assert node.tracker.calibration.dist_coeffs[0] == -0.3  # rig.yaml's, from the start
     driver = rclpy.create_node("camera_driver")
-    rclpy_nodes.append(driver)
+    close_rclpy.append(driver)
     pub = driver.create_publisher(CameraInfo, "vibro/camera_info", latched)
     _publish_until(node, pub, _camera_info_message(_tiny_info(k1=-0.1)), lambda: warnings)
     for _ in range(5):

@@ -23,18 +23,6 @@ def _node(rec: Path, *params: str):
     return DicTrackerNode()
 
 
-@pytest.fixture
-def close_rclpy():
-    import rclpy
-
-    nodes = []
-    yield nodes
-    for n in nodes:
-        n.destroy_node()
-    if rclpy.ok():
-        rclpy.shutdown()
-
-
 def _images(rec: Path) -> dict[int, object]:
     from vibro_dic.frame_source_node import image_message
     from vibro_io.recording import open_recording

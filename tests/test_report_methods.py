@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from test_report_summary import keys_of
 
 from vibro_app.findings_text import percent, value_pm
 from vibro_app.report_lost import lost_html
@@ -264,14 +265,6 @@ def test_nothing_lost_says_so(run):
     section = lost_html(whole)
     assert 'id="nothing-lost"' in section and "Nothing lost" in section and "<table" not in section
     assert f"frames without DIC (ball): 0 of {FRAMES}" in section
-
-
-def keys_of(doc) -> set[str]:
-    if isinstance(doc, dict):
-        return set(doc) | set().union(*(keys_of(v) for v in doc.values()))
-    if isinstance(doc, list):
-        return set().union(*(keys_of(v) for v in doc)) if doc else set()
-    return set()
 
 
 def test_the_new_sections_name_no_results_key(run):

@@ -95,6 +95,7 @@ class BagResults:
         self.local_structure: list[LocalStructure] = []  # the discrepancy node's (topics.LOCAL_STRUCTURE_KEY)
         self.local_structure_problem = ""  # why a recorded local_structure value could not be read
         self.friction: FrictionCorrection | None = None  # the discrepancy node's (topics.FRICTION_CORRECTION_KEY)
+        self.friction_problem = ""  # why a recorded friction_correction value could not be read
         self.discrepancy: Discrepancy | None = None  # the discrepancy node's section (topics.DISCREPANCY_KEY)
         self.discrepancy_problem = ""  # why a recorded discrepancy value could not be read
         store = make_typestore()
@@ -185,11 +186,12 @@ class BagResults:
             self.friction = FrictionCorrection(effect=str(entry["effect"]), force_n=float(entry["force_n"]),
                                                force_std_n=float(entry["force_std_n"]),
                                                words=str(entry.get("words", "")))
+            self.friction_problem = ""
         except (ValueError, TypeError, KeyError, AttributeError) as exc:
             self.friction = None
-            self.local_structure_problem = (f"the discrepancy node's /diagnostics value "
-                                            f"'{topics.FRICTION_CORRECTION_KEY}' could not be read ({exc}); the "
-                                            "flights keep their Eq. 17 friction")
+            self.friction_problem = (f"the discrepancy node's /diagnostics value "
+                                     f"'{topics.FRICTION_CORRECTION_KEY}' could not be read ({exc}); the "
+                                     "flights keep their Eq. 17 friction")
 
     def received(self, stream: str) -> int:
         topic = EXPECTED_STREAMS[stream]
@@ -312,7 +314,7 @@ def _consistency_stage(r: BagResults) -> ConsistencyStage | None:
 
 def _discrepancy_stage(r: BagResults, findings: list, redo: Reidentification) -> DiscrepancyStage:
     """The discrepancy node's findings (D before the first and after the last), and the impacts it re-measured."""
-    warnings = [w for w in (r.local_structure_problem, r.discrepancy_problem) if w]
+    warnings = [w for w in (r.local_structure_problem, r.discrepancy_problem, r.friction_problem) if w]
     if r.discrepancy is not None and len(r.discrepancy.findings) == len(findings):
         # the node's own section: the baseline D and the engine's details beside the findings it published
         return DiscrepancyStage(discrepancy=r.discrepancy, warnings=warnings, reidentification=redo)

@@ -100,13 +100,6 @@ class Measured:
         return float(self.t_s[-1])
 
 
-def noise_std(impact: Impact) -> float:
-    """The noise share of an identified impact's COR std: its model error (``cor_std_model``,
-    :mod:`vibro_model.model_error`) taken out, since the mismatch the model error is made of is what the analysis
-    looks for (0 when unknown)."""
-    return impact.cor_std_noise or 0.0
-
-
 def speed_mps(impact: Impact) -> float:
     """|relative impact speed| before the impact (m/s)."""
     return abs(impact.v_ball_before_mps - impact.v_structure_mps)

@@ -49,7 +49,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from vibro_discrepancy.data import Measured, difference_sigma, measurement_of, noise_std
+from vibro_discrepancy.data import Measured, difference_sigma, measurement_of
 from vibro_discrepancy.fitting import FlightModelFit, StructureModelFit, fit_flights, fit_structure_harmonics
 from vibro_discrepancy.instrument_scale import scale_from_flights
 from vibro_discrepancy.library import FLIGHT_TERMS, UNEXPLAINED, CandidateLibrary, FlightTerm, vertical_gravity_mps2
@@ -108,12 +108,12 @@ class NoiseFloors:
 
 def noise_floors(meas: Measured) -> NoiseFloors:
     """Ball: 3rd differences within the flights (5th over the whole track if that fails); structure: 5th
-    differences of its track; COR: the median of the identified COR stds' noise share (:func:`noise_std`; 0
+    differences of its track; COR: the median of the identified COR stds' noise share (``Impact.cor_std_noise``; 0
     without any)."""
     ball = difference_sigma([(f.t_s, f.y_m) for f in meas.flights], 3)
     if not math.isfinite(ball) or ball <= 0:
         ball = difference_sigma([(meas.t_s, meas.ball_m)], 5)
-    stds = [noise for i in meas.impacts if (noise := noise_std(i)) > 0]
+    stds = [noise for i in meas.impacts if (noise := i.cor_std_noise or 0.0) > 0]
     return NoiseFloors(ball, difference_sigma([(meas.t_s, meas.structure_m)], 5),
                        float(np.median(stds)) if stds else 0.0)
 

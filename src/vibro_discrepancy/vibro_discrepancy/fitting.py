@@ -31,7 +31,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize_scalar, nnls
 
-from vibro_discrepancy.data import FlightSamples, Measured, noise_std
+from vibro_discrepancy.data import FlightSamples, Measured
 from vibro_discrepancy.library import FlightTerm, ImpactTerm
 from vibro_model.constants import G_MPS2
 from vibro_model.kinematics import StructureKinematics
@@ -323,7 +323,7 @@ class ImpactSet:
     v_after: np.ndarray
     v_structure: np.ndarray
     cor: np.ndarray
-    cor_std: np.ndarray        # the identified COR stds' noise share (data.noise_std: model error out)
+    cor_std: np.ndarray        # the identified COR stds' noise share (Impact.cor_std_noise: model error out)
 
     @property
     def speed(self) -> np.ndarray:
@@ -369,7 +369,7 @@ def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: Struct
         if abs(den) < 1e-6:
             continue
         e = -(va - vs) / den
-        rows.append((imp.index, t, imp.plate, vb, va, vs, e, noise_std(imp)))
+        rows.append((imp.index, t, imp.plate, vb, va, vs, e, imp.cor_std_noise or 0.0))
     if not rows:
         z = np.zeros(0)
         return ImpactSet(index=z.astype(int), t_s=z, plate=np.array([], dtype=object), v_before=z, v_after=z,
