@@ -65,6 +65,7 @@ class Node:
     output: str = "log"
     respawn: bool = False
     respawn_delay: float | None = None
+    additional_env: dict | None = None     # ExecuteProcess' (Node's base class)
 
 
 class LaunchDescription(list):

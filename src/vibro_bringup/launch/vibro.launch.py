@@ -24,6 +24,8 @@ vibro replay of its bag). foxglove:=true adds the Foxglove bridge (ws://<this PC
 docs/live.md): from a recording it exits once the other nodes have gone; live it stays up with them.
 """
 
+from pathlib import Path
+
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, LogInfo, OpaqueFunction, RegisterEventHandler, TimerAction
 from launch.event_handlers import OnProcessExit
@@ -33,16 +35,19 @@ from launch_ros.actions import Node
 from vibro_bringup import launch_arguments as args
 from vibro_bringup.exit_policy import END_RUN, RESTART, exit_verdict
 from vibro_bringup.graph_spec import LiveDaq, RunSetup, launch_nodes
+from vibro_io.rig import rig_checked_environment
 
 
 class RunEnded(RuntimeError):
     """Raised from an exit handler: launch logs its one line, shuts every node down and exits with code 1."""
 
 
-def _start(n, namespace, restarts_done: int, respawn_max: int, live: bool):
-    """The node, and a handler judging its exit (exit_policy): restart it after a delay, or end the run."""
+def _start(n, namespace, restarts_done: int, respawn_max: int, live: bool, env: dict):
+    """The node, and a handler judging its exit (exit_policy): restart it after a delay, or end the run. ``env``:
+    added to the node's environment (the rig.yaml whose warnings this launch said once, rig_checked_environment)."""
     node = Node(package=n.spec.package, executable=n.spec.executable, name=n.spec.name, namespace=namespace,
-                parameters=[n.parameters], remappings=list(n.remappings), output="screen")
+                parameters=[n.parameters], remappings=list(n.remappings), output="screen",
+                additional_env=env)
 
     def on_exit(event, context):
         if context.is_shutdown:  # Ctrl-C, or the run already ending: nodes stopping is what was asked for
@@ -52,7 +57,7 @@ def _start(n, namespace, restarts_done: int, respawn_max: int, live: bool):
         if verdict.action == RESTART:
             return [LogInfo(msg=f"vibro: {verdict.reason} in {n.respawn_delay_s:g} s"),
                     TimerAction(period=n.respawn_delay_s,
-                                actions=_start(n, namespace, restarts_done + 1, respawn_max, live))]
+                                actions=_start(n, namespace, restarts_done + 1, respawn_max, live, env))]
         if verdict.action == END_RUN:
             raise RunEnded(f"vibro: {verdict.reason}")
         return None
@@ -77,9 +82,11 @@ def _nodes(context, *unused, **kwargs):
     nodes = launch_nodes(recording, bag, live=live, camera_topic=camera_topic, setup=setup,
                          respawn_delay_s=respawn_delay_s,
                          daq=LiveDaq(topic=accel_topic, rate_hz=accel_rate_hz) if accel_topic else None)
+    # launch_nodes read the rig.yaml here and said its warnings once: the nodes say them at debug level only
+    env = rig_checked_environment(Path(recording) / "rig.yaml")
     actions = []
     for n in nodes:
-        actions += _start(n, namespace, 0, respawn_max, live)
+        actions += _start(n, namespace, 0, respawn_max, live, env)
     return actions
 
 

@@ -40,7 +40,7 @@ from vibro_bringup.isolation import RunIdentity, new_run_identity
 from vibro_bringup.supervisor import START_ORDER, Failure, Supervisor
 from vibro_foxglove.view import websocket_url
 from vibro_io.outputs import prepare_output_entries
-from vibro_io.rig import load_rig
+from vibro_io.rig import load_rig, rig_checked_environment
 from vibro_model.errors import RecordingError
 from vibro_ros import topics
 
@@ -228,7 +228,9 @@ def execute_graph(rig_dir: Path, bag: Path, sources: list[NodeSpec], *, with_acc
             return [sys.executable, "-m", "vibro_bringup.child", spec.module, "--ros-args", "--params-file",
                     str(params_file), "-r", f"__node:={spec.name}", "-r", f"__ns:={identity.namespace}"]
 
-        supervisor = Supervisor(nodes, command, log_dir, run.env, run.respawn)
+        # the rig.yaml's warnings were said once, here (run_time_origin read it): not again by every node
+        env = {**run.env, **rig_checked_environment(rig_dir / "rig.yaml")}
+        supervisor = Supervisor(nodes, command, log_dir, env, run.respawn)
         ok = _supervise(supervisor, summary, rig_dir, identity, run.timeout_s)
     return _conclude(summary, supervisor, bag, ok), summary, log_dir
 

@@ -7,8 +7,10 @@ masses in kg, moduli in Pa. Every error names the file and the dotted key.
 from __future__ import annotations
 
 import difflib
+import hashlib
 import logging
 import math
+import os
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -477,11 +479,43 @@ def _typo_hint(missing: str, unknown: Iterable[Any], prefix: str) -> str:
     return "" if typo is None else f" (it has '{prefix}{typo}': misspelt?)"
 
 
+#: environment variable a supervisor (``vibro graph``, the launch file) gives the nodes it starts: the digest
+#: (:func:`rig_digest`) of the rig.yaml it has read already, whose warnings it has said once; a node loading that
+#: same file says them at debug level only (the lab read one warning, not one per node)
+RIG_CHECKED_ENV = "VIBRO_RIG_CHECKED"
+_WARNED: set[tuple[str, str]] = set()   # (file, key) warned about in this process
+
+
+def rig_digest(path: str | Path) -> str:
+    """A short digest (16 hex of SHA-256) of the rig.yaml file's bytes; "" when it cannot be read."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+    except OSError:
+        return ""
+
+
+def rig_checked_environment(path: str | Path) -> dict[str, str]:
+    """``{RIG_CHECKED_ENV: digest}`` for the nodes a supervisor starts once it has read ``path`` itself (its
+    warnings said once, by the supervisor); {} when the file cannot be read."""
+    digest = rig_digest(path)
+    return {RIG_CHECKED_ENV: digest} if digest else {}
+
+
+def _said_already(src: str, key: str) -> bool:
+    """True when the warning about ``key`` of rig file ``src`` was said: in this process, or by the supervisor
+    that started it (:data:`RIG_CHECKED_ENV` holds this very file's digest)."""
+    if (src, key) in _WARNED:
+        return True
+    _WARNED.add((src, key))
+    checked = os.environ.get(RIG_CHECKED_ENV, "")
+    return bool(checked) and Path(src).is_file() and checked == rig_digest(src)
+
+
 def _unknown_key(key: str, typo_of: str | None, section: str | None, src: str) -> None:
-    """An unknown rig.yaml key: ignored with a warning, or refused when it looks like a misspelt known key (the
-    key it was meant to be would silently be missing, or take its default)."""
+    """An unknown rig.yaml key: ignored with a warning (said once: :func:`_said_already`), or refused when it looks
+    like a misspelt known key (the key it was meant to be would silently be missing, or take its default)."""
     if typo_of is None:
-        log.warning("%s: unknown key '%s' ignored", src, key)
+        (log.debug if _said_already(src, key) else log.warning)("%s: unknown key '%s' ignored", src, key)
         return
     meant = f"{section}.{typo_of}" if section else typo_of
     raise RigError(f"{src}: unknown key '{key}': misspelt '{meant}'? (a misspelt key is refused, not ignored: "
