@@ -19,9 +19,11 @@ def _start(*argv: str) -> subprocess.Popen:
 
 def feed_case(path: Path, sections: dict, track) -> Path:
     """Write the feeder's case file: the identification ``sections`` (structure, flights, impacts as in
-    results.json) and the DIC ``track`` columns it needs."""
+    results.json, and its dic_bias when given: the fitter's StructureMotion carries it) and the DIC ``track``
+    columns it needs."""
     cols = ("frame", "t_s", "ball_mm", "structure_mm")
-    path.write_text(json.dumps({"sections": {k: sections[k] for k in ("structure", "flights", "impacts")},
+    names = ("structure", "flights", "impacts", "dic_bias")
+    path.write_text(json.dumps({"sections": {k: sections[k] for k in names if k in sections},
                                 "track": {c: getattr(track, c).tolist() for c in cols}}))
     return path
 

@@ -49,7 +49,8 @@ def main() -> int:
     sec = case["sections"]
     s = sec["structure"]
     pub_s.publish(StructureMotion(amplitude_mm=s["amplitude_mm"], frequency_hz=s["frequency_hz"],
-                                  phase_rad=s["phase_rad"], offset_mm=s["offset_mm"]))
+                                  phase_rad=s["phase_rad"], offset_mm=s["offset_mm"],
+                                  dic_bias_json=json.dumps(sec["dic_bias"]) if "dic_bias" in sec else ""))
     for f in sec["flights"]:
         pub_f.publish(FreeFlight(index=f["index"], t_start_s=f["t_first_frame"], t_end_s=f["t_last_frame"],
                                  a_mm_per_s2=f["a"], b_mm_per_s=f["b"], c_mm=f["c"], direction=f["direction"],

@@ -80,4 +80,6 @@ def test_a_model_that_fits_keeps_its_sigmas(effects):
     cover, err, sd, _ = _coverage(effects)
     # noise-sized sigmas (DIC noise 0.25 um gives CORs ~1e-5 .. 1e-4), not widened by noise-sized residual shapes
     assert sd < 4 * err and sd < 2e-4
-    assert cover >= 0.8
+    # the goal on every recording; with the drag's shared coefficient in the sigma (it moves every COR
+    # the same way: without it 0.85-0.88 here, 0.53-1.00 over eight seeds)
+    assert cover >= 0.9

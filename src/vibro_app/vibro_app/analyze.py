@@ -254,6 +254,7 @@ def analyze_recording(recording_dir: str | Path, out_dir: str | Path, *, progres
         bar.set_description("identify")
         ident = identify(track, rig, accel=accel, method=fit.method, weights=fit.weights, config=SEGMENTATION,
                          highpass_hz=ACCEL_HIGHPASS_HZ)
+        track = ident.corrected_track(track)   # every later stage reads the track as identified (dic_bias)
         stages = _checked_identification(ident, track, rig, accel,
                                          recording=str(recording_dir), dic_quality=dic_stage,
                                          frames_name=_frames_source_name(recording_dir, track_csv))

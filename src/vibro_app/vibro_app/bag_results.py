@@ -59,12 +59,12 @@ from vibro_ros.bags import deserialize, make_typestore, read_messages
 from vibro_ros.convert import (
     carries_ball_rotation,
     dic_track_from_messages,
-    drive_from_message,
     finding_from_message,
     flight_from_message,
     impact_from_message,
     simulation_run_from_message,
     structure_from_message,
+    structure_sections,
 )
 
 #: end-of-stream statuses a complete graph run has, and the result topic each one counts
@@ -273,9 +273,8 @@ def bag_stages(r: BagResults) -> StageOutputs:
     impacts = [impact_from_message(m) for m in r.merged(topics.IMPACTS.name)]
     flights = [flight_from_message(m) for m in r.merged(topics.FLIGHTS.name)]
     structure = None if r.structure is None else structure_from_message(r.structure)
-    drive = None if r.structure is None else drive_from_message(r.structure)
     identified = Identified(structure=structure, flights=flights, impacts=impacts,
-                            sections={"drive": drive} if drive is not None else {})
+                            sections={} if r.structure is None else structure_sections(r.structure))
     findings = [finding_from_message(r.findings[k]) for k in sorted(r.findings)]
     remeasured = [impact_from_message(r.final_model[k]) for k in sorted(r.final_model)]
     identified_doc = assemble_results(StageOutputs(recording=r.bag, identified=identified))

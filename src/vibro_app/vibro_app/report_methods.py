@@ -118,11 +118,36 @@ def dic_rows(results: Mapping[str, Any]) -> list[Row]:
                                                              "are kept" if tr.get("min_valid_fraction") else ""),
                  ("dic.reseed", "reference", f"frame 0; the search re-seeded every "
                                              f"{settings.get('reseed_every_frames')} frames")]
+    bias_row = subpixel_bias_row(results)
+    if bias_row is not None:
+        rows.append(bias_row)
     if _get(dq, "texture", "max_subset_sigma_px") is not None:
         rows.append(("dic.texture", "texture check", f"image noise {_num(_get(dq, 'texture', 'noise_gray'), '.3g')} "
                                                      "gray levels; a subset is used when its predicted sigma is at "
                                                      f"most {_num(_get(dq, 'texture', 'max_subset_sigma_px'))} px"))
     return rows
+
+
+def subpixel_bias_row(results: Mapping[str, Any]) -> Row | None:
+    """DIC's sub-pixel bias (results.json ``dic_bias``): per body, its amplitude and whether it was taken out, and
+    why not; None without the section."""
+    section = results.get("dic_bias")
+    if not isinstance(section, Mapping):
+        return None
+    parts = []
+    for body in ("structure", "ball"):
+        b = section.get(body) or {}
+        if b.get("applied"):
+            amp, amp_std = _num(b.get("amplitude_px"), ".2g", "px"), _num(b.get("amplitude_std_px"), ".1g")
+            before = _num(_times(1e3, b.get("rms_residual_before_mm")), ".3g")
+            after = _num(_times(1e3, b.get("rms_residual_after_mm")), ".3g", "µm")
+            parts.append(f"{body}: {amp} (± {amp_std}), taken out; residual {before} → {after}")
+        else:
+            parts.append(f"{body}: not taken out ({b.get('reason') or 'not measured'})")
+    return ("dic.subpixel_bias", "sub-pixel bias (S-curve)",
+            "b(d) = Σ a_m sin 2πmd + b_m cos 2πmd of the displacement d in pixels, fitted with each body's motion "
+            "model and taken out where told from noise; the identification ran on the corrected track. "
+            + "; ".join(parts))
 
 
 # ---------------------------------------------------------------- identification
@@ -353,10 +378,13 @@ def uncertainty_html(results: Mapping[str, Any]) -> str:
     rel = _get(rig, "camera", "mm_per_px_rel_std")
     contains = [f"The DIC noise of the ball track (σ = {_num(_times(1e3, noise), '.3g', 'µm')} per frame) and of the "
                 "structure track, propagated to first order through the two flight fits around the impact (Eq. 3, "
-                "14) and the local structure fit (Eq. 2, 13) to the impact time (Eq. 15) and the COR (Eq. 16)."]
+                "14) and the local structure fit (Eq. 2, 13) to the impact time (Eq. 15) and the COR (Eq. 16); each "
+                "flight's noise at least the noise pooled over every flight (one flight's own rests on a few tens "
+                "of frames)."]
     if im.get("cor_method") and im.get("cor_method") != "paper":
         contains.append(f"For the {im.get('n_reidentified')} impacts measured again under the final model, the same "
-                        "propagation through that model's flight fits.")
+                        "propagation through that model's flight fits, with the uncertainty of the force "
+                        "coefficients every flight shares (it moves every impact's COR the same way).")
     if local:
         contains.append(f"For the {local} impacts measured with the local structure velocity, also how much the value "
                         "rests on that local model.")
@@ -378,8 +406,9 @@ def uncertainty_html(results: Mapping[str, Any]) -> str:
     not_in = ("Not in the sigma: model error the residuals do not show (the flight law between frames and the "
               "structure's motion as the model has them; the discrepancy analysis judges that model: D "
               f"{percent(_get(results, 'discrepancy', 'final_deviation'))} for the final one), systematic DIC errors "
-              "(interpolation bias, motion out of the image plane) and the impact's own duration (the frames next "
-              "to it are left out; the contact is taken as instantaneous).")
+              "other than the sub-pixel bias measured and taken out (see Methods, DIC; motion out of the image "
+              "plane) and the impact's own duration (the frames next to it are left out; the contact is taken as "
+              "instantaneous).")
     scatter = _get(results, "discrepancy", "contact_scatter", "all") or {}
     plate = ("The per-plate standard error and 95 % interval of the mean (<a href=\"#table2\">Table 2</a>) come from "
              "the scatter of the impacts' CORs (std / √n), not from the sigmas above")

@@ -24,6 +24,7 @@ from rclpy.node import Node
 from vibro_discrepancy import run_discrepancy
 from vibro_discrepancy.from_messages import stages_from_messages, track_from_messages
 from vibro_discrepancy.reidentify import reidentification
+from vibro_io.dic_bias import track_as_identified
 from vibro_io.rig import load_rig
 from vibro_model.assemble import PAPER, DiscrepancyStage, assemble_results
 from vibro_model.errors import RecordingError
@@ -89,7 +90,10 @@ class Discrepancy(Node):
             return
         try:
             stages = stages_from_messages(r.structure, r.flights.values(), r.impacts.values())
-            run = run_discrepancy(assemble_results(stages), track_from_messages(r.frames.values()), self.rig)
+            # the DIC frames as the fitter identified them: its sub-pixel bias taken out (vibro analyze's track)
+            track = track_as_identified(track_from_messages(r.frames.values()),
+                                        stages.identified.sections.get("dic_bias"))
+            run = run_discrepancy(assemble_results(stages), track, self.rig)
         except RecordingError as exc:
             self.health.warn(str(exc))
             self.get_logger().warning(f"discrepancy analysis not possible: {exc}")

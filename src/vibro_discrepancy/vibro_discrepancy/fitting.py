@@ -98,6 +98,32 @@ class FlightModelFit:
     def flight_rms(self) -> np.ndarray:
         return np.sqrt(self.flight_sse / np.maximum(self.flight_n, 1))
 
+    def coef_sensitivity(self, k: int, tau_fit_s: np.ndarray, tau_s: float,
+                         mass_kg: float) -> tuple[np.ndarray, np.ndarray]:
+        """(dy/dtheta m, dv/dtheta m/s per unit coefficient) of flight k at ``tau_s`` (s after its reference time),
+        its state (y0, v0) re-fitted to its samples at ``tau_fit_s`` as the coefficients move (first order, the
+        velocity history held): the term's own double and single integral phi, psi, minus the straight line
+        [1, tau] (L^T L)^-1 L^T phi(tau_fit) its state takes up. Empty arrays without terms."""
+        if not self.terms:
+            return np.zeros(0), np.zeros(0)
+        u, v = self.grids[k]
+        du = u[1] - u[0]
+        tau_fit = np.asarray(tau_fit_s, dtype=float)
+        L = np.column_stack([np.ones_like(tau_fit), tau_fit])
+        dy, dv = np.empty(len(self.terms)), np.empty(len(self.terms))
+        for j, term in enumerate(self.terms):
+            a = term.basis(v, mass_kg)
+            psi = _cumtrapz(a, du)
+            phi = _cumtrapz(psi, du)
+            state, *_ = np.linalg.lstsq(L, np.interp(tau_fit, u, phi), rcond=None)
+            end = 0 if tau_s < u[0] else -1            # beyond the grid: a Taylor step from its nearest end
+            d = tau_s - u[end] if (tau_s < u[0] or tau_s > u[-1]) else 0.0
+            phi_at = np.interp(tau_s, u, phi) + psi[end] * d + 0.5 * a[end] * d * d
+            psi_at = np.interp(tau_s, u, psi) + a[end] * d
+            dy[j] = phi_at - (state[0] + state[1] * tau_s)
+            dv[j] = psi_at - state[1]
+        return dy, dv
+
 
 def _accel_extra(terms: Sequence[FlightTerm], coefs: np.ndarray, v: np.ndarray, mass_kg: float) -> np.ndarray:
     out = np.zeros_like(v)

@@ -12,10 +12,10 @@ from vibro_model.assemble import Identified, StageOutputs, assemble_results
 from vibro_model.results import ResultsDocument
 from vibro_ros.convert import (
     dic_track_from_messages,
-    drive_from_message,
     flight_from_message,
     impact_from_message,
     structure_from_message,
+    structure_sections,
 )
 
 
@@ -23,12 +23,12 @@ def stages_from_messages(structure, flights: Iterable, impacts: Iterable, record
                          ) -> StageOutputs:
     """The identification stage of the fitter's final StructureMotion, FreeFlight and ImpactEstimate messages
     (converted by :mod:`vibro_ros.convert`), as the results assembler takes it; the windowed drive the
-    StructureMotion carries is its ``drive`` section. Raises RecordingError when that drive's JSON is damaged."""
-    drive = drive_from_message(structure)
+    StructureMotion carries is its ``drive`` section, the DIC sub-pixel bias its ``dic_bias`` section. Raises
+    RecordingError when their JSON is damaged."""
     identified = Identified(structure=structure_from_message(structure),
                             flights=list(map(flight_from_message, flights)),
                             impacts=list(map(impact_from_message, impacts)),
-                            sections={"drive": drive} if drive is not None else {})
+                            sections=structure_sections(structure))
     return StageOutputs(recording=recording, identified=identified)
 
 

@@ -92,22 +92,42 @@ def _structure_velocity_gradient(fit: StructureModelFit, t_s: float) -> np.ndarr
 
 def _flight_state_cov(meas: Measured, model: FittedModel, k: int) -> np.ndarray:
     """Covariance of flight k's own state (y0 m, v0 m/s at its reference time): sigma^2 (L^T L)^-1,
-    L = [1, tau] over its fitted frames, sigma^2 the flights' pooled residual variance (the shared force
-    coefficients held at their estimate: their uncertainty is common to all impacts, not scatter)."""
+    L = [1, tau] over its fitted frames, sigma^2 the flights' pooled residual variance, with the shared force
+    coefficients held (their part, independent of this one: the coefficients see only the residual off every
+    flight's straight line, :func:`_coef_terms`)."""
     tau = meas.flights[k].tau_s
     L = np.column_stack([np.ones_like(tau), tau])
     s2 = model.flights.sse / max(model.flights.dof, 1)
     return s2 * np.linalg.inv(L.T @ L)
 
 
+def _coef_terms(meas: Measured, model: FittedModel, kb: int, ka: int, tau_b: float,
+                tau_a: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """(covariance of the flight force coefficients, (dy, dv)/dtheta of the flight before at ``tau_b``, the same of
+    the flight after at ``tau_a``) (:meth:`FlightModelFit.coef_sensitivity`). The coefficients are shared by every
+    flight, so their error moves every impact's COR the same way: left out, the sigmas held only the scatter and a
+    drag's 2-sigma coverage was 0.53-1.00 over seeds (z mean -1.7..+1.4). Empty where the model has no flight
+    term or their covariance is not finite (a coefficient the flights do not determine)."""
+    flights = model.flights
+    cov = np.asarray(getattr(flights, "cov", np.zeros((0, 0))), dtype=float)
+    empty = (np.zeros((0, 0)), (np.zeros(0), np.zeros(0)), (np.zeros(0), np.zeros(0)))
+    if cov.size == 0 or not np.all(np.isfinite(cov)) or not hasattr(flights, "coef_sensitivity"):
+        return empty
+    before = flights.coef_sensitivity(kb, meas.flights[kb].tau_s, tau_b, meas.mass_kg)
+    after = flights.coef_sensitivity(ka, meas.flights[ka].tau_s, tau_a, meas.mass_kg)
+    return cov, before, after
+
+
 def impact_stds(meas: Measured, model: FittedModel, j: int) -> tuple[float, float]:
     """1-sigma (t_std_s, cor_std) of the model's impact j (index into ``model.impacts``), first order.
 
-    Independent inputs: each flight's state (y0, v0) (:func:`_flight_state_cov`) and the structure fit's
-    parameters (coefficients and frequency). The model flight k is y_k(t) = y0_k + v0_k tau + (terms known
-    given the force law), so a change (dy0, dv0) moves its position by dy0 + dv0 tau and its velocity by
-    dv0. The impact time solves y_b(t) = y_a(t): dt = -(dy_b - dy_a) / (v_b - v_a); velocities then move
-    with their accelerations a_b, a_a, a_s. e = -(v_a - v_s)/(v_b - v_s) gives de/dv_a = -1/(v_b - v_s),
+    Independent inputs: each flight's state (y0, v0) (:func:`_flight_state_cov`), the structure fit's
+    parameters (coefficients and frequency) and the flight force coefficients theta shared by every flight
+    (:func:`_coef_terms`: each flight's state re-fitted as theta moves). The model flight k is
+    y_k(t) = y0_k + v0_k tau + (terms known given the force law), so a change (dy0, dv0) moves its position by
+    dy0 + dv0 tau and its velocity by dv0. The impact time solves y_b(t) = y_a(t):
+    dt = -(dy_b - dy_a) / (v_b - v_a); velocities then move with their accelerations a_b, a_a, a_s.
+    e = -(v_a - v_s)/(v_b - v_s) gives de/dv_a = -1/(v_b - v_s),
     de/dv_b = (v_a - v_s)/(v_b - v_s)^2, de/dv_s = (v_b - v_a)/(v_b - v_s)^2."""
     imps = model.impacts
     imp = meas.impacts[int(imps.index[j])]
@@ -122,25 +142,32 @@ def impact_stds(meas: Measured, model: FittedModel, j: int) -> tuple[float, floa
     aa = float(np.asarray(model.flight_accel(np.array([t]), np.array([ya]), np.array([va]), meas.mass_kg))[0])
     motion = model.motion
     a_s = float(motion.acceleration(t))
-    # parameters: [y0_b, v0_b, y0_a, v0_a, structure...]
+    # parameters: [y0_b, v0_b, y0_a, v0_a, structure..., flight force coefficients...]
     s_grad = _structure_velocity_gradient(model.structure, t)
     s_cov = model.structure.covariance(meas.t_s)
     n_s = s_grad.size
-    cov = np.zeros((4 + n_s, 4 + n_s))
+    c_cov, (dy_b, dv_b), (dy_a, dv_a) = _coef_terms(meas, model, kb, ka, tau_b, tau_a)
+    n_c = dy_b.size
+    n = 4 + n_s + n_c
+    cov = np.zeros((n, n))
     cov[:2, :2] = _flight_state_cov(meas, model, kb)
     cov[2:4, 2:4] = _flight_state_cov(meas, model, ka)
-    cov[4:, 4:] = s_cov
+    cov[4:4 + n_s, 4:4 + n_s] = s_cov
+    cov[4 + n_s:, 4 + n_s:] = c_cov
     dv = vb - va
-    g_t = np.zeros(4 + n_s)
+    g_t = np.zeros(n)
     g_t[:4] = np.array([-1.0, -tau_b, 1.0, tau_a]) / dv
-    g_vb = np.zeros(4 + n_s)
+    g_t[4 + n_s:] = -(dy_b - dy_a) / dv
+    g_vb = np.zeros(n)
     g_vb[1] = 1.0
+    g_vb[4 + n_s:] = dv_b
     g_vb += ab * g_t
-    g_va = np.zeros(4 + n_s)
+    g_va = np.zeros(n)
     g_va[3] = 1.0
+    g_va[4 + n_s:] = dv_a
     g_va += aa * g_t
-    g_vs = np.zeros(4 + n_s)
-    g_vs[4:] = s_grad
+    g_vs = np.zeros(n)
+    g_vs[4:4 + n_s] = s_grad
     g_vs += a_s * g_t
     den = vb - vs
     g_e = (-1.0 / den) * g_va + ((va - vs) / den ** 2) * g_vb + ((vb - va) / den ** 2) * g_vs

@@ -10,6 +10,8 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from vibro_io.accel import AccelData
 from vibro_io.dictrack import DicTrack
 from vibro_io.rig import RigConfig
@@ -26,7 +28,7 @@ from .hops import HopChain
 from .impacts import ImpactFit
 from .landings import Landing
 from .methods import METHODS
-from .model_error import widened_pass
+from .model_error import noise_floor_pass, widened_pass
 from .motion_state import MotionState
 from .passes import (
     StreamingSettings,
@@ -53,6 +55,7 @@ from .segmentation import SegmentationConfig, segmentation_config
 from .statistics import cor_summary
 from .streaming import Cluster
 from .structure_fit import StructureFit
+from .subpixel_bias import SubpixelBias, subpixel_bias
 
 __all__ = ["METHODS", "Identification", "identify", "track_rows"]
 
@@ -89,6 +92,12 @@ class Identification:
     contacts: list[ContactPhase] = field(default_factory=list)   # the ball riding a plate (vibro_fit.contacts)
     hop_chains: list[HopChain] = field(default_factory=list)     # short hops measured on the plate (vibro_fit.hops)
     drive: DriveModel | None = None    # the drive in windows, stationary or not (vibro_fit.drive); None: no motion
+    dic_bias: SubpixelBias | None = None   # DIC's sub-pixel bias, measured and taken out (vibro_fit.subpixel_bias)
+
+    def corrected_track(self, track: DicTrack) -> DicTrack:
+        """``track`` as this identification measured it: with the sub-pixel bias it took out (:attr:`dic_bias`)
+        taken out. Every later stage (cross-checks, the discrepancy analysis) reads this one."""
+        return self.dic_bias.corrected(track) if self.dic_bias is not None else track
 
     def structure_motion(self) -> StructureMotion:
         """The identified structure as the model type, with the ball offset from the plate levels; no
@@ -160,7 +169,24 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
        are found with the plate levels of the run before, so this cannot be merged into run 2.
 
     Every later pass reads the last run.
+
+    Then DIC's sub-pixel bias (:mod:`vibro_fit.subpixel_bias`) is measured on the track against this
+    identification's structure and free flights; where it is taken out of a body's track, every pass runs again
+    on the corrected track (:attr:`Identification.dic_bias` says what was found and done;
+    :meth:`Identification.corrected_track` gives the track the result was measured on).
     """
+    ident = _identify_once(track, rig, accel, method, config, highpass_hz, weights)
+    frames = [np.asarray(f.frames, dtype=int) for f in ident.flights if f.is_free and f.frames is not None]
+    bias = subpixel_bias(track, frames, ident.structure.frequency_hz, rig.camera.mm_per_px)
+    if bias.applied:
+        ident = _identify_once(bias.corrected(track), rig, accel, method, config, highpass_hz, weights)
+    ident.dic_bias = bias
+    return ident
+
+
+def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, method: str,
+                   config: SegmentationConfig | None, highpass_hz: float, weights: str | None) -> Identification:
+    """One run of every pass on ``track`` (:func:`identify`'s passes)."""
     validate_inputs(track, method, weights)
     cfg = segmentation_config(rig, config)
     basis = structure_pass(track, rig)
@@ -176,7 +202,7 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
         sf = run_streaming(track, settings, accel_times_s=acc.camera_times_s or (), contact_frames=cframes)
     impacts, levels = impact_pass(sf, track, rig, method, basis.noise_mm)
     hops = hop_pass(sf, impacts, levels, contacts=contacts, cframes=cframes, track=track, rig=rig, basis=basis)
-    hops = widened_pass(hops, track, rig)
+    hops = widened_pass(noise_floor_pass(hops), track, rig)
     friction = friction_pass(sf.flights, basis.structure, rig.ball.mass_kg, cfg.g_mps2)
     flight_notes = flight_warnings(sf, levels, rig.free_play_mm)
     landings, landing_notes = landing_pass(sf, hops, levels=levels, track=track, structure=basis.structure,

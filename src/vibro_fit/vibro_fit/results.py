@@ -42,6 +42,8 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
         out["motion"] = ident.motion.to_dict()
     if getattr(ident, "drive", None) is not None:   # the windowed drive, stationary or not (vibro_fit.drive)
         out["drive"] = ident.drive.to_dict()
+    if getattr(ident, "dic_bias", None) is not None:   # DIC's sub-pixel bias, measured (vibro_fit.subpixel_bias)
+        out["dic_bias"] = ident.dic_bias.to_dict()
     if ident.accel is not None:
         acc, off = ident.accel, ident.clock_offset
         out["accelerometers"] = {

@@ -328,6 +328,7 @@ class TrajectoryFitter(Node):
         accel = self._accel()
         try:
             ident = identify(track, self.rig, accel, method=self.method, weights=self.weights)
+            track = ident.corrected_track(track)   # the track as identified (its sub-pixel bias taken out)
             findings, evidence = consistency_checks(ident, track, self.rig, accel, f"the frames on {topics.DIC.name}")
         except RecordingError as exc:
             self.health.error(str(exc))
@@ -362,7 +363,8 @@ class TrajectoryFitter(Node):
         """The final pass's structure, flights and (``with_impacts``: the run is not refused) impacts with their
         end-of-stream statuses (a refused run's impacts stream ends in :meth:`_refuse`)."""
         self.pub_structure.publish(structure_to_message(document.structure, t_end_s, self.time_origin_ns,
-                                                        document.sections.get("drive")))
+                                                        document.sections.get("drive"),
+                                                        document.sections.get("dic_bias")))
         for flight in document.flights:
             self.pub_flights.publish(flight_to_message(flight, True, self.time_origin_ns))
         self.flights_status.publish(len(document.flights), 0, True)

@@ -96,9 +96,10 @@ def dic_track_from_messages(frames: Iterable[Any]) -> DicTrack:
 
 # ---------------------------------------------------------------- structure
 def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origin_ns: int = 0,
-                         drive: Mapping[str, Any] | None = None):
-    """A StructureMotion message of the identified sine and the identification's windowed ``drive`` (results.json's
-    ``drive`` section, carried as JSON in ``drive_json``; empty when None)."""
+                         drive: Mapping[str, Any] | None = None, dic_bias: Mapping[str, Any] | None = None):
+    """A StructureMotion message of the identified sine, the identification's windowed ``drive`` (results.json's
+    ``drive`` section, carried as JSON in ``drive_json``) and the DIC sub-pixel bias it took out (``dic_bias``,
+    in ``dic_bias_json``); each empty when None."""
     from vibro_msgs.msg import StructureMotion as Msg
 
     msg = Msg(amplitude_mm=nan_if_none(m_to_mm(s.amplitude_m)), frequency_hz=nan_if_none(s.frequency_hz),
@@ -108,23 +109,41 @@ def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origi
               offset_std_mm=nan_if_none(m_to_mm(s.offset_std_m)),
               rms_residual_mm=nan_if_none(m_to_mm(s.rms_residual_m)), frames_used=int(s.n_points or 0),
               ball_offset_mm=nan_if_none(m_to_mm(s.ball_offset_m)),
-              drive_json=json.dumps(json_value(drive), allow_nan=False) if drive is not None else "")
+              drive_json=json.dumps(json_value(drive), allow_nan=False) if drive is not None else "",
+              dic_bias_json=json.dumps(json_value(dic_bias), allow_nan=False) if dic_bias is not None else "")
     return _stamp(msg, stamp_s, origin_ns)
 
 
-def drive_from_message(msg: Any) -> dict[str, Any] | None:
-    """The windowed drive section a StructureMotion message carries (None: not known, or a bag recorded before
-    the field existed). Raises RecordingError naming the field when its JSON is damaged or not an object."""
-    text = getattr(msg, "drive_json", "") or ""
+def _json_section(msg: Any, name: str) -> dict[str, Any] | None:
+    """The results section a StructureMotion message carries as JSON in field ``name`` (None: not known, or a bag
+    recorded before the field existed). Raises RecordingError naming the field when its JSON is damaged or not an
+    object."""
+    text = getattr(msg, name, "") or ""
     if not text:
         return None
     try:
-        drive = json.loads(text)
+        section = json.loads(text)
     except ValueError as exc:
-        raise RecordingError(f"StructureMotion.drive_json is not valid JSON ({exc})") from None
-    if not isinstance(drive, dict):
-        raise RecordingError(f"StructureMotion.drive_json must hold a JSON object, got {type(drive).__name__}")
-    return drive
+        raise RecordingError(f"StructureMotion.{name} is not valid JSON ({exc})") from None
+    if not isinstance(section, dict):
+        raise RecordingError(f"StructureMotion.{name} must hold a JSON object, got {type(section).__name__}")
+    return section
+
+
+def drive_from_message(msg: Any) -> dict[str, Any] | None:
+    """The windowed drive section a StructureMotion message carries (:func:`_json_section`)."""
+    return _json_section(msg, "drive_json")
+
+
+def dic_bias_from_message(msg: Any) -> dict[str, Any] | None:
+    """The DIC sub-pixel bias section a StructureMotion message carries (:func:`_json_section`)."""
+    return _json_section(msg, "dic_bias_json")
+
+
+def structure_sections(msg: Any) -> dict[str, dict[str, Any]]:
+    """The results sections a StructureMotion message carries (``drive``, ``dic_bias``: those it holds)."""
+    sections = {"drive": drive_from_message(msg), "dic_bias": dic_bias_from_message(msg)}
+    return {name: value for name, value in sections.items() if value is not None}
 
 
 def structure_from_message(msg: Any) -> StructureMotion:

@@ -15,6 +15,7 @@ import sys
 import numpy as np
 from rclpy.node import Node
 
+from vibro_io.dic_bias import ball_as_identified
 from vibro_io.rig import load_rig
 from vibro_model.codec import nan_if_none
 from vibro_model.drive_envelope import DriveEnvelope
@@ -23,6 +24,7 @@ from vibro_model.units import mm_to_m
 from vibro_msgs.msg import SimulationResult
 from vibro_ros import topics
 from vibro_ros.convert import (
+    dic_bias_from_message,
     drive_from_message,
     flight_from_message,
     impact_from_message,
@@ -87,9 +89,10 @@ class Simulator(Node):
             return
         structure = structure_from_message(r.structure)
         t_s = np.array([m.t_s for m in tracked], dtype=float)
-        ball_m = mm_to_m(np.array([m.ball_mm for m in tracked], dtype=float))
         offset_m = nan_if_none(structure.ball_offset_m)
         try:
+            # the ball as the fitter identified it: its sub-pixel bias taken out (vibro analyze's replay reads it so)
+            ball_m = mm_to_m(ball_as_identified([m.ball_mm for m in tracked], dic_bias_from_message(r.structure)))
             envelope = DriveEnvelope.of_drive_section(drive_from_message(r.structure), structure.offset_m or 0.0)
             inputs = replay_inputs(structure, [flight_from_message(f) for f in r.sorted_flights()],
                                    [impact_from_message(i) for i in r.sorted_impacts()], mm_to_m(self.rig.free_play_mm),
