@@ -255,7 +255,8 @@ def test_the_discrepancy_node_publishes_the_impacts_corrected_with_the_tone(anal
     case = analysed["tone"]
     r = case["results"]
     identified = [{**i, "t": i["t_paper"], "cor": i["cor_paper"], "cor_std": i["cor_std_paper"]} for i in r["impacts"]]
-    sections = {"structure": r["structure"], "flights": r["flights"], "impacts": identified}
+    sections = {"structure": r["structure"], "flights": r["flights"], "impacts": identified,
+                "dic_bias": r["dic_bias"]}
     case_file = feed_case(tmp_path / "case.json", sections, read_dic_csv(case["out"] / "dic.csv"))
     run = run_discrepancy_node(case_file, case["rec"] / "rig.yaml", "vibro_msgs/msg/ImpactEstimate",
                                "vibro/impacts_final_model", count=len(identified))

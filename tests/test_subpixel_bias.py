@@ -186,7 +186,7 @@ def test_on_a_rendered_recording_the_track_and_the_cors_come_closer_to_the_truth
     for body in ("structure", "ball"):       # a bias of a few thousandths of a pixel, well told from noise
         amp, std = section[body]["amplitude_px"], section[body]["amplitude_std_px"]
         assert 5e-4 < amp < 0.05 and amp > 10 * std
-    from vibro_app.report_methods import subpixel_bias_row    # the report's Methods say it, per body
+    from vibro_app.report_methods import subpixel_bias_row  # the report's Methods say it, per body
 
     key, _, text = subpixel_bias_row(r)
     assert key == "dic.subpixel_bias" and text.count("taken out;") == 2

@@ -16,6 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from vibro_model.codec import json_number as _num
 from vibro_model.errors import RecordingError
 
 from .dictrack import DicTrack
@@ -115,10 +116,6 @@ class SubpixelBias:
             raise ValueError(f"dic_bias.mm_per_px: expected a positive number, got {d.get('mm_per_px')!r}")
         return cls(mm_per_px=scale, structure=BodyBias.from_dict("structure", d.get("structure") or {}),
                    ball=BodyBias.from_dict("ball", d.get("ball") or {}))
-
-
-def _num(x: float) -> float | None:
-    return float(x) if x is not None and math.isfinite(x) else None
 
 
 def _float(x) -> float:
