@@ -13,16 +13,20 @@ FIXTURES = REPO / "tests" / "fixtures"
 SHARED = REPO.parent / "shared"
 
 
-#: test files that take longest (tens of seconds to minutes), longest first (from ``make test``'s --durations,
-#: summed per file), so that the pytest-xdist workers (``--dist loadfile``) do not end with one of them alone on a
-#: long file: list scheduling, longest first
-LONGEST_FIRST = ("test_physical_floors.py", "test_drive_change.py", "test_discrepancy_prove.py",
-                 "test_graph_faults.py", "test_orientation.py", "test_restart_recovery.py", "test_live_accel.py",
-                 "test_long_recordings.py", "test_camera_calibration.py", "test_drive_correction.py",
-                 "test_graph.py", "test_synth_lab_files.py", "test_isolation.py", "test_replay_live.py",
-                 "test_report_methods.py", "test_campaign.py", "test_launch_order.py", "test_reidentify.py",
-                 "test_structure_tone.py", "test_bags_rosbag2.py", "test_optics.py", "test_init_plain.py",
-                 "test_init.py", "test_outline_ball.py")
+#: test files that take longest (tens of seconds to minutes), longest first (from ``make test``'s durations summed
+#: per file, --junitxml; test_physical_floors first: its one test, the 20,000-frame take, is the longest), so that
+#: the pytest-xdist workers (``--dist loadfile``) do not end with one of them alone on a long file: list scheduling
+LONGEST_FIRST = ("test_physical_floors.py", "test_graph_faults.py", "test_launch_order.py", "test_writer_watch.py",
+                 "test_restart_recovery.py", "test_isolation.py", "test_drive_change.py", "test_colcon_install.py",
+                 "test_nodes_dic.py", "test_orientation.py", "test_readme_commands.py", "test_graph.py",
+                 "test_bags_rosbag2.py", "test_discrepancy_prove.py", "test_camera_calibration.py",
+                 "test_drive_correction.py", "test_long_recordings.py", "test_campaign.py", "test_reidentify.py",
+                 "test_replay_live.py", "test_report_methods.py", "test_structure_tone.py", "test_synth_lab_files.py",
+                 "test_outline_ball.py", "test_model_error.py", "test_live_accel.py", "test_campaign_schedule.py",
+                 "test_graph_refusal.py", "test_accel_offset_ambiguity.py", "test_subpixel_bias.py", "test_bags.py",
+                 "test_ball_method_choice.py", "test_code_shape.py", "test_rig_warn_once.py", "test_clock_rate.py",
+                 "test_init_plain.py", "test_foxglove.py", "test_regimes_unexpected.py", "test_replay_truncated.py",
+                 "test_prove_harder.py")
 
 
 def pytest_sessionstart(session) -> None:

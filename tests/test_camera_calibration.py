@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import shared_runs
 import yaml
 
 from vibro_app.cli import main
@@ -332,9 +333,7 @@ def test_vibro_calibrate_refuses_too_few_boards_naming_the_images(boards: list[P
 
 
 # --------------------------------------------------------------------------------------------- synth + analyze
-LENS_K1 = -0.18  # a barrel lens: ~1.5 % less scale at the lower plate than at the image centre
-N_FRAMES = 600
-SEED = 3
+LENS_K1 = shared_runs.LENS_K1  # a barrel lens: ~1.5 % less scale at the lower plate than at the image centre
 
 
 def _dic(path: Path) -> dict[str, np.ndarray]:
@@ -344,30 +343,19 @@ def _dic(path: Path) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def lens_run(tmp_path_factory) -> dict:
-    """One recording seen through the lens, analysed with its calibration and (a copy without the key) without;
-    and the same scene without a lens, tracked: its error against the truth is the DIC's own noise."""
+    """One recording seen through the lens, analysed with its calibration and (a copy without the key) without
+    (tests/shared_runs.py: made once per test run, shared with tests/test_optics.py); and the same scene without a
+    lens, tracked: its error against the truth is the DIC's own noise."""
+    lens = shared_runs.lens_recordings(tmp_path_factory)
     base = tmp_path_factory.mktemp("lens")
-    rec = base / "rec"
-    assert main(["synth", "--out", str(rec), "--frames", str(N_FRAMES), "--seed", str(SEED), "--lens-k1",
-                 str(LENS_K1), "--no-progress"]) == 0
-    bare = base / "bare"
-    shutil.copytree(rec, bare)
-    (bare / "camera_info.yaml").unlink()
-    rig = yaml.safe_load((bare / "rig.yaml").read_text())
-    assert rig["camera"].pop("calibration") == "camera_info.yaml"
-    (bare / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
     plain = base / "plain"
-    assert main(["synth", "--out", str(plain), "--frames", str(N_FRAMES), "--seed", str(SEED), "--no-accel",
-                 "--no-progress"]) == 0
-    out = {}
-    for name in ("rec", "bare"):
-        assert main(["analyze", str(base / name), "--out", str(base / f"{name}_out"), "--no-report",
-                     "--no-progress"]) == 0
-        out[name] = (json.loads((base / f"{name}_out" / "results.json").read_text()),
-                     _dic(base / f"{name}_out" / "dic.csv"))
+    assert main(["synth", "--out", str(plain), "--frames", str(shared_runs.LENS_FRAMES), "--seed",
+                 str(shared_runs.LENS_SEED), "--no-accel", "--no-progress"]) == 0
+    out = {name: (lens[case]["doc"], _dic(lens[case]["out"] / "dic.csv"))
+           for name, case in (("rec", "calibrated"), ("bare", "forgotten"))}
     assert main(["track", str(plain), "--out", str(base / "plain_out"), "--no-progress"]) == 0
     out["plain"] = (None, _dic(base / "plain_out" / "dic.csv"))
-    out["truth"] = json.loads((base / "rec.truth.json").read_text())
+    out["truth"] = lens["truth"]
     out["plain_truth"] = json.loads((base / "plain.truth.json").read_text())
     return out
 

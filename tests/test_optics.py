@@ -9,51 +9,21 @@ ball's position or speed (tests/discrepancy_cases.py, exact physics) must not be
 
 from __future__ import annotations
 
-import json
-import os
-import shutil
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
-import yaml
 from discrepancy_cases import make_case
+from shared_runs import lens_recordings
 
 from vibro_discrepancy.data import measured_from_sections
 from vibro_discrepancy.optics import NOISE_RATIO, lens_check, lens_findings
 from vibro_model.results import DiscrepancyFinding
 
-ROOT = Path(__file__).resolve().parents[1]
-VIBRO = [sys.executable, "-m", "vibro_app.cli"]
-
-
-def _vibro(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*VIBRO, *args], capture_output=True, text=True, timeout=600, env=dict(os.environ), cwd=ROOT)
-
 
 @pytest.fixture(scope="module")
 def through_a_lens(tmp_path_factory) -> dict:
     """One recording through the lens, analysed with its calibration and, from a copy whose rig.yaml lost the
-    ``camera.calibration`` line (the lab that forgot), without it: the same frames both ways."""
-    base = tmp_path_factory.mktemp("lens")
-    calibrated = base / "calibrated"
-    p = _vibro("synth", "--out", str(calibrated), "--frames", "700", "--seed", "3", "--lens-k1", "-0.18", "--no-accel",
-               "--no-progress")
-    assert p.returncode == 0, p.stderr
-    forgotten = base / "forgotten"
-    shutil.copytree(calibrated, forgotten)
-    rig = yaml.safe_load((forgotten / "rig.yaml").read_text())
-    assert rig["camera"].pop("calibration")           # the premise: synth named it
-    (forgotten / "rig.yaml").write_text(yaml.safe_dump(rig, sort_keys=False))
-    (forgotten / "camera_info.yaml").unlink(missing_ok=True)
-    out = {}
-    for name, rec in (("forgotten", forgotten), ("calibrated", calibrated)):
-        res = base / f"{name}_out"
-        a = _vibro("analyze", str(rec), "--out", str(res), "--no-progress", "--no-report")
-        assert a.returncode == 0, a.stderr
-        out[name] = {"doc": json.loads((res / "results.json").read_text()), "stdout": a.stdout}
-    return out
+    ``camera.calibration`` line (the lab that forgot), without it: the same frames both ways (made once per test
+    run, shared with tests/test_camera_calibration.py)."""
+    return lens_recordings(tmp_path_factory)
 
 
 def test_a_lens_without_calibration_is_named_with_its_remedy_not_claimed(through_a_lens):

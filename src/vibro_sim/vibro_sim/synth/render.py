@@ -232,31 +232,51 @@ def _smooth_step(x):
 
 
 class _ShiftLayer:
-    """A (value, alpha) layer shifted along rows by a Fourier phase ramp."""
+    """A (value, alpha) layer shifted along rows by a Fourier phase ramp.
+
+    Two real columns share one complex FFT (the second as the imaginary part; the inverse of a Hermitian
+    spectrum is real, so the two come back apart exactly). A layer whose alpha is the same in every column (the
+    structure's plates, the background) keeps one alpha column and pairs its value columns: half the transforms
+    of value + 1j alpha per column, the same pixels to float round-off. Spectra are stored one column pair per
+    row (the transform along the last, contiguous axis).
+    """
 
     def __init__(self, premult: np.ndarray, alpha: np.ndarray):
-        self.n = premult.shape[0]
-        self.spec = np.fft.fft(premult + 1j * alpha, axis=0)
-        if self.n % 2 == 0:
-            # A fractional shift of the Nyquist row is not real: it would leak value into
-            # alpha (both share one complex FFT). Band-limited layers hold ~nothing there.
-            self.spec[self.n // 2] = 0.0
-        self.k = np.fft.fftfreq(self.n)[:, None]
-
-    def shifted_mean(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean of the layer over several shifts (exact: one averaged phase ramp)."""
-        ramp = np.mean(np.exp(-2j * math.pi * self.k[None, :, :] * np.asarray(rows, float)[:, None, None]),
-                       axis=0)
-        out = np.fft.ifft(self.spec * ramp, axis=0)
-        return out.real, out.imag
-
-    def shifted(self, rows: float) -> tuple[np.ndarray, np.ndarray]:
-        """Content moved down by ``rows`` (may be fractional)."""
-        if rows == 0.0:
-            out = np.fft.ifft(self.spec, axis=0)
+        self.n, self.width = premult.shape
+        self.row_alpha = bool(np.all(alpha == alpha[:, :1]))
+        if self.row_alpha:
+            value = premult if self.width % 2 == 0 else np.pad(premult, ((0, 0), (0, 1)))
+            packed = np.concatenate([value[:, 0::2] + 1j * value[:, 1::2], alpha[:, :1] + 0j], axis=1)
         else:
-            out = np.fft.ifft(self.spec * np.exp(-2j * math.pi * self.k * rows), axis=0)
-        return out.real, out.imag
+            packed = premult + 1j * alpha
+        self.spec = np.ascontiguousarray(np.fft.fft(packed, axis=0).T)
+        if self.n % 2 == 0:
+            # A fractional shift of the Nyquist row is not real: it would leak one column into its pair
+            # (they share one complex FFT). Band-limited layers hold ~nothing there.
+            self.spec[:, self.n // 2] = 0.0
+        self.k = np.fft.fftfreq(self.n)
+
+    def _inverse(self, ramp: np.ndarray | None, start: int, stop: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """(value, alpha) rows ``start:stop`` of the inverse FFT of the spectrum times ``ramp`` (None: 1); alpha
+        is one column (broadcasts) for a layer whose alpha is the same in every column."""
+        out = np.fft.ifft(self.spec if ramp is None else self.spec * ramp, axis=-1)[:, start:stop]
+        if not self.row_alpha:
+            return out.real.T, out.imag.T
+        pairs = out[:-1]
+        value = np.empty((out.shape[1], 2 * pairs.shape[0]))
+        value[:, 0::2] = pairs.real.T
+        value[:, 1::2] = pairs.imag.T
+        return value[:, :self.width], out[-1].real[:, None]
+
+    def shifted_mean(self, rows: np.ndarray, start: int = 0,
+                     stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Mean of the layer over several shifts (exact: one averaged phase ramp), rows ``start:stop``."""
+        ramp = np.mean(np.exp(-2j * math.pi * self.k[None, :] * np.asarray(rows, float)[:, None]), axis=0)
+        return self._inverse(ramp, start, stop)
+
+    def shifted(self, rows: float, start: int = 0, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Content moved down by ``rows`` (may be fractional), rows ``start:stop`` of it."""
+        return self._inverse(None if rows == 0.0 else np.exp(-2j * math.pi * self.k * rows), start, stop)
 
 
 class Renderer:
@@ -352,11 +372,10 @@ class Renderer:
         L = self.L
         H, M = L.height_px, L.margin_px
         dr = -drift_mm / L.mm_per_px
-        base = self.background if not self.drift else self.bg_layer.shifted(dr)[0][M:M + H]
+        base = self.background if not self.drift else self.bg_layer.shifted(dr, M, M + H)[0]
         angles = np.zeros(len(ball_mm)) if ball_angle_rad is None else np.asarray(ball_angle_rad, dtype=float)
         under = np.mean([self._ball_over(base.copy(), b, dr, a) for b, a in zip(ball_mm, angles)], axis=0)
-        sv, sa = self.struct_layer.shifted_mean(-np.asarray(structure_mm, float) / L.mm_per_px + dr)
-        sv, sa = sv[M:M + H], sa[M:M + H]
+        sv, sa = self.struct_layer.shifted_mean(-np.asarray(structure_mm, float) / L.mm_per_px + dr, M, M + H)
         return under * (1.0 - sa) + sv
 
     def render(self, structure_mm: float, ball_mm: float, drift_mm: float = 0.0,
@@ -370,14 +389,12 @@ class Renderer:
         H, M = L.height_px, L.margin_px
         dr = -drift_mm / L.mm_per_px  # rows down
         if self.drift:
-            bgv, _ = self.bg_layer.shifted(dr)
-            img = bgv[M:M + H].copy()
+            img = self.bg_layer.shifted(dr, M, M + H)[0]
         else:
             img = self.background.copy()
         img = self._ball_over(img, ball_mm, dr, ball_angle_rad)
         # structure on top
-        sv, sa = self.struct_layer.shifted(-structure_mm / L.mm_per_px + dr)
-        sv, sa = sv[M:M + H], sa[M:M + H]
+        sv, sa = self.struct_layer.shifted(-structure_mm / L.mm_per_px + dr, M, M + H)
         return img * (1.0 - sa) + sv
 
     def ball_roi(self, ball_mm0: float, subset_px: int) -> list[int]:
