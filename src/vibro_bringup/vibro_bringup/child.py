@@ -14,7 +14,7 @@ import runpy
 import signal
 import sys
 
-from vibro_ros.entry import install_early_stop
+from vibro_ros.entry import exit_now, install_early_stop
 
 
 def main() -> None:
@@ -30,7 +30,12 @@ def main() -> None:
     module = sys.argv[1]
     install_early_stop(module.rsplit(".", 1)[-1])  # a stop while the node module imports: exit 0, no traceback
     sys.argv = [module, *sys.argv[2:]]
-    runpy.run_module(module, run_name="__main__", alter_sys=True)
+    try:
+        runpy.run_module(module, run_name="__main__", alter_sys=True)
+        code = 0
+    except SystemExit as done:   # the node module's sys.exit(main()): its exit code
+        code = done.code
+    exit_now(code)               # without the interpreter's finalisation (vibro_ros.entry.exit_now)
 
 
 if __name__ == "__main__":
