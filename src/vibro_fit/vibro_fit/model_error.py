@@ -113,7 +113,9 @@ def noise_floor_pass(hops: HopPass) -> HopPass:
         p, q = by_index.get(int(imp.flight_before)), by_index.get(int(imp.flight_after))
         redone = None
         if imp.method == "paper" and p is not None and q is not None and imp.structure is not None:
-            redone = paper_impact(imp.index, _floored(p, pooled), _floored(q, pooled), imp.structure)
+            fp, fq = _floored(p, pooled), _floored(q, pooled)
+            if fp is not p or fq is not q:   # both at or above the floor already: the same propagation again
+                redone = paper_impact(imp.index, fp, fq, imp.structure)
         if redone is not None and redone.cor_std > imp.cor_std:
             imp = replace(imp, cor_std=redone.cor_std, t_std_s=max(redone.t_std_s, imp.t_std_s))
         out.append(imp)

@@ -157,22 +157,18 @@ def structure_bias(t_s: np.ndarray, y_mm: np.ndarray, frequency_hz: float, mm_pe
 def ball_bias(t_s: np.ndarray, y_mm: np.ndarray, flight_frames: Sequence[np.ndarray], mm_per_px: float) -> BodyBias:
     """The ball's S-curve (module docstring: a cubic per free flight) on the flights' finite frames."""
     t_all, y_all = np.asarray(t_s, dtype=float), np.asarray(y_mm, dtype=float)
-    used = []
+    finite = np.isfinite(t_all) & np.isfinite(y_all)
+    kept = (idx[finite[idx]] for idx in (np.asarray(f, dtype=int) for f in flight_frames))
+    used = [idx for idx in kept if idx.size >= MIN_FLIGHT_FRAMES]   # each flight's finite frames
 
     def blocks():
-        for frames in flight_frames:
-            idx = np.asarray(frames, dtype=int)
-            idx = idx[np.isfinite(t_all[idx]) & np.isfinite(y_all[idx])]
-            if idx.size < MIN_FLIGHT_FRAMES:
-                continue
-            used.append(idx)
+        for idx in used:
             tau = t_all[idx] - t_all[idx].mean()
             M = np.column_stack([np.ones_like(tau), tau, tau ** 2, tau ** 3])
             yield M, bias_columns(y_all[idx], mm_per_px, ORDERS), y_all[idx]
 
-    proj = _project_blocks(blocks())
     sweep = _sweep_px(y_all[np.concatenate(used)], mm_per_px) if used else 0.0
-    return _body_fit("ball", proj, sweep, mm_per_px)
+    return _body_fit("ball", _project_blocks(blocks()), sweep, mm_per_px)
 
 
 def subpixel_bias(track: DicTrack, flight_frames: Sequence[np.ndarray], frequency_hz: float,
