@@ -194,7 +194,37 @@ def fit_rows(results: Mapping[str, Any]) -> list[Row]:
     rows.append(("fit.local_structure", "structure velocity at an impact", "a local sine fit from "
                                                                            f"{hist_text} before the flight before the "
                                                                            "impact to the end of the flight after it"))
+    plates = plate_motion_row(results)
+    if plates is not None:
+        rows.append(plates)
     return rows
+
+
+def plate_motion_row(results: Mapping[str, Any]) -> Row | None:
+    """Each plate's height against the tracked structure (results.json ``plate_motion``): still, a creep taken
+    into its CORs, or a step; None without the section."""
+    section = results.get("plate_motion")
+    if not isinstance(section, Mapping):
+        return None
+    parts = []
+    for plate in ("top", "bottom"):
+        m = section.get(plate)
+        if not isinstance(m, Mapping):
+            continue
+        shape = m.get("shape")
+        if shape == "creep" and m.get("applied"):
+            parts.append(f"{plate}: creeps {_num(m.get('rate_um_per_s'), '+.3g', 'µm/s')} (± "
+                         f"{_num(m.get('rate_std_um_per_s'), '.2g')}); its velocity taken into its CORs (up to "
+                         f"{_num(m.get('cor_shift_max'), '.2g')})")
+        elif shape == "step":
+            parts.append(f"{plate}: moved once, {_num(m.get('step_um'), '+.3g', 'µm')} at "
+                         f"{_num(m.get('step_time_s'), '.3f', 's')}; CORs unchanged")
+        else:
+            parts.append(f"{plate}: {m.get('reason') or shape}")
+    return ("fit.plate_motion", "plate height against the structure",
+            "the contact levels (ball − structure at each impact) fitted against time (polynomial of degree 0-3 "
+            "or one step, by BIC); a creep beyond 5 σ that moves a COR by ≥ 0.2 of its noise is the plate's "
+            "velocity in Eq. 16. " + "; ".join(parts))
 
 
 

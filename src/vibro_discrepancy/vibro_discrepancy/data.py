@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from vibro_io.dictrack import DicTrack
+from vibro_io.plate_motion import PlateCreep, plate_creeps
 from vibro_io.rig import RigConfig
 from vibro_model.codec import Fields
 from vibro_model.constants import G_MPS2
@@ -85,6 +86,13 @@ class Measured:
     axis_tilt_deg: float = 0.0  # rig.yaml setup.axis_tilt_deg: the axis' declared tilt from vertical (deg)
     notes: list[str] = field(default_factory=list)
     drive: Mapping[str, Any] | None = None   # results.json ``drive`` (the identification's windowed drive)
+    plate_creeps: Mapping[str, PlateCreep] = field(default_factory=dict)   # plates creeping, in the CORs
+
+    def plate_velocity_mps(self, plate: str, t_s: float) -> float:
+        """How much faster than the tracked structure ``plate`` moves at ``t_s`` (m/s): the creep the
+        identification took into its CORs (results.json ``plate_motion``), 0 for a plate that does not creep."""
+        creep = self.plate_creeps.get(plate)
+        return creep.velocity_mps(t_s) if creep is not None else 0.0
 
     @property
     def frequency_hz(self) -> float:
@@ -176,9 +184,11 @@ def _flight_samples(k: int, fl: Flight, t: np.ndarray, ball: np.ndarray, impact_
 
 
 def measured_from_model(structure: StructureMotion | None, flights: Sequence[Flight], impacts: Sequence[Impact],
-                        track: DicTrack, rig: RigConfig, drive: Mapping[str, Any] | None = None) -> Measured:
+                        track: DicTrack, rig: RigConfig, drive: Mapping[str, Any] | None = None,
+                        plate_motion: Mapping[str, Any] | None = None) -> Measured:
     """Build :class:`Measured` from the identification (model types), the DIC track and the rig (``drive``: the
-    results' ``drive`` section, carried as it is). Raises :class:`RecordingError` naming what is missing or
+    results' ``drive`` section, carried as it is; ``plate_motion``: its ``plate_motion`` section). Raises
+    :class:`RecordingError` naming what is missing or
     inconsistent."""
     sine = _sine(structure)
     good = _check_track(track)
@@ -202,14 +212,15 @@ def measured_from_model(structure: StructureMotion | None, flights: Sequence[Fli
                     scale_rel_std=float(rig.camera.mm_per_px_rel_std or 0.0),
                     calibrated=getattr(rig.camera, "calibration", None) is not None, g_mps2=float(rig.g_axis_mps2),
                     axis_tilt_deg=float(rig.setup.axis_tilt_deg),
-                    drive=_drive_section(drive))
+                    drive=_drive_section(drive), plate_creeps=plate_creeps(plate_motion))
 
 
 def measured_from_document(doc: ResultsDocument, track: DicTrack, rig: RigConfig) -> Measured:
     """:func:`measured_from_model` of a results document's structure, flights and impacts."""
     if not isinstance(doc, ResultsDocument):
         raise RecordingError(f"discrepancy: expected a ResultsDocument, got {type(doc).__name__}")
-    return measured_from_model(doc.structure, doc.flights, doc.impacts, track, rig, doc.sections.get("drive"))
+    return measured_from_model(doc.structure, doc.flights, doc.impacts, track, rig, doc.sections.get("drive"),
+                               doc.sections.get("plate_motion"))
 
 
 def sections_model(sections: Mapping[str, Any]) -> tuple[StructureMotion, list[Flight], list[Impact]]:
@@ -228,7 +239,8 @@ def sections_model(sections: Mapping[str, Any]) -> tuple[StructureMotion, list[F
 
 def measured_from_sections(sections: Mapping[str, Any], track: DicTrack, rig: RigConfig) -> Measured:
     """:func:`measured_from_model` of a results.json-shaped mapping (read by :func:`sections_model`)."""
-    return measured_from_model(*sections_model(sections), track, rig, sections.get("drive"))
+    return measured_from_model(*sections_model(sections), track, rig, sections.get("drive"),
+                               sections.get("plate_motion"))
 
 
 def _drive_section(drive: Any) -> Mapping[str, Any] | None:

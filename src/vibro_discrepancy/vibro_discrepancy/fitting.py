@@ -378,7 +378,8 @@ def impact_time(meas: Measured, flights: FlightModelFit, i: int) -> float:
 
 def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: StructureKinematics) -> ImpactSet:
     """Impact times (:func:`impact_time`) and velocities from the fitted flight models on both sides
-    and the structure model; impacts without a fitted flight on one side keep the identified time and
+    and the structure model (plus a creeping plate's velocity, :meth:`Measured.plate_velocity_mps`); impacts
+    without a fitted flight on one side keep the identified time and
     velocity there."""
     rows = []
     for imp in meas.impacts:
@@ -390,7 +391,7 @@ def recompute_impacts(meas: Measured, flights: FlightModelFit, structure: Struct
         if imp.flight_after is not None:
             fl = meas.flights[imp.flight_after]
             va = float(flights.velocity(imp.flight_after, t - fl.t_ref_s))
-        vs = float(structure.velocity(t))
+        vs = float(structure.velocity(t)) + meas.plate_velocity_mps(imp.plate, t)   # a creeping plate's own
         den = vb - vs
         if abs(den) < 1e-6:
             continue

@@ -135,7 +135,9 @@ def located_right(finding: Mapping[str, Any], effect: str, truth: Mapping[str, A
     """Whether an ``unexplained`` finding's mismatches place the invented ``effect`` where the truth has
     it: ``cor_drift`` a COR trend of the drift's sign; ``structure_tone`` a periodic structure mismatch
     within half a periodogram bin (1 / 2T, T the span tested) of the tone's frequency; ``plate_step`` a
-    step of the top plate's contact level whose bracketing impacts hold the true step time; ``cor_parity`` the
+    step of the top plate's contact level whose bracketing impacts hold the true step time; ``plate_creep`` a
+    trend of the top plate's contact level of the creep's sign and its travel over the span within half;
+    ``cor_parity`` the
     lower plate's COR alternating (a ``parity`` COR mismatch on the bottom plate; which impact the analysis
     counts first is its own, so the jump's size within half of the true |cor_even - cor_odd|, its sign free);
     ``position_force`` a structured flight shape (``shape``) pulling towards the lower plate, strongest nearest to
@@ -163,6 +165,12 @@ def located_right(finding: Mapping[str, Any], effect: str, truth: Mapping[str, A
               and m.get("shape") == "step"):
             lo, hi = (m.get("step_between_s") or [None, None])[:2]
             if lo is not None and hi is not None and lo <= params["step_time_s"] <= hi:
+                return True
+        elif (effect == "plate_creep" and m.get("series") == "contact_level" and m.get("plate") == "top"
+              and m.get("shape") == "trend" and span > 0):
+            travel = params.get("creep_um_per_s", 0.0) * span
+            size = float(m.get("size") or 0.0)
+            if np.sign(size) == np.sign(travel) and abs(abs(size) - abs(travel)) <= 0.5 * abs(travel):
                 return True
     return False
 

@@ -8,7 +8,7 @@ statistics, regime, accelerometer analysis and the ``joint`` refinement are adde
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,6 +49,7 @@ from .passes import (
     unseen_pass,
     validate_inputs,
 )
+from .plate_motion import PlateMotion, plate_motion_pass
 from .regimes import Regime
 from .rig_consistency import RigStatement
 from .segmentation import SegmentationConfig, segmentation_config
@@ -93,6 +94,7 @@ class Identification:
     hop_chains: list[HopChain] = field(default_factory=list)     # short hops measured on the plate (vibro_fit.hops)
     drive: DriveModel | None = None    # the drive in windows, stationary or not (vibro_fit.drive); None: no motion
     dic_bias: SubpixelBias | None = None   # DIC's sub-pixel bias, measured and taken out (vibro_fit.subpixel_bias)
+    plate_motion: dict[str, PlateMotion] = field(default_factory=dict)   # each plate against the structure
 
     def corrected_track(self, track: DicTrack) -> DicTrack:
         """``track`` as this identification measured it: with the sub-pixel bias it took out (:attr:`dic_bias`)
@@ -158,7 +160,9 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
 
     The passes (:mod:`vibro_fit.passes`) run in this order: validate, structure, drive (stationary or not:
     :mod:`vibro_fit.drive`), streaming fitter, accelerometers and clock offset, contact phases, impacts
-    (``joint`` refinement), hop chains, friction, landings, unseen accelerometer impacts, regime, motion state,
+    (``joint`` refinement), hop chains, the COR sigmas' floors (:mod:`vibro_fit.model_error`), each plate's motion
+    against the tracked structure (:mod:`vibro_fit.plate_motion`: a creeping plate's velocity taken into its
+    CORs), friction, landings, unseen accelerometer impacts, regime, motion state,
     rig consistency. The streaming fitter runs once, plus once
     more for each of two inputs it can only take from the start of the track, as it segments frame by frame:
 
@@ -203,6 +207,9 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
     impacts, levels = impact_pass(sf, track, rig, method, basis.noise_mm)
     hops = hop_pass(sf, impacts, levels, contacts=contacts, cframes=cframes, track=track, rig=rig, basis=basis)
     hops = widened_pass(noise_floor_pass(hops), track, rig)
+    moved, plates = plate_motion_pass(hops.impacts)
+    hops = replace(hops, impacts=moved)
+    plate_notes = [f"{m.plate} plate {m.reason}" for m in plates.values() if m.applied]
     friction = friction_pass(sf.flights, basis.structure, rig.ball.mass_kg, cfg.g_mps2)
     flight_notes = flight_warnings(sf, levels, rig.free_play_mm)
     landings, landing_notes = landing_pass(sf, hops, levels=levels, track=track, structure=basis.structure,
@@ -213,7 +220,7 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
     motion, motion_notes = motion_pass(sf, hops, len(landings), track, basis)
     rig_state, rig_notes = rig_pass(rig, accel, sf, hops.impacts, basis, cfg.g_mps2)
     warnings = (basis.warnings + drive_notes + acc.warnings + flight_notes + landing_notes + unseen_notes
-                + regime_notes + motion_notes + rig_notes)
+                + regime_notes + motion_notes + rig_notes + plate_notes)
     return Identification(structure=basis.structure, flights=hops.flights, impacts=hops.impacts, friction=friction,
                           cor_summary=cor_summary(hops.impacts), regime=regime, plate_levels=levels,
                           noise_mm=float(basis.noise_mm), method=method, mass_kg=rig.ball.mass_kg,
@@ -222,4 +229,4 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
                           accel=acc.analysis, clock_offset=acc.offset, warnings=warnings, weights=weights or "none",
                           coverage=acc.coverage, motion=motion, landings=landings, accel_unseen_s=unseen,
                           rig_consistency=rig_state, gaps=list(sf.gaps), contacts=hops.contacts,
-                          hop_chains=hops.chains, drive=drive)
+                          hop_chains=hops.chains, drive=drive, plate_motion=plates)

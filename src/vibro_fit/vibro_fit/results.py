@@ -44,6 +44,8 @@ def identification_extras(ident: Identification) -> dict[str, Any]:
         out["drive"] = ident.drive.to_dict()
     if getattr(ident, "dic_bias", None) is not None:   # DIC's sub-pixel bias, measured (vibro_fit.subpixel_bias)
         out["dic_bias"] = ident.dic_bias.to_dict()
+    if getattr(ident, "plate_motion", None):   # each plate against the tracked structure (vibro_fit.plate_motion)
+        out["plate_motion"] = {plate: m.to_dict() for plate, m in ident.plate_motion.items()}
     if ident.accel is not None:
         acc, off = ident.accel, ident.clock_offset
         out["accelerometers"] = {

@@ -364,7 +364,8 @@ class TrajectoryFitter(Node):
         end-of-stream statuses (a refused run's impacts stream ends in :meth:`_refuse`)."""
         self.pub_structure.publish(structure_to_message(document.structure, t_end_s, self.time_origin_ns,
                                                         document.sections.get("drive"),
-                                                        document.sections.get("dic_bias")))
+                                                        document.sections.get("dic_bias"),
+                                                        document.sections.get("plate_motion")))
         for flight in document.flights:
             self.pub_flights.publish(flight_to_message(flight, True, self.time_origin_ns))
         self.flights_status.publish(len(document.flights), 0, True)

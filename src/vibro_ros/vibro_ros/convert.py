@@ -96,10 +96,12 @@ def dic_track_from_messages(frames: Iterable[Any]) -> DicTrack:
 
 # ---------------------------------------------------------------- structure
 def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origin_ns: int = 0,
-                         drive: Mapping[str, Any] | None = None, dic_bias: Mapping[str, Any] | None = None):
+                         drive: Mapping[str, Any] | None = None, dic_bias: Mapping[str, Any] | None = None,
+                         plate_motion: Mapping[str, Any] | None = None):
     """A StructureMotion message of the identified sine, the identification's windowed ``drive`` (results.json's
-    ``drive`` section, carried as JSON in ``drive_json``) and the DIC sub-pixel bias it took out (``dic_bias``,
-    in ``dic_bias_json``); each empty when None."""
+    ``drive`` section, carried as JSON in ``drive_json``), the DIC sub-pixel bias it took out (``dic_bias``,
+    in ``dic_bias_json``) and each plate's motion against the structure (``plate_motion``, in
+    ``plate_motion_json``); each empty when None."""
     from vibro_msgs.msg import StructureMotion as Msg
 
     msg = Msg(amplitude_mm=nan_if_none(m_to_mm(s.amplitude_m)), frequency_hz=nan_if_none(s.frequency_hz),
@@ -110,7 +112,9 @@ def structure_to_message(s: StructureMotion, stamp_s: float | None = None, origi
               rms_residual_mm=nan_if_none(m_to_mm(s.rms_residual_m)), frames_used=int(s.n_points or 0),
               ball_offset_mm=nan_if_none(m_to_mm(s.ball_offset_m)),
               drive_json=json.dumps(json_value(drive), allow_nan=False) if drive is not None else "",
-              dic_bias_json=json.dumps(json_value(dic_bias), allow_nan=False) if dic_bias is not None else "")
+              dic_bias_json=json.dumps(json_value(dic_bias), allow_nan=False) if dic_bias is not None else "",
+              plate_motion_json=(json.dumps(json_value(plate_motion), allow_nan=False)
+                                 if plate_motion is not None else ""))
     return _stamp(msg, stamp_s, origin_ns)
 
 
@@ -140,9 +144,16 @@ def dic_bias_from_message(msg: Any) -> dict[str, Any] | None:
     return _json_section(msg, "dic_bias_json")
 
 
+def plate_motion_from_message(msg: Any) -> dict[str, Any] | None:
+    """The plates' motion section a StructureMotion message carries (:func:`_json_section`)."""
+    return _json_section(msg, "plate_motion_json")
+
+
 def structure_sections(msg: Any) -> dict[str, dict[str, Any]]:
-    """The results sections a StructureMotion message carries (``drive``, ``dic_bias``: those it holds)."""
-    sections = {"drive": drive_from_message(msg), "dic_bias": dic_bias_from_message(msg)}
+    """The results sections a StructureMotion message carries (``drive``, ``dic_bias``, ``plate_motion``: those
+    it holds)."""
+    sections = {"drive": drive_from_message(msg), "dic_bias": dic_bias_from_message(msg),
+                "plate_motion": plate_motion_from_message(msg)}
     return {name: value for name, value in sections.items() if value is not None}
 
 

@@ -7,8 +7,10 @@ y - Y_s(t) = +b and the bottom plate when y - Y_s(t) = -b, b = cavity.free_play_
 Free flights use exact solutions (:mod:`vibro_sim.flight`); the contact times are
 zeros of the gap functions g_top = b - (y - Y_s) and g_bottom = (y - Y_s) + b, found
 by :func:`vibro_sim.events.first_root` (never by stepping past a contact) and refined
-by Brent's method to 1e-12 s. At an impact v_b+ = v_s - e (v_b- - v_s) with e from the
-restitution law. When the rebound relative speed is below ``stick_speed_mps`` the ball
+by Brent's method to 1e-12 s. The top plate may move against the structure (``top_plate``: its own
+kinematics, e.g. a plate that creeps; default the structure's), then g_top = Y_top(t) + b - y. At an
+impact v_b+ = v_s - e (v_b- - v_s) with e from the restitution law (v_s the velocity of the plate hit).
+When the rebound relative speed is below ``stick_speed_mps`` the ball
 is put at rest on the plate; if the plate then pushes it (plate acceleration beyond
 the ball's free acceleration) it rides on the plate until the plate's acceleration
 releases it (no Zeno loop of ever smaller bounces).
@@ -162,8 +164,9 @@ class _LoopState:
 
 
 class _Simulator:
-    def __init__(self, structure, cavity, restitution, force, stick_speed_mps, scan_step_s):
+    def __init__(self, structure, cavity, restitution, force, stick_speed_mps, scan_step_s, top_plate=None):
         self.S = structure
+        self.plate_motion = {"top": structure if top_plate is None else top_plate, "bottom": structure}
         self.cav = cavity
         self.law = restitution
         self.force = force if force is not None else NoForce()
@@ -175,13 +178,13 @@ class _Simulator:
 
     # gap functions ---------------------------------------------------------
     def gap_fn(self, plate: str, seg: Segment):
-        S, b = self.S, self.b
+        S, b = self.plate_motion[plate], self.b
         if plate == "top":
             return lambda t: b - (seg.pos(t) - S.position(t))
         return lambda t: (seg.pos(t) - S.position(t)) + b
 
     def gap_derivs(self, plate: str, seg: Segment, t: float) -> tuple[float, float, float, float]:
-        S = self.S
+        S = self.plate_motion[plate]
         rel = (float(seg.pos(t) - S.position(t)), float(seg.vel(t) - S.velocity(t)),
                float(seg.acc(t) - S.acceleration(t)), float(seg.jerk(t) - S.jerk(t)))
         if plate == "top":
@@ -190,7 +193,9 @@ class _Simulator:
 
     def gap_bounds(self, seg: Segment) -> tuple[float, float, float]:
         a, j, s = seg.bounds()
-        return a + self.S.bound(2), j + self.S.bound(3), s + self.S.bound(4)
+        return (a + max(p.bound(2) for p in self.plate_motion.values()),
+                j + max(p.bound(3) for p in self.plate_motion.values()),
+                s + max(p.bound(4) for p in self.plate_motion.values()))
 
     def leave_delay(self, plate: str, seg: Segment, t: float):
         """At a contact (gap ~ 0): 'impact' if moving in, None if pressed (stick), else a
@@ -211,7 +216,7 @@ class _Simulator:
 
     def release_fn(self, plate: str, flight_index: int):
         """Positive while the plate presses the ball: s (Y_s'' - a_free), s = +1 bottom, -1 top."""
-        S, m, g, force = self.S, self.m, self.g, self.force
+        S, m, g, force = self.plate_motion[plate], self.m, self.g, self.force
         sgn = 1.0 if plate == "bottom" else -1.0
 
         def f(t):
@@ -220,7 +225,11 @@ class _Simulator:
         return f
 
     def release_bound(self) -> float:
-        S, m = self.S, self.m
+        """A bound on |d/dt| of every plate's :meth:`release_fn` (its slope, for the root scan)."""
+        return max(self._release_bound(p) for p in self.plate_motion.values())
+
+    def _release_bound(self, S) -> float:
+        m = self.m
         kind = getattr(self.force, "kind", "ode")
         extra = 0.0
         if kind == "viscous":
@@ -252,15 +261,16 @@ class _Simulator:
         """The loop's start: the ball at y0 (m, clipped onto the cavity) with v0 (m/s) at t0 (s)."""
         S, b = self.S, self.b
         rel0 = y0 - S.position(t0)
-        if abs(rel0) > b * (1 + 1e-9) + GAP_TOL_M:
+        top = b + float(self.plate_motion["top"].position(t0) - S.position(t0))   # > b where the top plate crept up
+        if rel0 > top + b * 1e-9 + GAP_TOL_M or rel0 < -b * (1 + 1e-9) - GAP_TOL_M:
             raise ValueError(f"initial ball position y0 - Y_s(t0) = {rel0:.6g} m is outside the "
                              f"cavity (free play b = {b:.6g} m)")
-        rel0 = min(max(rel0, -b), b)
+        rel0 = min(max(rel0, -b), top)
         return _LoopState(t=t0, y=S.position(t0) + rel0, v=v0, flight_start=t0, flight_v0=v0)
 
     def _ride_plate(self, res: SimResult, st: _LoopState, t_end: float) -> None:
         """The ball rides ``st.stuck_plate`` until the plate releases it (or t_end, s); then it flies."""
-        seg = Stuck(st.t, self.S, self.b, st.stuck_plate)
+        seg = Stuck(st.t, self.plate_motion[st.stuck_plate], self.b, st.stuck_plate)
         res.segments.append(seg)
         f = self.release_fn(st.stuck_plate, st.fi)
         if float(f(st.t)) > 0.0:
@@ -350,7 +360,7 @@ class _Simulator:
     def impact(self, res: SimResult, tr: float, plate: str, vb: float, ii: int, fi: int,
                t_end: float) -> tuple[float, float, float]:
         """Instantaneous Newton impact (Eq. 5); returns the state (t, y, v) after it."""
-        S, b = self.S, self.b
+        S, b = self.plate_motion[plate], self.b
         vs = float(S.velocity(tr))
         vrel = vb - vs
         e = float(self.law.cor(plate, vrel, ii))
@@ -408,18 +418,18 @@ class CorSolver:
     scan_step_s: float | None = None
     max_events: int = 1_000_000
 
-    def simulate(self, structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
+    def simulate(self, structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,  # noqa: PLR0913
                  force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5) -> SimResult:
+                 t0_s: float = 0.0, t_end_s: float = 1.5, top_plate=None) -> SimResult:
         """Simulate the COR model with these settings; parameters, result and errors as :func:`simulate_cor`."""
         check_span("simulate_cor", y0_m, v0_mps, t0_s, t_end_s)
-        sim = _Simulator(structure, cavity, restitution, force, self.stick_speed_mps, self.scan_step_s)
+        sim = _Simulator(structure, cavity, restitution, force, self.stick_speed_mps, self.scan_step_s, top_plate)
         return sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), self.max_events)
 
 
-def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,
+def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,  # noqa: PLR0913
                  force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5) -> SimResult:
+                 t0_s: float = 0.0, t_end_s: float = 1.5, top_plate=None) -> SimResult:
     """Simulate the COR model (instantaneous impacts, Eq. 4-6) from (t0_s, y0_m, v0_mps) to t_end_s.
 
     The solver's settings (stick speed, scan step, event limit) keep their defaults; to change them use
@@ -441,6 +451,10 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
         Ball velocity (m/s), + up.
     t0_s, t_end_s : float
         Start and end of the simulation (s).
+    top_plate : kinematics, optional
+        The top plate's own motion minus its free play (``position``/``velocity``/``acceleration``/``jerk``/
+        ``bound`` like ``structure``), when it moves against the structure (a plate that creeps); None: it moves
+        with the structure. The impacts on it take its velocity.
 
     Returns
     -------
@@ -453,4 +467,4 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
         A non-finite start, a ball outside the cavity, or ``t_end_s < t0_s``.
     """
     return CorSolver().simulate(structure, cavity, restitution, force, y0_m=y0_m, v0_mps=v0_mps,
-                                t0_s=t0_s, t_end_s=t_end_s)
+                                t0_s=t0_s, t_end_s=t_end_s, top_plate=top_plate)

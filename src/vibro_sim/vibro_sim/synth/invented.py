@@ -12,6 +12,12 @@ with where and what. They exist to test that; a lab recording may show any of th
   ``step_time_s`` it backs off upwards by ``step_um``; the cavity grows, the lower plate and the
   tracked structure (the ROI sits on the lower plate) stay. The images draw the upper plate where it
   was (the step is about a pixel; DIC never tracks the upper plate).
+- ``plate_creep``: the upper plate creeps over the take (a screw slowly backing off, a mount relaxing): its
+  height against the tracked structure (the lower plate) changes by ``creep_um_per_s`` every second, at the
+  rig's height at camera time 0 (lower before it, over the lead-in); the plate's velocity is the structure's plus
+  the creep, so an impact on it meets that velocity. Exact in the event simulator (its own top-plate kinematics,
+  :class:`CreepingPlate`), not a staircase. As with ``plate_step`` the images draw the upper plate with the
+  structure (DIC never tracks it).
 - ``position_force``: an attraction towards the lower plate that depends on where the ball is, not on how
   it moves (a magnet under the plate, electrostatics): F = -weight_fraction m g exp(-d / decay_mm), d the
   gap between the ball and the lower plate (0 in contact); downward on rising and falling flights alike.
@@ -43,6 +49,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from vibro_model.constants import G_MPS2
 from vibro_model.kinematics import DriveChange, StructureKinematics, StructureWithTone
 
@@ -54,6 +62,7 @@ INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
     "structure_tone": {"tone_amplitude_um": (15.0, 0.0, 500.0), "tone_frequency_hz": (7.3, 0.5, 200.0),
                        "tone_phase_rad": (0.4, -2 * math.pi, 2 * math.pi)},
     "plate_step": {"step_um": (60.0, 0.0, 1000.0), "step_time_s": (0.15, 0.0, 100.0)},
+    "plate_creep": {"creep_um_per_s": (40.0, -500.0, 500.0)},
     "position_force": {"weight_fraction": (0.25, 0.0, 2.0), "decay_mm": (3.0, 0.05, 100.0)},
     "cor_parity": {"cor_even": (0.62, 0.0, 1.0), "cor_odd": (0.74, 0.0, 1.0)},
 }
@@ -62,6 +71,8 @@ INVENTED_HELP = {
     "cor_drift": "the COR drifts linearly in time by drift_per_s per second (wear/heating)",
     "structure_tone": "a second structure tone of tone_amplitude_um at tone_frequency_hz, not a drive harmonic",
     "plate_step": "at step_time_s the upper plate backs off upwards by step_um (a loosening screw)",
+    "plate_creep": ("the upper plate creeps up by creep_um_per_s every second (negative: down), at the rig's "
+                    "height at camera time 0"),
     "position_force": ("a force towards the lower plate, weight_fraction of the ball's weight there, decaying "
                        "over decay_mm with the ball's distance from it, whatever the direction of motion"),
     "cor_parity": "the lower plate's COR alternates between cor_even and cor_odd on successive lower-plate impacts",
@@ -169,6 +180,56 @@ def stepped_cavity(S: StructureKinematics, cavity, step: dict[str, float]):
     moves up by step/2, so the upper plate is ``step_um`` higher and the lower plate stays."""
     half = 0.5e-6 * step["step_um"]
     return replace(S, offset_m=S.offset_m + half), replace(cavity, free_play_m=cavity.free_play_m + half)
+
+
+@dataclass(frozen=True)
+class CreepingPlate:
+    """The upper plate of ``plate_creep``: the structure's motion plus ``rate_mps`` * t (t camera time, s; m, m/s).
+
+    The kinematics interface of :class:`vibro_model.kinematics.StructureKinematics` that the event simulator
+    reads (``top_plate`` of :func:`vibro_sim.cor_model.simulate_cor`): position, velocity, acceleration and jerk
+    against time, and bounds on the derivatives' magnitudes."""
+
+    structure: StructureKinematics
+    rate_mps: float
+
+    def position(self, t):
+        return self.structure.position(t) + self.rate_mps * np.asarray(t, dtype=float)
+
+    def velocity(self, t):
+        return self.structure.velocity(t) + self.rate_mps
+
+    def acceleration(self, t):
+        return self.structure.acceleration(t)
+
+    def jerk(self, t):
+        return self.structure.jerk(t)
+
+    def bound(self, order: int) -> float:
+        return self.structure.bound(order) + (abs(self.rate_mps) if order == 1 else 0.0)
+
+    @property
+    def frequency_hz(self) -> float:
+        return self.structure.frequency_hz
+
+
+def creeping_plate(S: StructureKinematics, creep: dict[str, float]) -> CreepingPlate:
+    """The upper plate of a ``plate_creep`` on structure ``S``."""
+    return CreepingPlate(S, 1e-6 * creep["creep_um_per_s"])
+
+
+def check_creep(effects: dict[str, dict[str, float]], free_play_m: float, horizon_s: float) -> str | None:
+    """Why ``plate_creep`` cannot be simulated: a plate that would close the cavity to less than half its free
+    play within |t| <= ``horizon_s`` (s) of camera time 0; else None."""
+    creep = effects.get("plate_creep")
+    if creep is None:
+        return None
+    travel_m = 1e-6 * abs(creep["creep_um_per_s"]) * horizon_s
+    if travel_m >= 0.5 * free_play_m:
+        return (f"parameter 'creep_um_per_s' of effect 'plate_creep' ({creep['creep_um_per_s']} um/s) moves the "
+                f"upper plate {travel_m * 1e6:.0f} um within the simulated {horizon_s:.3g} s: more than half the "
+                f"free play ({free_play_m * 1e6:.0f} um)")
+    return None
 
 
 def position_force(structure: StructureKinematics, cavity, base: ForceLaw, params: dict[str, float]) -> PositionForce:

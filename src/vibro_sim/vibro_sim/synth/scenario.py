@@ -5,7 +5,7 @@ every parameter name belongs to exactly one effect, so ``--param key=value`` fin
 effect by the key. Extra (non-contract) knobs: ``cor_sigma`` (per-impact Gaussian COR
 scatter of ``asymmetric_restitution``, default 0.04 as in the paper's Table 2) and
 ``h2_phase_rad``/``h3_phase_rad`` of ``structure_harmonics``. Invented effects outside the
-discrepancy catalogue (``cor_drift``, ``structure_tone``, ``plate_step``, ``position_force``,
+discrepancy catalogue (``cor_drift``, ``structure_tone``, ``plate_step``, ``plate_creep``, ``position_force``,
 ``cor_parity``): :mod:`.invented`.
 """
 
@@ -27,6 +27,7 @@ from .invented import (
     INVENTED_EFFECTS,
     DriftingCOR,
     ParityCOR,
+    check_creep,
     check_drive,
     check_invented,
     drift_per_impact,
@@ -243,6 +244,9 @@ class SynthConfig:
         why = check_drive(self.effects, self.frequency_hz, drive_horizon_s(self))
         if why is not None:
             raise SynthError(why)
+        why = check_creep(self.effects, 0.5 * mm_to_m(self.gap_mm - self.ball_diameter_mm), drive_horizon_s(self))
+        if why is not None:
+            raise SynthError(why)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -316,6 +320,7 @@ class Models:
     force: ForceLaw
     law_without_scatter: RestitutionLaw | None = None   # the COR law before the per-impact scatter
     plate_step: dict[str, float] | None = None          # the invented plate_step effect's parameters
+    plate_creep: dict[str, float] | None = None         # the invented plate_creep effect's parameters
     cor_drift_per_impact: float = 0.0                   # the invented cor_drift (from frame 0 on)
     law_before_scatter: RestitutionLaw | None = None    # the law before cor_scatter (with asymmetric's own)
     cor_scatter: float = 0.0
@@ -369,7 +374,8 @@ def build_models(cfg: SynthConfig, phase_rad: float) -> Models:
         law = Scattered(law, cfg.cor_scatter, seed=cfg.seed + 104729)
     drift = drift_per_impact(eff["cor_drift"]["drift_per_s"], cfg.frequency_hz) if "cor_drift" in eff else 0.0
     return Models(structure=structure, cavity=cavity, restitution=law, force=force, law_without_scatter=plain_law,
-                  plate_step=eff.get("plate_step"), cor_drift_per_impact=drift, law_before_scatter=before_scatter,
+                  plate_step=eff.get("plate_step"), plate_creep=eff.get("plate_creep"), cor_drift_per_impact=drift,
+                  law_before_scatter=before_scatter,
                   cor_scatter=cfg.cor_scatter, scatter_seed=cfg.seed + 104729, spins_rad_s=spins)
 
 

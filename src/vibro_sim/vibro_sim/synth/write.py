@@ -352,6 +352,11 @@ def _truth(cfg, models, traj, layout, phase, drift, rig) -> dict[str, Any]:
         truth["plate_step"] = {"plate": "top", "t_s": models.plate_step["step_time_s"],
                                "step_mm": um_to_mm(models.plate_step["step_um"]),
                                "note": "the upper plate is step_mm higher (the cavity larger) from t_s on"}
+    if models.plate_creep is not None:
+        truth["plate_creep"] = {"plate": "top", "rate_mm_per_s": um_to_mm(models.plate_creep["creep_um_per_s"]),
+                                "note": ("the upper plate is rate_mm_per_s * t higher than where it moves with the "
+                                         "structure (t camera time, s): its velocity is the structure's plus "
+                                         "rate_mm_per_s, which the impacts on it meet")}
     if cfg.still and cfg.drift:
         truth["camera_drift_mm"] = drift.tolist()
         truth["camera_drift_note"] = ("apparent upward shift of the whole scene; DIC measures "
