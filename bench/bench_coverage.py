@@ -39,6 +39,9 @@ CASES: dict[str, list[str]] = {
     "plate_creep": ["--effect", "plate_creep"],
     "creep_and_drag": ["--effect", "plate_creep", "--effect", "quadratic_drag",
                        "--param", "coefficient_ns2_per_m2=5e-4"],
+    "spin": ["--spin-sigma-rad-s", "0.3"],
+    "horizontal": ["--axis-tilt-deg", "90", "--effect", "coulomb_friction"],
+    "lens": ["--lens-k1", "-0.18"],
     "position_force": ["--effect", "position_force"],
     "cor_drift": ["--effect", "cor_drift"],
 }

@@ -56,6 +56,14 @@ def test_the_simulated_ball_meets_a_creeping_plate_where_it_is_and_at_its_speed(
         assert abs(float(res.sample(imp.t_s)) - (float(S.position(imp.t_s)) - cavity.free_play_m)) < 1e-9
 
 
+def test_a_creep_that_would_close_the_cavity_is_refused_naming_its_parameter() -> None:
+    from vibro_sim.synth import SynthConfig, SynthError
+
+    with pytest.raises(SynthError, match="creep_um_per_s"):
+        # 500 um/s over the lead-in and 20 s of frames: past half the default free play
+        SynthConfig(effects={"plate_creep": {"creep_um_per_s": -500.0}}, frames=20000)
+
+
 # ---------------------------------------------------------------- levels with a known plate motion
 def _impacts(level_um, rng: np.random.Generator, n: int = 33, span_s: float = 1.45) -> list[ImpactFit]:
     """Top-plate impacts whose plate is at ``level_um(t)`` against the structure and moves at its derivative:

@@ -131,6 +131,10 @@ def test_methods_numbers_are_rig_yaml_and_results(run):
     assert cell(page, "fit.structure").startswith(f"one fit over {doc['structure']['n_points']} frames")
     hist = re.search(r"1/([\d.]+) Hz", cell(page, "fit.local_structure"))
     assert hist and float(hist[1]) == rig["excitation"]["frequency_hz"]
+    # each plate against the structure, as results.json's plate_motion says (a still plate gives its reason)
+    for plate, motion in doc["plate_motion"].items():
+        words = f"{plate}: {motion['reason']}" if motion["shape"] in ("still", "too_few") else f"{plate}: "
+        assert words in cell(page, "fit.plate_motion"), (plate, motion)
     # the drive's windows and the clock as results.json has them
     assert f"windows of {doc['drive']['window_cycles']} drive cycles" in cell(page, "drive.windows")
     c = doc["accelerometers"]["clock_offset"]

@@ -217,7 +217,7 @@ def plate_motion_row(results: Mapping[str, Any]) -> Row | None:
                          f"{_num(m.get('rate_std_um_per_s'), '.2g')}); its velocity taken into its CORs (up to "
                          f"{_num(m.get('cor_shift_max'), '.2g')})")
         elif shape == "step":
-            parts.append(f"{plate}: moved once, {_num(m.get('step_um'), '+.3g', 'µm')} at "
+            parts.append(f"{plate}: contact level steps once, {_num(m.get('step_um'), '+.3g', 'µm')} at "
                          f"{_num(m.get('step_time_s'), '.3f', 's')}; CORs unchanged")
         else:
             parts.append(f"{plate}: {m.get('reason') or shape}")

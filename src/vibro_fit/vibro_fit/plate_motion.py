@@ -184,8 +184,9 @@ def plate_motion(impacts: list[ImpactFit], plate: str) -> PlateMotion:
     if step_bic < bics[degree] and step_bic < bics[0]:
         rms = math.sqrt(step_rss / n)
         return PlateMotion(plate, "step", n, False,
-                           f"moved once, {step_um:+.1f} um near t = {step_t:.3f} s (a step fits better than a "
-                           "drift): away from the step the plate moves with the structure, the CORs are unchanged",
+                           f"its contact level steps once, {step_um:+.1f} um near t = {step_t:.3f} s (a step fits "
+                           "better than a drift: the plate, or the ball's or the structure's track, moved once); away "
+                           "from the step the plate moves with the structure, the CORs are unchanged",
                            level_rms_um=rms, step_um=step_um, step_time_s=step_t, **base)
     rms = math.sqrt(rss / n)
     if degree == 0:
