@@ -89,6 +89,9 @@ from vibro_model.results import Discrepancy, DiscrepancyFinding, ResultsDocument
 from vibro_model.tail_probability import chi2_sf
 from vibro_model.units import m_to_mm
 
+#: the label of the model step that replays the plates' measured motion (a located plate drift)
+PLATE_MOTION = "plate_motion"
+
 log = logging.getLogger(__name__)
 
 
@@ -381,6 +384,12 @@ class Systematic:
     patterns: list[Mismatch]
     tone: ToneDecision
     before_tone: ModelStep | None = None
+    before_plates: ModelStep | None = None   # the step before the plates' measured motion was replayed
+
+    @property
+    def before(self) -> ModelStep | None:
+        """The model step before the first located mismatch that was modelled (a tone, the plates' motion)."""
+        return self.before_tone if self.before_tone is not None else self.before_plates
 
 
 def with_structure_tone(chain: FindingChain, tone: ToneDecision) -> FindingChain:
@@ -391,20 +400,38 @@ def with_structure_tone(chain: FindingChain, tone: ToneDecision) -> FindingChain
     return chain.with_model(evaluate(chain.meas, TONE_EFFECT, model, chain.floors))
 
 
+def with_plate_motion(chain: FindingChain) -> FindingChain:
+    """The chain with its final model replayed with the plates' measured motion (:func:`.model.moved_plates`)."""
+    model = replace(chain.current.model, with_plates=True)
+    return chain.with_model(evaluate(chain.meas, PLATE_MOTION, model, chain.floors))
+
+
+def creeping_plates_located(meas: Measured, patterns: list[Mismatch]) -> list[str]:
+    """The plates whose contact level the systematic analysis located as drifting (``contact_level`` patterns) and
+    whose creep the identification measured and took into the CORs (results.json ``plate_motion``)."""
+    return sorted({p.plate for p in patterns if p.series == "contact_level" and p.plate in meas.plate_creeps})
+
+
 def find_systematic(chain: FindingChain) -> tuple[FindingChain, Systematic]:
     """The systematic patterns the chain's model leaves; a located tone that passes its test is modelled (the
-    chain then ends on the model with it) and the contact levels and CORs are tested again under it."""
+    chain then ends on the model with it) and the contact levels and CORs are tested again under it. A located
+    drift of a plate's contact level whose creep the identification measured is then replayed (the chain ends on
+    the model with the plates' measured motion); the patterns stay those located."""
     meas, floors = chain.meas, chain.floors
     fps = 1.0 / float(np.median(np.diff(meas.t_s)))
     patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps)
     tone = model_structure_tone(meas, chain.current.model.structure, patterns, fps)
-    if tone.model is None:
-        return chain, Systematic(patterns, tone)
-    before = chain.current
-    chain = with_structure_tone(chain, tone)
-    patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
-                                   structure=[p for p in patterns if p.series == "structure"])
-    return chain, Systematic(patterns, tone, before)
+    before_tone = None
+    if tone.model is not None:
+        before_tone = chain.current
+        chain = with_structure_tone(chain, tone)
+        patterns = systematic_mismatch(meas, chain.current.model, floors.structure_m, floors.ball_m, fps,
+                                       structure=[p for p in patterns if p.series == "structure"])
+    before_plates = None
+    if creeping_plates_located(meas, patterns):
+        before_plates = chain.current
+        chain = with_plate_motion(chain)
+    return chain, Systematic(patterns, tone, before_tone, before_plates)
 
 
 def leftover_words(chain: FindingChain, sine: StructureModelFit, sel: Selection, patterns: list[Mismatch],
@@ -443,7 +470,7 @@ def unexplained_finding(chain: FindingChain, sine: StructureModelFit, sel: Selec
     if not words:
         return None
     cur = chain.current
-    before = cur if left.before_tone is None else left.before_tone
+    before = cur if left.before is None else left.before
     details: dict[str, Any] = {"paper_deviation_before": before.run.deviation,
                                "paper_deviation_after": cur.run.deviation,
                                "mismatches": [p.to_dict() for p in left.patterns]}
@@ -460,7 +487,27 @@ def unexplained_finding(chain: FindingChain, sine: StructureModelFit, sel: Selec
         details["one_step_before"] = before.steps.summary()
         details["one_step_after"] = cur.steps.summary()
         words.append(tone.model.words())
+    if left.before_plates is not None:
+        details["plate_motion"] = plate_motion_details(chain.meas, left)
+        words.append(plate_motion_words(chain.meas, left))
     return finding(UNEXPLAINED, params, "; ".join(words), before.restarted, cur.restarted, stds, details)
+
+
+def plate_motion_details(meas: Measured, left: Systematic) -> dict[str, Any]:
+    """The finding's record of the plates' measured motion, replayed: which plates and their mean rate (um/s, the
+    creep's velocity averaged over the recording); the finding's deviations are without and with it."""
+    span = float(meas.t_s[-1] - meas.t_s[0])
+    rates = {p: 1e6 * float(np.mean([c.velocity_mps(float(t)) for t in meas.t_s]))
+             for p, c in meas.plate_creeps.items() if p in creeping_plates_located(meas, left.patterns)}
+    return {"plates": sorted(rates), "mean_rate_um_per_s": {p: json_number(r) for p, r in rates.items()},
+            "span_s": json_number(span), "source": "results.json plate_motion (the identification's contact levels)"}
+
+
+def plate_motion_words(meas: Measured, left: Systematic) -> str:
+    """The replayed plate motion, in words."""
+    plates = creeping_plates_located(meas, left.patterns)
+    return ("modelled: the " + " and ".join(plates) + " plate's measured creep replayed in the simulation (the "
+            "identification's contact levels, results.json plate_motion)")
 
 
 #: COR patterns in the catalogue COR laws' own coordinates and beside them: left after a chosen law, the law

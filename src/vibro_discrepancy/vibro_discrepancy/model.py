@@ -35,6 +35,7 @@ from vibro_discrepancy.library import (
 )
 from vibro_model.kinematics import StructureKinematics
 from vibro_sim.params import BallCavity
+from vibro_sim.plates import MovedPlate
 
 COR_TERMS = {"none": ConstantRestitution(), "asymmetric_restitution": AsymmetricRestitution(),
              "velocity_dependent_restitution": VelocityDependentRestitution(), "plate_and_speed": PlateAndSpeed()}
@@ -51,6 +52,7 @@ class FittedModel:
     g_mps2: float
     fixed_motion: StructureKinematics | None = None   # a known structure motion (the true model in proofs)
     axis_tilt_deg: float = 0.0    # rig.yaml setup.axis_tilt_deg: the axis' declared tilt (g_mps2 its gravity)
+    with_plates: bool = False     # replayed with the plates' measured motion (Measured.plate_creeps)
 
     @property
     def motion(self) -> StructureKinematics:
@@ -102,6 +104,8 @@ class FittedModel:
         parts += [t.effect for t, c in zip(self.flights.terms, self.flights.coefs)]
         if self.cor.kind != "none":
             parts.append(self.cor.kind)
+        if self.with_plates:
+            parts.append("plate_motion")
         return " + ".join(parts) or "baseline"
 
 
@@ -142,4 +146,22 @@ def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:
         out["offset"], out["free_play"] = -b_rig - out["bottom"], b_rig
     else:
         out["offset"], out["free_play"] = 0.0, b_rig
+    return out
+
+
+def moved_plates(meas: Measured, model: FittedModel) -> dict:
+    """The plates that creep (the identification's ``plate_motion``, :attr:`Measured.plate_creeps`) as the
+    simulator reads them around ``model``'s structure, when the model is replayed with them (``with_plates``);
+    else {}. Each plate's creep is taken about its median over the plate's impacts, where
+    :func:`model_plate_levels` puts the plate (m; derivative bounds over the recording +- 1 s)."""
+    if not model.with_plates or not meas.plate_creeps:
+        return {}
+    span = (float(meas.t_s[0]) - 1.0, float(meas.t_s[-1]) + 1.0)
+    out = {}
+    for plate, creep in meas.plate_creeps.items():
+        times = [float(t) for t, p in zip(model.impacts.t_s, model.impacts.plate) if p == plate]
+        coef = 1e-6 * np.asarray(creep.coef_um, dtype=float)
+        if times:
+            coef[-1] -= float(np.median(np.polyval(coef, np.asarray(times) - creep.t_ref_s)))
+        out[plate] = MovedPlate(model.motion, tuple(float(c) for c in coef), creep.t_ref_s, span)
     return out

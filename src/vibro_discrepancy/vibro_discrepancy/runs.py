@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vibro_discrepancy.data import Measured
-from vibro_discrepancy.model import FittedModel, model_plate_levels
+from vibro_discrepancy.model import FittedModel, model_plate_levels, moved_plates
 from vibro_sim.cor_model import simulate_cor
 from vibro_sim.deviation import Restart, deviation, restarted_deviation
 
@@ -47,10 +47,13 @@ def full_run(meas: Measured, model: FittedModel) -> FullRun:
         lv = model_plate_levels(meas, model)
         c0, b = lv["offset"], lv["free_play"]
         S = model.motion
+        plates = moved_plates(meas, model)
+        top, bottom = (float(plates.get(p, S).position(t0) - S.position(t0)) for p in ("top", "bottom"))
         rel = y_start + c0 - float(S.position(t0))
-        rel = min(max(rel, -b * (1 - 1e-9)), b * (1 - 1e-9))
+        rel = min(max(rel, bottom - b * (1 - 1e-9)), top + b * (1 - 1e-9))
         res = simulate_cor(S, model.cavity(meas, b), model.restitution_law(), model.force_law(),
-                           y0_m=float(S.position(t0)) + rel, v0_mps=v_start, t0_s=t0, t_end_s=float(t[-1]))
+                           y0_m=float(S.position(t0)) + rel, v0_mps=v_start, t0_s=t0, t_end_s=float(t[-1]),
+                           plates=plates)
         sim = np.asarray(res.sample(t), dtype=float) - c0
         return FullRun(t, sim, y, float(deviation(t, sim, y)))
     except Exception as exc:  # a model that cannot be simulated must not lose the analysis
@@ -89,7 +92,7 @@ def restarted_run(meas: Measured, model: FittedModel) -> FullRun:
         lv = model_plate_levels(meas, model)
         r = restarted_deviation(meas.t_s, meas.ball_m, restart_points(meas, model), model.motion,
                                 model.cavity(meas, lv["free_play"]), model.restitution_law(), model.force_law(),
-                                frame_offset_m=lv["offset"])
+                                frame_offset_m=lv["offset"], plates=moved_plates(meas, model))
         return FullRun(r.t_s, r.simulated_m, r.measured_m, r.deviation)
     except Exception as exc:  # a model that cannot be simulated must not lose the analysis
         log.warning("discrepancy restarted run of %s failed: %s", model.label(), exc)

@@ -7,8 +7,9 @@ y - Y_s(t) = +b and the bottom plate when y - Y_s(t) = -b, b = cavity.free_play_
 Free flights use exact solutions (:mod:`vibro_sim.flight`); the contact times are
 zeros of the gap functions g_top = b - (y - Y_s) and g_bottom = (y - Y_s) + b, found
 by :func:`vibro_sim.events.first_root` (never by stepping past a contact) and refined
-by Brent's method to 1e-12 s. The top plate may move against the structure (``top_plate``: its own
-kinematics, e.g. a plate that creeps; default the structure's), then g_top = Y_top(t) + b - y. At an
+by Brent's method to 1e-12 s. A plate may move against the structure (``plates``: its own kinematics, e.g.
+:class:`vibro_sim.plates.MovedPlate` for a plate that creeps; default the structure's), then g_top =
+Y_top(t) + b - y, g_bottom = y - Y_bottom(t) + b. At an
 impact v_b+ = v_s - e (v_b- - v_s) with e from the restitution law (v_s the velocity of the plate hit).
 When the rebound relative speed is below ``stick_speed_mps`` the ball
 is put at rest on the plate; if the plate then pushes it (plate acceleration beyond
@@ -164,9 +165,9 @@ class _LoopState:
 
 
 class _Simulator:
-    def __init__(self, structure, cavity, restitution, force, stick_speed_mps, scan_step_s, top_plate=None):
+    def __init__(self, structure, cavity, restitution, force, stick_speed_mps, scan_step_s, plates=None):
         self.S = structure
-        self.plate_motion = {"top": structure if top_plate is None else top_plate, "bottom": structure}
+        self.plate_motion = {p: (plates or {}).get(p) or structure for p in ("top", "bottom")}
         self.cav = cavity
         self.law = restitution
         self.force = force if force is not None else NoForce()
@@ -262,10 +263,11 @@ class _Simulator:
         S, b = self.S, self.b
         rel0 = y0 - S.position(t0)
         top = b + float(self.plate_motion["top"].position(t0) - S.position(t0))   # > b where the top plate crept up
-        if rel0 > top + b * 1e-9 + GAP_TOL_M or rel0 < -b * (1 + 1e-9) - GAP_TOL_M:
+        bottom = -b + float(self.plate_motion["bottom"].position(t0) - S.position(t0))
+        if rel0 > top + b * 1e-9 + GAP_TOL_M or rel0 < bottom - b * 1e-9 - GAP_TOL_M:
             raise ValueError(f"initial ball position y0 - Y_s(t0) = {rel0:.6g} m is outside the "
                              f"cavity (free play b = {b:.6g} m)")
-        rel0 = min(max(rel0, -b), top)
+        rel0 = min(max(rel0, bottom), top)
         return _LoopState(t=t0, y=S.position(t0) + rel0, v=v0, flight_start=t0, flight_v0=v0)
 
     def _ride_plate(self, res: SimResult, st: _LoopState, t_end: float) -> None:
@@ -420,16 +422,16 @@ class CorSolver:
 
     def simulate(self, structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,  # noqa: PLR0913
                  force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5, top_plate=None) -> SimResult:
+                 t0_s: float = 0.0, t_end_s: float = 1.5, plates=None) -> SimResult:
         """Simulate the COR model with these settings; parameters, result and errors as :func:`simulate_cor`."""
         check_span("simulate_cor", y0_m, v0_mps, t0_s, t_end_s)
-        sim = _Simulator(structure, cavity, restitution, force, self.stick_speed_mps, self.scan_step_s, top_plate)
+        sim = _Simulator(structure, cavity, restitution, force, self.stick_speed_mps, self.scan_step_s, plates)
         return sim.run(float(y0_m), float(v0_mps), float(t0_s), float(t_end_s), self.max_events)
 
 
 def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution: RestitutionLaw,  # noqa: PLR0913
                  force: ForceLaw | None = None, *, y0_m: float = 0.0, v0_mps: float = 0.0,
-                 t0_s: float = 0.0, t_end_s: float = 1.5, top_plate=None) -> SimResult:
+                 t0_s: float = 0.0, t_end_s: float = 1.5, plates=None) -> SimResult:
     """Simulate the COR model (instantaneous impacts, Eq. 4-6) from (t0_s, y0_m, v0_mps) to t_end_s.
 
     The solver's settings (stick speed, scan step, event limit) keep their defaults; to change them use
@@ -451,10 +453,11 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
         Ball velocity (m/s), + up.
     t0_s, t_end_s : float
         Start and end of the simulation (s).
-    top_plate : kinematics, optional
-        The top plate's own motion minus its free play (``position``/``velocity``/``acceleration``/``jerk``/
-        ``bound`` like ``structure``), when it moves against the structure (a plate that creeps); None: it moves
-        with the structure. The impacts on it take its velocity.
+    plates : mapping, optional
+        {"top"/"bottom": the plate's own motion, free play aside} (``position``/``velocity``/``acceleration``/
+        ``jerk``/``bound`` like ``structure``; :class:`vibro_sim.plates.MovedPlate`) for a plate that moves against
+        the structure (one that creeps); a plate not named moves with the structure. The impacts on a plate take
+        its velocity.
 
     Returns
     -------
@@ -467,4 +470,4 @@ def simulate_cor(structure: StructureKinematics, cavity: BallCavity, restitution
         A non-finite start, a ball outside the cavity, or ``t_end_s < t0_s``.
     """
     return CorSolver().simulate(structure, cavity, restitution, force, y0_m=y0_m, v0_mps=v0_mps,
-                                t0_s=t0_s, t_end_s=t_end_s, top_plate=top_plate)
+                                t0_s=t0_s, t_end_s=t_end_s, plates=plates)

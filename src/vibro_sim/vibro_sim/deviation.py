@@ -65,9 +65,9 @@ class RestartedRun:
     n_flights: int
 
 
-def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: StructureKinematics,
+def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: StructureKinematics,  # noqa: PLR0913
                         cavity: BallCavity, restitution: RestitutionLaw, force: ForceLaw | None = None,
-                        frame_offset_m: float = 0.0) -> RestartedRun:
+                        frame_offset_m: float = 0.0, plates=None) -> RestartedRun:
     """D_r: the deviation of Eq. 18 with the model re-started from the measured state after each impact.
 
     Each flight k is simulated with the exact COR model (:func:`vibro_sim.cor_model.simulate_cor`,
@@ -89,7 +89,8 @@ def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: St
     ``t_s``/``y_exp_m``: measured frame times (s) and ball positions (m, any frame of reference in
     which ``y_exp + frame_offset_m`` is the lab frame of ``structure``: ball minus cavity centre =
     y_exp + frame_offset_m - Y_s(t)). Restart positions are in the measured frame and are put inside
-    the free play if the measurement places them (by noise) just outside. Windows with fewer than 2
+    the free play if the measurement places them (by noise) just outside. ``plates``: plates that move against the
+    structure (:func:`vibro_sim.cor_model.simulate_cor`'s), the free play then between them. Windows with fewer than 2
     frames are skipped. Raises ValueError when no window has 2 frames or the measured displacement
     is zero over the windows.
     """
@@ -109,9 +110,10 @@ def restarted_deviation(t_s, y_exp_m, restarts: Sequence[Restart], structure: St
             continue
         tk, yk = t[sel], y[sel]
         y_s0 = float(structure.position(r.t_start_s))
-        rel = min(max(r.y_m + frame_offset_m - y_s0, -b * (1 - 1e-9)), b * (1 - 1e-9))
+        top, bottom = (float((plates or {}).get(p, structure).position(r.t_start_s)) - y_s0 for p in ("top", "bottom"))
+        rel = min(max(r.y_m + frame_offset_m - y_s0, bottom - b * (1 - 1e-9)), top + b * (1 - 1e-9))
         res = simulate_cor(structure, cavity, restitution, force, y0_m=y_s0 + rel, v0_mps=r.v_mps, t0_s=r.t_start_s,
-                           t_end_s=float(tk[-1]))
+                           t_end_s=float(tk[-1]), plates=plates)
         sim = np.asarray(res.sample(tk), dtype=float) - frame_offset_m
         num += float(np.trapezoid((sim - yk) ** 2, tk))
         den += float(np.trapezoid(yk ** 2, tk))

@@ -16,7 +16,7 @@ with where and what. They exist to test that; a lab recording may show any of th
   height against the tracked structure (the lower plate) changes by ``creep_um_per_s`` every second, at the
   rig's height at camera time 0 (lower before it, over the lead-in); the plate's velocity is the structure's plus
   the creep, so an impact on it meets that velocity. Exact in the event simulator (its own top-plate kinematics,
-  :class:`CreepingPlate`), not a staircase. As with ``plate_step`` the images draw the upper plate with the
+  :func:`creeping_plate`), not a staircase. As with ``plate_step`` the images draw the upper plate with the
   structure (DIC never tracks it).
 - ``position_force``: an attraction towards the lower plate that depends on where the ball is, not on how
   it moves (a magnet under the plate, electrostatics): F = -weight_fraction m g exp(-d / decay_mm), d the
@@ -49,12 +49,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import numpy as np
-
 from vibro_model.constants import G_MPS2
 from vibro_model.kinematics import DriveChange, StructureKinematics, StructureWithTone
 
 from ..forces import ForceLaw, PositionForce
+from ..plates import MovedPlate
 from ..restitution import RestitutionLaw
 
 INVENTED_EFFECTS: dict[str, dict[str, tuple[float, float, float]]] = {
@@ -182,40 +181,9 @@ def stepped_cavity(S: StructureKinematics, cavity, step: dict[str, float]):
     return replace(S, offset_m=S.offset_m + half), replace(cavity, free_play_m=cavity.free_play_m + half)
 
 
-@dataclass(frozen=True)
-class CreepingPlate:
-    """The upper plate of ``plate_creep``: the structure's motion plus ``rate_mps`` * t (t camera time, s; m, m/s).
-
-    The kinematics interface of :class:`vibro_model.kinematics.StructureKinematics` that the event simulator
-    reads (``top_plate`` of :func:`vibro_sim.cor_model.simulate_cor`): position, velocity, acceleration and jerk
-    against time, and bounds on the derivatives' magnitudes."""
-
-    structure: StructureKinematics
-    rate_mps: float
-
-    def position(self, t):
-        return self.structure.position(t) + self.rate_mps * np.asarray(t, dtype=float)
-
-    def velocity(self, t):
-        return self.structure.velocity(t) + self.rate_mps
-
-    def acceleration(self, t):
-        return self.structure.acceleration(t)
-
-    def jerk(self, t):
-        return self.structure.jerk(t)
-
-    def bound(self, order: int) -> float:
-        return self.structure.bound(order) + (abs(self.rate_mps) if order == 1 else 0.0)
-
-    @property
-    def frequency_hz(self) -> float:
-        return self.structure.frequency_hz
-
-
-def creeping_plate(S: StructureKinematics, creep: dict[str, float]) -> CreepingPlate:
-    """The upper plate of a ``plate_creep`` on structure ``S``."""
-    return CreepingPlate(S, 1e-6 * creep["creep_um_per_s"])
+def creeping_plate(S: StructureKinematics, creep: dict[str, float]) -> MovedPlate:
+    """The upper plate of a ``plate_creep`` on structure ``S``: its motion plus creep_um_per_s * t (t camera time)."""
+    return MovedPlate(S, (1e-6 * creep["creep_um_per_s"], 0.0))
 
 
 def check_creep(effects: dict[str, dict[str, float]], free_play_m: float, horizon_s: float) -> str | None:

@@ -72,7 +72,7 @@ def simulate_window(cfg: SynthConfig, models: Models) -> Trajectory:
     else:
         res = simulate_cor(S, models.cavity, models.restitution, models.force,
                            y0_m=float(S.position(t_start)), v0_mps=start_speed_mps(models), t0_s=t_start,
-                           t_end_s=t_end, top_plate=top_plate(models, S))
+                           t_end_s=t_end, plates=moved_plates(models, S))
     lo, hi = float(t_frames[0]), float(t_frames[-1])
     impacts = [i for i in res.impacts if lo <= i.t_s <= hi]
     flights = [f for f in res.flights if f.t_end_s > lo and f.t_start_s < hi]
@@ -99,7 +99,7 @@ def _simulate_pieces(models: Models, bounds: list[float], t_window_s: float) -> 
         if a >= t_window_s and models.cor_drift_per_impact and law is models.restitution:
             law = models.window_laws(n_imp)[0]
         res = simulate_cor(S_k, cav_k, IndexShifted(law, n_imp), models.force, y0_m=y, v0_mps=v, t0_s=a, t_end_s=b,
-                           top_plate=top_plate(models, S_k))
+                           plates=moved_plates(models, S_k))
         res.impacts = [replace(i, index=i.index + n_imp) for i in res.impacts]
         n_imp += len(res.impacts)
         y, v = float(res.sample(b)), float(res.velocity(b))
@@ -119,9 +119,9 @@ def _simulate_pieces(models: Models, bounds: list[float], t_window_s: float) -> 
                      flights=flights, stuck=stuck, segments=segments, truncated=any(r.truncated for r in pieces))
 
 
-def top_plate(models: Models, S):
-    """The upper plate's own kinematics on structure ``S`` (``plate_creep``), or None: it moves with ``S``."""
-    return creeping_plate(S, models.plate_creep) if models.plate_creep is not None else None
+def moved_plates(models: Models, S) -> dict:
+    """The plates that move against structure ``S`` (``plate_creep``: the upper one), with their kinematics."""
+    return {"top": creeping_plate(S, models.plate_creep)} if models.plate_creep is not None else {}
 
 
 def regime(traj: Trajectory, frequency_hz: float) -> dict:
