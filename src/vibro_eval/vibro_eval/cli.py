@@ -34,8 +34,8 @@ def register(sub) -> None:
     p.add_argument("--controls", type=int, default=None, metavar="N", help="controls with --magnitudes (default 3)")
     p.add_argument("--invented", action="store_true",
                    help="with --magnitudes: also the synth's out-of-catalogue effects (cor_drift, structure_tone, "
-                        "plate_step, position_force, cor_parity), each at M magnitudes; the analysis must report "
-                        "them as 'unexplained'")
+                        "plate_step, plate_creep, position_force, cor_parity), each at M magnitudes; the analysis must "
+                        "report them as 'unexplained'")
     p.add_argument("--cor-scatter", default=None, metavar="LOW[,HIGH]",
                    help="per-impact COR scatter sigma drawn per case in [LOW, HIGH] (default 0)")
     p.add_argument("--noise", default=None, metavar="LOW,HIGH", help="read noise in gray levels (default 1,4)")

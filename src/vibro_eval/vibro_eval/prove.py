@@ -33,6 +33,7 @@ cor_drift                        the COR changes by 0.05 .. 0.15 over T, either 
 structure_tone                   tone_amplitude_um 5 .. 30, tone_frequency_hz 5 .. 15, phase uniform
 plate_step                       step_um 30 .. 100; step_time_s uniform over the middle 30-70 % of T
                                  keeping 4 drive cycles either side (T / 2 when T is too short)
+plate_creep                      the upper plate creeps 10 .. 60 um/s against the structure, either sign
 position_force                   weight_fraction 0.1 .. 0.3 at the lower plate, decay_mm 1.5 .. 5
 cor_parity                       the lower plate's COR alternates on successive impacts between two
                                  values 0.08 .. 0.16 apart around 0.62 .. 0.72 (either one first)
@@ -228,6 +229,9 @@ def draw_effect(family: str, rng: np.random.Generator, u: float | None = None, d
     if family == "plate_step":
         return {family: {"step_um": _value(rng, 30.0, 100.0, u),
                          "step_time_s": _step_time_s(rng, duration_s, frequency_hz)}}
+    if family == "plate_creep":
+        rate = _value(rng, 10.0, 60.0, u) * (1.0 if rng.random() < 0.5 else -1.0)
+        return {family: {"creep_um_per_s": rate}}
     if family == "position_force":
         return {family: {"weight_fraction": _value(rng, 0.1, 0.3, u), "decay_mm": float(rng.uniform(1.5, 5.0))}}
     if family == "cor_parity":

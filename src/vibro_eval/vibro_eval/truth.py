@@ -262,7 +262,8 @@ def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impac
     ``lowered`` is D_r after < before for structure and flight findings; for a COR law (D_r does not see
     it) its ``cor_variance_share`` above what chance gives on ``n_impacts`` CORs
     (:func:`chance_variance_share`). ``unexplained`` has no model, ``lowered`` None, unless it modelled
-    what it located: a structure tone (its ``model`` key), which D_r judges as a structure finding, or a shape
+    what it located: a structure tone (its ``model`` key) or a plate's measured creep replayed (its
+    ``plate_motion`` key), which D_r judges as a structure finding, or a shape
     (its ``shape_model``, :mod:`vibro_discrepancy.shape_model`): judged by the shape model's own measure (D_r
     for a position force, D_i for a COR parity), ``lowered`` when every part was accepted (its D fell)."""
     expected = expected_findings(truth)
@@ -283,7 +284,7 @@ def finding_deviations(doc: Mapping[str, Any], truth: Mapping[str, Any], n_impac
             row.update(measure="+".join(p["deviation"]["measure"] for p in parts),
                        shape_before=parts[0]["deviation"]["before"], shape_after=parts[-1]["deviation"]["after"],
                        lowered=all(bool(p.get("accepted")) for p in parts))
-        elif f["effect"] == UNEXPLAINED and not f.get("model"):
+        elif f["effect"] == UNEXPLAINED and not f.get("model") and not f.get("plate_motion"):
             row.update(lowered=None, measure=None)
         out.append(row)
     return out
