@@ -15,6 +15,7 @@ import json
 import math
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -139,6 +140,16 @@ def test_a_step_noise_or_a_negligible_creep_leave_the_cors_alone() -> None:
         if name == "negligible":
             assert top.shape == "creep" and abs(top.rate_um_per_s) > 5 * top.rate_std_um_per_s
             assert "COR" in top.reason
+
+
+def test_a_wild_contact_level_is_left_out_not_taken_for_a_motion() -> None:
+    rng = np.random.default_rng(8)
+    imps = _impacts(lambda t: 500.0 + 0.0 * t, rng)
+    imps[20] = replace(imps[20], y_rel_mm=imps[20].y_rel_mm + 0.02)     # one level 20 um (200 sigma) off
+    _, motions = pm.plate_motion_pass(imps)
+    top = motions["top"]
+    assert top.shape == "still" and not top.applied and top.levels_left_out == 1
+    assert top.level_rms_um < 2 * LEVEL_NOISE_UM
 
 
 def test_the_section_round_trips_through_the_message_and_a_damaged_one_is_refused() -> None:

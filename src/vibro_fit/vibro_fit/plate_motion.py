@@ -46,6 +46,8 @@ RATE_SIGMAS = 5.0
 COR_FLOOR_OF_SIGMA = 0.2
 #: fewest impacts on each side of a step
 STEP_MIN_SIDE = 3
+#: a contact level this many robust sigmas from the levels' model is left out (a mis-segmented impact)
+OUTLIER_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,7 @@ class PlateMotion:
     step_um: float = 0.0
     step_time_s: float | None = None
     cor_shift_max: float = 0.0
+    levels_left_out: int = 0      # contact levels left out as outliers (:func:`level_outliers`)
 
     def velocity_mps(self, t_s: float) -> tuple[float, float]:
         """(velocity, its std) of the plate against the tracked structure at t_s (m/s): the level's derivative."""
@@ -85,7 +88,8 @@ class PlateMotion:
 
     def to_dict(self) -> dict:
         """The results.json ``plate_motion`` entry of this plate (docs/recording-format.md)."""
-        out = {"shape": self.shape, "applied": self.applied, "impacts": self.n_impacts, "reason": self.reason}
+        out = {"shape": self.shape, "applied": self.applied, "impacts": self.n_impacts, "reason": self.reason,
+               "levels_left_out": self.levels_left_out}
         if self.shape in ("still", "creep"):
             out.update(rate_um_per_s=self.rate_um_per_s, rate_std_um_per_s=self.rate_std_um_per_s,
                        travel_um=self.travel_um, level_rms_um=self.level_rms_um, cor_shift_max=self.cor_shift_max)
@@ -97,9 +101,10 @@ class PlateMotion:
 
 
 def contact_levels(impacts: list[ImpactFit], plate: str) -> tuple[np.ndarray, np.ndarray]:
-    """(times s, levels um) of the paper impacts on ``plate`` with a measured contact level, in time order."""
+    """(times s, levels um) of the paper impacts on ``plate`` with a measured contact level, in time order (an
+    impact found inside a run of lost frames left out: its level rests on flights that stop short of it)."""
     rows = sorted((float(i.t_s), 1e3 * float(i.y_rel_mm)) for i in impacts
-                  if i.plate == plate and i.method == "paper" and i.t_s is not None
+                  if i.plate == plate and i.method == "paper" and i.t_s is not None and not i.in_gap
                   and math.isfinite(float(i.t_s)) and math.isfinite(float(getattr(i, "y_rel_mm", math.nan))))
     if not rows:
         return np.zeros(0), np.zeros(0)
@@ -165,17 +170,45 @@ def noise_sigma(imp: ImpactFit) -> float:
     return math.sqrt(max(float(imp.cor_std) ** 2 - model ** 2, 0.0))
 
 
+def _level_models(t: np.ndarray, y: np.ndarray) -> tuple[dict, dict, int, tuple[float, float, float], float]:
+    """The polynomial fits of degree 0..:data:`MAX_DEGREE` ({degree: fit_polynomial}), their BICs, the best degree,
+    the best single step (:func:`best_step`) and its BIC."""
+    n = t.size
+    fits = {d: fit_polynomial(t, y, d) for d in range(0, min(MAX_DEGREE, n - 3) + 1)}
+    bics = {d: _bic(f[2], n, d + 1) for d, f in fits.items()}
+    step = best_step(t, y)
+    return fits, bics, min(bics, key=bics.get), step, _bic(step[0], n, 3) if math.isfinite(step[0]) else math.inf
+
+
+def level_outliers(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Contact levels more than :data:`OUTLIER_SIGMAS` robust sigmas (1.4826 MAD) from the better of the best
+    polynomial and the best step (a level from a mis-segmented impact); a boolean mask."""
+    fits, bics, degree, (_, step_um, step_t), step_bic = _level_models(t, y)
+    if step_bic < bics[degree]:
+        model = np.where(t > step_t, step_um, 0.0)
+        model += np.mean(y - model)
+    else:
+        model = np.polyval(fits[degree][0], t - t.mean())
+    r = y - model
+    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return np.abs(r - np.median(r)) > OUTLIER_SIGMAS * max(sigma, 1e-9)
+
+
 def plate_motion(impacts: list[ImpactFit], plate: str) -> PlateMotion:
     """What ``plate`` did against the tracked structure over the take (module docstring), from ``impacts``."""
     t, y = contact_levels(impacts, plate)
+    if t.size < MIN_IMPACTS:
+        return _classified(plate, t, y, impacts)
+    keep = ~level_outliers(t, y)
+    return replace(_classified(plate, t[keep], y[keep], impacts), levels_left_out=int(np.count_nonzero(~keep)))
+
+
+def _classified(plate: str, t: np.ndarray, y: np.ndarray, impacts: list[ImpactFit]) -> PlateMotion:
+    """:func:`plate_motion` on the contact levels ``t`` (s), ``y`` (um) it kept."""
     n = int(t.size)
     if n < MIN_IMPACTS:
         return PlateMotion(plate, "too_few", n, False, f"{n} impacts with a contact level (needs {MIN_IMPACTS})")
-    fits = {d: fit_polynomial(t, y, d) for d in range(0, min(MAX_DEGREE, n - 3) + 1)}
-    bics = {d: _bic(f[2], n, d + 1) for d, f in fits.items()}
-    degree = min(bics, key=bics.get)
-    step_rss, step_um, step_t = best_step(t, y)
-    step_bic = _bic(step_rss, n, 3) if math.isfinite(step_rss) else math.inf
+    fits, bics, degree, (step_rss, step_um, step_t), step_bic = _level_models(t, y)
     coef, cov, rss = fits[degree]
     t_ref = float(t.mean())
     travel = float(np.polyval(coef, t[-1] - t_ref) - np.polyval(coef, t[0] - t_ref))
