@@ -239,3 +239,8 @@ def test_on_a_rendered_recording_the_creep_is_measured_and_the_cors_hold_the_tru
     assert un["parameters"] == {} and un["plate_motion"]["plates"] == ["top"]
     assert abs(un["plate_motion"]["mean_rate_um_per_s"]["top"] - CREEP_UM_PER_S) < 5 * top["rate_std_um_per_s"]
     assert un["deviation_after"] < 0.1 * un["deviation_before"] and un["deviation_after"] < 1e-4
+    from vibro_app.findings_text import finding_sentence, findings_lines
+
+    assert finding_sentence(un).startswith("A plate moves against the tracked structure") and "top plate" in \
+        finding_sentence(un)
+    assert any("a plate moves against the structure: top" in line for line in findings_lines(r["discrepancy"]))

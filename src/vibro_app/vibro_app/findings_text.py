@@ -63,6 +63,11 @@ def findings_lines(discrepancy: Mapping[str, Any] | None) -> list[str]:
                                   f["deviation_before"], f["deviation_after"]))
         if f.get("shape_model"):
             lines.append(shape_model_line(f["shape_model"]))
+        if (f.get("plate_motion") or {}).get("plates"):
+            rates = f["plate_motion"].get("mean_rate_um_per_s") or {}
+            lines.append("  a plate moves against the structure: " + ", ".join(
+                f"{p} {value_pm(rates.get(p), None, 'um/s')}" for p in f["plate_motion"]["plates"])
+                + " (measured from the contact levels), replayed in the simulation")
         if f.get("scale_could_explain"):
             lines.append(f"  {f['scale_note']}")
         if f.get("probable_cause") == "lens_distortion":
@@ -184,6 +189,12 @@ def finding_sentence(finding: Mapping[str, Any]) -> str:
         return (f"A mismatch no catalogued effect accounts for remains: its shape, modelled as {sm.get('form', '?')} "
                 f"({sparams}), is not a catalogue effect; with it, D{measure} falls from {percent(dev.get('before'))} "
                 f"to {percent(dev.get('after'))}.")
+    plates = (finding.get("plate_motion") or {}) if effect == "unexplained" else {}
+    if plates.get("plates") and not params:
+        rates = plates.get("mean_rate_um_per_s") or {}
+        moved = " and ".join(f"the {p} plate ({value_pm(rates.get(p), None, 'µm/s')})" for p in plates["plates"])
+        return (f"A plate moves against the tracked structure, which no catalogued effect names: {moved}, measured "
+                f"from where the ball meets it; with its motion replayed, {d}.")
     if effect == "unexplained" and not params:
         return f"A mismatch no modelled effect accounts for remains; {d}."
     what = "a structure tone no catalogued effect names" if effect == "unexplained" else effect_label(effect)
