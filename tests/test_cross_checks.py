@@ -213,3 +213,24 @@ def test_swapped_channels_are_named(clean, capsys):
     for got, ref in zip(doc["impacts"], clean_doc["impacts"]):
         assert got["plate"] == ref["plate"]
         assert got["cor"] == pytest.approx(ref["cor"], abs=0.1 * ref["cor_std"])
+
+
+@pytest.mark.parametrize("lost_share, refused", [(0.6, True), (0.4, False)])
+def test_a_track_whose_ball_is_lost_in_most_frames_is_refused_as_analyze_refuses_its_tracking(lost_share, refused):
+    from vibro_fit.cross_checks import tracking_check
+    from vibro_io.dictrack import DicTrack
+
+    n = 200
+    lost = np.arange(n) >= int((1 - lost_share) * n)       # lost from some frame on, as a ball that spun away
+    ball = np.where(lost, np.nan, 0.1 * np.sin(np.arange(n) / 10.0))
+    rot = np.where(lost, np.nan, np.radians(8.0) * np.arange(n) / n)
+    track = DicTrack(frame=np.arange(n), t_s=np.arange(n) / 1000.0, ball_mm=ball, structure_mm=np.zeros(n),
+                     ball_valid=np.where(lost, 0, 4), structure_valid=np.full(n, 24), ball_zncc=np.ones(n),
+                     structure_zncc=np.ones(n), lost=lost, ball_rot_rad=rot)
+    finding = tracking_check(track)
+    assert (finding is not None) is refused
+    if refused:
+        first = int(np.flatnonzero(lost)[0])
+        assert finding.refuses and finding.check == "tracking" and "dic.ball_roi" in finding.keys
+        assert finding.message.startswith(f"tracking refused: ball lost in {lost.sum()} of {n} frames")
+        assert f"first: {first}, {first + 1}" in finding.message and "it spins" in finding.message

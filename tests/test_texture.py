@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -135,6 +136,28 @@ def test_track_quality_counts_low_zncc_lost_frames_and_lost_subsets() -> None:
         q.add(k, {})
     with pytest.raises(TrackQualityError, match=r"ball lost in 7 of 12 frames \(58% > 50%"):
         q.check()
+
+
+def test_a_body_lost_after_it_turned_is_refused_saying_it_spins() -> None:
+    for turn_deg, hint in ((12.0, True), (0.4, False)):
+        q = TrackQuality(max_lost_fraction=0.5)
+        for k in range(4):
+            m = _mesh(0.95, [True] * 4)
+            q.add(k, {"ball": replace(m, rot_rad=math.radians(turn_deg) * (k + 1) / 4)})
+        for k in range(4, 12):
+            q.add(k, {"ball": _mesh(math.nan, [False] * 4, lost=True)})
+        assert q.summary()["bodies"]["ball"]["rotation_at_first_loss_deg"] == pytest.approx(turn_deg)
+        with pytest.raises(TrackQualityError) as err:
+            q.check()
+        assert ("it spins" in str(err.value)) is hint and ("ball_method: outline" in str(err.value)) is hint
+
+
+def test_a_rendered_spinning_ball_is_refused_saying_it_spins(tmp_path, capsys) -> None:
+    rec = tmp_path / "spin"
+    synthesize(rec, SynthConfig(frames=300, seed=1, accel=False, spin_rad_s=2.0), progress=False)
+    rc, cap = _analyze(rec, tmp_path / "out", capsys)
+    assert rc != 0 and "Traceback" not in cap.err
+    assert "tracking refused: ball lost" in cap.err and "it spins" in cap.err, cap.err[-800:]
 
 
 def test_a_correlation_of_one_to_rounding_reads_as_no_residual_noise() -> None:

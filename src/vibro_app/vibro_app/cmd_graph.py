@@ -221,7 +221,15 @@ def run(args: argparse.Namespace) -> int:
                                          setup=RunSetup(base=args.params, foxglove=foxglove))
     print(f"graph: {time.monotonic() - t0:.1f} s, logs in {log_dir}")
     print_summary(summary, bag)
-    return incomplete_exit(bag, "vibro graph") if ok else 1
+    return incomplete_exit(bag, "vibro graph") if ok else failed_exit(summary)
+
+
+def failed_exit(summary: GraphSummary) -> int:
+    """The exit code of a run a node ended: 2 when every node that failed refused its input (exit code 2: bad
+    input, a refused track or identification), as ``vibro analyze`` and ``vibro results`` of the bag exit on the
+    same input; else 1 (a node crashed, was killed, or the run timed out)."""
+    codes = {f.code for f in summary.failures}
+    return 2 if codes == {2} else 1
 
 
 def incomplete_exit(bag: Path, command: str) -> int:

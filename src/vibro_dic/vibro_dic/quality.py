@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vibro_io.track_loss import BodyLoss, lost_refusal
 from vibro_model.errors import RecordingError
 
 from .texture import TextureReport
@@ -51,6 +52,8 @@ class _Body:
     first_below: list[int] = field(default_factory=list)
     first_lost: list[int] = field(default_factory=list)
     kept: np.ndarray | None = None
+    last_rot_rad: float | None = None          # the rotation (since frame 0) of the last tracked frame
+    rot_at_first_loss_rad: float | None = None  # the rotation of the last tracked frame before the first loss
 
 
 class TrackQuality:
@@ -86,6 +89,8 @@ class TrackQuality:
                 b.lost += 1
                 if len(b.first_lost) < _FIRST:
                     b.first_lost.append(frame_index)
+                if b.lost == 1:
+                    b.rot_at_first_loss_rad = b.last_rot_rad
             return
         for name, r in results.items():
             n = len(r.point_valid) if len(r.point_valid) else (self.bodies[name].n_subsets if name in self.bodies
@@ -96,7 +101,12 @@ class TrackQuality:
                 b.lost += 1
                 if len(b.first_lost) < _FIRST:
                     b.first_lost.append(frame_index)
+                if b.lost == 1:
+                    b.rot_at_first_loss_rad = b.last_rot_rad
                 continue
+            rot = getattr(r, "rot_rad", math.nan)
+            if math.isfinite(rot):
+                b.last_rot_rad = float(rot)
             b.zncc.append(float(r.zncc))
             if r.zncc < self.zncc_warn:
                 b.below += 1
@@ -142,6 +152,8 @@ class TrackQuality:
                 "noise_from_zncc_gray": s_eff, "noise_ratio": ratio,
                 "sigma_px_predicted": mesh_y,
                 "sigma_px_from_zncc": None if mesh_y is None or ratio is None else mesh_y * max(ratio, 1.0),
+                "rotation_at_first_loss_deg": (None if b.rot_at_first_loss_rad is None
+                                               else math.degrees(b.rot_at_first_loss_rad)),
             }
         return out
 
@@ -173,14 +185,11 @@ class TrackQuality:
     def check(self) -> list[str]:
         """Raise :class:`TrackQualityError` for a body lost in more than ``max_lost_fraction`` of the frames;
         else return :meth:`warnings`."""
-        s = self.summary()
-        bad = [f"{name} lost in {b['frames_lost']} of {b['frames']} frames ({b['frames_lost'] / b['frames']:.0%} > "
-               f"{self.max_lost_fraction:.0%}; first: {', '.join(map(str, b['first_lost']))})"
-               for name, b in s["bodies"].items()
-               if b["frames"] and b["frames_lost"] > self.max_lost_fraction * b["frames"]]
-        if bad:
-            raise TrackQualityError("tracking refused: " + "; ".join(bad) + ": check the ROIs, the texture and "
-                                    "the lighting (docs/real-footage.md)")
+        losses = [BodyLoss(name, b["frames"], b["frames_lost"], tuple(b["first_lost"]), b["rotation_at_first_loss_deg"])
+                  for name, b in self.summary()["bodies"].items()]
+        refusal = lost_refusal(losses, self.max_lost_fraction)
+        if refusal is not None:
+            raise TrackQualityError(refusal)
         return self.warnings()
 
 

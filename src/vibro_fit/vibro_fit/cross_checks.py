@@ -19,6 +19,9 @@ structure) its acceleration, whose drive tone is Y_s'' = -A (2 pi f)^2 sin(2 pi 
   m/s^2), its phase the polarity (180 deg: the channel is inverted).
 - **Plates** (:func:`plate_attribution`): each impact's plate from DIC (which plate the ball hit) against
   the accelerometer channel that responds strongest: every one opposite means the channels are swapped.
+- **Tracking** (:func:`tracking_check`): a body lost in more than half the frames is refused, with the words
+  ``vibro analyze`` refuses its own tracking with (:mod:`vibro_io.track_loss`), so a graph run and a track read
+  from dic.csv refuse it too.
 
 Each check returns :class:`~vibro_fit.plausibility.Finding` objects (what, the numbers, the rig.yaml key).
 """
@@ -29,6 +32,8 @@ import math
 from typing import Sequence
 
 import numpy as np
+
+from vibro_io.track_loss import BODY_KEYS, lost_refusal, track_losses
 
 from .accel_impacts import ClockLine
 from .plausibility import Finding
@@ -298,6 +303,18 @@ def plate_attribution(dic_impacts: Sequence, accel_impacts: Sequence, clock: Clo
     return None, ev
 
 
+def tracking_check(track) -> Finding | None:
+    """A body (ball, structure) lost in more than half the frames of ``track`` (:mod:`vibro_io.track_loss`): the
+    refusal ``vibro analyze`` gives its own tracking, for a track read from dic.csv or DicFrames; else None."""
+    losses = track_losses(track)
+    message = lost_refusal(losses)
+    if message is None:
+        return None
+    bad = [b for b in losses if b.refused()]
+    return Finding("tracking", message, [k for b in bad for k in BODY_KEYS[b.name]],
+                   {f"{b.name}_frames_lost": b.lost for b in bad} | {"frames": bad[0].frames}, "refuse")
+
+
 def consistency_checks(ident, track, rig, accel=None, source: str = "the video") -> tuple[list[Finding], dict]:
     """Every cross-check of an identification (:class:`~vibro_fit.identify.Identification` of ``track`` with
     ``rig``, ``accel`` the AccelData or None): time base (step, drift), physical plausibility, accelerometer
@@ -308,6 +325,9 @@ def consistency_checks(ident, track, rig, accel=None, source: str = "the video")
     moves = ident.motion.structure_moves if ident.motion is not None else True
     out: list[Finding] = []
     evidence: dict = {}
+    lost = tracking_check(track)
+    if lost is not None:   # a body lost in most frames: refused, as vibro analyze refuses its own tracking
+        out.append(lost)
     if moves:
         good = np.asarray(track.good, bool)
         scan = step_scan(np.asarray(track.t_s)[good], np.asarray(track.structure_mm)[good], ident.structure)
