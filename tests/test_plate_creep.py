@@ -244,3 +244,9 @@ def test_on_a_rendered_recording_the_creep_is_measured_and_the_cors_hold_the_tru
     assert finding_sentence(un).startswith("A plate moves against the tracked structure") and "top plate" in \
         finding_sentence(un)
     assert any("a plate moves against the structure: top" in line for line in findings_lines(r["discrepancy"]))
+    # the report's per-impact table flags the impacts whose plate's creep is in Eq. 16, and only those
+    from vibro_app.report_tables import creeping_plates, impact_rows
+
+    rows = impact_rows(r["impacts"], creeping_plates(r))
+    assert {row["plate"] for row in rows if "plate creeps (in Eq. 16)" in row["flags"]} == {"top"}
+    assert all("plate creeps (in Eq. 16)" in row["flags"] for row in rows if row["plate"] == "top" and row["cor"])

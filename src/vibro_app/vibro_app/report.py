@@ -28,7 +28,7 @@ from vibro_app.report_lost import lost_html  # noqa: E402
 from vibro_app.report_methods import discrepancy_measures_html, methods_html, uncertainty_html  # noqa: E402
 from vibro_app.report_provenance import reproduce_html  # noqa: E402
 from vibro_app.report_summary import simulation_rows, structure_rows, summary_html  # noqa: E402
-from vibro_app.report_tables import impacts_table_html, table2_html  # noqa: E402
+from vibro_app.report_tables import creeping_plates, impacts_table_html, table2_html  # noqa: E402
 from vibro_fit.identify import Identification  # noqa: E402
 from vibro_fit.statistics import normal_check  # noqa: E402
 from vibro_io.dictrack import DicTrack  # noqa: E402
@@ -451,7 +451,7 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left;vertical-align:top}
 <h2>COR per plate (Table 2)</h2><p>{e(impacts_model_text(results.get("impacts_model")))}</p>
 {table2_html(results.get("impacts") or [])}
 {uncertainty_html(results)}
-{impacts_table_html(results.get("impacts") or [])}
+{impacts_table_html(results.get("impacts") or [], moving_plates=creeping_plates(results))}
 {contacts_html(results.get("contacts"))}
 <h2>Simulation deviation D (Eq. 18, free-running with each impact's measured COR)</h2>
 <table>{_rows(simulation_rows(results.get("simulation")))}</table>

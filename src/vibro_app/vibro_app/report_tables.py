@@ -146,11 +146,14 @@ def _rel(imp: Mapping[str, Any], key: str) -> float | None:
     return None if vb is None or vs is None else abs(float(vb) - float(vs))
 
 
-def impact_flags(imp: Mapping[str, Any]) -> list[str]:
+def impact_flags(imp: Mapping[str, Any], creeping_plates: Iterable[str] = ()) -> list[str]:
     """What a referee should know of one impact, in words (the page names no results.json key): found in lost
     frames (``in_gap``), local structure (re-measured with the local structure velocity), re-measured (under the
-    final model), no COR."""
+    final model), its plate creeping (``creeping_plates``: the plate's velocity in Eq. 16 is the structure's plus
+    the creep, results.json ``plate_motion``), no COR."""
     flags = []
+    if imp.get("plate") in set(creeping_plates) and imp.get("cor") is not None:
+        flags.append("plate creeps (in Eq. 16)")
     if imp.get("in_gap"):
         flags.append(f"in lost frames ({imp.get('gap_lost_frames')} lost)")
     method = imp.get("cor_method") or ""
@@ -163,13 +166,13 @@ def impact_flags(imp: Mapping[str, Any]) -> list[str]:
     return flags
 
 
-def impact_rows(impacts: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def impact_rows(impacts: Iterable[Mapping[str, Any]], creeping_plates: Iterable[str] = ()) -> list[dict[str, Any]]:
     """One dict per impact: index, t (s), plate, relative speed in/out (m/s, |v_ball -/+ - v_structure|), cor,
-    cor_std, cor_method (the identification's "paper" when absent) and flags."""
+    cor_std, cor_method (the identification's "paper" when absent) and flags (:func:`impact_flags`)."""
     return [{"index": imp.get("index"), "t": imp.get("t"), "plate": imp.get("plate"),
              "speed_in": _rel(imp, "v_ball_before"), "speed_out": _rel(imp, "v_ball_after"),
              "cor": imp.get("cor"), "cor_std": imp.get("cor_std"), "cor_method": imp.get("cor_method") or "paper",
-             "flags": impact_flags(imp)} for imp in impacts]
+             "flags": impact_flags(imp, creeping_plates)} for imp in impacts]
 
 
 #: a click on a header sorts the rows by that column (numbers by data-v, text otherwise); again: reversed
@@ -195,10 +198,18 @@ def _cell(v: float | None, spec: str) -> str:
     return f'<td data-v="{repr(float(v)) if ok else ""}">{format(v, spec) if ok else "n/a"}</td>'
 
 
-def impacts_table_html(impacts: Iterable[Mapping[str, Any]], csv_name: str = "impacts.csv") -> str:
-    """The per-impact table (:func:`impact_rows`), sortable by a click on a header (inline script, works
-    offline), in a scrollable box, with a link to ``csv_name``; empty without impacts."""
-    rows = impact_rows(impacts)
+def creeping_plates(results: Mapping[str, Any]) -> list[str]:
+    """The plates whose creep the identification took into their CORs (results.json ``plate_motion``, applied)."""
+    section = results.get("plate_motion") or {}
+    return [p for p, m in section.items() if isinstance(m, Mapping) and m.get("applied") is True]
+
+
+def impacts_table_html(impacts: Iterable[Mapping[str, Any]], csv_name: str = "impacts.csv",
+                       moving_plates: Iterable[str] = ()) -> str:
+    """The per-impact table (:func:`impact_rows`; ``moving_plates``: :func:`creeping_plates`), sortable by a click
+    on a header (inline script, works offline), in a scrollable box, with a link to ``csv_name``; empty without
+    impacts."""
+    rows = impact_rows(impacts, moving_plates)
     if not rows:
         return ""
     e = html.escape
