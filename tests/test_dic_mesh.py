@@ -112,3 +112,30 @@ def test_icgn_step_is_the_gauss_newton_step_of_the_znssd() -> None:
     assert np.allclose(zncc, want_zncc, rtol=0, atol=1e-12)
     # the step moves towards the true shift (0.37, -0.21) px: Gauss-Newton from 0.4 px off lands within 0.05 px
     assert np.all(np.abs(du - [0.37, -0.21]) < 0.05)
+
+
+def test_a_subset_measures_a_magnified_field_at_its_gradient_weighted_centre() -> None:
+    """A lens's magnification changes across the image: the displacement field then has a gradient over a subset,
+    and the translation IC-GN measures it at the subset's gradient-weighted centre
+    (vibro_dic.rotation.effective_centres), ~1 px from the geometric centre, not at the centre. The tracker's lens
+    correction undistorts those centres (tracker step 8). Field: an isotropic magnification by 1 + s about o."""
+    from scipy.ndimage import map_coordinates
+
+    from vibro_dic.rotation import effective_centres
+
+    ref = speckle_pattern((240, 240), seed=3).render()
+    s, o = 0.02, np.array([20.0, 30.0])          # (x, y) px
+    rows, cols = np.mgrid[0:240, 0:240].astype(float)
+    src_x, src_y = o[0] + (cols - o[0]) / (1 + s), o[1] + (rows - o[1]) / (1 + s)
+    cur = map_coordinates(ref.astype(float), [src_y, src_x], order=5, mode="nearest").astype(np.float32)
+    subset = 31
+    centres = mesh_points(Roi(60, 60, 120, 120), subset, 10).astype(float)
+    blocks = IcgnBlocks(ref, centres - subset // 2, (subset, subset), max_iter=30, tol_px=1e-4)
+    res = blocks.refine(cur, s * (centres - o))
+    ok = res.converged & blocks.textured
+    assert ok.sum() > 50
+    eff = effective_centres(blocks, centres, subset)
+    err_geometric = np.linalg.norm(res.u - s * (centres - o), axis=1)[ok]
+    err_effective = np.linalg.norm(res.u - s * (eff - o), axis=1)[ok]
+    assert np.median(np.linalg.norm(eff - centres, axis=1)[ok]) > 0.3     # the offsets matter: ~s x 1 px
+    assert np.median(err_effective) < 0.25 * np.median(err_geometric)

@@ -56,3 +56,22 @@ def rotation_lever_arms(subsets: IcgnBlocks, centres_px: np.ndarray, subset_px: 
     # an untextured subset has no meaningful inverse Hessian: fall back to its geometric arm
     geo = np.column_stack([rel[:, 1], -rel[:, 0]])
     return np.where(subsets.textured[:, None], arms, geo)
+
+
+def effective_centres(subsets: IcgnBlocks, centres_px: np.ndarray, subset_px: int) -> np.ndarray:
+    """(N, 2) px: where each subset's translation estimate samples a smoothly varying displacement field, its
+    gradient-weighted centre c_i = p_i + H_i^-1 sum_j J_j J_j^T d_j (d_j a pixel's offset from the geometric centre
+    p_i; module doc): u_i = v(c_i) to first order for an isotropic gradient of the field (a lens's magnification
+    changing across the image), not v(p_i). ~1 px off p_i for 31 px subsets of random speckle; p_i for an
+    untextured subset."""
+    centres = np.asarray(centres_px, dtype=float)
+    h = subset_px // 2
+    rows, cols = np.mgrid[-h:h + 1, -h:h + 1]
+    dx, dy = cols.ravel()[None, :].astype(float), rows.ravel()[None, :].astype(float)
+    fx = subsets.fx.astype(np.float64)
+    fy = subsets.fy.astype(np.float64)
+    proj = fx * dx + fy * dy                 # J . d per pixel
+    bx = np.einsum("ij,ij->i", fx, proj)
+    by = np.einsum("ij,ij->i", fy, proj)
+    offset = np.column_stack([subsets.ixx * bx + subsets.ixy * by, subsets.ixy * bx + subsets.iyy * by])
+    return centres + np.where(subsets.textured[:, None], offset, 0.0)

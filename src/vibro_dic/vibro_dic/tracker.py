@@ -55,11 +55,14 @@ Pipeline for each mesh (ball, structure) and each frame:
    displacement and 0 valid points; it is never extrapolated. The frame is flagged lost
    if either mesh is lost or the image is missing (the other mesh keeps its value).
 8. **Lens distortion** (rig.yaml ``camera.calibration``, a ROS camera_info; :meth:`DicTracker.use_calibration`):
-   after steps 1-7, which work in the camera's own pixels, each kept subset's centre now and in the reference is
-   undistorted (:func:`vibro_io.camera_calibration.undistort_px`: pixels of the same focal length) and the mesh's
-   displacement is corrected by the mean of (undistorted translation - measured translation) over its kept
-   points; an outline's circle is refitted through its undistorted edge points. One vectorised OpenCV call per
-   frame on the subset centres (edge points); the compiled kernels are untouched. Without a calibration nothing
+   after steps 1-7, which work in the camera's own pixels, each kept subset's centre (where its translation samples
+   the displacement field: its gradient-weighted centre, :func:`vibro_dic.rotation.effective_centres`) now and in
+   the reference is undistorted (:func:`vibro_io.camera_calibration.undistort_px`: pixels of the same focal length)
+   and the mesh's displacement is corrected by the mean of (undistorted translation - measured translation) over its
+   kept points (with the geometric centres ~1 um of the lens's changing magnification was left in the track, and a
+   flight's apparent gravity 0.17 % low: a 3.4 deg tilt claimed on a rig at 0 deg); an outline's circle is
+   refitted through its undistorted edge points. One vectorised OpenCV call per frame on the subset centres (edge
+   points); the compiled kernels are untouched. Without a calibration nothing
    of this runs.
 
 Output conventions (:class:`vibro_io.dictrack.FrameTrack`): displacement since frame 0 in
@@ -90,7 +93,7 @@ from .interp import CUBIC_IN_T, KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
 from .outline import OutlineResult, OutlineTracker, edge_points, fit_circle
 from .quality import TrackQuality
-from .rotation import MIN_ARM_SPREAD_PX2, rotation_lever_arms
+from .rotation import MIN_ARM_SPREAD_PX2, effective_centres, rotation_lever_arms
 from .search import SearchResult, half_resolution, whole_image_search, zncc_search
 from .speckle import speckle_pattern
 from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
@@ -203,6 +206,7 @@ class MeshTracker:
                                   max_move_px=2.0)
         self.offsets = (self.corners - self.box_corner).astype(np.intp)  # subset corners inside the box
         self.lever_arms = rotation_lever_arms(self.subsets, self.points, subset_px)  # (N, 2) px per rad
+        self.effective_points = effective_centres(self.subsets, self.points, subset_px)  # (N, 2) where u is measured
         # the compiled kernels' inputs (vibro_dic.kernels) beside the IC-GN constants: interpolation cubics, scratch
         self._cubic = np.ascontiguousarray(CUBIC_IN_T[taps], dtype=np.float64)
         self._box_g = np.empty(self.box_size, dtype=np.float32)  # the box's samples at its last u
@@ -569,19 +573,22 @@ class DicTracker:
                 ref = _circle_centre(undistort_points(calibration, edge_points(mesh.reference_fit)), mesh.radius0)
                 self._reference_undistorted[mesh.name] = mesh.centre0 if ref is None else ref
             else:
-                self._reference_undistorted[mesh.name] = undistort_points(calibration, mesh.points)
+                self._reference_undistorted[mesh.name] = undistort_points(calibration, mesh.effective_points)
 
     def _undistort(self, results: tuple[MeshResult, MeshResult]) -> None:
         """The (ball, structure) results' ``u_px`` replaced by their displacement in the undistorted image (module
         doc, step 8). A mesh's: corrected by the mean over its kept subsets of (undistorted centre now -
-        undistorted centre in the reference - measured displacement); the rotation's share stays as measured. An
+        undistorted centre in the reference - measured displacement), each subset's centre where its translation
+        samples the displacement field (its gradient-weighted centre, :func:`vibro_dic.rotation.effective_centres`:
+        a lens's magnification changes across the image, and the geometric centre left ~1 um of that in the
+        track); the rotation's share stays as measured. An
         outline's: the circle through its undistorted edge points, less the reference's (a lens turns the ball's
         circle into an oval whose fitted centre is not the distorted centre: a barrel lens moves it by
         3 k1 y R^2 / f^2 at y from the principal point). One vectorised call for every point of both bodies."""
         bodies = [(r, mesh) for r, mesh in zip(results, (self.ball, self.structure)) if not r.lost]
         if not bodies:
             return
-        chunks = [edge_points(r.fit) if isinstance(r, OutlineResult) else mesh.points[r.point_valid]
+        chunks = [edge_points(r.fit) if isinstance(r, OutlineResult) else mesh.effective_points[r.point_valid]
                   + r.point_u_px[r.point_valid] for r, mesh in bodies]
         now = undistort_points(self.calibration, np.concatenate(chunks))
         start = 0
