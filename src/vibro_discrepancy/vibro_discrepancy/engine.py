@@ -409,7 +409,8 @@ def with_plate_motion(chain: FindingChain) -> FindingChain:
 def creeping_plates_located(meas: Measured, patterns: list[Mismatch]) -> list[str]:
     """The plates whose contact level the systematic analysis located as drifting (``contact_level`` patterns) and
     whose creep the identification measured and took into the CORs (results.json ``plate_motion``)."""
-    return sorted({p.plate for p in patterns if p.series == "contact_level" and p.plate in meas.plate_creeps})
+    return sorted({p.plate for p in patterns if p.series == "contact_level" and p.plate in meas.plate_creeps
+                   and not p.common_mode})
 
 
 def find_systematic(chain: FindingChain) -> tuple[FindingChain, Systematic]:
@@ -455,7 +456,7 @@ def leftover_words(chain: FindingChain, sine: StructureModelFit, sel: Selection,
         flights = cur.model.flights
         if math.sqrt(flights.sse / max(flights.n_points, 1)) / floors.ball_m > 1.5:
             words.append(flights_words)
-    words += [p.words() for p in patterns if p.shape != "drive"]
+    words += [p.words() for p in patterns if p.shape != "drive" and not p.common_mode]
     if shape is not None and shape.structured:
         words.insert(0, shape.words())
     return words
@@ -812,7 +813,8 @@ def run_details(chain: FindingChain, location: dict, stages: dict, patterns: lis
         "location": {k: v for k, v in location.items() if k != "words"},
         "stages": stages,
         "notes": list(chain.meas.notes) + [f"{s.label}: {s.run.error}" for s in chain.steps if s.run.error]
-        + [f"{s.label} (restarted): {s.restarted.error}" for s in chain.steps if s.restarted.error],
+        + [f"{s.label} (restarted): {s.restarted.error}" for s in chain.steps if s.restarted.error]
+        + [p.words() for p in patterns if p.common_mode],
     }
 
 

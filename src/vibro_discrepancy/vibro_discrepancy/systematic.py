@@ -85,6 +85,7 @@ class Mismatch:
     note: str | None = None        # drive: what the drive did (results.json drive's words)
     absorbed_hz: tuple[float, ...] | None = None   # drive: the side-band "tones" it stands for (Hz)
     fit: np.ndarray | None = None  # the pattern's values on the series (for subtraction)
+    common_mode: bool = False      # contact level: the other plate's level does the same (:func:`common_mode_levels`)
 
     def what(self) -> str:
         """Plain words: where, shape, size and when."""
@@ -120,6 +121,10 @@ class Mismatch:
 
     def words(self) -> str:
         p = f"p = {self.p_value:.1e}" if self.p_value > 1e-300 else "p < 1e-300"
+        if self.common_mode:
+            return (f"{self.what()}, {p}, and the other plate's height does the same: the ball's or the structure's "
+                    "track moved (a spinning ball's rotation leaks into its track), or the whole cavity against the "
+                    "tracked structure; no plate moved against the other, no finding")
         if self.shape == "drive":
             return f"{self.what()}; the catalogue's structure models assume a stationary drive (paper Eq. 2)"
         return f"{self.what()}, {p}, which no term of the library produces"
@@ -136,6 +141,8 @@ class Mismatch:
             out["step_between_s"] = [_num(x) for x in self.step_between_s]
         if self.size_ms is not None:
             out["size_ms"] = _num(self.size_ms)
+        if self.common_mode:
+            out["common_mode"] = True
         if self.frequencies_searched is not None:
             out["frequencies_searched"] = int(self.frequencies_searched)
         if self.levels is not None:
@@ -552,7 +559,36 @@ def level_mismatch(meas: Measured, model: FittedModel, sigma_f_m: float, n_tests
         for m in found:
             m.size_ms = abs(m.size) * 1e-6 / max(float(np.median(spd)), 1e-6) * 1e3
         out += found
-    return out
+    return common_mode_levels(out, meas.frequency_hz)
+
+
+#: two plates' level patterns are one common-mode pattern when their sizes differ by at most this fraction
+COMMON_MODE_REL = 0.35
+
+
+def common_mode_levels(patterns: list[Mismatch], frequency_hz: float) -> list[Mismatch]:
+    """``patterns`` with each pair of a top and a bottom contact-level pattern that are one motion of both plates
+    marked ``common_mode``: the same shape (a step within 1.5 drive periods of the other's, or a trend over
+    overlapping spans) and sizes of one sign within :data:`COMMON_MODE_REL` of each other. A plate moving against the
+    other changes its own level only; both levels moving alike is the ball's or the structure's track (a spinning
+    ball's rotation leaks ~0.4 um per degree into its mesh's translation) or the cavity as a whole against the
+    tracked structure, neither ball physics."""
+    tops = [m for m in patterns if m.series == "contact_level" and m.plate == "top"]
+    bottoms = [m for m in patterns if m.series == "contact_level" and m.plate == "bottom"]
+    for a in tops:
+        for b in bottoms:
+            if a.common_mode or b.common_mode or a.shape != b.shape or a.shape not in ("step", "trend"):
+                continue
+            if a.size * b.size <= 0 or abs(a.size - b.size) > COMMON_MODE_REL * max(abs(a.size), abs(b.size)):
+                continue
+            if a.shape == "step":
+                together = (a.step_time_s is not None and b.step_time_s is not None
+                            and abs(a.step_time_s - b.step_time_s) <= 1.5 / max(frequency_hz, 1e-9))
+            else:
+                together = min(a.t_to_s, b.t_to_s) > max(a.t_from_s, b.t_from_s)
+            if together:
+                a.common_mode = b.common_mode = True
+    return patterns
 
 
 def _within(x: np.ndarray, plates: np.ndarray) -> np.ndarray:
