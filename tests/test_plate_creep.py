@@ -288,3 +288,12 @@ def test_a_spinning_ball_moves_both_levels_alike_and_no_plate_is_claimed(tmp_pat
     notes = [n for n in r["discrepancy"]["notes"] if "the other plate's height does the same" in n]
     assert {n.split(" plate height")[0] for n in notes} == {"top", "bottom"}
     assert not any(m["applied"] for m in r["plate_motion"].values())
+
+
+def test_the_joint_method_is_told_its_fixed_plate_level_does_not_hold() -> None:
+    imps = _impacts(lambda t: 500.0 + 40.0 * t, np.random.default_rng(9))
+    _, motions = pm.plate_motion_pass(imps)
+    paper, joint = pm.plate_motion_notes(motions, "paper"), pm.plate_motion_notes(motions, "joint")
+    assert not any("joint method" in n for n in paper) and any("creeps" in n for n in paper)
+    (warn,) = [n for n in joint if "joint method" in n]
+    assert warn.startswith("top plate") and f"{motions['top'].travel_um:+.2f} um" in warn

@@ -49,7 +49,7 @@ from .passes import (
     unseen_pass,
     validate_inputs,
 )
-from .plate_motion import PlateMotion, plate_motion_pass
+from .plate_motion import PlateMotion, plate_motion_notes, plate_motion_pass
 from .regimes import Regime
 from .rig_consistency import RigStatement
 from .segmentation import SegmentationConfig, segmentation_config
@@ -207,9 +207,9 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
     impacts, levels = impact_pass(sf, track, rig, method, basis.noise_mm)
     hops = hop_pass(sf, impacts, levels, contacts=contacts, cframes=cframes, track=track, rig=rig, basis=basis)
     hops = widened_pass(noise_floor_pass(hops), track, rig)
-    moved, plates = plate_motion_pass(hops.impacts)
+    moved, plates = plate_motion_pass(hops.impacts, levels_from=list(sf.impacts) if method == "joint" else None)
     hops = replace(hops, impacts=moved)
-    plate_notes = [f"{m.plate} plate {m.reason}" for m in plates.values() if m.applied]
+    plate_notes = plate_motion_notes(plates, method)
     friction = friction_pass(sf.flights, basis.structure, rig.ball.mass_kg, cfg.g_mps2)
     flight_notes = flight_warnings(sf, levels, rig.free_play_mm)
     landings, landing_notes = landing_pass(sf, hops, levels=levels, track=track, structure=basis.structure,

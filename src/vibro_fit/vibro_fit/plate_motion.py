@@ -194,9 +194,11 @@ def level_outliers(t: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.abs(r - np.median(r)) > OUTLIER_SIGMAS * max(sigma, 1e-9)
 
 
-def plate_motion(impacts: list[ImpactFit], plate: str) -> PlateMotion:
-    """What ``plate`` did against the tracked structure over the take (module docstring), from ``impacts``."""
-    t, y = contact_levels(impacts, plate)
+def plate_motion(impacts: list[ImpactFit], plate: str, levels_from: list[ImpactFit] | None = None) -> PlateMotion:
+    """What ``plate`` did against the tracked structure over the take (module docstring): its contact levels from
+    the paper impacts ``levels_from`` (default ``impacts``; the ``joint`` method's impacts sit on a fixed level by
+    construction), the floor against ``impacts``' CORs."""
+    t, y = contact_levels(impacts if levels_from is None else levels_from, plate)
     if t.size < MIN_IMPACTS:
         return _classified(plate, t, y, impacts)
     keep = ~level_outliers(t, y)
@@ -269,10 +271,24 @@ def moved_impact(imp: ImpactFit, motion: PlateMotion) -> ImpactFit:
                    cor_std_paper=sd if paper and imp.cor_std_paper is not None else imp.cor_std_paper)
 
 
-def plate_motion_pass(impacts: list[ImpactFit]) -> tuple[list[ImpactFit], dict[str, PlateMotion]]:
-    """The identification's named pass: each plate's motion against the tracked structure (:func:`plate_motion`),
-    and the impacts with a creeping plate's velocity taken into their CORs where it is applied."""
-    motions = {p: plate_motion(impacts, p) for p in ("top", "bottom")}
+def plate_motion_pass(impacts: list[ImpactFit], levels_from: list[ImpactFit] | None = None
+                      ) -> tuple[list[ImpactFit], dict[str, PlateMotion]]:
+    """The identification's named pass: each plate's motion against the tracked structure (:func:`plate_motion`;
+    ``levels_from``: the paper impacts whose contact levels measure it, default ``impacts``), and the impacts with a
+    creeping plate's velocity taken into their CORs where it is applied."""
+    motions = {p: plate_motion(impacts, p, levels_from) for p in ("top", "bottom")}
     out = [moved_impact(i, motions[i.plate]) if i.plate in motions and motions[i.plate].applied else i
            for i in impacts]
     return out, motions
+
+
+def plate_motion_notes(motions: dict[str, PlateMotion], method: str) -> list[str]:
+    """The warnings of the pass: each creep taken into the CORs; with the ``joint`` method, each plate whose level
+    moves (a creep or a step), which that method's fixed-level constraint does not allow for."""
+    notes = [f"{m.plate} plate {m.reason}" for m in motions.values() if m.applied]
+    if method == "joint":
+        notes += [f"{m.plate} plate: its contact level moves {m.step_um if m.shape == 'step' else m.travel_um:+.2f} um "
+                  f"over the take ({m.shape}), where the joint method constrains each pair of flights to one fixed "
+                  "plate level: its CORs there rest on a level that is not the plate's (method paper does not "
+                  "assume it)" for m in motions.values() if m.shape in ("creep", "step")]
+    return notes
