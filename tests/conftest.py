@@ -3,10 +3,31 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
-import pytest
-from domains import private_domain
+#: One BLAS / OpenMP / OpenCV thread in every test process and every process a test starts (they inherit the
+#: environment): the suite already runs whole test files in parallel (pytest-xdist, three workers on two cores),
+#: and each vibro process of a graph run is one more. OpenBLAS' second thread spins while it waits for work: on
+#: the suite's small matrices (a 3000 x 11 least squares) it multiplied the CPU time of a call by ~5, and of a
+#: whole `vibro analyze` by 1.15 (plain take) to 1.5 (drive change + drag), same results.json. bench/*.py set the
+#: same. A value set by the caller wins.
+ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "OPENCV_FOR_THREADS_NUM": "1"}
+for _name, _value in ONE_THREAD.items():
+    os.environ.setdefault(_name, _value)
+if "numpy" in sys.modules or "cv2" in sys.modules:  # loaded before this file (a plugin): limit it in place
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(int(os.environ["OPENBLAS_NUM_THREADS"]))
+    except ImportError:
+        pass
+    if "cv2" in sys.modules:
+        sys.modules["cv2"].setNumThreads(int(os.environ["OPENCV_FOR_THREADS_NUM"]))
+
+import pytest  # noqa: E402
+from domains import private_domain  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FIXTURES = REPO / "tests" / "fixtures"

@@ -9,6 +9,7 @@ swapped argument passes silently. Read from the sources (ast), not by importing 
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -21,9 +22,11 @@ MAX_MANY_POSITIONAL_CALLS = 10
 KERNEL_MODULE_NAMES = ("kernels",)
 
 
-def _sources() -> list[tuple[Path, ast.Module]]:
-    return [(p, ast.parse(p.read_text(encoding="utf-8"))) for p in sorted(SRC.glob("vibro_*/**/*.py"))
-            if "__pycache__" not in p.parts]
+@functools.cache
+def _sources() -> tuple[tuple[Path, ast.Module], ...]:
+    """Every source file of src/ parsed, once per test process (the counters only read the trees)."""
+    return tuple((p, ast.parse(p.read_text(encoding="utf-8"))) for p in sorted(SRC.glob("vibro_*/**/*.py"))
+                 if "__pycache__" not in p.parts)
 
 
 def long_functions(sources: list[tuple[Path, ast.Module]], max_lines: int = MAX_FUNCTION_LINES) -> list[str]:
@@ -76,6 +79,7 @@ def test_results_json_is_assembled_in_one_place() -> None:
     callers = []
     for path, tree in _sources():
         for node in ast.walk(tree):
-            if isinstance(node, ast.Call) and ast.unparse(node.func).endswith("ResultsDocument.build"):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "build"
+                    and ast.unparse(node.func).endswith("ResultsDocument.build")):
                 callers.append(str(path.relative_to(SRC)))
     assert callers == ["vibro_model/vibro_model/assemble.py"]

@@ -44,6 +44,14 @@ def run(args: list[str], env: dict | None = None, timeout: float = 60) -> subpro
     return subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env or BARE_ENV)
 
 
+@functools.cache
+def help_of(*args: str) -> subprocess.CompletedProcess:
+    """``run(args)`` of a ``--help`` line in the bare environment, once per test process: README.md,
+    docs/commands.md and the bench docstrings show several lines of one command (``vibro synth`` twice,
+    bench/bench_live.py five times); each line's options are checked against the one help text."""
+    return run(list(args))
+
+
 def requirement_pins() -> dict[str, str]:
     pins = {}
     for name in ("requirements.txt", "requirements-nodeps.txt"):
@@ -76,9 +84,8 @@ def subcommands(helptext: str) -> set[str]:
     return set(re.findall(r"^    (\w[\w-]*)", block[1], re.M)) if block else set()
 
 
-@functools.cache
 def vibro_help() -> subprocess.CompletedProcess:
-    return run(["./vibro", "--help"])
+    return help_of("./vibro", "--help")
 
 
 def check_vibro(words: list[str]) -> None:
@@ -88,12 +95,12 @@ def check_vibro(words: list[str]) -> None:
         return
     cmd = [words[0]]
     assert cmd[0] in subcommands(top.stdout), f"./vibro {cmd[0]}: not a subcommand ({top.stdout[:300]})"
-    res = run(["./vibro", *cmd, "--help"])
+    res = help_of("./vibro", *cmd, "--help")
     assert res.returncode == 0, f"./vibro {cmd[0]} --help: {res.stderr}"
     nested = subcommands(res.stdout)
     if nested:  # e.g. `vibro bag reindex`
         assert len(words) > 1 and words[1] in nested, f"./vibro {' '.join(words)}: {res.stdout[:300]}"
-        sub = run(["./vibro", cmd[0], words[1], "--help"])
+        sub = help_of("./vibro", cmd[0], words[1], "--help")
         assert sub.returncode == 0, sub.stderr
     # the options the line shows are the command's own
     shown = {w.split("=")[0] for w in words if w.startswith("--")}
@@ -232,7 +239,7 @@ def check_bench(words: list[str]) -> None:
     assert script.is_file(), script
     # never run a benchmark: its main() must parse its options (--help exits before any work)
     assert ".parse_args(" in script.read_text(), f"{script.name}: no argparse, --help would run it"
-    res = run([f"./{words[0]}", words[1], "--help"])
+    res = help_of(f"./{words[0]}", words[1], "--help")
     assert res.returncode == 0 and res.stdout.startswith("usage:"), (words, res.stderr[-800:])
     for opt in re.findall(r"--[\w-]+", " ".join(words[2:])):
         assert opt in res.stdout, f"{script.name}: no option {opt}"

@@ -28,6 +28,7 @@ from vibro_app.campaign.report import (
 from vibro_app.campaign.runs import RunSpec, find_runs
 from vibro_app.campaign.summary import flag_disagreeing, orientation_groups, run_summary
 from vibro_app.campaign.task import analyze_run
+from vibro_dic import cluster as dic_cluster
 from vibro_io.outputs import OutputError
 
 
@@ -200,21 +201,19 @@ def run_campaign(source: str | Path, out: str | Path, *, workers: int | None = N
     start = time.perf_counter()
     import threading
 
-    from vibro_dic.cluster import BackgroundClient, check_workers
-
-    check_workers(workers)
+    dic_cluster.check_workers(workers)
     out = Path(out)
     _prepare_out(out)
     runs = find_runs(source, exclude=out)
     version = code_version()
     options = {"method": method, "dic_method": dic_method, "weights": weights}
-    cluster: BackgroundClient | None = None
+    cluster: dic_cluster.BackgroundClient | None = None
     closing: threading.Thread | None = None  # the cluster being closed while the report is written
 
     def start_cluster() -> None:
         nonlocal cluster
         if cluster is None:
-            cluster = BackgroundClient(workers, scheduler, list_scheduling=True)
+            cluster = dic_cluster.BackgroundClient(workers, scheduler, list_scheduling=True)
 
     timing = {"cluster_start_s": None, "tasks_wall_s": None, "n_workers": None}
     try:
