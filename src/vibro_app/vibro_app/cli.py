@@ -13,8 +13,11 @@ import logging
 import sys
 
 from vibro_model.errors import RecordingError
+from vibro_model.threads import one_blas_thread
 
 from .version import version_text
+
+one_blas_thread()   # before the subcommands load numpy, scipy or OpenCV (vibro_model.threads)
 
 SUBCOMMAND_MODULES = (
     "vibro_app.cmd_info",

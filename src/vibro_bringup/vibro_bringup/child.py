@@ -14,6 +14,7 @@ import runpy
 import signal
 import sys
 
+from vibro_model.threads import one_blas_thread
 from vibro_ros.entry import exit_now, install_early_stop
 
 
@@ -29,6 +30,7 @@ def main() -> None:
 
     module = sys.argv[1]
     install_early_stop(module.rsplit(".", 1)[-1])  # a stop while the node module imports: exit 0, no traceback
+    one_blas_thread()            # before the node module loads numpy (vibro_model.threads)
     sys.argv = [module, *sys.argv[2:]]
     try:
         runpy.run_module(module, run_name="__main__", alter_sys=True)

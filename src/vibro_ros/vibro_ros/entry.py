@@ -24,6 +24,8 @@ import os
 import signal
 import sys
 
+from vibro_model.threads import one_blas_thread
+
 #: executable (``ros2 run`` name) -> node module with ``main()``; each package's setup.py points its console
 #: scripts at the functions below
 NODE_MODULES = {
@@ -84,6 +86,7 @@ def run(executable: str) -> int:
     """Start node ``executable``: early stop handling, then its module's ``main()``; the process ends with its exit
     code (:func:`exit_now`)."""
     install_early_stop(executable)
+    one_blas_thread()   # before numpy loads: a node's BLAS pool would spin beside seven other nodes
     code = importlib.import_module(NODE_MODULES[executable]).main()
     exit_now(code)
     return code  # not reached
