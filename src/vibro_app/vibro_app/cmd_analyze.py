@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vibro_app.analyze import COMMAND_LINE, DicPlan, FitPlan, analyze_recording
 from vibro_app.findings_text import findings_lines
 from vibro_dic.cluster import add_cluster_args
 from vibro_fit.methods import METHODS
@@ -31,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from vibro_app.analyze import COMMAND_LINE, DicPlan, FitPlan, analyze_recording  # the pipeline: when it runs
 
     progress = not args.no_progress and sys.stderr.isatty()
     dic = DicPlan(method=args.dic_method, workers=args.workers, scheduler=args.scheduler)

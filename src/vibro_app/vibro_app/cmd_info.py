@@ -6,8 +6,6 @@ import argparse
 import json
 from typing import Any
 
-from .recording_info import describe
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("info", help="validate a recording (or one camera file) and print what it holds")
@@ -18,6 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .recording_info import describe  # OpenCV, scipy and the texture check: only when a recording is read
+
     info = describe(args.recording)
     if args.json:
         print(json.dumps(info, indent=2))

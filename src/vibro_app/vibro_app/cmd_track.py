@@ -7,10 +7,9 @@ import json
 import logging
 import sys
 
-from vibro_dic.chunked import track_rows
 from vibro_dic.cluster import add_cluster_args
+from vibro_dic.methods import METHODS
 from vibro_dic.noise import DEFAULT_SPLIT_HZ, noise_study
-from vibro_dic.tracker import METHODS, track_recording
 from vibro_io.dictrack import DicTrack, write_dic_csv
 from vibro_io.outputs import atomic_path, atomic_write_text, prepare_output_dir, prepare_output_file
 from vibro_io.recording import open_recording
@@ -71,6 +70,8 @@ class _Counter:
 
 
 def run_track(args: argparse.Namespace) -> int:
+    from vibro_dic.chunked import track_rows  # the tracker and its compiled kernels: only when a track is made
+
     rec = open_recording(args.recording)
     out = prepare_output_dir(args.out, overwrite=args.overwrite, owned=(DIC_CSV,), command="track",
                              inputs=[rec.path])
@@ -85,6 +86,8 @@ def run_track(args: argparse.Namespace) -> int:
 
 
 def run_noise(args: argparse.Namespace) -> int:
+    from vibro_dic.tracker import track_recording  # the tracker and its compiled kernels: only when tracking
+
     rec = open_recording(args.recording)
     if args.json:
         prepare_output_file(args.json, overwrite=args.overwrite)

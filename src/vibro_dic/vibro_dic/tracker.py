@@ -91,6 +91,7 @@ from .ball_method import BallMethodChoice, resolve_ball_method
 from .icgn import IcgnBlocks, extract_blocks
 from .interp import CUBIC_IN_T, KERNEL_TAPS, patch_margin
 from .mesh import mesh_points
+from .methods import METHODS
 from .outline import OutlineResult, OutlineTracker, edge_points, fit_circle
 from .quality import TrackQuality
 from .rotation import MIN_ARM_SPREAD_PX2, effective_centres, rotation_lever_arms
@@ -100,7 +101,6 @@ from .texture import DEFAULT_MAX_SUBSET_SIGMA_PX, TextureReport, check_texture
 
 log = logging.getLogger(__name__)
 
-METHODS = ("icgn", "parabolic")
 MIN_SUBSET_STD = 2.0  # gray levels: below this a subset holds no usable pattern
 # The bounding-box IC-GN stops at a finer step than the subsets' tol_px, so that the one
 # per-subset step that follows is dominated by the subset's own (noise) deviation.
