@@ -26,13 +26,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vibro_io.track_loss import BodyLoss, lost_refusal
+from vibro_io.track_loss import MAX_LOST_FRACTION, BodyLoss, lost_refusal
 from vibro_model.errors import RecordingError
 
 from .texture import TextureReport
 
 DEFAULT_ZNCC_WARN = 0.9
-DEFAULT_MAX_LOST_FRACTION = 0.5
+DEFAULT_MAX_LOST_FRACTION = MAX_LOST_FRACTION   # the one rule of every path (vibro_io.track_loss)
 DEFAULT_MAX_NOISE_RATIO = 2.0
 _FIRST = 5  # frame indices listed in a message
 

@@ -496,9 +496,10 @@ def unexplained_finding(chain: FindingChain, sine: StructureModelFit, sel: Selec
 
 def plate_motion_details(meas: Measured, left: Systematic) -> dict[str, Any]:
     """The finding's record of the plates' measured motion, replayed: which plates and their mean rate (um/s, the
-    creep's velocity averaged over the recording); the finding's deviations are without and with it."""
-    span = float(meas.t_s[-1] - meas.t_s[0])
-    rates = {p: 1e6 * float(np.mean([c.velocity_mps(float(t)) for t in meas.t_s]))
+    creep's travel over the recording / its span); the finding's deviations are without and with it."""
+    t0, t1 = float(meas.t_s[0]), float(meas.t_s[-1])
+    span = t1 - t0
+    rates = {p: (c.level_um(t1) - c.level_um(t0)) / span
              for p, c in meas.plate_creeps.items() if p in creeping_plates_located(meas, left.patterns)}
     return {"plates": sorted(rates), "mean_rate_um_per_s": {p: json_number(r) for p, r in rates.items()},
             "span_s": json_number(span), "source": "results.json plate_motion (the identification's contact levels)"}

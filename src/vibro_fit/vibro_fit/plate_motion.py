@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vibro_io.plate_motion import creep_velocity_mps
+from vibro_model.model_error import cor_variance_of_biases
 
 from .impacts import ImpactFit
 
@@ -146,9 +147,9 @@ def best_step(t: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     return float(left[j] + right[j]), step, float(0.5 * (t[kk - 1] + t[kk]))
 
 
-def cor_shift(imp: ImpactFit, v_plate_mps: float) -> tuple[float, float] | None:
-    """(COR, dCOR/dv_plate) of ``imp`` with the plate moving v_plate (m/s) faster than the structure; None when
-    the impact has no COR or no velocities."""
+def cor_shift(imp: ImpactFit, v_plate_mps: float) -> float | None:
+    """The COR (Eq. 16) of ``imp`` with the plate moving v_plate (m/s) faster than the structure; None when the
+    impact has no COR or no velocities."""
     vals = (imp.cor, imp.v_ball_before_mps, imp.v_ball_after_mps, imp.v_structure_mps)
     if any(v is None or not math.isfinite(float(v)) for v in vals):
         return None
@@ -156,7 +157,7 @@ def cor_shift(imp: ImpactFit, v_plate_mps: float) -> tuple[float, float] | None:
     rel = vb - vs
     if rel == 0.0:
         return None
-    return -(va - vs) / rel, (vb - va) / rel ** 2
+    return -(va - vs) / rel
 
 
 def noise_sigma(imp: ImpactFit) -> float:
@@ -237,9 +238,9 @@ def _classified(plate: str, t: np.ndarray, y: np.ndarray, impacts: list[ImpactFi
     for imp in impacts:
         if imp.plate != plate:
             continue
-        got = cor_shift(imp, motion.velocity_mps(float(imp.t_s))[0])
-        if got is not None:
-            shifts.append(abs(got[0] - float(imp.cor)))
+        cor = cor_shift(imp, motion.velocity_mps(float(imp.t_s))[0])
+        if cor is not None:
+            shifts.append(abs(cor - float(imp.cor)))
             noise = noise_sigma(imp)
             if math.isfinite(noise):
                 sds.append(noise)
@@ -260,13 +261,14 @@ def moved_impact(imp: ImpactFit, motion: PlateMotion) -> ImpactFit:
     """``imp`` with its plate's velocity the structure's plus ``motion``'s (v_structure, cor, cor_paper for a
     paper COR), the rate's uncertainty added to cor_std in quadrature; unchanged where it has no COR."""
     v_plate, v_sd = motion.velocity_mps(float(imp.t_s))
-    got = cor_shift(imp, v_plate)
-    if got is None:
+    cor = cor_shift(imp, v_plate)
+    if cor is None:
         return imp
-    cor, slope = got
-    sd = math.hypot(float(imp.cor_std), slope * v_sd) if imp.cor_std is not None else None
+    vs = float(imp.v_structure_mps) + v_plate
+    var = cor_variance_of_biases(float(imp.v_ball_before_mps), float(imp.v_ball_after_mps), vs, 0.0, 0.0, v_sd ** 2)
+    sd = math.sqrt(float(imp.cor_std) ** 2 + var) if imp.cor_std is not None else None
     paper = imp.cor_method in (None, "paper")
-    return replace(imp, cor=float(cor), cor_std=sd, v_structure_mps=float(imp.v_structure_mps) + v_plate,
+    return replace(imp, cor=float(cor), cor_std=sd, v_structure_mps=vs,
                    cor_paper=float(cor) if paper and imp.cor_paper is not None else imp.cor_paper,
                    cor_std_paper=sd if paper and imp.cor_std_paper is not None else imp.cor_std_paper)
 

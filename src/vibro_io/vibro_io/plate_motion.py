@@ -42,6 +42,10 @@ class PlateCreep:
         """The plate's velocity against the tracked structure at ``t_s`` (m/s)."""
         return creep_velocity_mps(np.asarray(self.coef_um), self.t_ref_s, t_s)
 
+    def level_um(self, t_s: float) -> float:
+        """The plate's height against the tracked structure at ``t_s`` (um, about the polynomial's own zero)."""
+        return float(np.polyval(np.asarray(self.coef_um), t_s - self.t_ref_s))
+
 
 def plate_creeps(section: Any, where: str = "results.plate_motion") -> dict[str, PlateCreep]:
     """The plates whose creep the identification took into the CORs (``applied`` true), from a ``plate_motion``
