@@ -33,7 +33,11 @@ def test_frames_cross_dds_and_a_corrupt_frame_is_a_visible_gap(tiny_recording: P
     try:
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
-            [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={rec}"],
+            # frame_source waits for the tracker's acknowledgements, which the tracker holds until the echo has
+            # matched too: on a loaded machine that can take longer than the default linger of 3 s, after which
+            # the source would leave and the tracker would wait for it forever
+            [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={rec}",
+             "-p", "linger_s:=50.0"],
             capture_output=True, text=True, timeout=60)
         out, _ = echo.communicate(timeout=60)
     finally:
@@ -41,6 +45,7 @@ def test_frames_cross_dds_and_a_corrupt_frame_is_a_visible_gap(tiny_recording: P
         _, tracker_err = tracker.communicate(timeout=20)
         echo.kill()
     assert source.returncode == 0, source.stderr
+    assert out.count("{") >= 5, f"echo got {out!r}\nsource:\n{source.stderr}\ntracker:\n{tracker_err}"
     assert "frame 2 not published" in source.stderr and "000002.png" in source.stderr
     rows = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
     assert [r["frame_index"] for r in rows] == [0, 1, 2, 3, 4]
@@ -172,7 +177,11 @@ def test_tracker_diagnostics_report_progress_against_the_expected_frame_count(ti
     try:
         assert echo.stdout.readline().strip() == "READY"
         source = subprocess.run(
-            [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={rec}"],
+            # frame_source waits for the tracker's acknowledgements, which the tracker holds until the echo has
+            # matched too: on a loaded machine that can take longer than the default linger of 3 s, after which
+            # the source would leave and the tracker would wait for it forever
+            [sys.executable, "-m", "vibro_dic.frame_source_node", "--ros-args", "-p", f"recording:={rec}",
+             "-p", "linger_s:=50.0"],
             capture_output=True, text=True, timeout=60)
         _, tracker_err = tracker.communicate(timeout=30)  # file mode: it exits once its stream has ended
         time.sleep(1.0)
