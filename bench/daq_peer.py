@@ -65,6 +65,15 @@ def truth_offset_s(recording: Path) -> float:
     return 0.0
 
 
+def wait_acknowledged(pub, timeout_s: float = 30.0) -> bool:
+    """Block until every reliable reader of ``pub`` has acknowledged all it was sent (at most ``timeout_s``):
+    a participant that leaves earlier takes its unsent samples with it, and a loaded reader can be seconds
+    behind. True when acknowledged."""
+    from rclpy.duration import Duration
+
+    return bool(pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))))
+
+
 def shared_start(args) -> float | None:
     """The wall time of camera time t0: ``--start-at-unix-s``, else (with ``--start-file``) the content of that file
     once it exists, after touching ``--ready-file``; None when neither is given."""
@@ -132,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
         pub.publish(msg)
         sent.append(int(msg.block_index))
         at.append(time.time())
-    time.sleep(0.5)  # let the reliable writer's last samples be acknowledged before the participant goes
+    if not wait_acknowledged(pub):
+        print(f"daq_peer: the readers of {args.topic} did not acknowledge every block within 30 s", file=sys.stderr)
     args.out.write_text(json.dumps({"block_index": sent, "published_at_s": at, "clock_offset_s": offset,
                                     "block_samples": args.block_samples,
                                     "sample_rate_hz": messages[0].sample_rate_hz if messages else None}))

@@ -20,7 +20,7 @@ from pathlib import Path
 import rclpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from daq_peer import shared_start  # noqa: E402
+from daq_peer import shared_start, wait_acknowledged  # noqa: E402
 
 from vibro_dic.tracker import track_recording
 from vibro_io.recording import open_recording
@@ -53,7 +53,9 @@ def main() -> int:
         if delay > 0:
             time.sleep(delay)
         pub.publish(frame_track_to_message(row, (1, 1), "", 0, "", args.time_origin_ns))
-    time.sleep(1.0)
+    # a loaded reader can be seconds behind: the frames it has not yet acknowledged leave with this participant
+    if not wait_acknowledged(pub, 60.0):
+        print("live_dic_peer: vibro/dic not acknowledged by every reader within 60 s", file=sys.stderr)
     node.destroy_node()
     rclpy.shutdown()
     return 0

@@ -152,7 +152,7 @@ def test_live_blocks_give_impacts_on_the_camera_clock_and_a_lost_block_is_report
         assert abs(stamp_s - (m.t_s - OFFSET_S)) < 2e-6
 
     # the fitter: its offset refined from the impacts both clocks saw, as vibro analyze refines it
-    assert fit["clock_offset_source"].startswith("impacts"), fit
+    assert fit["clock_offset_source"].startswith("impacts"), f"{fit} {fit_status.message}"
     n_matched = int(fit["clock_offset_source"].split("(")[1].split()[0])
     assert n_matched >= 4
     # median of (accelerometer onset - DIC impact time): the onset lags the impact by 0..0.1 ms (above), the DIC
