@@ -59,6 +59,43 @@ def _parse_row(path: Path, line_no: int, row: list[str], idx: list[int], last_t:
     return values  # type: ignore[return-value]
 
 
+def _whole_file_rows(path: Path, idx: list[int]) -> np.ndarray | None:
+    """The time, upper and lower columns (``idx``) of every data row, parsed at once by numpy's C reader (a 20 s
+    take at 50 kHz: 0.03 s against 0.55 s line by line) when the whole file is well formed: finite numbers and
+    increasing times. None otherwise, and the line-by-line reader then names the first bad line."""
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=idx, comments=None, encoding="utf-8-sig",
+                          dtype=float, ndmin=2)
+    except (ValueError, IndexError, UnicodeDecodeError):
+        return None
+    if data.shape[0] < 2 or not np.all(np.isfinite(data)) or not np.all(np.diff(data[:, 0]) > 0):
+        return None
+    return data
+
+
+def _rows_line_by_line(path: Path, reader, idx: list[int], complete_last_line: bool) -> np.ndarray:
+    """The rows after the header from ``reader`` (a csv reader), each checked (:func:`_parse_row` names the
+    line); blank rows skipped, a last line without a line end dropped with a warning."""
+    rows: list[tuple[float, float, float]] = []
+    pending: tuple[int, list[str]] | None = None  # held back: the last line may be cut short
+    try:
+        for line_no, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if pending is not None:
+                rows.append(_parse_row(path, *pending, idx, rows[-1][0] if rows else -math.inf))
+            pending = (line_no, row)
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise AccelError(f"{path}: line {reader.line_num}: not a UTF-8 CSV ({exc})") from None
+    if pending is not None:
+        if complete_last_line:
+            rows.append(_parse_row(path, *pending, idx, rows[-1][0] if rows else -math.inf))
+        else:
+            log.warning("%s: line %d: last line has no line end (the writer stopped mid-line?); dropped, "
+                        "%d complete rows kept", path, pending[0], len(rows))
+    return np.asarray(rows, dtype=float).reshape(-1, 3)
+
+
 def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None = None) -> AccelData:
     """Read an accelerometer CSV.
 
@@ -111,26 +148,11 @@ def load_accel(path: str | Path, columns: AccelConfig, camera_fps: float | None 
                 shown = shown if len(shown) <= 200 else shown[:200] + " ..."
                 raise AccelError(f"{path}: line 1: column '{name}' not found (header: {shown})")
             idx.append(header.index(name))
-        rows: list[tuple[float, float, float]] = []
-        pending: tuple[int, list[str]] | None = None  # held back: the last line may be cut short
-        try:
-            for line_no, row in enumerate(reader, start=2):
-                if not row or all(not c.strip() for c in row):
-                    continue
-                if pending is not None:
-                    rows.append(_parse_row(path, *pending, idx, rows[-1][0] if rows else -math.inf))
-                pending = (line_no, row)
-        except (UnicodeDecodeError, csv.Error) as exc:
-            raise AccelError(f"{path}: line {reader.line_num}: not a UTF-8 CSV ({exc})") from None
-    if pending is not None:
-        if complete_last_line:
-            rows.append(_parse_row(path, *pending, idx, rows[-1][0] if rows else -math.inf))
-        else:
-            log.warning("%s: line %d: last line has no line end (the writer stopped mid-line?); dropped, "
-                        "%d complete rows kept", path, pending[0], len(rows))
-    if len(rows) < 2:
+        data = _whole_file_rows(path, idx) if complete_last_line else None
+        if data is None:
+            data = _rows_line_by_line(path, reader, idx, complete_last_line)
+    if len(data) < 2:
         raise AccelError(f"{path}: fewer than 2 samples")
-    data = np.asarray(rows, dtype=float)
     check_sample_rate(float(1.0 / np.median(np.diff(data[:, 0]))), f"{path}: column '{columns.time_column}'",
                       camera_fps)
     for column, values in ((columns.upper_column, data[:, 1]), (columns.lower_column, data[:, 2])):

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.fft import next_fast_len
 from scipy.ndimage import gaussian_filter
 from scipy.special import erf
 
@@ -249,17 +250,21 @@ class _ShiftLayer:
             packed = np.concatenate([value[:, 0::2] + 1j * value[:, 1::2], alpha[:, :1] + 0j], axis=1)
         else:
             packed = premult + 1j * alpha
+        # transformed over a length with small prime factors (a canvas of 698 rows = 2 x 349 took 0.72 ms per
+        # inverse, 700 rows 0.2 ms): the rows added are empty and lie beyond the margin no shift brings into view
+        n_fft = next_fast_len(self.n)
+        packed = np.pad(packed, ((0, n_fft - self.n), (0, 0)))
         self.spec = np.ascontiguousarray(np.fft.fft(packed, axis=0).T)
-        if self.n % 2 == 0:
+        if n_fft % 2 == 0:
             # A fractional shift of the Nyquist row is not real: it would leak one column into its pair
             # (they share one complex FFT). Band-limited layers hold ~nothing there.
-            self.spec[:, self.n // 2] = 0.0
-        self.k = np.fft.fftfreq(self.n)
+            self.spec[:, n_fft // 2] = 0.0
+        self.k = np.fft.fftfreq(n_fft)
 
     def _inverse(self, ramp: np.ndarray | None, start: int, stop: int | None) -> tuple[np.ndarray, np.ndarray]:
         """(value, alpha) rows ``start:stop`` of the inverse FFT of the spectrum times ``ramp`` (None: 1); alpha
         is one column (broadcasts) for a layer whose alpha is the same in every column."""
-        out = np.fft.ifft(self.spec if ramp is None else self.spec * ramp, axis=-1)[:, start:stop]
+        out = np.fft.ifft(self.spec if ramp is None else self.spec * ramp, axis=-1)[:, :self.n][:, start:stop]
         if not self.row_alpha:
             return out.real.T, out.imag.T
         pairs = out[:-1]
