@@ -71,6 +71,33 @@ def pytest_collection_modifyitems(session, config, items) -> None:
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept otherwise
 
 
+def _cpu_s() -> float:
+    """CPU seconds (user + system) of this process and of every child it has waited for."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With VIBRO_TEST_CPU_LOG=file: one JSON line per test with its CPU seconds, setup to teardown, its own and
+    its waited-for processes' (a graph's nodes included): what bench/suite_cpu.py sums per file. Wall time says
+    little on two shared cores; CPU is what the suite's length is made of."""
+    log = os.environ.get("VIBRO_TEST_CPU_LOG")
+    if not log:
+        yield
+        return
+    import json
+    import time
+
+    cpu0, wall0 = _cpu_s(), time.monotonic()
+    yield
+    row = {"test": item.nodeid, "cpu_s": round(_cpu_s() - cpu0, 3), "wall_s": round(time.monotonic() - wall0, 3)}
+    with open(log, "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(row) + "\n")
+
+
 @pytest.fixture
 def tiny_recording() -> Path:
     """The committed 5-frame recording (see fixtures/make_tiny_recording.py)."""
