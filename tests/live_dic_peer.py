@@ -5,9 +5,10 @@
 
 Tracks RECORDING offline first (vibro_dic.tracker.track_recording, the tracker's core), then publishes frame k's
 DicFrame on vibro/dic (latched history, as the tracker does) at wall time S + (t_k - t0_s) + one frame (when a
-live tracker has its result), stamped on the lab clock of the origin. Exits 0 after the last frame. With
-``--ready-file`` and ``--start-file`` it touches the first once tracked and publishing, then takes S from the second
-(bench/daq_peer.py's shared start: a loaded machine's slow start cannot push the stream past S).
+live tracker has its result), stamped on the lab clock of the origin. Exits 0 once its readers acknowledged the
+last frame. With ``--ready-file`` and ``--start-file`` it touches the first once tracked and ``--min-subscribers``
+readers matched, then takes S from the second (bench/daq_peer.py's shared start: a loaded machine's slow start
+cannot push the stream past S).
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ def main() -> int:
     parser.add_argument("--start-file", type=Path, default=None)
     parser.add_argument("--wait-s", type=float, default=60.0, help="give up when no start file after this")
     parser.add_argument("--time-origin-ns", type=int, default=0)
+    parser.add_argument("--min-subscribers", type=int, default=1,
+                        help="readers of vibro/dic matched before the ready file is touched")
     args = parser.parse_args(rclpy.utilities.remove_ros_args(sys.argv)[1:])
     rec = open_recording(args.recording)
     rows = list(track_recording(rec))
@@ -45,6 +48,15 @@ def main() -> int:
     rclpy.init(args=sys.argv)
     node = rclpy.create_node("dic_tracker")
     pub = node.create_publisher(DicFrame, topics.DIC.name, history_qos(len(rows) + 10))
+    # ready only once the readers have matched: a volatile reader matched after the stream began would start
+    # mid-stream (a loaded machine's discovery took longer than the whole 0.6 s stream: the fitter got no frame)
+    deadline = time.monotonic() + args.wait_s
+    while pub.get_subscription_count() < args.min_subscribers:
+        if time.monotonic() > deadline:
+            print(f"live_dic_peer: {pub.get_subscription_count()} of {args.min_subscribers} readers of vibro/dic "
+                  f"after {args.wait_s:g} s", file=sys.stderr)
+            return 1
+        time.sleep(0.05)
     start = shared_start(args)
     if start is None:
         parser.error("give --start-at-unix-s, or --ready-file and --start-file")
