@@ -191,8 +191,11 @@ def test_harmonic_floor_is_a_cor_change():
 
 # ---------------------------------------------------------------- end to end: the 20,000-frame take of issue 38
 def test_long_take_without_friction_is_neither_refused_nor_claimed(tmp_path):
-    # vibro synth --frames 20000 (no effect), vibro analyze --no-report: the flights' friction averages to a
-    # bias of the measurement chain of ~1e-4 m g, many sigma from zero over 20,000 frames but below the floor
+    # vibro synth --frames 20000 (no effect), vibro analyze --no-report: the whole pipeline over the take length
+    # issue 38 was about refuses nothing and claims nothing. On this rig the premise of the cases above (a bias
+    # significant by its sigma alone) does not arise: measured at fb0cb7a, the flights' dissipative friction came
+    # out 4.9e-9 +- 2.0e-8 N (z -0.25; 0.003 of the floor) and no discrepancy candidate reached p < 0.01, so this
+    # case guards the long take end to end; the floors themselves are tested on the constructed tracks above
     from vibro_sim.synth import SynthConfig, synthesize
 
     synthesize(tmp_path / "rec", SynthConfig(frames=20000), progress=False)
