@@ -31,6 +31,9 @@ def main() -> None:
     module = sys.argv[1]
     install_early_stop(module.rsplit(".", 1)[-1])  # a stop while the node module imports: exit 0, no traceback
     one_blas_thread()            # before the node module loads numpy (vibro_model.threads)
+    from vibro_ros.node_support import keep_node_objects_until_exit  # after the early stop: it loads rclpy
+
+    keep_node_objects_until_exit()  # the process ends with os._exit: no destructors on a shut-down context
     sys.argv = [module, *sys.argv[2:]]
     try:
         runpy.run_module(module, run_name="__main__", alter_sys=True)

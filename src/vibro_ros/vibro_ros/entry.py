@@ -87,6 +87,9 @@ def run(executable: str) -> int:
     code (:func:`exit_now`)."""
     install_early_stop(executable)
     one_blas_thread()   # before numpy loads: a node's BLAS pool would spin beside seven other nodes
+    from vibro_ros.node_support import keep_node_objects_until_exit  # after the early stop: it loads rclpy
+
+    keep_node_objects_until_exit()
     code = importlib.import_module(NODE_MODULES[executable]).main()
     exit_now(code)
     return code  # not reached

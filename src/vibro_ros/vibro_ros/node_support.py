@@ -419,7 +419,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         signal.signal(sig, _note_stop)
     use_vibro_dds_profile()  # acknowledgements in 0.1 s, so the node's end-of-stream wait is short
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = executor = None
     code = 0
     try:
         node = factory()
@@ -446,11 +446,29 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
         if name:  # when it left the ROS graph, for a reader of the logs (its peers' view of it may lag)
             print(f"[{time.time():.6f}] {name}: left the ROS graph with exit code {code} "
                   f"(cleanup {time.monotonic() - cleanup_from:.2f} s)", file=sys.stderr, flush=True)
+        if _RETAINED_AT_EXIT is not None:  # a node process that ends with os._exit: see keep_node_objects_until_exit
+            _RETAINED_AT_EXIT.extend(x for x in (node, executor) if x is not None)
     for sig in (signal.SIGINT, signal.SIGTERM):
         # the node has stopped; the interpreter's finalisation resets Python handlers to SIG_DFL (not SIG_IGN),
         # so a second Ctrl-C arriving now would still kill the process with -2
         signal.signal(sig, signal.SIG_IGN)
     return code
+
+
+#: what :func:`run_node` keeps referenced until the process ends (:func:`keep_node_objects_until_exit`)
+_RETAINED_AT_EXIT: list | None = None
+
+
+def keep_node_objects_until_exit() -> None:
+    """In a node's own process, which ends with ``os._exit`` (vibro_ros.entry.exit_now): keep the node and its
+    executor referenced after :func:`run_node` returns, so that their C++ destructors never run on a shut-down
+    context. Once under load a simulator that had logged "left the ROS graph with exit code 0" was still alive
+    150 s later, ignoring SIGINT (a loaded make test, tests/test_graph_faults.py); what ran after that line were
+    run_node's return, which frees them, and exit_now. Not in a process that goes on (a test calling a node's
+    main): there the objects are freed as before."""
+    global _RETAINED_AT_EXIT
+    if _RETAINED_AT_EXIT is None:
+        _RETAINED_AT_EXIT = []
 
 
 def _spin_node(node: Node, executor) -> int:
