@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from bag_polling import readable
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
@@ -23,17 +24,6 @@ HERE = Path(__file__).resolve().parent
 
 def _popen(*argv: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _readable(bag: Path, topic: str) -> int:
-    """How many ``topic`` messages the bag's MCAP holds readable now (while its recorder still writes it)."""
-    logging.disable(logging.WARNING)  # its truncated last chunk is expected here
-    try:
-        return sum(1 for _ in read_messages(bag, {topic}))
-    except BagError:
-        return 0
-    finally:
-        logging.disable(logging.NOTSET)
 
 
 def _wait_for(predicate, seconds: float) -> bool:
@@ -115,7 +105,7 @@ def test_killed_recorder_leaves_a_readable_bag(tiny_recording: Path, tmp_path: P
         assert src.returncode == 0, src.stderr
         # the recorder finishes its chunk in progress once a second: wait until most blocks are readable from the
         # file as it is (a loaded machine's recorder is seconds behind), then kill it mid-write
-        assert _wait_for(lambda: _readable(bag, "vibro/accel") >= 200, 60)
+        assert _wait_for(lambda: readable(bag, "vibro/accel") >= 200, 60)
     finally:
         recorder.kill()  # SIGKILL: no chance to write the MCAP index or final metadata
         recorder.communicate(timeout=30)

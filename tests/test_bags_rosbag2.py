@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from bag_polling import readable
 from mcap.reader import make_reader
 
 HERE = Path(__file__).resolve().parent
@@ -25,21 +26,6 @@ VIBRO = [sys.executable, "-m", "vibro_app.cli"]
 
 def _popen(argv: list[str]) -> subprocess.Popen:
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _readable(bag: Path, topic: str) -> int:
-    """How many ``topic`` messages the bag's MCAP holds readable now (while its recorder still writes it)."""
-    import logging
-
-    from vibro_ros.bags import BagError, read_messages
-
-    logging.disable(logging.WARNING)  # its truncated last chunk is expected here
-    try:
-        return sum(1 for _ in read_messages(bag, {topic}))
-    except BagError:
-        return 0
-    finally:
-        logging.disable(logging.NOTSET)
 
 
 def _wait_for(predicate, seconds: float) -> bool:
@@ -178,7 +164,7 @@ def test_killed_recorder_bag_is_read_then_reindexed_for_rosbags_and_mcap(tiny_re
         assert src.returncode == 0, src.stderr
         # the recorder finishes its chunk in progress once a second: wait until every block is readable from the
         # file as it is (not a fixed 2.5 s: a loaded machine's recorder is seconds behind), then kill it
-        assert _wait_for(lambda: _readable(bag, "vibro/accel") == 250, 60)
+        assert _wait_for(lambda: readable(bag, "vibro/accel") == 250, 60)
     finally:
         recorder.kill()  # SIGKILL: no summary, no index, no final metadata
         recorder.communicate(timeout=30)
