@@ -60,9 +60,10 @@ def _parse_row(path: Path, line_no: int, row: list[str], idx: list[int], last_t:
 
 
 def _whole_file_rows(path: Path, idx: list[int]) -> np.ndarray | None:
-    """The time, upper and lower columns (``idx``) of every data row, parsed at once by numpy's C reader (a 20 s
-    take at 50 kHz: 0.03 s against 0.55 s line by line) when the whole file is well formed: finite numbers and
-    increasing times. None otherwise, and the line-by-line reader then names the first bad line."""
+    """The time, upper and lower columns (``idx``) of every data row, parsed at once by numpy's C reader (a 4 s
+    take at 50 kHz, 200,000 rows: 0.03 s against 0.55 s line by line) when the whole file is well formed:
+    finite numbers and increasing times. None otherwise, and the line-by-line reader then names the first bad
+    line."""
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=idx, comments=None, encoding="utf-8-sig",
                           dtype=float, ndmin=2)
