@@ -15,8 +15,9 @@ subscription callbacks and a timer:
 
 The first violation stops the node: from then on every message is ignored, and a
 :class:`ForeignInputError` naming the topic and its publishers is set on the node's ``done`` future
-(for (b) and (c) once the publisher of the offending message is known by name, at most
-``name_wait_s`` later); ``node_support.run_node`` logs it as one line and exits with code 2, and
+(for (b) and (c) once the publisher of the offending message is known by name: at least ``name_wait_s``
+later unless a new publisher was named sooner, until no discovered publisher of the topic is unnamed, and
+at most ``name_wait_max_s`` later); ``node_support.run_node`` logs it as one line and exits with code 2, and
 ``vibro graph`` fails the run with that line. Imports rclpy.
 """
 
@@ -45,6 +46,20 @@ def expected_publishers(topic: Topic) -> tuple[str, ...]:
     return (topic.publisher, *SUBSTITUTES.get(topic.publisher, ()))
 
 
+def naming_settled(named_then: int, named_now: int, unnamed_now: int, waited_s: float, wait_s: float,
+                   wait_max_s: float) -> bool:
+    """Whether a stopping guard may name the publishers of the offending topic now.
+
+    A DDS endpoint, and its messages, arrive before the name of its node (rmw reports ``_NODE_NAME_UNKNOWN_``
+    until then; on a loaded machine for seconds): so not while a discovered publisher is unnamed, unless
+    ``wait_max_s`` has passed; otherwise once a publisher more is named than when the violation was seen
+    (``named_then``), or after ``wait_s`` (the offender may be the expected publisher itself).
+    """
+    if waited_s >= wait_max_s:
+        return True
+    return unnamed_now == 0 and (named_now > named_then or waited_s >= wait_s)
+
+
 def _unknown(info) -> bool:
     return "_UNKNOWN_" in info.node_name or "_UNKNOWN_" in info.node_namespace
 
@@ -57,11 +72,13 @@ class InputGuard:
     ``check_period_s`` seconds.
     """
 
-    def __init__(self, node: Node, check_period_s: float = 0.5, name_wait_s: float = 1.0):
+    def __init__(self, node: Node, check_period_s: float = 0.5, name_wait_s: float = 1.0,
+                 name_wait_max_s: float = 10.0):
         self.node = node
         self.run_id = run_id_parameter(node)
         self.error: str | None = None
         self.name_wait_s = name_wait_s
+        self.name_wait_max_s = name_wait_max_s
         self._pending: tuple[str, int, float] | None = None  # (topic, publishers seen then, monotonic s)
         self._watched: dict[str, tuple[str, tuple[str, ...]]] = {}  # resolved topic -> (table name, expected)
         self._last_index: dict[str, int] = {}
@@ -77,8 +94,11 @@ class InputGuard:
         if self._pending is not None:
             topic, seen, since = self._pending
             found = self.publishers(topic)
-            if len(found) > seen or time.monotonic() - since >= self.name_wait_s:
-                self._stop(f"{self.error} (publishers of {topic}: {', '.join(found) or 'none known'})")
+            unnamed = self.unnamed_publishers(topic)
+            waited_s = time.monotonic() - since
+            if naming_settled(seen, len(found), unnamed, waited_s, self.name_wait_s, self.name_wait_max_s):
+                also = f"; {unnamed} more not known by name after {waited_s:.1f} s" if unnamed else ""
+                self._stop(f"{self.error} (publishers of {topic}: {', '.join(found) or 'none known'}{also})")
             return
         self.check_publishers()
 
@@ -94,6 +114,11 @@ class InputGuard:
         names = {f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos if not _unknown(i)}
         names.discard(self._fqn)
         return sorted(names)
+
+    def unnamed_publishers(self, topic_name: str) -> int:
+        """How many discovered publishers of ``topic_name`` (resolved) are not known by node name yet."""
+        infos = self.node.get_publishers_info_by_topic(self.node.resolve_topic_name(topic_name))
+        return sum(1 for i in infos if _unknown(i))
 
     def check_publishers(self) -> bool:
         """(a) for every watched topic; False (and the node stopped) on a foreign publisher."""
@@ -152,7 +177,8 @@ class InputGuard:
     def fail(self, message: str, topic_name: str | None = None) -> None:
         """Stop the node with ``message`` (once): ForeignInputError on its ``done`` future. With ``topic_name``,
         the message gets the topic's publishers, once one more is known by name than now (a message can
-        arrive before its publisher's node name), or after ``name_wait_s``; no message is accepted meanwhile."""
+        arrive before its publisher's node name), or after ``name_wait_s``, and in either case once every
+        discovered publisher is named (at most ``name_wait_max_s``); no message is accepted meanwhile."""
         if self.error is not None:
             return
         self.error = f"{self._fqn}: {message}"
