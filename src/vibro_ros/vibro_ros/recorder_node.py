@@ -32,8 +32,10 @@ from vibro_ros.readiness import WriterWatch
 
 #: How often the recorder looks for publishers of the topics it does not record yet (s), as rosbag2.
 DISCOVERY_S = 0.1
-#: How long to wait for a discovered publisher's node name (to recognise vibro's own publishers) (s).
-NAME_WAIT_S = 2.0
+#: How long to wait for a discovered publisher's node name (to recognise vibro's own publishers) (s); the
+#: messages that arrive meanwhile are held, not lost. A loaded machine names an endpoint's node seconds after
+#: the endpoint (a CI run: not within 1 s, vibro_ros.guard); the wait ends as soon as the name is known.
+NAME_WAIT_S = 5.0
 
 
 def message_class(ros_type: str):
