@@ -19,11 +19,12 @@ name, code, delay, journal = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.a
 def note(text):
     with open(journal, "a") as f:
         f.write(f"{time.monotonic():.4f} {text} {name}\n")
+stop = []
+if code in ("run", "deaf"):  # before "start" is noted: the test may send SIGINT as soon as it reads that
+    signal.signal(signal.SIGINT, (lambda *a: stop.append(1)) if code == "run" else signal.SIG_IGN)
 note("start")
 print(f"{name}: working", flush=True)
 if code in ("run", "deaf"):
-    stop = []
-    signal.signal(signal.SIGINT, (lambda *a: stop.append(1)) if code == "run" else signal.SIG_IGN)
     while not stop:
         time.sleep(0.01)
     note("stop")
