@@ -74,6 +74,17 @@ def wait_acknowledged(pub, timeout_s: float = 30.0) -> bool:
     return bool(pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))))
 
 
+def wait_for_subscribers(pub, count: int, timeout_s: float) -> bool:
+    """Block until ``pub`` has at least ``count`` matched readers (at most ``timeout_s``); True when it has: a
+    volatile reader matched after the stream began would start mid-stream."""
+    deadline = time.monotonic() + timeout_s
+    while pub.get_subscription_count() < count:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
 def shared_start(args) -> float | None:
     """The wall time of camera time t0: ``--start-at-unix-s``, else (with ``--start-file``) the content of that file
     once it exists, after touching ``--ready-file``; None when neither is given."""
@@ -123,12 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=argv)
     node = rclpy.create_node("daq_driver")
     pub = node.create_publisher(AccelBlock, args.topic, DRIVER_QOS)
-    deadline = time.monotonic() + args.wait_s
-    while pub.get_subscription_count() < max(args.min_subscribers, 1):
-        if time.monotonic() > deadline:
-            print(f"daq_peer: no subscriber on {args.topic} after {args.wait_s:g} s", file=sys.stderr)
-            return 1
-        time.sleep(0.05)
+    if not wait_for_subscribers(pub, max(args.min_subscribers, 1), args.wait_s):
+        print(f"daq_peer: no subscriber on {args.topic} after {args.wait_s:g} s", file=sys.stderr)
+        return 1
     start = shared_start(args) or time.time() + 0.5
     sent, at = [], []
     for msg in messages:

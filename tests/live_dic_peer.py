@@ -21,7 +21,7 @@ from pathlib import Path
 import rclpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from daq_peer import shared_start, wait_acknowledged  # noqa: E402
+from daq_peer import shared_start, wait_acknowledged, wait_for_subscribers  # noqa: E402
 
 from vibro_dic.tracker import track_recording
 from vibro_io.recording import open_recording
@@ -50,13 +50,10 @@ def main() -> int:
     pub = node.create_publisher(DicFrame, topics.DIC.name, history_qos(len(rows) + 10))
     # ready only once the readers have matched: a volatile reader matched after the stream began would start
     # mid-stream (a loaded machine's discovery took longer than the whole 0.6 s stream: the fitter got no frame)
-    deadline = time.monotonic() + args.wait_s
-    while pub.get_subscription_count() < args.min_subscribers:
-        if time.monotonic() > deadline:
-            print(f"live_dic_peer: {pub.get_subscription_count()} of {args.min_subscribers} readers of vibro/dic "
-                  f"after {args.wait_s:g} s", file=sys.stderr)
-            return 1
-        time.sleep(0.05)
+    if not wait_for_subscribers(pub, args.min_subscribers, args.wait_s):
+        print(f"live_dic_peer: {pub.get_subscription_count()} of {args.min_subscribers} readers of vibro/dic "
+              f"after {args.wait_s:g} s", file=sys.stderr)
+        return 1
     start = shared_start(args)
     if start is None:
         parser.error("give --start-at-unix-s, or --ready-file and --start-file")
