@@ -93,8 +93,7 @@ class InputGuard:
     def _on_timer(self) -> None:
         if self._pending is not None:
             topic, seen, since = self._pending
-            found = self.publishers(topic)
-            unnamed = self.unnamed_publishers(topic)
+            found, unnamed = self._publisher_names(topic)
             waited_s = time.monotonic() - since
             if naming_settled(seen, len(found), unnamed, waited_s, self.name_wait_s, self.name_wait_max_s):
                 also = f"; {unnamed} more not known by name after {waited_s:.1f} s" if unnamed else ""
@@ -109,16 +108,16 @@ class InputGuard:
 
     def publishers(self, topic_name: str) -> list[str]:
         """Fully qualified names of the nodes publishing ``topic_name`` (resolved), this node excluded."""
+        return self._publisher_names(topic_name)[0]
+
+    def _publisher_names(self, topic_name: str) -> tuple[list[str], int]:
+        """(:meth:`publishers`, how many discovered publishers are not known by node name yet), from one query
+        of the graph: an endpoint is discovered before its node's name (rmw reports _NODE_NAME_UNKNOWN_ until
+        then)."""
         infos = self.node.get_publishers_info_by_topic(self.node.resolve_topic_name(topic_name))
-        # an endpoint is discovered before its node's name (rmw reports _NODE_NAME_UNKNOWN_ until then)
         names = {f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos if not _unknown(i)}
         names.discard(self._fqn)
-        return sorted(names)
-
-    def unnamed_publishers(self, topic_name: str) -> int:
-        """How many discovered publishers of ``topic_name`` (resolved) are not known by node name yet."""
-        infos = self.node.get_publishers_info_by_topic(self.node.resolve_topic_name(topic_name))
-        return sum(1 for i in infos if _unknown(i))
+        return sorted(names), sum(1 for i in infos if _unknown(i))
 
     def check_publishers(self) -> bool:
         """(a) for every watched topic; False (and the node stopped) on a foreign publisher."""

@@ -466,8 +466,9 @@ def keep_node_objects_until_exit() -> None:
     executor referenced after :func:`run_node` returns, so that their C++ destructors never run on a shut-down
     context. Once under load a simulator that had logged "left the ROS graph with exit code 0" was still alive
     150 s later, ignoring SIGINT (a loaded make test, tests/test_graph_faults.py); what ran after that line were
-    run_node's return, which frees them, and exit_now. Not in a process that goes on (a test calling a node's
-    main): there the objects are freed as before."""
+    run_node's return, which frees them, and exit_now. The node itself is taken out of the executor and destroyed
+    before the context shuts down (:func:`_release_from_executor`); what is kept is what is left of them. Not in
+    a process that goes on (a test calling a node's main): there the objects are freed as before."""
     global _RETAINED_AT_EXIT
     if _RETAINED_AT_EXIT is None:
         _RETAINED_AT_EXIT = []
