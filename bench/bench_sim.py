@@ -4,7 +4,8 @@ Run: scripts/py bench/bench_sim.py [--quick] [--regime]
 Prints tables and writes bench/results/sim.json. Baselines are measured in the same run:
   * COR model vs a fine-step ODE of the same system (DOP853, max_step 20 us, event location);
   * Hertz model vs the COR model;
-  * synthesis: frames/s, and the Fourier sub-pixel renderer vs a naive integer-shift render.
+  * synthesis: frames/s, and the Fourier sub-pixel renderer vs a naive integer-shift render;
+  * a frame's read noise: vibro_sim.synth.sensor_noise.read_noise vs NumPy's Generator.normal (rounds interleaved).
 Goals: COR 1.5 s <= 50 ms, Hertz 1.5 s <= 2 s, 1500-frame synthesis <= 30 s.
 --regime also rescans the shaker acceleration for the synth default (two impacts per cycle).
 """
@@ -142,6 +143,27 @@ def bench_synth(quick):
                                 "fourier_vs_naive_ratio": t_fourier / t_naive}}
 
 
+def bench_noise(quick):
+    """ms per frame (160 x 480) of the synthetic camera's read noise, :func:`read_noise` against NumPy's
+    ``Generator.normal`` (what synthesis drew before), rounds of each interleaved, medians of CPU time."""
+    from vibro_sim.synth.sensor_noise import read_noise
+
+    rng = np.random.default_rng(0)
+    shape, n, rounds = (480, 160), 200 if quick else 1000, 5
+    ways = {"numpy_normal": lambda: rng.normal(0.0, 2.0, shape), "table": lambda: read_noise(rng, shape, 2.0)}
+    times: dict[str, list[float]] = {k: [] for k in ways}
+    for _ in range(rounds):
+        for name, draw in ways.items():
+            t = time.process_time()
+            for _ in range(n):
+                draw()
+            times[name].append((time.process_time() - t) / n * 1e3)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    return {"read_noise_ms_per_frame": {"table": med["table"], "numpy_normal": med["numpy_normal"],
+                                        "table_vs_numpy_ratio": med["table"] / med["numpy_normal"],
+                                        "frames_per_round": n, "rounds": rounds}}
+
+
 def bench_hertz_cor():
     speeds = (0.1, 0.2, 0.5, 1.0, 2.0)
     targets = (0.5, 0.6, 0.75, 0.9)
@@ -198,6 +220,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     res = {"models": bench_models(args.quick)}
     res.update(bench_synth(args.quick))
+    res.update(bench_noise(args.quick))
     res["hertz_effective_cor"] = bench_hertz_cor()
     res["replay_deviation"] = bench_replay()
     if args.regime:
@@ -214,6 +237,9 @@ def main(argv=None) -> int:
           f"{'':9s} {s['frames_per_s']:6.0f} frames/s")
     print(f"{'render per frame (ms)':28s} {s['render_ms_per_frame_fourier']:9.3f} {'':7s} "
           f"{s['render_ms_per_frame_naive_integer_shift']:9.3f} {s['fourier_vs_naive_ratio']:7.1f}x  (Fourier / naive)")
+    nz = res["read_noise_ms_per_frame"]
+    print(f"{'read noise per frame (ms)':28s} {nz['table']:9.3f} {'':7s} {nz['numpy_normal']:9.3f} "
+          f"{nz['table_vs_numpy_ratio']:7.2f}x  (table / Generator.normal)")
     print("\nHertz effective COR (delta_a = undamped max penetration at each impact's speed):")
     print(f"{'target':>7s} " + " ".join(f"{v:>8.2f}" for v in (0.1, 0.2, 0.5, 1.0, 2.0)) + "   m/s")
     for mode in ("per_impact_delta_a", "fixed_delta_a_at_0p5ms"):

@@ -36,6 +36,7 @@ from .lab_files import ACCEL_TDMS, LAB_OUTPUTS, MrawWriter, lab_files_truth, wri
 from .lens import CAMERA_INFO_FILE, Lens, lens_truth, synth_calibration
 from .render import Renderer, choose_layout, quantise
 from .scenario import STRUCTURE_MASS_KG, SynthConfig, SynthError, build_models, effects_truth
+from .sensor_noise import read_noise
 from .spin import spin_angle, spin_rate
 from .trajectory import regime, simulate_window
 
@@ -281,7 +282,7 @@ def _frame_images(cfg: SynthConfig, renderer: Renderer, traj, drift: np.ndarray,
                                     + 0.3 * float(rng.standard_normal()))
         img = img * gain
         if cfg.noise_gray > 0:
-            img += rng.normal(0.0, cfg.noise_gray, img.shape)
+            img += read_noise(rng, img.shape, cfg.noise_gray)
         yield quantise(img, cfg.tiff16, cfg.jpeg_quality, cfg.bits12)
 
 
