@@ -167,9 +167,6 @@ def _flight_samples(k: int, fl: Flight, t: np.ndarray, ball: np.ndarray, impact_
         raise RecordingError(f"{where}: t_end {t1} must exceed t_start {t0}")
     lo = t0 if fl.t_first_frame_s is None else fl.t_first_frame_s
     hi = t1 if fl.t_last_frame_s is None else fl.t_last_frame_s
-    sel = (t >= max(lo, t0) - 1e-9) & (t <= min(hi, t1) + 1e-9) & (t > t0) & (t < t1)
-    if sel.sum() < MIN_FLIGHT_POINTS:
-        return None
 
     def impact_at(tx: float) -> int | None:
         if impact_times.size == 0:
@@ -178,6 +175,14 @@ def _flight_samples(k: int, fl: Flight, t: np.ndarray, ball: np.ndarray, impact_
         return j if abs(impact_times[j] - tx) < SAME_TIME_S else None
 
     oi, ci = impact_at(t0), impact_at(t1)
+    # a frame at an impact's time is contact, not flight; a flight's end that is no impact is the recording's
+    # first or last frame, free (the identification fitted it): kept, or a take's last flight loses a frame
+    # and, short, its impact is left to the paper's Eq. 16 under an effect that biases it
+    opens = t > t0 if oi is not None else t >= t0 - 1e-9
+    closes = t < t1 if ci is not None else t <= t1 + 1e-9
+    sel = (t >= max(lo, t0) - 1e-9) & (t <= min(hi, t1) + 1e-9) & opens & closes
+    if sel.sum() < MIN_FLIGHT_POINTS:
+        return None
     t_ref = t0 if oi is not None else float(t[sel][0])
     return FlightSamples(index=-1, t_ref_s=t_ref, t_end_s=t1, t_s=t[sel], y_m=ball[sel], direction=direction,
                          flight=fl, open_impact=oi, close_impact=ci)
