@@ -127,12 +127,18 @@ TWO_EFFECTS = ["--effect", "quadratic_drag", "--param", "coefficient_ns2_per_m2=
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory) -> dict:
-    """Drag and drive harmonics at once (seed 2: its CORs were 35 % within 2 sigma before the correction),
-    rendered and tracked by ``vibro analyze``."""
+    """Drag and drive harmonics at once (seed 3: its CORs were 38 % within 2 sigma before the correction),
+    rendered and tracked by ``vibro analyze``.
+
+    The premise is the realisation's: over seeds 1-9 the CORs before the correction were within 2 sigma at
+    0.35-1.00 (the S-curve moves the drag coefficient's estimate, which every COR shares), after it at 0.80-1.00
+    (that coefficient's error, about half of each COR's variance, moves all of one recording's CORs together).
+    Seed 2 showed the premise until the synthetic read noise was drawn differently (session 23); seed 3 shows it
+    with either draw."""
     base = tmp_path_factory.mktemp("subpixel")
     rec, out = base / "rec", base / "out"
     cli = [sys.executable, "-m", "vibro_app.cli"]
-    made = subprocess.run([*cli, "synth", "--out", str(rec), "--seed", "2", "--frames", "1500", "--no-accel",
+    made = subprocess.run([*cli, "synth", "--out", str(rec), "--seed", "3", "--frames", "1500", "--no-accel",
                            "--no-progress", *TWO_EFFECTS], capture_output=True, text=True, timeout=300)
     assert made.returncode == 0, made.stderr
     ran = subprocess.run([*cli, "analyze", str(rec), "--out", str(out), "--no-report", "--no-progress"],
