@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 import pytest
-
 from discrepancy_cases import make_case
+
 from vibro_io.dictrack import DicTrack
 
 DRAG = {"quadratic_drag": {"coefficient_ns2_per_m2": 5e-4}}
