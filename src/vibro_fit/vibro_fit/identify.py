@@ -22,6 +22,7 @@ from .accel_impacts import AccelAnalysis, ClockOffset
 from .contacts import ContactPhase
 from .coverage import FrameCoverage
 from .drive import DriveModel
+from .drive_velocity import drive_velocity_pass
 from .flight_fit import FlightFit
 from .gaps import GapVerdict
 from .hops import HopChain
@@ -160,7 +161,8 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
 
     The passes (:mod:`vibro_fit.passes`) run in this order: validate, structure, drive (stationary or not:
     :mod:`vibro_fit.drive`), streaming fitter, accelerometers and clock offset, contact phases, impacts
-    (``joint`` refinement), hop chains, the COR sigmas' floors (:mod:`vibro_fit.model_error`), each plate's motion
+    (``joint`` refinement), hop chains, the COR sigmas' floors (:mod:`vibro_fit.model_error`), the structure's
+    velocity at each impact under a drive that is not stationary (:mod:`vibro_fit.drive_velocity`), each plate's motion
     against the tracked structure (:mod:`vibro_fit.plate_motion`: a creeping plate's velocity taken into its
     CORs), friction, landings, unseen accelerometer impacts, regime, motion state,
     rig consistency. The streaming fitter runs once, plus once
@@ -207,7 +209,11 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
     impacts, levels = impact_pass(sf, track, rig, method, basis.noise_mm)
     hops = hop_pass(sf, impacts, levels, contacts=contacts, cframes=cframes, track=track, rig=rig, basis=basis)
     hops = widened_pass(noise_floor_pass(hops), track, rig)
-    moved, plates = plate_motion_pass(hops.impacts, levels_from=list(sf.impacts) if method == "joint" else None)
+    good = track.good
+    driven, drive_velocity_notes = drive_velocity_pass(hops.impacts, track.t_s[good], track.structure_mm[good],
+                                                       basis.f_motion_hz,
+                                                       drive.stationary if drive is not None else None)
+    moved, plates = plate_motion_pass(driven, levels_from=list(sf.impacts) if method == "joint" else None)
     hops = replace(hops, impacts=moved)
     plate_notes = plate_motion_notes(plates, method)
     friction = friction_pass(sf.flights, basis.structure, rig.ball.mass_kg, cfg.g_mps2)
@@ -219,8 +225,8 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
                                        config=cfg)
     motion, motion_notes = motion_pass(sf, hops, len(landings), track, basis)
     rig_state, rig_notes = rig_pass(rig, accel, sf, hops.impacts, basis, cfg.g_mps2)
-    warnings = (basis.warnings + drive_notes + acc.warnings + flight_notes + landing_notes + unseen_notes
-                + regime_notes + motion_notes + rig_notes + plate_notes)
+    warnings = (basis.warnings + drive_notes + drive_velocity_notes + acc.warnings + flight_notes + landing_notes
+                + unseen_notes + regime_notes + motion_notes + rig_notes + plate_notes)
     return Identification(structure=basis.structure, flights=hops.flights, impacts=hops.impacts, friction=friction,
                           cor_summary=cor_summary(hops.impacts), regime=regime, plate_levels=levels,
                           noise_mm=float(basis.noise_mm), method=method, mass_kg=rig.ball.mass_kg,
