@@ -18,12 +18,14 @@ FPS, F_HZ, A_MM, NOISE_MM = 1000.0, 22.0, 1.41, 0.002
 M_KG = 1.82e-4
 
 
-def _structure_track(n: int, drop: int | None, seed: int):
-    """Frame times k / fps; frame k >= drop shows the sine one frame period later (a frame lost before it)."""
+def _structure_track(n: int, drop: int | None, seed: int, drift_hz_per_s: float = 0.0):
+    """Frame times k / fps; frame k >= drop shows the sine one frame period later (a frame lost before it); the
+    drive's frequency F_HZ + drift_hz_per_s t (phase 2 pi (F_HZ t + drift t^2 / 2))."""
     rng = np.random.default_rng(seed)
     k = np.arange(n)
     t_true = (k + (k >= drop if drop is not None else 0)) / FPS
-    y = A_MM * np.sin(2 * math.pi * F_HZ * t_true + 0.3) + 0.1 + rng.normal(0.0, NOISE_MM, n)
+    phase = 2 * math.pi * (F_HZ * t_true + 0.5 * drift_hz_per_s * t_true ** 2)
+    y = A_MM * np.sin(phase + 0.3) + 0.1 + rng.normal(0.0, NOISE_MM, n)
     t = k / FPS
     track = SimpleNamespace(t_s=t, structure_mm=y, frame=k, good=np.ones(n, bool))
     return track, fit_structure(t, y)
@@ -47,6 +49,21 @@ def test_step_scan_raises_no_alarm_on_noise():
         scan = step_scan(track.t_s, track.structure_mm, fit)
         assert scan["z"] < scan["look_elsewhere_z"] + STEP_Z
         assert time_base_step(track, fit, FPS) is None
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_drive_whose_frequency_drifts_is_no_lost_frame(seed):
+    # 0.02 Hz/s over 3 s (the synthetic rig's drive_change): the phase bends by pi 0.02 9 = 0.57 rad, smoothly;
+    # the scan once took a 0.79-frame step of it for a frame lost at 2.4 s and refused the take
+    track, fit = _structure_track(3000, None, seed, drift_hz_per_s=0.02)
+    assert time_base_step(track, fit, FPS) is None
+
+
+@pytest.mark.parametrize("drop", [700, 2100])
+def test_a_lost_frame_is_found_on_a_drifting_drive_too(drop):
+    track, fit = _structure_track(3000, drop, seed=drop, drift_hz_per_s=0.02)
+    finding = time_base_step(track, fit, FPS)
+    assert finding is not None and finding.frame == drop and finding.refuses
 
 
 def _impact(k: int, plate: str, cor: float, sd: float) -> Impact:

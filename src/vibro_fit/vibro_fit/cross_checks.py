@@ -57,20 +57,24 @@ SWAP_MIN_IMPACTS = 3
 
 
 def _design(structure, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(model y mm, Jacobian N x 4 over (A, f, psi, B), velocity mm/s) of the sine fit at ``t_s``."""
+    """(model y mm, Jacobian N x 5 over (A, f, psi, B, fdot), velocity mm/s) of the sine fit at ``t_s``. fdot
+    (Hz/s) is a drive whose frequency drifts linearly, phase pi fdot (t - t_ref)^2 more (0 in the fit): its
+    smooth phase curve is not a time-base step, and left out of the null model the best single step took up
+    part of it (a drift of 0.02 Hz/s over a 3 s take was refused as a frame lost at 2.4 s, 0.79 frame)."""
     a, f, psi, b = structure.params_ref
     dt = t_s - structure.t_ref_s
     w = 2.0 * math.pi * f
     th = w * dt + psi
     s, c = np.sin(th), np.cos(th)
-    jac = np.column_stack([s, a * 2.0 * math.pi * dt * c, a * c, np.ones_like(dt)])
+    jac = np.column_stack([s, a * 2.0 * math.pi * dt * c, a * c, np.ones_like(dt), a * math.pi * dt * dt * c])
     return a * s + b, jac, a * w * c
 
 
 def step_scan(t_s: np.ndarray, y_mm: np.ndarray, structure) -> dict | None:
     """Best single time-base step of a structure track against its sine fit ``structure``.
 
-    Model: y_k = sine(t_k) + tau Y_s'(t_k) H(k >= j) + noise, the sine's parameters free (projected out).
+    Model: y_k = sine(t_k) + tau Y_s'(t_k) H(k >= j) + noise, the sine's parameters and a linear frequency drift
+    free (projected out).
     Returns {"index": j (position in the arrays), "tau_s", "tau_std_s", "z", "sse_fraction" (of the
     residual sum of squares the step explains), "look_elsewhere_z", "n"} or None when the track is too short.
     """
@@ -102,7 +106,7 @@ def step_scan(t_s: np.ndarray, y_mm: np.ndarray, structure) -> dict | None:
     j = int(np.argmax(gain))
     sse = float(r @ r - jr @ minv @ jr)
     sse_after = max(sse - float(gain[j]), 0.0)
-    sigma = math.sqrt(sse_after / max(n - 5, 1))
+    sigma = math.sqrt(sse_after / max(n - jac.shape[1] - 1, 1))
     tau = float(gr[j] / gg[j])
     tau_std = sigma / math.sqrt(float(gg[j])) if sigma > 0 else 0.0
     return {"index": j, "tau_s": tau, "tau_std_s": tau_std, "z": abs(tau) / tau_std if tau_std > 0 else math.inf,
