@@ -51,8 +51,9 @@ def test_the_misfit_is_the_velocity_the_model_misses_and_zero_where_it_follows()
         m = structure_misfit(meas, model, t)
         dv, dv_std = m.dv_mps, m.total_std_mps
         expected = (0.10 * A_M * w * math.cos(w * t + PHASE)) if t > 2.0 + 1 / F_HZ else 0.0
-        # the noise of a 4-parameter fit over ~90 frames: sigma_v ~ w sigma_y sqrt(2/N) ~ 4e-6 m/s
-        assert dv_std < 1e-5
+        # the noise of the local fit over half a period either side (~45 frames): w sigma_y sqrt(2/N) ~ 6e-6 m/s
+        # for a plain sine, ~2.5x that with the ramp terms (a1, b1: the velocity takes b1 too)
+        assert dv_std < 2.5e-5
         assert abs(dv - expected) < 5 * dv_std + 1e-9, (t, dv, expected, dv_std)
 
 

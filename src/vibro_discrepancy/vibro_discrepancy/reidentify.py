@@ -55,6 +55,11 @@ from vibro_model.results import Impact, ResultsDocument
 #: is off the local structure's by less than this (and 3 sigma): a quarter of the 0.002 a lab asks of every
 #: impact's COR, and above the COR shift DIC noise gives a local structure fit (~1e-5)
 COR_SUPPORT_FLOOR = 5e-4
+#: half the window (drive periods) of the local structure fit at an impact: half a period either side follows a
+#: drive's amplitude ramp of 0.1 s (2.2 periods) to ~0.07 mm/s, where one period either side missed it by up to
+#: 1.4 mm/s (a COR error of 0.003 at an impact inside the ramp, the first pass's local fit 0.0002), and costs
+#: ~1.5x the noise of a steady drive's velocity (~0.012 mm/s, far below a COR's)
+LOCAL_HALF_WINDOW_PERIODS = 0.5
 #: findings whose model changes how an impact is measured (structure velocity, flight law); an
 #: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
 MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS) + (TONE_EFFECT,)
@@ -219,14 +224,14 @@ class StructureMisfit:
 def structure_misfit(meas: Measured, motion, t_s: float) -> StructureMisfit:
     """How far the final model's structure velocity at ``t_s`` is from the measured
     structure's, and its 1-sigma std. The final model's residual r = Y_measured - Y_model over the frames
-    within one drive period of ``t_s`` is fitted with c0 + c1 tau + (a + a1 tau) sin(w tau) + (b + b1 tau)
+    within :data:`LOCAL_HALF_WINDOW_PERIODS` drive periods of ``t_s`` is fitted with c0 + c1 tau + (a + a1 tau) sin(w tau) + (b + b1 tau)
     cos(w tau), tau = t - t_s: an offset, a slow drift, and the part of the drive the model's sine misses there
     (an amplitude or phase that changed), itself changing linearly across the window so that an impact inside a
     ramp of the drive is measured too; its slope at tau = 0, c1 + w a + b1, is the velocity misfit, with the
     fit's std and, as ``model_std_mps``, its difference from the same fit without the linear change (a1 = b1 =
     0): where the drive changes within the window, how much the answer rests on the local model. NaN when fewer
     than 12 frames."""
-    sel = np.abs(meas.t_s - t_s) <= 1.0 / meas.frequency_hz
+    sel = np.abs(meas.t_s - t_s) <= LOCAL_HALF_WINDOW_PERIODS / meas.frequency_hz
     if np.count_nonzero(sel) < 12:
         return StructureMisfit(math.nan, math.nan)
     tau = meas.t_s[sel] - t_s
