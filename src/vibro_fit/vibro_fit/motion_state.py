@@ -70,10 +70,12 @@ def structure_moves(amplitude_mm: float, amplitude_std_mm: float, residual_rms_m
 
 
 def classify_motion(structure, y_rel_range_mm: float, ball_noise_mm: float, n_flights: int, n_impacts: int,
-                    n_impacts_without_cor: int) -> MotionState:
+                    n_impacts_without_cor: int, structure_noise_mm: float | None = None) -> MotionState:
     """The recording's :class:`MotionState` from the structure fit, the ball's relative range and the counts
-    of fitted flights and impacts."""
-    moves = structure_moves(structure.amplitude_mm, float(structure.std[0]), structure.rms_residual_mm)
+    of fitted flights and impacts; ``structure_noise_mm``: the structure track's noise (default: the fit's rms
+    residual, which also holds a drive that moved over the take)."""
+    noise = structure.rms_residual_mm if structure_noise_mm is None else structure_noise_mm
+    moves = structure_moves(structure.amplitude_mm, float(structure.std[0]), noise)
     ball_moves = bool(y_rel_range_mm > SPREAD_MIN_SIGMA * max(ball_noise_mm, 1e-6))
     if n_impacts or n_impacts_without_cor:
         state = "impacting"
