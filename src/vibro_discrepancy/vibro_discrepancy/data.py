@@ -24,6 +24,7 @@ from vibro_io.plate_motion import PlateCreep, plate_creeps
 from vibro_io.rig import RigConfig
 from vibro_model.codec import Fields
 from vibro_model.constants import G_MPS2
+from vibro_model.drive_envelope import DriveEnvelope
 from vibro_model.errors import RecordingError
 from vibro_model.results import Flight, Impact, ResultsDocument, StructureMotion
 from vibro_model.units import mm_to_m
@@ -87,6 +88,20 @@ class Measured:
     notes: list[str] = field(default_factory=list)
     drive: Mapping[str, Any] | None = None   # results.json ``drive`` (the identification's windowed drive)
     plate_creeps: Mapping[str, PlateCreep] = field(default_factory=dict)   # plates creeping, in the CORs
+    #: the structure model follows the drive's envelope where the drive moved (``drive_envelope``); False: the
+    #: fitted sine alone (the engine's choice, :func:`vibro_discrepancy.engine.with_drive_followed`)
+    follow_drive: bool = True
+
+    @property
+    def drive_envelope(self) -> DriveEnvelope | None:
+        """The drive as it moved over the take (:class:`vibro_model.drive_envelope.DriveEnvelope` of the
+        ``drive`` section against the identified sine), None where it held still or was not tested."""
+        if not self.follow_drive:
+            return None
+        try:
+            return DriveEnvelope.of_drive_section(self.drive, float(self.structure.offset_m or 0.0))
+        except ValueError:
+            return None
 
     def plate_velocity_mps(self, plate: str, t_s: float) -> float:
         """How much faster than the tracked structure ``plate`` moves at ``t_s`` (m/s): the creep the

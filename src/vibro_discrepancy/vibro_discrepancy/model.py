@@ -33,6 +33,7 @@ from vibro_discrepancy.library import (
     total_tilt_deg,
     vertical_gravity_mps2,
 )
+from vibro_model.drive_envelope import DriveEnvelope
 from vibro_model.kinematics import StructureKinematics
 from vibro_sim.params import BallCavity
 from vibro_sim.plates import MovedPlate
@@ -53,10 +54,16 @@ class FittedModel:
     fixed_motion: StructureKinematics | None = None   # a known structure motion (the true model in proofs)
     axis_tilt_deg: float = 0.0    # rig.yaml setup.axis_tilt_deg: the axis' declared tilt (g_mps2 its gravity)
     with_plates: bool = False     # replayed with the plates' measured motion (Measured.plate_creeps)
+    #: the drive as it moved over the take (Measured.drive_envelope): the fitted structure under it; None: the
+    #: drive held still and the fitted structure is the motion
+    envelope: DriveEnvelope | None = None
 
     @property
     def motion(self) -> StructureKinematics:
-        return self.fixed_motion if self.fixed_motion is not None else self.structure.motion()
+        if self.fixed_motion is not None:
+            return self.fixed_motion
+        fitted = self.structure.motion()
+        return self.envelope.applied_to(fitted) if self.envelope is not None else fitted
 
     @property
     def tilt_deg(self) -> float:
@@ -115,10 +122,12 @@ def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] 
     s = structure if structure is not None else fit_structure_harmonics(meas.t_s, meas.structure_m, meas.frequency_hz,
                                                               orders)
     f = flights if flights is not None else fit_flights(meas, flight_terms)
-    imp = recompute_impacts(meas, f, s.motion())
+    envelope = meas.drive_envelope
+    motion = envelope.applied_to(s.motion()) if envelope is not None else s.motion()
+    imp = recompute_impacts(meas, f, motion)
     c = fit_cor(imp, COR_TERMS[cor_kind], cor_kind)
     return FittedModel(structure=s, flights=f, impacts=imp, cor=c, g_mps2=meas.g_mps2,
-                       axis_tilt_deg=meas.axis_tilt_deg)
+                       axis_tilt_deg=meas.axis_tilt_deg, envelope=envelope)
 
 
 def model_plate_levels(meas: Measured, model: FittedModel) -> dict[str, float]:

@@ -222,15 +222,15 @@ class StructureMisfit:
 
 
 def structure_misfit(meas: Measured, motion, t_s: float) -> StructureMisfit:
-    """How far the final model's structure velocity at ``t_s`` is from the measured
-    structure's, and its 1-sigma std. The final model's residual r = Y_measured - Y_model over the frames
-    within :data:`LOCAL_HALF_WINDOW_PERIODS` drive periods of ``t_s`` is fitted with c0 + c1 tau + (a + a1 tau) sin(w tau) + (b + b1 tau)
-    cos(w tau), tau = t - t_s: an offset, a slow drift, and the part of the drive the model's sine misses there
-    (an amplitude or phase that changed), itself changing linearly across the window so that an impact inside a
-    ramp of the drive is measured too; its slope at tau = 0, c1 + w a + b1, is the velocity misfit, with the
-    fit's std and, as ``model_std_mps``, its difference from the same fit without the linear change (a1 = b1 =
-    0): where the drive changes within the window, how much the answer rests on the local model. NaN when fewer
-    than 12 frames."""
+    """How far the final model's structure velocity at ``t_s`` is from the measured structure's, and its 1-sigma
+    std. The final model's residual r = Y_measured - Y_model over the frames within
+    :data:`LOCAL_HALF_WINDOW_PERIODS` drive periods of ``t_s`` is fitted with
+    c0 + c1 tau + (a + a1 tau) sin(w tau) + (b + b1 tau) cos(w tau), tau = t - t_s: an offset, a slow drift, and
+    the part of the drive the model's sine misses there (an amplitude or phase that changed), itself changing
+    linearly across the window so that an impact inside a ramp of the drive is measured too; its slope at
+    tau = 0, c1 + w a + b1, is the velocity misfit, with the fit's std and, as ``model_std_mps``, its difference
+    from the same fit without the linear change (a1 = b1 = 0): where the drive changes within the window, how
+    much the answer rests on the local model. NaN when fewer than 12 frames."""
     sel = np.abs(meas.t_s - t_s) <= LOCAL_HALF_WINDOW_PERIODS / meas.frequency_hz
     if np.count_nonzero(sel) < 12:
         return StructureMisfit(math.nan, math.nan)
