@@ -4,7 +4,7 @@ A 3 s take whose shaker amplitude steps by 10 % at t = 1.5 s (within 0.1 s) whil
 drag (k = 5e-4 N s^2/m^2: the paper's parabolas then bias every COR by up to ~0.005, tests/test_reidentify.py).
 The discrepancy analysis finds the drag and re-measures every impact under its final model, whose structure is
 the take's sine under the drive's envelope (the identification's windows of 4 cycles, 0.18 s apart, interpolated
-linearly; vibro_discrepancy.engine.with_drive_followed): it follows the drive except across the step, which the
+linearly; vibro_discrepancy.data.Measured.drive_envelope): it follows the drive except across the step, which the
 windows interpolate over, where it would bias the re-measured CORs (the take's average sine alone: 5 % off on
 either side of the step, up to ~0.025). Where that happens the impact takes the structure velocity of a fit
 local to it, and results.json says so per impact (``cor_method``) and by stretch

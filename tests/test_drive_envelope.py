@@ -132,3 +132,17 @@ def test_one_time_at_a_time_is_the_same_motion():
         arr = np.asarray(f(t))
         one = np.array([f(float(x)) for x in t])
         assert np.allclose(one, arr, rtol=1e-12, atol=1e-15)
+
+
+def test_demodulating_an_enveloped_track_gives_the_global_drive_with_its_harmonics():
+    # Y(t) = B + dB(t) + r(t) A [sin(th) + h2 sin(2 th + p2) + ...], th = w t + phi + dphi(t): taking dB off,
+    # dividing by r and moving each sample to t + dphi / w gives the global sine (harmonics included) exactly,
+    # which is what the discrepancy analysis fits its harmonics on (a drive that moved is not a harmonic)
+    env = DriveEnvelope(t_s=(0.1, 0.5, 0.9, 1.3), amplitude_ratio=(1.0, 1.0, 1.1, 1.1),
+                        phase_shift_rad=(0.0, 0.2, 0.5, 0.4), offset_shift_m=(0.0, 1e-5, -2e-5, 0.0))
+    glob = StructureKinematics(1.4e-3, 22.0, 0.3, 1e-4, 0.05, 0.02, 0.5, -0.8)
+    t = np.linspace(0.0, 1.4, 1401)
+    y = np.asarray(env.applied_to(glob).position(t))
+    t2, y2 = env.demodulated(t, y, glob.offset_m, glob.frequency_hz)
+    assert np.max(np.abs(y2 - np.asarray(glob.position(t2)))) < 1e-12
+    assert np.max(np.abs(t2 - t)) == pytest.approx(0.5 / (2 * math.pi * 22.0), rel=1e-9)   # the largest shift

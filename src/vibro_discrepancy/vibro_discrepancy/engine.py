@@ -854,25 +854,6 @@ def discrepancy_run(chain: FindingChain, findings: list[DiscrepancyFinding], det
                           final_restarted=cur.restarted)
 
 
-def with_drive_followed(meas: Measured) -> Measured:
-    """``meas`` with its structure model following the drive's envelope (:attr:`Measured.drive_envelope`: the
-    identification's windows, amplitude, phase and offset interpolated linearly between their centres) where the
-    drive moved and that replays the take closer than the fitted sine alone (the baseline's D_r), else with the
-    sine alone (``follow_drive`` False). A frequency drift of 0.02 Hz/s over 8 s: D_r 2.3 % with the sine, where
-    two spurious findings (a COR law with e(0) = 2.5, an ``unexplained``) came from the sine's miss; 0.047 %
-    with the envelope, no finding. A 10 % amplitude step within 0.1 s, which windows 0.18 s apart interpolate
-    coarsely: 0.011 % with the sine (the impacts' local structure fits carry the step), 0.072 % with the
-    envelope: the sine is kept."""
-    if meas.drive_envelope is None:
-        return meas
-    still = replace(meas, follow_drive=False)
-    d_followed = restarted_run(meas, fit_model(meas)).deviation
-    d_still = restarted_run(still, fit_model(still)).deviation
-    if d_followed is None or (d_still is not None and d_still <= d_followed):
-        return still
-    return meas
-
-
 @dataclass(frozen=True)
 class DiscrepancyEstimator:
     """Candidate library x stage-wise selection -> the fitted discrepancy model (module docstring)."""
@@ -885,7 +866,6 @@ class DiscrepancyEstimator:
         each stage takes the chain the stage before it returned and returns a new one. The image scale's
         share of the flights' gravity is the instrument's (:mod:`.instrument_scale`) before anything is looked for."""
         meas, scale = scale_from_flights(meas)
-        meas = with_drive_followed(meas)
         floors = noise_floors(meas)
         baseline = evaluate(meas, "baseline", fit_model(meas), floors)
         location = locate(baseline.steps, floors.cor)

@@ -99,6 +99,9 @@ def select_structure(meas: Measured, sigma_m: float) -> tuple[StructureModelFit,
     """Harmonics 2 and 3 of the structure motion: each kept when significant and >= MIN_HARMONIC_SIGMA
     noise floors in amplitude. The noise floor ``sigma_m`` comes from 5th differences of the track."""
     t, y, f0 = meas.t_s, meas.structure_m, meas.frequency_hz
+    envelope = meas.drive_envelope
+    if envelope is not None:   # a drive that moved: its change is not a harmonic (a drift once gave h2 "found")
+        t, y = envelope.demodulated(t, y, float(meas.structure.offset_m or 0.0), f0)
     fits = {o: fit_structure_harmonics(t, y, f0, o) for o in ((1,), (1, 2), (1, 3), (1, 2, 3))}
     sig2 = max(sigma_m, 1e-12) ** 2
     stage = StageResult(name="structure", chosen=())

@@ -72,6 +72,20 @@ class DriveEnvelope:
                    phase_shift_rad=tuple(float(w["phase_rad"]) - phase_rad for w in rows),
                    offset_shift_m=tuple(mm_to_m(float(w["offset_mm"])) - offset_m for w in rows))
 
+    def demodulated(self, t_s: np.ndarray, y_m: np.ndarray, offset_m: float, frequency_hz: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """A structure track (``t_s`` s, ``y_m`` m) as the global sine (offset ``offset_m``, ``frequency_hz``) would
+        show it without this envelope: each sample at the time t + dphi(t) / w where the global phase is its
+        phase, its offset shift taken off and its distance from the offset divided by the amplitude ratio
+        (time s, position m). What the harmonics of a drive that moved are fitted on: the global sine's
+        harmonic columns then see the drive's own shape, not its change."""
+        t = np.asarray(t_s, dtype=float)
+        ratio = np.interp(t, self.t_s, self.amplitude_ratio)
+        shift = np.interp(t, self.t_s, self.phase_shift_rad)
+        d_offset = np.interp(t, self.t_s, self.offset_shift_m)
+        y = (np.asarray(y_m, dtype=float) - offset_m - d_offset) / np.where(ratio > 0, ratio, 1.0) + offset_m
+        return t + shift / (2.0 * math.pi * frequency_hz), y
+
     def applied_to(self, motion: StructureKinematics) -> "EnvelopedDrive":
         """``motion`` (the global sine, with its harmonics) under this envelope."""
         return EnvelopedDrive(**motion.to_dict(), envelope=self)
