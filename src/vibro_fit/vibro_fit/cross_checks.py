@@ -347,7 +347,8 @@ def consistency_checks(ident, track, rig, accel=None, source: str = "the video")
             out.append(drift)
     flights = [f.model(ident.mass_kg, ident.g_axis_mps2) for f in ident.flights]
     out += physical_plausibility([i.model() for i in ident.impacts], flights, ident.structure, rig,
-                                 ident.rig_consistency, moves)
+                                 ident.rig_consistency, moves,
+                                 ident.drive.to_dict() if ident.drive is not None else None)
     axis = axis_gravity(ident.flights, g_axis_mps2=ident.g_axis_mps2, axis_tilt_deg=float(rig.setup.axis_tilt_deg),
                         noise_mm=ident.noise_mm, motion_state=ident.motion.state if ident.motion else None,
                         n_cor_impacts=sum(i.cor is not None and np.isfinite(i.cor) for i in ident.impacts))

@@ -31,12 +31,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from vibro_model.assemble import ConsistencyStage
 from vibro_model.constants import G_MPS2
+from vibro_model.drive_envelope import DriveEnvelope
+from vibro_model.kinematics import StructureKinematics
+from vibro_model.units import mm_to_m
 
 from .segmentation import SegmentationConfig
 
@@ -186,16 +189,38 @@ def drive_velocity_amplitude_mps(structure) -> tuple[float, float]:
     return v, v * math.hypot(sa / a_mm if a_mm else 0.0, sf / f if f else 0.0)
 
 
-def structure_at_impacts(impacts: Sequence, structure) -> dict | None:
-    """The impacts' structure velocities (their local fits) against the whole recording's sine: the largest
+def _drive_motion(structure, drive: Mapping[str, Any] | None):
+    """(velocity at t in m/s, the drive's velocity amplitude A w in m/s): the whole recording's sine, or, where the
+    drive moved (results.json ``drive``: not stationary), that sine under the windows' envelope
+    (:class:`vibro_model.drive_envelope.DriveEnvelope`) and the envelope's bound on its speed. A frequency drift of
+    0.01 Hz/s over a 20 s take bends the phase by 12.6 rad: the take's one sine then averages to 0.13 m/s where the
+    plate moves at up to 0.19, and a take was refused for "plate speeds above what the drive gives"."""
+    vw, _ = drive_velocity_amplitude_mps(structure)
+    envelope = None
+    if drive is not None:
+        try:
+            envelope = DriveEnvelope.of_drive_section(drive, mm_to_m(float(structure.offset_mm)))
+        except ValueError:
+            envelope = None
+    if envelope is None:
+        return (lambda t: float(structure.velocity_mps(t))), vw
+    moved = envelope.applied_to(StructureKinematics(mm_to_m(float(structure.amplitude_mm)),
+                                                    float(structure.frequency_hz), float(structure.phase_rad),
+                                                    mm_to_m(float(structure.offset_mm))))
+    return (lambda t: float(moved.velocity(t))), float(moved.bound(1))
+
+
+def structure_at_impacts(impacts: Sequence, structure, drive: Mapping[str, Any] | None = None) -> dict | None:
+    """The impacts' structure velocities (their local fits) against the whole recording's sine (under the drive's
+    envelope where ``drive``, results.json's section, says it moved: :func:`_drive_motion`): the largest
     difference as a fraction of A w, and the impacts above :data:`DRIVE_SPEED_TOL` beyond A w (faster than the
     drive can move the plate). None without impacts."""
-    vw, _ = drive_velocity_amplitude_mps(structure)
+    velocity, vw = _drive_motion(structure, drive)
     rows = [(int(i.index), float(i.t_s), float(i.v_structure_mps)) for i in impacts
             if i.t_s is not None and i.v_structure_mps is not None and np.isfinite(i.v_structure_mps)]
-    if not rows or vw <= 0:
+    if not rows or not vw > 0:
         return None
-    diff = np.array([abs(v - float(structure.velocity_mps(t))) for _, t, v in rows]) / vw
+    diff = np.array([abs(v - velocity(t)) for _, t, v in rows]) / vw
     too_fast = [(k, v) for k, _, v in rows if abs(v) > (1.0 + DRIVE_SPEED_TOL) * vw]
     return {"max_difference_of_aw": float(diff.max()), "median_difference_of_aw": float(np.median(diff)),
             "drive_velocity_amplitude_mps": vw, "too_fast": too_fast}
@@ -275,18 +300,19 @@ def negative_friction(flights: Sequence, mass_kg: float) -> dict | None:
 
 
 def physical_plausibility(impacts: Sequence, flights: Sequence, structure, rig, rig_statements: Iterable = (),
-                          structure_moves: bool = True) -> list[Finding]:
+                          structure_moves: bool = True, drive: Mapping[str, Any] | None = None) -> list[Finding]:
     """Findings (severity ``"refuse"``) for CORs outside [0, 1], a friction that feeds energy into the flights
     (each beyond its sigma and its physical floor) and plate speeds above the drive's, each naming its likely
     cause (see the module rules).
 
     ``impacts``: model Impacts (SI); ``flights``: model Flights; ``structure``: the whole recording's sine
     (:class:`~vibro_fit.structure_fit.StructureFit`); ``rig``: the RigConfig; ``rig_statements``: the
-    identification's :class:`~vibro_fit.rig_consistency.RigStatement` list."""
+    identification's :class:`~vibro_fit.rig_consistency.RigStatement` list; ``drive``: results.json's ``drive``
+    section (the plate's speed is judged against the drive as it moved)."""
     out: list[Finding] = []
     rig_statements = list(rig_statements or ())
     bounds = cor_outside_bounds(impacts)
-    local = structure_at_impacts(impacts, structure) if structure_moves else None
+    local = structure_at_impacts(impacts, structure, drive) if structure_moves else None
     freq = _frequency_statement(rig_statements)
     cause, keys, ev_cause = _structure_cause(impacts, structure, rig, local, freq, structure_moves)
     if bounds is not None:
