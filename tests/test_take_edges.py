@@ -1,4 +1,5 @@
-"""A take's last flight ends at the recording's last frame, not at an impact: that frame is free flight.
+"""A take's last flight ends at the recording's last frame, not at an impact: that frame is free flight, and an
+impact the take ends just after is cut by the take, not by chatter.
 
 The discrepancy analysis' flights (vibro_discrepancy.data) left out the frame at each end of a flight, right for
 an end that is an impact (contact), wrong for the recording's last (or first) frame. A take that ends six frames
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 from discrepancy_cases import make_case
 
+from vibro_fit.identify import identify
 from vibro_io.dictrack import DicTrack
 
 DRAG = {"quadratic_drag": {"coefficient_ns2_per_m2": 5e-4}}
@@ -60,3 +62,18 @@ def test_the_last_impact_of_a_take_is_measured_under_the_final_model(seed) -> No
     assert imp.cor_method != "paper", "the take's last impact kept the paper's COR under a drag it biases"
     error = imp.cor - cor_true[last]
     assert abs(error) < 4 * imp.cor_std and abs(error) < 0.002, (imp.cor, cor_true[last], imp.cor_std)
+
+
+@pytest.mark.parametrize("frames_after", [4, 6])
+def test_an_impact_the_take_ends_after_is_not_called_chatter(frames_after) -> None:
+    # a take that ends a few frames after an impact leaves it without a COR (no flight after it to fit); that is
+    # the take's end, not a rebound too short for a flight: the word "chatter" claimed a regime nobody saw
+    _, track, rig, truth = make_case({}, seed=2, frames=700)
+    t_true = np.array([i["t"] for i in truth["impacts"]])
+    last = int(np.searchsorted(t_true, track.t_s[-1] - 0.02)) - 1
+    end = int(math.floor((t_true[last] - rig.camera.t0_s) * rig.camera.fps)) + frames_after + 1
+    ident = identify(_cut(track, end), rig)
+    (landing,) = ident.landings
+    assert abs(landing.t_s - t_true[last]) < 1.0 / rig.camera.fps
+    assert landing.reason.startswith("the recording ends") and "chatter" not in landing.reason, landing.reason
+    assert ident.regime.name == "two_impacts_per_cycle"

@@ -74,8 +74,13 @@ def find_landings(flights, impacts, *, clusters, short_flights, structure, plate
             reason = f"followed by a contact phase of {first.n} frames (chatter or sticking): no flight after it"
             rest = first
         elif nxt_short is not None and nxt_short.t_start_s < t_next_fit:
-            reason = (f"the rebound lasts {nxt_short.n_points} frame(s), too few to fit a flight "
-                      "(chatter)")
+            left = int(np.count_nonzero(t_s > fl.t_end_s))
+            if not np.isfinite(t_next_fit) and left <= nxt_short.n_points + max_impact_frames + 1:
+                # cut by the end of the take, not by another impact: no chatter is seen
+                reason = f"the recording ends {left} frame(s) after it, too few to fit the flight after it"
+            else:
+                reason = (f"the rebound lasts {nxt_short.n_points} frame(s), too few to fit a flight "
+                          "(chatter)")
             rest = next((c for c in after if c.t_start_s > nxt_short.t_start_s and c.n > max_impact_frames), None)
         elif nxt_fit is not None and not nxt_fit.is_free:
             reason = f"the flight after it ({nxt_fit.index}) is not free: {nxt_fit.reason}"
