@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -89,7 +90,7 @@ class Measured:
     drive: Mapping[str, Any] | None = None   # results.json ``drive`` (the identification's windowed drive)
     plate_creeps: Mapping[str, PlateCreep] = field(default_factory=dict)   # plates creeping, in the CORs
 
-    @property
+    @cached_property
     def drive_envelope(self) -> DriveEnvelope | None:
         """The drive as it moved over the take (:class:`vibro_model.drive_envelope.DriveEnvelope` of the
         ``drive`` section against the identified sine), None where it held still or was not tested. The
@@ -99,7 +100,7 @@ class Measured:
         the sine alone and a COR law claimed from its miss (e(0) = 1.03); 0.048 % under the envelope, nothing
         claimed. A 10 % amplitude step within 0.1 s on a horizontal rig with guide-rod friction: a COR law
         claimed from the COR step the sine's miss made at the drive's step; under the envelope only the
-        friction."""
+        friction. Parsed once per measurement (every model fitted to it asks)."""
         try:
             return DriveEnvelope.of_drive_section(self.drive, float(self.structure.offset_m or 0.0))
         except ValueError:

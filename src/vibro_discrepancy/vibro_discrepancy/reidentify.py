@@ -48,18 +48,19 @@ from vibro_discrepancy.model import FittedModel
 from vibro_discrepancy.tone import TONE_EFFECT, modelled_tone
 from vibro_model.assemble import FrictionCorrection, LocalStructure, Reidentification
 from vibro_model.constants import G_MPS2
-from vibro_model.model_error import ImpactSlopes, ModelError, flight_residual_slope, local_sine_slope
+from vibro_model.model_error import (
+    LOCAL_HALF_WINDOW_PERIODS,
+    ImpactSlopes,
+    ModelError,
+    flight_residual_slope,
+    local_sine_slope,
+)
 from vibro_model.results import Impact, ResultsDocument
 
 #: a re-measured COR keeps the final model's structure velocity only where that velocity, carried into the COR,
 #: is off the local structure's by less than this (and 3 sigma): a quarter of the 0.002 a lab asks of every
 #: impact's COR, and above the COR shift DIC noise gives a local structure fit (~1e-5)
 COR_SUPPORT_FLOOR = 5e-4
-#: half the window (drive periods) of the local structure fit at an impact: half a period either side follows a
-#: drive's amplitude ramp of 0.1 s (2.2 periods) to ~0.07 mm/s, where one period either side missed it by up to
-#: 1.4 mm/s (a COR error of 0.003 at an impact inside the ramp, the first pass's local fit 0.0002), and costs
-#: ~1.5x the noise of a steady drive's velocity (~0.012 mm/s, far below a COR's)
-LOCAL_HALF_WINDOW_PERIODS = 0.5
 #: findings whose model changes how an impact is measured (structure velocity, flight law); an
 #: ``unexplained`` finding with a modelled structure tone counts as TONE_EFFECT (:mod:`.tone`)
 MEASUREMENT_EFFECTS: tuple[str, ...] = ("structure_harmonics",) + tuple(t.effect for t in FLIGHT_TERMS) + (TONE_EFFECT,)

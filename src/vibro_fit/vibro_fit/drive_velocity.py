@@ -32,14 +32,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vibro_model.model_error import cor_variance_of_biases
+from vibro_model.model_error import LOCAL_HALF_WINDOW_PERIODS, cor_variance_of_biases, local_sine_slope
 from vibro_model.units import mm_to_m
 
 from .impacts import ImpactFit
 from .plate_motion import cor_shift, noise_sigma
 
-#: half the window of the local fit, in drive periods
-HALF_WINDOW_PERIODS = 0.5
 #: fewest good structure frames in the window (6 parameters)
 MIN_POINTS = 16
 #: the local velocity replaces the window sine's where they differ by this many of its sigmas
@@ -59,31 +57,22 @@ class LocalVelocity:
 
 def local_velocity(t_s: np.ndarray, y_mm: np.ndarray, t_impact_s: float, frequency_hz: float
                    ) -> LocalVelocity | None:
-    """The structure's velocity at ``t_impact_s`` from the fit on the samples (``t_s`` s, ``y_mm`` mm, good frames
-    only) within :data:`HALF_WINDOW_PERIODS` periods of it (module docstring); None with fewer than
-    :data:`MIN_POINTS` of them, or fewer than three on either side."""
+    """The structure's velocity at ``t_impact_s`` from the fit on the samples (``t_s`` s, increasing, ``y_mm`` mm,
+    good frames only) within :data:`~vibro_model.model_error.LOCAL_HALF_WINDOW_PERIODS` periods of it
+    (:func:`vibro_model.model_error.local_sine_slope` with ``ramp``: the module docstring's model); None with fewer
+    than :data:`MIN_POINTS` of them, or fewer than three on either side."""
     if not (frequency_hz > 0 and math.isfinite(t_impact_s)):
         return None
-    half = HALF_WINDOW_PERIODS / frequency_hz
-    sel = np.abs(t_s - t_impact_s) <= half
-    tau = t_s[sel] - t_impact_s
+    half = LOCAL_HALF_WINDOW_PERIODS / frequency_hz
+    lo = int(np.searchsorted(t_s, t_impact_s - half, side="left"))
+    hi = int(np.searchsorted(t_s, t_impact_s + half, side="right"))
+    tau = t_s[lo:hi] - t_impact_s
     if tau.size < MIN_POINTS or np.sum(tau < 0) < 3 or np.sum(tau > 0) < 3:
         return None
-    w = 2.0 * math.pi * frequency_hz
-    s, c = np.sin(w * tau), np.cos(w * tau)
-    X = np.column_stack([s, c, np.ones_like(tau), tau * s, tau * c, tau])
-    coef, *_ = np.linalg.lstsq(X, y_mm[sel], rcond=None)
-    resid = y_mm[sel] - X @ coef
-    dof = tau.size - X.shape[1]
-    s2 = float(resid @ resid) / dof
-    grad = np.array([w, 0.0, 0.0, 0.0, 1.0, 1.0])
-    try:
-        var = float(grad @ (s2 * np.linalg.inv(X.T @ X)) @ grad)
-    except np.linalg.LinAlgError:
+    v, sd = local_sine_slope(tau, y_mm[lo:hi], 2.0 * math.pi * frequency_hz, ramp=True)
+    if not (math.isfinite(v) and math.isfinite(sd)):
         return None
-    v = float(grad @ coef)
-    return LocalVelocity(v_mps=float(mm_to_m(v)), sd_mps=float(mm_to_m(math.sqrt(max(var, 0.0)))),
-                         n_points=int(tau.size))
+    return LocalVelocity(v_mps=float(mm_to_m(v)), sd_mps=float(mm_to_m(sd)), n_points=int(tau.size))
 
 
 def with_local_velocity(imp: ImpactFit, local: LocalVelocity) -> ImpactFit | None:

@@ -39,6 +39,12 @@ import numpy as np
 MIN_FLIGHT_FRAMES = 8
 #: fewer structure frames within one drive period of an impact: no local structure slope
 MIN_STRUCTURE_FRAMES = 12
+#: half the window (drive periods) of a local structure fit with a changing drive (``local_sine_slope`` with
+#: ``ramp``) at an impact: half a period either side follows a drive's amplitude ramp of 0.1 s (2.2 periods) to
+#: ~0.07 mm/s, where one period either side missed it by up to 1.4 mm/s (a COR error of 0.003 inside the ramp), and
+#: costs ~1.5x the noise of a steady drive's velocity (~0.012 mm/s, far below a COR's); vibro_fit.drive_velocity and
+#: vibro_discrepancy.reidentify.structure_misfit use it
+LOCAL_HALF_WINDOW_PERIODS = 0.5
 #: fewer impacts of a kind (plate and side): no pooled bias (a model error needs several impacts to be told)
 MIN_POOL = 5
 #: a pooled bias counts beyond this many of its standard errors (the false-alarm rate of a 3-sigma test)
