@@ -14,7 +14,8 @@ DEMO_DIR ?= demo
 PYTEST_ARGS ?=
 # test processes (pytest-xdist); each test file runs whole in one worker (module fixtures made once). Three on
 # two cores: the multi-process ROS tests wait on streams and discovery part of their time, and a third
-# worker fills it.
+# worker fills it. The files run longest first (tests/conftest.py, tests/file_costs.json); xdist's own reorder (by
+# number of tests per file) is off, as it put the long files with few tests last.
 TEST_WORKERS ?= 3
 
 .PHONY: setup demo test lint msgs kernels clean bench FORCE
@@ -49,7 +50,7 @@ demo: setup
 	@scripts/demo.sh $(DEMO_DIR)
 
 test: setup
-	@. scripts/env.sh && $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15 $(PYTEST_ARGS) tests
+	@. scripts/env.sh && $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --durations=15 $(PYTEST_ARGS) tests
 
 # ruff (pyproject.toml): lint, import order, docstring convention; .ci/run runs it before the tests
 lint: $(DEPS_STAMP)

@@ -34,20 +34,23 @@ FIXTURES = REPO / "tests" / "fixtures"
 SHARED = REPO.parent / "shared"
 
 
-#: test files that take longest (tens of seconds to minutes), longest first (from ``make test``'s durations summed
-#: per file, --junitxml; test_physical_floors first: its one test, the 20,000-frame take, is the longest), so that
-#: the pytest-xdist workers (``--dist loadfile``) do not end with one of them alone on a long file: list scheduling
-LONGEST_FIRST = ("test_physical_floors.py", "test_graph_faults.py", "test_launch_order.py", "test_writer_watch.py",
-                 "test_restart_recovery.py", "test_isolation.py", "test_drive_change.py", "test_colcon_install.py",
-                 "test_nodes_dic.py", "test_orientation.py", "test_readme_commands.py", "test_graph.py",
-                 "test_bags_rosbag2.py", "test_discrepancy_prove.py", "test_camera_calibration.py",
-                 "test_drive_correction.py", "test_long_recordings.py", "test_campaign.py", "test_reidentify.py",
-                 "test_replay_live.py", "test_report_methods.py", "test_structure_tone.py", "test_synth_lab_files.py",
-                 "test_outline_ball.py", "test_model_error.py", "test_live_accel.py", "test_campaign_schedule.py",
-                 "test_graph_refusal.py", "test_accel_offset_ambiguity.py", "test_subpixel_bias.py", "test_bags.py",
-                 "test_ball_method_choice.py", "test_code_shape.py", "test_rig_warn_once.py", "test_clock_rate.py",
-                 "test_init_plain.py", "test_foxglove.py", "test_regimes_unexpected.py", "test_replay_truncated.py",
-                 "test_prove_harder.py")
+#: seconds each test file took in a measured ``make test`` (tests/file_costs.json, written by bench/suite_cpu.py
+#: --costs): the files are run longest first, so that the pytest-xdist workers (``--dist loadfile``, with xdist's
+#: own reorder by test count switched off in the Makefile: it put the few-test long files last) do not end with
+#: one of them alone on a long file: list scheduling. A file not in the table counts as quick.
+FILE_COSTS = REPO / "tests" / "file_costs.json"
+
+
+def file_costs() -> dict[str, float]:
+    """{test file name: seconds} from FILE_COSTS; {} when it is missing or unreadable (the order is then
+    pytest's: only the suite's length depends on it)."""
+    import json
+
+    try:
+        table = json.loads(FILE_COSTS.read_text(encoding="utf-8"))
+        return {str(k): float(v) for k, v in table["wall_s"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
 
 
 def pytest_sessionstart(session) -> None:
@@ -67,8 +70,8 @@ def pytest_sessionstart(session) -> None:
 
 
 def pytest_collection_modifyitems(session, config, items) -> None:
-    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept otherwise
+    costs = file_costs()
+    items.sort(key=lambda item: -costs.get(item.path.name, 0.0))  # stable: file order kept otherwise
 
 
 def _cpu_s() -> float:
