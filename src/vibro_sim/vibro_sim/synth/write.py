@@ -29,6 +29,7 @@ from vibro_io.rig import (
     check_rois_in_image,
     write_rig,
 )
+from vibro_model.heap import steady_heap
 from vibro_model.units import m_to_mm, um_to_mm
 
 from .accel import DaqSettings, make_accel
@@ -119,6 +120,7 @@ def synthesize(out_dir: str | Path, config: SynthConfig | None = None, *, overwr
     except ValueError as exc:
         raise SynthError(f"image layout: {exc}") from None
     _prepare_dir(out_dir, overwrite, lab_files)
+    steady_heap()   # each frame makes and drops ~1 MB of spectra: no heap trim and regrowth per frame
     render_rng = np.random.default_rng([cfg.seed, 1])
     noise_rng = np.random.default_rng([cfg.seed, 2])
     renderer = Renderer(layout, render_rng, drift=cfg.still and cfg.drift, spin=models.spinning,
