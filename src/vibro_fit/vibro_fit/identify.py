@@ -178,21 +178,25 @@ def identify(track: DicTrack, rig: RigConfig, accel: AccelData | None = None, me
 
     Then DIC's sub-pixel bias (:mod:`vibro_fit.subpixel_bias`) is measured on the track against this
     identification's structure and free flights; where it is taken out of a body's track, every pass runs again
-    on the corrected track (:attr:`Identification.dic_bias` says what was found and done;
-    :meth:`Identification.corrected_track` gives the track the result was measured on).
+    on the corrected track but the accelerometers' impact detection, which the track does not enter
+    (:attr:`Identification.dic_bias` says what was found and done; :meth:`Identification.corrected_track` gives
+    the track the result was measured on).
     """
     ident = _identify_once(track, rig, accel, method, config, highpass_hz, weights)
     frames = [np.asarray(f.frames, dtype=int) for f in ident.flights if f.is_free and f.frames is not None]
     bias = subpixel_bias(track, frames, ident.structure.frequency_hz, rig.camera.mm_per_px)
-    if bias.applied:
-        ident = _identify_once(bias.corrected(track), rig, accel, method, config, highpass_hz, weights)
+    if bias.applied:   # the accelerometers did not change: their impacts are not detected again
+        ident = _identify_once(bias.corrected(track), rig, accel, method, config, highpass_hz, weights,
+                               accel_analysis=ident.accel)
     ident.dic_bias = bias
     return ident
 
 
 def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, method: str,
-                   config: SegmentationConfig | None, highpass_hz: float, weights: str | None) -> Identification:
-    """One run of every pass on ``track`` (:func:`identify`'s passes)."""
+                   config: SegmentationConfig | None, highpass_hz: float, weights: str | None,
+                   accel_analysis: AccelAnalysis | None = None) -> Identification:
+    """One run of every pass on ``track`` (:func:`identify`'s passes); ``accel_analysis``: the accelerometers'
+    impacts as an earlier run on the same ``accel`` detected them (else detected here)."""
     validate_inputs(track, method, weights)
     cfg = segmentation_config(rig, config)
     basis = structure_pass(track, rig)
@@ -200,7 +204,8 @@ def _identify_once(track: DicTrack, rig: RigConfig, accel: AccelData | None, met
     settings = StreamingSettings(frequency_hz=rig.excitation.frequency_hz, noise_mm=basis.noise_mm, method=method,
                                  config=cfg, weights=weights, free_play_mm=rig.free_play_mm)
     sf = run_streaming(track, settings)
-    acc = accel_pass(accel, sf, track=track, rig=rig, basis=basis, config=cfg, highpass_hz=highpass_hz)
+    acc = accel_pass(accel, sf, track=track, rig=rig, basis=basis, config=cfg, highpass_hz=highpass_hz,
+                     analysis=accel_analysis)
     if acc.camera_times_s is not None:
         sf = run_streaming(track, settings, accel_times_s=acc.camera_times_s)
     contacts, cframes = contact_pass(track, sf, basis, rig)

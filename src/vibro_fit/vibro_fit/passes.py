@@ -185,14 +185,17 @@ def drive_pass(track: DicTrack, basis: MotionBasis) -> tuple[DriveModel | None, 
 
 # ------------------------------------------------------------------ accelerometers and clock offset
 def accel_pass(accel: AccelData | None, sf: StreamingFitter, *, track: DicTrack, rig: RigConfig,
-               basis: MotionBasis, config: SegmentationConfig, highpass_hz: float) -> AccelPass:
-    """Accelerometer impacts (high-pass corner ``highpass_hz``, Hz), the camera-to-DAQ clock relation (offset and,
-    when significant, rate) from the first streaming run ``sf``, their times on the camera clock when the offset
-    is determined (mapped with the rate), a warning when the clock residuals exceed the timing noise, and the
-    filmed interval's coverage by the accelerometer record."""
+               basis: MotionBasis, config: SegmentationConfig, highpass_hz: float,
+               analysis: AccelAnalysis | None = None) -> AccelPass:
+    """Accelerometer impacts (high-pass corner ``highpass_hz``, Hz; ``analysis``: as detected on ``accel`` before,
+    else detected here), the camera-to-DAQ clock relation (offset and, when significant, rate) from the first
+    streaming run ``sf``, their times on the camera clock when the offset is determined (mapped with the rate), a
+    warning when the clock residuals exceed the timing noise, and the filmed interval's coverage by the
+    accelerometer record."""
     if accel is None:
         return AccelPass()
-    analysis = analyse_accel(accel, basis.f_motion_hz, highpass_hz=highpass_hz)
+    if analysis is None:
+        analysis = analyse_accel(accel, basis.f_motion_hz, highpass_hz=highpass_hz)
     warnings = list(analysis.warnings)
     acc_t = [i.t_s for i in analysis.impacts]
     offset = _clock_offset(acc_t, sf, track=track, rig=rig, basis=basis, config=config, accel=accel)

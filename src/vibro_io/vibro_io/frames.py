@@ -13,6 +13,7 @@ an ``error`` naming it, so that the gap stays visible downstream.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -142,12 +143,19 @@ class FrameSequence:
 
     @staticmethod
     def _list_files(folder: Path, root: str | Path | None) -> list[Path]:
-        files = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
-        if not files:
+        """The image files of ``folder``; with ``root``, each must resolve inside it: the folder is resolved
+        once, and only the files that are symlinks each (a plain file of a folder inside lies inside; resolving
+        all 20,000 of a long take cost 2 s)."""
+        with os.scandir(folder) as entries:
+            found = [e for e in entries if os.path.splitext(e.name)[1].lower() in IMAGE_SUFFIXES]
+        if not found:
             raise FrameError(f"{folder}: no .png/.tif/.tiff frame files")
+        files = [folder / e.name for e in found]
         if root is not None:
-            for path in files:
-                inside_recording(root, path.relative_to(root), f"frame file {path.name}")
+            inside_recording(root, folder.relative_to(root), f"frames folder {folder.name}")
+            for entry, path in zip(found, files):
+                if entry.is_symlink():
+                    inside_recording(root, path.relative_to(root), f"frame file {path.name}")
         return files
 
     def _number_slots(self, files: list[Path]) -> list[Path | None]:
