@@ -303,7 +303,7 @@ class WriterWatch:
 
     REPORT_EVERY_S = 5.0
 
-    def __init__(self, node: Node, topic_names: Sequence[str], *, poll_s: float = 0.1, drain_s: float = 0.5,
+    def __init__(self, node: Node, topic_names: Sequence[str], *, drain_s: float = 0.5,
                  stale_after_s: float = 15.0, received: Callable[[str], int | None] | None = None,
                  grace_s: float = 5.0):
 
@@ -336,10 +336,9 @@ class WriterWatch:
         self._all_ended_at: float | None = None
         self._last_report: float | None = None
         self._stale_logged = False
-        if self.writers and self.exit_when_done:
-
+        self.active = bool(self.writers and self.exit_when_done)
+        if self.active:
             results_subscription(node, StreamStatus, topics.STATUS.name, self._on_status)
-            node.create_timer(poll_s, self._poll)
 
     def _on_status(self, msg: StreamStatus) -> None:
         if msg.finished and (not self._run_id or not msg.run_id or msg.run_id == self._run_id):
@@ -371,8 +370,10 @@ class WriterWatch:
         counts = {s: (self.received(s), n) for s, n in self.announced.items()}
         return {s: c for s, c in counts.items() if c[0] is not None and c[0] < c[1]}
 
-    def _poll(self) -> None:
-        if self.done.done():
+    def poll(self) -> None:
+        """Look at the writers once: the owner calls it from its own timer (every 0.1 s: the recorder's), as
+        a timer of its own would cost the node's executor another wake-up per period."""
+        if not self.active or self.done.done():
             return
         now = time.monotonic()
         now_present = self.present()

@@ -104,6 +104,7 @@ class Recorder(Node):
     def _tick(self) -> None:
         self._discover()
         self.writer.flush_if_due()  # a quiet topic's last messages reach the disk within a second
+        self.inputs.poll()          # have the writers come and gone
 
     def _discover(self, final: bool = False) -> None:
         """Write the channel of each topic whose publishers are discovered, with their offered profiles."""
