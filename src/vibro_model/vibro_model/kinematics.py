@@ -26,6 +26,8 @@ import numpy as np
 from vibro_model.units import mm_to_m
 
 ArrayLike = "float | np.ndarray"
+#: the types of one instant that StructureKinematics evaluates in floats
+_SCALARS = (float, np.float64)
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,8 @@ class StructureKinematics:
 
     def _sum(self, t, order: int):
         """Sum of the n-th time derivative of the three harmonics (without offset)."""
+        if type(t) in _SCALARS:   # one instant (a contact integration asks ~300 times per impact): no arrays
+            return self._sum_at(t, order)
         t = np.asarray(t, dtype=float)
         w = self.omega_rad_s
         theta = w * t + self.phase_rad
@@ -84,6 +88,20 @@ class StructureKinematics:
             out = out + ratio * (k * w) ** order * np.sin(arg + order * 0.5 * math.pi)
         out = self.amplitude_m * out
         return out if out.ndim else float(out)
+
+    def _sum_at(self, t: float, order: int) -> float:
+        """:meth:`_sum` at one instant ``t`` (s), in floats (the same terms in the same order)."""
+        w = self.omega_rad_s
+        theta = w * t + self.phase_rad
+        shift = order * 0.5 * math.pi
+        if self.h2_ratio == 0.0 and self.h3_ratio == 0.0:
+            return (self.amplitude_m * w ** order) * math.sin(theta + shift)
+        out = 0.0
+        for k, ratio, ph in ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad),
+                             (3, self.h3_ratio, self.h3_phase_rad)):
+            if ratio != 0.0:
+                out = out + ratio * (k * w) ** order * math.sin(k * theta + ph + shift)
+        return self.amplitude_m * out
 
     def position(self, t):
         """Y_s(t) in m (scalar or array like ``t``)."""
