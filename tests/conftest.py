@@ -96,7 +96,8 @@ def pytest_runtest_protocol(item, nextitem):
 
     cpu0, wall0 = _cpu_s(), time.monotonic()
     yield
-    row = {"test": item.nodeid, "cpu_s": round(_cpu_s() - cpu0, 3), "wall_s": round(time.monotonic() - wall0, 3)}
+    row = {"test": item.nodeid, "cpu_s": round(_cpu_s() - cpu0, 3), "wall_s": round(time.monotonic() - wall0, 3),
+           "end_unix_s": round(time.time(), 3), "worker": os.environ.get("PYTEST_XDIST_WORKER", "")}
     with open(log, "a", encoding="utf-8") as fh:
         fh.write(json.dumps(row) + "\n")
 
