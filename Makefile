@@ -14,7 +14,7 @@ DEMO_DIR ?= demo
 PYTEST_ARGS ?=
 # test processes (pytest-xdist); each test file runs whole in one worker (module fixtures made once). Three on
 # two cores: the multi-process ROS tests wait on streams and discovery part of their time, and a third
-# worker fills it. The files run longest first (tests/conftest.py, tests/file_costs.json); xdist's own reorder (by
+# worker fills it. The files run heaviest first (tests/conftest.py, tests/file_costs.json); xdist's own reorder (by
 # number of tests per file) is off, as it put the long files with few tests last.
 TEST_WORKERS ?= 3
 

@@ -7,7 +7,8 @@
 Each line holds a test's CPU time from setup to teardown: the pytest worker's own and that of every process it
 started and waited for (a graph's nodes included). A module fixture's cost lands on its file's first test.
 Prints the files by CPU, the total, and what two cores need for it at best (total / 2). ``--costs`` writes the
-per-file wall seconds that tests/conftest.py orders the files by (longest first, for the xdist workers).
+per-file CPU seconds that tests/conftest.py orders the files by (heaviest first, for the xdist workers), and their
+wall seconds.
 """
 
 from __future__ import annotations
@@ -30,10 +31,11 @@ def per_file(rows: list[dict]) -> dict[str, dict[str, float]]:
     return dict(out)
 
 
-def file_costs(files: dict[str, dict[str, float]]) -> dict[str, float]:
-    """{test file name: wall seconds, 0.1 s resolution}, longest first: the order tests/conftest.py runs them in."""
-    walls = {Path(name).name: round(f["wall_s"], 1) for name, f in files.items()}
-    return dict(sorted(walls.items(), key=lambda kv: -kv[1]))
+def file_costs(files: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """{"cpu_s": {test file name: CPU seconds}, "wall_s": {...: wall seconds}}, 0.1 s resolution, each file
+    list heaviest first by CPU: the order tests/conftest.py runs them in."""
+    order = sorted(files, key=lambda name: -files[name]["cpu_s"])
+    return {key: {Path(name).name: round(files[name][key], 1) for name in order} for key in ("cpu_s", "wall_s")}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--top", type=int, default=30)
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--costs", type=Path, default=None,
-                        help="write {'wall_s': {file name: seconds}} here (tests/file_costs.json)")
+                        help="write each file's CPU and wall seconds here (tests/file_costs.json)")
     args = parser.parse_args(argv)
     try:
         rows = [json.loads(line) for line in args.log.read_text().splitlines() if line.strip()]
@@ -59,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"tests": len(rows), "cpu_s": total, "files": files}, indent=1))
     if args.costs:
-        args.costs.write_text(json.dumps({"wall_s": file_costs(files)}, indent=1) + "\n")
+        args.costs.write_text(json.dumps(file_costs(files), indent=1) + "\n")
     return 0
 
 

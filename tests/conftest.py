@@ -34,21 +34,24 @@ FIXTURES = REPO / "tests" / "fixtures"
 SHARED = REPO.parent / "shared"
 
 
-#: seconds each test file took in a measured ``make test`` (tests/file_costs.json, written by bench/suite_cpu.py
-#: --costs): the files are run longest first, so that the pytest-xdist workers (``--dist loadfile``, with xdist's
-#: own reorder by test count switched off in the Makefile: it put the few-test long files last) do not end with
-#: one of them alone on a long file: list scheduling. A file not in the table counts as quick.
+#: CPU seconds each test file took in a measured ``make test`` (tests/file_costs.json, written by
+#: bench/suite_cpu.py --costs): the files run heaviest first, so that the pytest-xdist workers (``--dist loadfile``,
+#: with xdist's own reorder by test count switched off in the Makefile: it put the few-test heavy files last) do
+#: not end with one of them alone: list scheduling. By CPU, not wall time: the two cores are what the suite is
+#: short of, and files that mostly wait (a recorder's timeouts, a node killed and restarted) ordered by their wall
+#: time all started together and left the cores a quarter idle for the first 80 s. A file not in the table counts
+#: as quick.
 FILE_COSTS = REPO / "tests" / "file_costs.json"
 
 
 def file_costs() -> dict[str, float]:
-    """{test file name: seconds} from FILE_COSTS; {} when it is missing or unreadable (the order is then
+    """{test file name: CPU seconds} from FILE_COSTS; {} when it is missing or unreadable (the order is then
     pytest's: only the suite's length depends on it)."""
     import json
 
     try:
         table = json.loads(FILE_COSTS.read_text(encoding="utf-8"))
-        return {str(k): float(v) for k, v in table["wall_s"].items()}
+        return {str(k): float(v) for k, v in table["cpu_s"].items()}
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return {}
 
