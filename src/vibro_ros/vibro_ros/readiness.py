@@ -286,8 +286,9 @@ def streams_published_by(node_name: str) -> set[str]:
 
 
 class WriterWatch:
-    """A sink's inputs have ended: every declared writer (parameter ``writers``) has been seen publishing
-    on ``topic_names`` (this node's namespace) and all of them have left since. Writers wait for their
+    """A sink's inputs have ended (looked at each time the owner calls :meth:`poll`, from a timer of its own): every
+    declared writer (parameter ``writers``) has been seen publishing on ``topic_names`` (this node's namespace) and
+    all of them have left since. Writers wait for their
     declared readers' acknowledgements before they exit, so by then everything has arrived in DDS; ``done``
     completes (when ``exit_when_done``) once this node's callbacks have also taken every writer's
     end-of-stream statuses and every item they announced (``received``), ``drain_s`` after the writers left
