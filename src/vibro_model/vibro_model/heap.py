@@ -6,8 +6,9 @@ freed block larger than the mmap threshold raises both). A loop that makes and d
 synthetic frame: the complex spectra of its layers, their inverse transforms) can land on the wrong side of that:
 the heap top trimmed after every frame, grown again by the next and faulted in page by page. Measured with
 ``vibro synth`` on this project's 2-core machine: 8000 frames 1.67 million minor page faults, 7.8 s of system CPU of
-15.5 s in all; with the thresholds fixed (:func:`steady_heap`) 26,000 faults, 2.7 of 9.7 s; 20,000 frames 44.7 ->
-22.3 CPU-s. Python's own small objects are not affected (pymalloc). Imports nothing heavy.
+15.5 s in all; with :func:`steady_heap` 26,800 faults, 5.1 of 12.4 s (the system time left is creating the frame
+files); 20,000 frames 44.7 -> 26.3 CPU-s. Python's own small objects are not affected (pymalloc). Imports nothing
+heavy.
 """
 
 from __future__ import annotations
