@@ -33,7 +33,7 @@ from vibro_discrepancy.library import (
     total_tilt_deg,
     vertical_gravity_mps2,
 )
-from vibro_model.drive_envelope import DriveEnvelope
+from vibro_model.drive_envelope import DriveEnvelope, under_envelope
 from vibro_model.kinematics import StructureKinematics
 from vibro_sim.params import BallCavity
 from vibro_sim.plates import MovedPlate
@@ -62,8 +62,7 @@ class FittedModel:
     def motion(self) -> StructureKinematics:
         if self.fixed_motion is not None:
             return self.fixed_motion
-        fitted = self.structure.motion()
-        return self.envelope.applied_to(fitted) if self.envelope is not None else fitted
+        return under_envelope(self.structure.motion(), self.envelope)
 
     @property
     def tilt_deg(self) -> float:
@@ -123,8 +122,7 @@ def fit_model(meas: Measured, orders=(1,), flight_terms: tuple[FlightTerm, ...] 
                                                               orders)
     f = flights if flights is not None else fit_flights(meas, flight_terms)
     envelope = meas.drive_envelope
-    motion = envelope.applied_to(s.motion()) if envelope is not None else s.motion()
-    imp = recompute_impacts(meas, f, motion)
+    imp = recompute_impacts(meas, f, under_envelope(s.motion(), envelope))
     c = fit_cor(imp, COR_TERMS[cor_kind], cor_kind)
     return FittedModel(structure=s, flights=f, impacts=imp, cor=c, g_mps2=meas.g_mps2,
                        axis_tilt_deg=meas.axis_tilt_deg, envelope=envelope)

@@ -91,6 +91,12 @@ class DriveEnvelope:
         return EnvelopedDrive(**motion.to_dict(), envelope=self)
 
 
+def under_envelope(motion: StructureKinematics, envelope: DriveEnvelope | None) -> StructureKinematics:
+    """``motion`` under ``envelope`` (:meth:`DriveEnvelope.applied_to`), or ``motion`` itself where the drive held
+    still (``envelope`` None)."""
+    return motion if envelope is None else envelope.applied_to(motion)
+
+
 def _segments(x: tuple[float, ...], y: tuple[float, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(value, slope) of the piecewise-linear interpolation of (x, y) at ``t``, held constant outside."""
     xs, ys = np.asarray(x), np.asarray(y)
@@ -109,8 +115,7 @@ class EnvelopedDrive(StructureKinematics):
     def _harmonics(self, theta: np.ndarray, order: int) -> np.ndarray:
         """S_order(theta): the order-th theta-derivative of A [sin(theta) + r2 sin(2 theta + p2) + ...]."""
         out = np.zeros_like(theta)
-        terms = ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad), (3, self.h3_ratio, self.h3_phase_rad))
-        for k, ratio, ph in terms:
+        for k, ratio, ph in self.harmonic_terms:
             if ratio != 0.0:
                 out = out + ratio * k ** order * np.sin(k * theta + ph + order * 0.5 * math.pi)
         return self.amplitude_m * out
@@ -135,8 +140,7 @@ class EnvelopedDrive(StructureKinematics):
 
         def harmonics(n: int) -> float:
             out = 0.0
-            for h, ratio, ph in ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad),
-                                 (3, self.h3_ratio, self.h3_phase_rad)):
+            for h, ratio, ph in self.harmonic_terms:
                 if ratio != 0.0:
                     out += ratio * h ** n * math.sin(h * theta + ph + n * 0.5 * math.pi)
             return self.amplitude_m * out
@@ -175,8 +179,7 @@ class EnvelopedDrive(StructureKinematics):
         t = np.asarray(env.t_s)
         slope = lambda y: np.abs(np.diff(np.asarray(y)) / np.diff(t))  # noqa: E731
         w = self.omega_rad_s + float(slope(env.phase_shift_rad).max())
-        harm = [self.amplitude_m * sum(abs(r) * k ** n for k, r in ((1, 1.0), (2, self.h2_ratio), (3, self.h3_ratio)))
-                for n in range(order + 1)]
+        harm = [self.amplitude_m * sum(abs(r) * k ** n for k, r, _ in self.harmonic_terms) for n in range(order + 1)]
         out = max(env.amplitude_ratio) * harm[order] * w ** order
         if order >= 1:
             out += order * float(slope(env.amplitude_ratio).max()) * harm[order - 1] * w ** (order - 1)

@@ -64,6 +64,11 @@ class StructureKinematics:
                    float(structure["phase_rad"]), mm_to_m(float(structure.get("offset_mm", 0.0))), **harmonics)
 
     @property
+    def harmonic_terms(self) -> tuple[tuple[int, float, float], ...]:
+        """(k, amplitude ratio to A, phase rad relative to k theta) of the fundamental and harmonics 2 and 3."""
+        return ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad), (3, self.h3_ratio, self.h3_phase_rad))
+
+    @property
     def omega_rad_s(self) -> float:
         """Angular frequency w = 2 pi f (rad/s)."""
         return 2.0 * math.pi * self.frequency_hz
@@ -79,8 +84,7 @@ class StructureKinematics:
             out = (self.amplitude_m * w ** order) * np.sin(theta + order * 0.5 * math.pi)
             return out if out.ndim else float(out)
         out = np.zeros_like(theta)
-        for k, ratio, ph in ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad),
-                             (3, self.h3_ratio, self.h3_phase_rad)):
+        for k, ratio, ph in self.harmonic_terms:
             if ratio == 0.0:
                 continue
             arg = k * theta + ph
@@ -97,8 +101,7 @@ class StructureKinematics:
         if self.h2_ratio == 0.0 and self.h3_ratio == 0.0:
             return (self.amplitude_m * w ** order) * math.sin(theta + shift)
         out = 0.0
-        for k, ratio, ph in ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad),
-                             (3, self.h3_ratio, self.h3_phase_rad)):
+        for k, ratio, ph in self.harmonic_terms:
             if ratio != 0.0:
                 out = out + ratio * (k * w) ** order * math.sin(k * theta + ph + shift)
         return self.amplitude_m * out
@@ -122,8 +125,7 @@ class StructureKinematics:
     def bound(self, order: int) -> float:
         """Upper bound of |d^n Y_s/dt^n| over all t (sum of harmonic magnitudes)."""
         w = self.omega_rad_s
-        return self.amplitude_m * sum(abs(r) * (k * w) ** order
-                                      for k, r in ((1, 1.0), (2, self.h2_ratio), (3, self.h3_ratio)))
+        return self.amplitude_m * sum(abs(r) * (k * w) ** order for k, r, _ in self.harmonic_terms)
 
     def to_dict(self) -> dict:
         """Plain mapping of the parameters (SI)."""
@@ -206,8 +208,7 @@ class DriveChange(StructureKinematics):
         dw = 2.0 * math.pi * self.drift_hz_per_s
         a = [self.amplitude_at(t, n) for n in range(order + 1)]
         out = np.zeros_like(theta)
-        for k, ratio, ph in ((1, 1.0, 0.0), (2, self.h2_ratio, self.h2_phase_rad),
-                             (3, self.h3_ratio, self.h3_phase_rad)):
+        for k, ratio, ph in self.harmonic_terms:
             if ratio != 0.0:
                 out = out + ratio * _envelope_derivative(a, k * w, k * dw, k * theta + ph, order)
         return out if out.ndim else float(out)
@@ -218,8 +219,7 @@ class DriveChange(StructureKinematics):
         tau = 0.25 * self.ramp_s
         a = [self.amplitude_m * (1.0 + max(self.step_ratio, 0.0))]
         a += [self.amplitude_m * abs(self.step_ratio) * _STEP_BOUNDS[n] / tau ** n for n in range(1, order + 1)]
-        return sum(abs(ratio) * _envelope_bound(a, k * w, k * dw, order)
-                   for k, ratio in ((1, 1.0), (2, self.h2_ratio), (3, self.h3_ratio)))
+        return sum(abs(ratio) * _envelope_bound(a, k * w, k * dw, order) for k, ratio, _ in self.harmonic_terms)
 
 
 def _envelope_terms(order: int) -> list[tuple[int, int, int, int, int]]:

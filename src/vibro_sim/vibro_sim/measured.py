@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from vibro_model.codec import nan_if_none
-from vibro_model.drive_envelope import DriveEnvelope
+from vibro_model.drive_envelope import DriveEnvelope, under_envelope
 from vibro_model.results import Flight, Impact, SimulationRun, StructureMotion
 
 from .deviation import deviation
@@ -44,7 +44,7 @@ def replay_inputs(structure: StructureMotion, flights: Sequence[Flight], impacts
         raise ValueError("no impact: nothing to replay")
     offset_m = structure.ball_offset_m if ball_offset_m is None else ball_offset_m
     t0 = nan_if_none(free[0].t_first_frame_s)
-    motion = structure.kinematics() if envelope is None else envelope.applied_to(structure.kinematics())
+    motion = under_envelope(structure.kinematics(), envelope)
     y_m, v_mps = _flight_state(free[0], t0)
     y_rel_m = float(np.clip(y_m + nan_if_none(offset_m) - float(motion.position(t0)),
                             -0.999 * free_play_m, 0.999 * free_play_m))
