@@ -113,3 +113,44 @@ def test_a_node_that_exits_leaves_its_peers_graph_at_once(ros_domain: str) -> No
         peer.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_a_running_node_writes_its_threads_stacks_on_sigusr1_and_goes_on(ros_domain: str, tiny_recording) -> None:
+    """`kill -USR1` on a node (started as `ros2 run` starts it) writes where each of its threads is to its stderr,
+    the main thread in the spin loop, and the node goes on until SIGINT ends it with exit code 0: what vibro graph
+    asks of a node before it kills one that hangs (vibro_bringup.supervisor.Supervisor.dump_stacks)."""
+    import os
+    import signal
+
+    import rclpy
+    from launch_like import console_scripts
+    from rclpy.context import Context
+
+    module, func = console_scripts()[("vibro_sim", "simulator")].split(":")
+    proc = subprocess.Popen([sys.executable, "-c", f"import sys; from {module} import {func}; sys.exit({func}())",
+                             "--ros-args", "-r", "__node:=simulator", "-r", "__ns:=/vibro_test_stacks",
+                             "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        peer = rclpy.create_node("vibro_test_stacks_peer", context=context)
+        deadline = time.monotonic() + 60
+        while ("simulator", "/vibro_test_stacks") not in peer.get_node_names_and_namespaces():
+            assert time.monotonic() < deadline and proc.poll() is None, "the simulator never joined the graph"
+            time.sleep(0.05)
+        time.sleep(0.5)  # from joining the graph to its spin loop: the node's constructor has returned by then
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(1.0)
+        assert proc.poll() is None, "SIGUSR1 ended the node"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        peer.destroy_node()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        rclpy.shutdown(context=context)
+    assert proc.returncode == 0, err[-2000:]
+    assert "most recent call first" in err and "spin_until_done" in err, err[-3000:]
+    assert "left the ROS graph with exit code 0" in err

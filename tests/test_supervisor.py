@@ -8,13 +8,17 @@ from pathlib import Path
 
 import pytest
 
+from vibro_bringup.graph_runner import Linger, _stop_lingering
 from vibro_bringup.graph_spec import NodeSpec
 from vibro_bringup.supervisor import Supervisor
+from vibro_ros.topics import STATUS_STREAMS
 
 #: A dummy node: notes its start, then exits with CODE after DELAY s, or (CODE "run") runs until SIGINT,
 #: noting when it got it; "deaf" ignores SIGINT.
 CHILD = r'''
 import signal, sys, time
+from vibro_ros.entry import install_stack_dump
+install_stack_dump()  # as every node's process does (vibro_ros.entry.prepare_node_process)
 name, code, delay, journal = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
 def note(text):
     with open(journal, "a") as f:
@@ -24,9 +28,11 @@ if code in ("run", "deaf"):  # before "start" is noted: the test may send SIGINT
     signal.signal(signal.SIGINT, (lambda *a: stop.append(1)) if code == "run" else signal.SIG_IGN)
 note("start")
 print(f"{name}: working", flush=True)
-if code in ("run", "deaf"):
+def wait_for_sigint_deaf_or_not():
     while not stop:
         time.sleep(0.01)
+if code in ("run", "deaf"):
+    wait_for_sigint_deaf_or_not()
     note("stop")
     sys.exit(0)
 time.sleep(delay)
@@ -35,8 +41,13 @@ sys.exit(int(code))
 '''
 
 
+#: what the dummy nodes named here publish (the others: nothing): the streams whose end they announce
+PUBLISHES = {"fitter": ("vibro/flights", "vibro/impacts")}
+
+
 def _spec(name: str, role: str) -> NodeSpec:
-    return NodeSpec(name=name, package="pkg", executable=name, module=f"pkg.{name}", role=role)
+    return NodeSpec(name=name, package="pkg", executable=name, module=f"pkg.{name}", role=role,
+                    publishes=PUBLISHES.get(name, ()))
 
 
 @pytest.fixture
@@ -53,10 +64,11 @@ def make(tmp_path: Path):
             _, code, delay = behaviour[spec.name]
             return [sys.executable, str(script), spec.name, code, str(delay), str(journal)]
 
-        return Supervisor(specs, command, tmp_path, respawn=respawn, announce=lambda text: None)
+        return Supervisor(specs, command, tmp_path, respawn=respawn, announce=build.said.append)
 
     build.journal = journal
     build.started = []
+    build.said = []
     return build
 
 
@@ -124,8 +136,64 @@ def test_stops_sources_then_processing_then_drains_before_the_sink(make) -> None
         time.sleep(0.02)
     killed = sup.stop(grace_s=2.0, drain_s=0.4)
     assert killed == ["deaf"]  # ignores SIGINT: killed once the grace time is over
+    # and says where it was: its threads' stacks (SIGUSR1 before the kill) come with the end of its log
+    [said] = [text for text in make.said if "deaf did not stop" in text]
+    assert "wait_for_sigint_deaf_or_not" in said and "most recent call first" in said
     stops = {name: t for t, what, name in _journal(make.journal) if what == "stop"}
     assert set(stops) == {"rec", "proc", "src"}
     assert stops["src"] < stops["proc"] < stops["rec"]
     assert stops["rec"] - stops["proc"] >= 0.4  # the drain before the recorder
     assert all(p.poll() is not None for p in sup.procs.values())
+
+
+def _wait_for_starts(journal: Path, n: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not journal.exists() or sum(1 for _, what, _ in _journal(journal) if what == "start") < n:
+        assert time.monotonic() < deadline, "the dummy nodes did not start"
+        time.sleep(0.02)
+
+
+def test_a_node_up_after_its_streams_ended_and_the_rest_finished_is_lingering(make) -> None:
+    sup = make({"rec": ("sink", "0", 0.3), "fitter": ("processing", "deaf", 0), "sim": ("processing", "0", 0.2),
+                "src": ("source", "0", 0.1)})
+    sup.start_all()
+    _wait_for_starts(make.journal, 4)
+    ended = {"flights", "impacts"}  # the fitter's two streams, as the monitor saw them end
+    assert sup.lingering(ended) == []  # the others are still working: nothing is over yet
+    _run_until(sup, lambda f: f or sup.finished == {"rec", "sim", "src"})
+    assert sup.finished == {"rec", "sim", "src"}
+    assert sup.lingering(ended) == ["fitter"]
+    assert sup.lingering({"impacts"}) == []  # one of its streams has not ended: it may still be working
+    assert sup.lingering(set()) == []
+    sup.stop(grace_s=1.0)
+
+
+def test_a_node_without_streams_never_lingers(make) -> None:
+    # the recorder announces no stream: up while the others have finished, it is closing the bag, not hung
+    sup = make({"rec": ("sink", "run", 0), "src": ("source", "0", 0.05)})
+    sup.start_all()
+    _run_until(sup, lambda f: f or sup.finished == {"src"})
+    assert sup.lingering(set(STATUS_STREAMS)) == []
+    sup.stop(grace_s=2.0)
+
+
+def test_linger_clock_restarts_when_the_lingering_nodes_change() -> None:
+    linger = Linger(limit_s=0.2)
+    assert not linger.over(["fitter"])
+    time.sleep(0.25)
+    assert linger.over(["fitter"])
+    assert not linger.over(["fitter", "simulator"])  # another node joined: a new clock
+    assert not linger.over([])
+    time.sleep(0.25)
+    assert not linger.over([])  # nothing lingering is never over
+
+
+def test_a_lingering_node_is_stopped_with_its_stacks_and_a_warning(make, capsys) -> None:
+    sup = make({"fitter": ("processing", "deaf", 0), "src": ("source", "0", 0.05)})
+    sup.start_all()
+    _run_until(sup, lambda f: f or sup.finished == {"src"})
+    assert _stop_lingering(sup, ["fitter"], grace_s=1.0) is True
+    assert sup.procs["fitter"].poll() is not None  # deaf to SIGINT: killed
+    err = capsys.readouterr().err
+    assert "warning: fitter is still running" in err and "stopping it" in err
+    assert "wait_for_sigint_deaf_or_not" in (sup.logs["fitter"]).read_text()  # the stacks, dumped before the stop

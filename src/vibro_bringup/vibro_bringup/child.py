@@ -14,8 +14,7 @@ import runpy
 import signal
 import sys
 
-from vibro_model.threads import one_blas_thread
-from vibro_ros.entry import exit_now, install_early_stop
+from vibro_ros.entry import exit_now, prepare_node_process
 
 
 def main() -> None:
@@ -29,11 +28,7 @@ def main() -> None:
         pass
 
     module = sys.argv[1]
-    install_early_stop(module.rsplit(".", 1)[-1])  # a stop while the node module imports: exit 0, no traceback
-    one_blas_thread()            # before the node module loads numpy (vibro_model.threads)
-    from vibro_ros.node_support import keep_node_objects_until_exit  # after the early stop: it loads rclpy
-
-    keep_node_objects_until_exit()  # the process ends with os._exit: no destructors on a shut-down context
+    prepare_node_process(module.rsplit(".", 1)[-1])  # as `ros2 run` starts a node: early stop, stacks on SIGUSR1
     sys.argv = [module, *sys.argv[2:]]
     try:
         runpy.run_module(module, run_name="__main__", alter_sys=True)

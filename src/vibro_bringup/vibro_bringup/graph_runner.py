@@ -288,6 +288,7 @@ def _supervise(supervisor: Supervisor, summary: GraphSummary, rig_dir: Path, ide
         failures = _wait_for_viewers(viewers, supervisor, monitor, deadline)
         if not failures:
             supervisor.start_all([r for r in START_ORDER if r != VIEWER])
+        linger = Linger()
         while time.monotonic() < deadline:
             monitor.spin(0.05)
             failures = failures or supervisor.poll()
@@ -298,6 +299,9 @@ def _supervise(supervisor: Supervisor, summary: GraphSummary, rig_dir: Path, ide
             if supervisor.all_finished():
                 ok = True
                 break
+            if linger.over(supervisor.lingering({s for s, done in summary.finished.items() if done})):
+                ok = _stop_lingering(supervisor, linger.names)
+                break
         else:
             print(f"vibro graph: timeout after {timeout_s:g} s; still running: "
                   f"{', '.join(supervisor.running())}", file=sys.stderr)
@@ -307,6 +311,38 @@ def _supervise(supervisor: Supervisor, summary: GraphSummary, rig_dir: Path, ide
             monitor.spin(0.2)
             monitor.close()
     return ok
+
+
+#: s a node may stay up once its streams have ended and every other node has finished, before it is stopped as hung
+LINGER_S = 10.0
+
+
+class Linger:
+    """How long the same nodes have been lingering (:meth:`vibro_bringup.supervisor.Supervisor.lingering`)."""
+
+    def __init__(self, limit_s: float = LINGER_S):
+        self.limit_s = limit_s
+        self.names: list[str] = []
+        self._since = 0.0
+
+    def over(self, names: list[str]) -> bool:
+        """Whether ``names`` (the lingering nodes now) have lingered ``limit_s``; a change restarts the clock."""
+        now = time.monotonic()
+        if names != self.names:
+            self.names, self._since = names, now
+        return bool(names) and now - self._since >= self.limit_s
+
+
+def _stop_lingering(supervisor: Supervisor, names: list[str], grace_s: float = 5.0) -> bool:
+    """Stop nodes whose work is over but which have not exited (hung), saying so with each one's threads' stacks;
+    the run then stands on what was recorded (its count check follows in :func:`_conclude`): True."""
+    for name in names:
+        supervisor.dump_stacks(name, wait_s=0.5)
+        print(f"vibro graph: warning: {name} is still running {LINGER_S:g} s after its streams ended and every "
+              f"other node finished; stopping it (its threads' stacks are in {supervisor.logs[name]}); the results "
+              "are those it published, checked against the bag below", file=sys.stderr, flush=True)
+    supervisor.stop(grace_s=grace_s, names=names)
+    return True
 
 
 def _conclude(summary: GraphSummary, supervisor: Supervisor, bag: Path, ok: bool) -> bool:

@@ -130,6 +130,11 @@ FINAL_STREAM = {"dic_tracker": "dic", "impact_detector": "accel_impacts", "traje
                 "simulator": "simulation", "discrepancy": "discrepancy"}
 
 
+def status_streams(spec: NodeSpec) -> set[str]:
+    """The vibro/status streams node ``spec`` announces the end of: its data topics' last name components."""
+    return {t.rsplit("/", 1)[-1] for t in spec.publishes} & set(T.STATUS_STREAMS)
+
+
 def history_kept_until(name: str, present: Iterable[str]) -> list[str]:
     """The final streams of node ``name``'s stateful readers among ``present``: it stays up until all of them
     have ended, so that a reader restarted mid-run still finds what it needs from it (the latched histories

@@ -21,11 +21,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
+from vibro_ros.entry import STACK_DUMP_SIGNAL
+
 from .exit_policy import FINISHED, RESTART, exit_verdict
-from .graph_spec import VIEWER, NodeSpec
+from .graph_spec import VIEWER, NodeSpec, status_streams
 
 START_ORDER = (VIEWER, "sink", "processing", "source")
 STOP_ORDER = ("source", "processing", "sink", VIEWER)
+#: lines of a killed node's log announced (its threads' stacks, a few frames each, and what it said last)
+KILLED_LOG_LINES = 40
 
 
 @dataclass(frozen=True)
@@ -120,22 +124,50 @@ class Supervisor:
         """Every node has exited with code 0 by itself (a viewer is not waited for: :meth:`stop` ends it)."""
         return not self.failures and self.finished >= {n for n, s in self.specs.items() if s.role != VIEWER}
 
+    def lingering(self, streams_ended: set[str]) -> list[str]:
+        """Nodes still running although their work is over: every status stream they announce
+        (:func:`vibro_bringup.graph_spec.status_streams`; at least one) has ended (``streams_ended``, as the
+        monitor saw vibro/status), and every other node (a viewer aside) has finished by itself, the recorder
+        among them, so nobody waits for them any more. A node that stays up then is hung (seen once in CI: a
+        trajectory_fitter up 200 s after its final outputs, deaf to SIGINT); the graph runner stops it."""
+        over = {n for n in self.running() if self.specs[n].role != VIEWER
+                and (streams := status_streams(self.specs[n])) and streams <= streams_ended}
+        others = {n for n, s in self.specs.items() if s.role != VIEWER} - over
+        if self.failures or not others <= self.finished:
+            return []
+        return sorted(over)
+
     # ------------------------------------------------------------------ stop
-    def stop(self, grace_s: float = 20.0, drain_s: float = 1.0) -> list[str]:
-        """SIGINT what still runs: sources, then processing nodes, then (after ``drain_s``, so they take the
-        last messages) the sinks; each group waited for; SIGKILL after ``grace_s`` in all. Returns the
-        names of nodes that had to be killed."""
+    def stop(self, grace_s: float = 20.0, drain_s: float = 1.0, names: Sequence[str] | None = None) -> list[str]:
+        """SIGINT what still runs (of ``names``; None: every node): sources, then processing nodes, then (after
+        ``drain_s``, so they take the last messages) the sinks; each group waited for; SIGKILL after ``grace_s`` in
+        all, each node killed first asked for its threads' stacks (:meth:`dump_stacks`) and announced with the
+        end of its log. Returns the names of nodes that had to be killed."""
         deadline = time.monotonic() + grace_s
+        chosen = set(self.procs if names is None else names)
         killed: list[str] = []
         for role in STOP_ORDER:
-            names = [n for n in self.procs if self.specs[n].role == role]
-            if role == "sink" and any(self.procs[n].poll() is None for n in names):
+            group = [n for n in self.procs if self.specs[n].role == role and n in chosen]
+            if role == "sink" and any(self.procs[n].poll() is None for n in group):
                 time.sleep(drain_s)
-            killed += self._interrupt(names, deadline)
-        if killed:
-            self.announce(f"vibro graph: {', '.join(killed)} did not stop within {grace_s:g} s of SIGINT "
-                          "and was killed")
+            killed += self._interrupt(group, deadline)
+        for name in killed:
+            lines = "\n".join(f"  | {line}" for line in log_tail(self.logs[name], KILLED_LOG_LINES).splitlines())
+            self.announce(f"vibro graph: {name} did not stop within {grace_s:g} s of SIGINT and was killed; its "
+                          f"threads' stacks and the last lines of {self.logs[name]}:\n{lines}")
         return killed
+
+    def dump_stacks(self, name: str, wait_s: float = 1.0) -> None:
+        """Ask node ``name`` for the Python stack of each of its threads, written to its log
+        (:data:`vibro_ros.entry.STACK_DUMP_SIGNAL`, installed by every node's process), and give it ``wait_s``
+        to write them."""
+        proc = self.procs[name]
+        if proc.poll() is None:
+            proc.send_signal(STACK_DUMP_SIGNAL)
+            try:
+                proc.wait(timeout=wait_s)
+            except subprocess.TimeoutExpired:
+                pass
 
     def _interrupt(self, names: list[str], deadline: float) -> list[str]:
         for name in names:
@@ -147,6 +179,7 @@ class Supervisor:
             try:
                 proc.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
+                self.dump_stacks(name)
                 proc.kill()
                 proc.wait()
                 killed.append(name)

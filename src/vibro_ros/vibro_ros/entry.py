@@ -19,6 +19,7 @@ hold the table equal to the graph's node specs (vibro_bringup.graph_spec).
 
 from __future__ import annotations
 
+import faulthandler
 import importlib
 import os
 import signal
@@ -59,6 +60,22 @@ def install_early_stop(name: str = "vibro node") -> None:
         signal.signal(sig, stop_while_starting)
 
 
+#: The signal on which a node's process writes the Python stack of each of its threads to stderr (its log) and
+#: goes on: ``kill -USR1 <pid>`` on a node that hangs; vibro graph sends it before it kills one
+#: (vibro_bringup.supervisor).
+STACK_DUMP_SIGNAL = signal.SIGUSR1
+
+
+def install_stack_dump() -> None:
+    """Have the process write every thread's Python stack to stderr on :data:`STACK_DUMP_SIGNAL`, and on a fatal
+    signal (SIGSEGV, SIGABRT, ...) before it dies. Python's faulthandler writes from the C signal handler, so the
+    stacks come also from a process whose main thread is blocked in a C call (a DDS wait, ``destroy_node``) that
+    no Python signal handler would interrupt: once under load a trajectory_fitter never exited after its final
+    outputs and ignored SIGINT until killed (a CI run, tests/test_isolation.py), and nothing said where it was."""
+    faulthandler.enable(file=sys.stderr, all_threads=True)
+    faulthandler.register(STACK_DUMP_SIGNAL, file=sys.stderr, all_threads=True, chain=False)
+
+
 def exit_now(code) -> None:
     """End a node's process with ``code`` once its ``main()`` has returned: logs and stdio flushed, then
     ``os._exit``, without the interpreter's finalisation. The node has left the ROS graph by then (run_node's
@@ -82,14 +99,23 @@ def exit_now(code) -> None:
         os._exit(code)
 
 
-def run(executable: str) -> int:
-    """Start node ``executable``: early stop handling, then its module's ``main()``; the process ends with its exit
-    code (:func:`exit_now`)."""
-    install_early_stop(executable)
-    one_blas_thread()   # before numpy loads: a node's BLAS pool would spin beside seven other nodes
+def prepare_node_process(name: str) -> None:
+    """What a node's process does before it imports the node module (``ros2 run``'s entry points and vibro graph's
+    vibro_bringup.child): a stop while starting is a clean exit (:func:`install_early_stop`), stacks on
+    SIGUSR1 (:func:`install_stack_dump`), one BLAS thread (before numpy loads: a node's BLAS pool would spin beside
+    seven other nodes), and the node's objects kept until ``os._exit`` (the process ends with :func:`exit_now`)."""
+    install_early_stop(name)
+    install_stack_dump()
+    one_blas_thread()
     from vibro_ros.node_support import keep_node_objects_until_exit  # after the early stop: it loads rclpy
 
     keep_node_objects_until_exit()
+
+
+def run(executable: str) -> int:
+    """Start node ``executable``: early stop handling, then its module's ``main()``; the process ends with its exit
+    code (:func:`exit_now`)."""
+    prepare_node_process(executable)
     code = importlib.import_module(NODE_MODULES[executable]).main()
     exit_now(code)
     return code  # not reached
