@@ -64,12 +64,20 @@ def make(tmp_path: Path):
             _, code, delay = behaviour[spec.name]
             return [sys.executable, str(script), spec.name, code, str(delay), str(journal)]
 
-        return Supervisor(specs, command, tmp_path, respawn=respawn, announce=build.said.append)
+        sup = Supervisor(specs, command, tmp_path, respawn=respawn, announce=build.said.append)
+        build.made.append(sup)
+        return sup
 
     build.journal = journal
     build.started = []
     build.said = []
-    return build
+    build.made = []
+    yield build
+    for sup in build.made:  # a test that failed midway leaves no child running (a "deaf" one ignores SIGINT)
+        for proc in sup.procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 def _journal(path: Path) -> list[tuple[float, str, str]]:
