@@ -62,7 +62,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.special import ndtr
 
 from vibro_io.rig import Roi
 from vibro_model.errors import RecordingError
@@ -244,6 +243,8 @@ def sector_edges(image: np.ndarray, centre: np.ndarray, radius: float, n_sectors
     doc, step 3; s_out and s_in, gray-level slopes outside and inside the edge, take up a backlight's gradient
     and a ball's shading). ``start``: the reference's fits
     (their o, c, w start the iteration; else from the band's inner and outer pixels, w = ``blur0_px``)."""
+    from scipy.special import ndtr  # here, not at import: ~0.2 s CPU at every tracker's start, for this method only
+
     img = np.asarray(image)
     H, W = img.shape
     cx, cy = float(centre[0]), float(centre[1])
