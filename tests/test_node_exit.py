@@ -115,7 +115,8 @@ def test_a_node_that_exits_leaves_its_peers_graph_at_once(ros_domain: str) -> No
         rclpy.shutdown(context=context)
 
 
-def test_a_running_node_writes_its_threads_stacks_on_sigusr1_and_goes_on(ros_domain: str, tiny_recording) -> None:
+def test_a_running_node_writes_its_threads_stacks_on_sigusr1_and_goes_on(ros_domain: str, tiny_recording,
+                                                                         tmp_path) -> None:
     """`kill -USR1` on a node (started as `ros2 run` starts it) writes where each of its threads is to its stderr,
     the main thread in the spin loop, and the node goes on until SIGINT ends it with exit code 0: what vibro graph
     asks of a node before it kills one that hangs (vibro_bringup.supervisor.Supervisor.dump_stacks)."""
@@ -123,34 +124,45 @@ def test_a_running_node_writes_its_threads_stacks_on_sigusr1_and_goes_on(ros_dom
     import signal
 
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from launch_like import console_scripts
     from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
 
     module, func = console_scripts()[("vibro_sim", "simulator")].split(":")
-    proc = subprocess.Popen([sys.executable, "-c", f"import sys; from {module} import {func}; sys.exit({func}())",
-                             "--ros-args", "-r", "__node:=simulator", "-r", "__ns:=/vibro_test_stacks",
-                             "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    log = tmp_path / "simulator.log"
     context = Context()
     rclpy.init(context=context)
+    with log.open("w") as out:
+        proc = subprocess.Popen([sys.executable, "-c", f"import sys; from {module} import {func}; sys.exit({func}())",
+                                 "--ros-args", "-r", "__node:=simulator", "-r", "__ns:=/vibro_test_stacks",
+                                 "-p", f"rig_file:={tiny_recording / 'rig.yaml'}"],
+                                stdout=out, stderr=subprocess.STDOUT, env=dict(os.environ))
     try:
         peer = rclpy.create_node("vibro_test_stacks_peer", context=context)
+        spinning = []  # its /diagnostics come from a timer: the node is in its spin loop once one arrives
+        peer.create_subscription(DiagnosticArray, "/diagnostics", lambda m: spinning.extend(
+            s for s in m.status if "simulator" in s.name), 10)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(peer)
         deadline = time.monotonic() + 60
-        while ("simulator", "/vibro_test_stacks") not in peer.get_node_names_and_namespaces():
-            assert time.monotonic() < deadline and proc.poll() is None, "the simulator never joined the graph"
-            time.sleep(0.05)
-        time.sleep(0.5)  # from joining the graph to its spin loop: the node's constructor has returned by then
+        while not spinning:
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()[-2000:]
+            executor.spin_once(timeout_sec=0.1)
         proc.send_signal(signal.SIGUSR1)
-        time.sleep(1.0)
+        while "most recent call first" not in log.read_text() or "spin_until_done" not in log.read_text():
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()[-3000:]
+            time.sleep(0.05)
         assert proc.poll() is None, "SIGUSR1 ended the node"
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        proc.wait(timeout=60)
+        executor.shutdown()
         peer.destroy_node()
     finally:
         if proc.poll() is None:
             proc.kill()
-            proc.communicate()
+            proc.wait()
         rclpy.shutdown(context=context)
-    assert proc.returncode == 0, err[-2000:]
-    assert "most recent call first" in err and "spin_until_done" in err, err[-3000:]
-    assert "left the ROS graph with exit code 0" in err
+    text = log.read_text()
+    assert proc.returncode == 0, text[-2000:]
+    assert "left the ROS graph with exit code 0" in text
