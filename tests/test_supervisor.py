@@ -200,7 +200,9 @@ def test_a_lingering_node_is_stopped_with_its_stacks_and_a_warning(make, capsys)
     sup = make({"fitter": ("processing", "deaf", 0), "src": ("source", "0", 0.05)})
     sup.start_all()
     _run_until(sup, lambda f: f or sup.finished == {"src"})
-    assert _stop_lingering(sup, ["fitter"], grace_s=1.0) is True
+    linger = Linger(limit_s=0.0)
+    assert linger.over(["fitter"])
+    _stop_lingering(sup, linger, grace_s=1.0)
     assert sup.procs["fitter"].poll() is not None  # deaf to SIGINT: killed
     err = capsys.readouterr().err
     assert "warning: fitter is still running" in err and "stopping it" in err

@@ -300,7 +300,8 @@ def _supervise(supervisor: Supervisor, summary: GraphSummary, rig_dir: Path, ide
                 ok = True
                 break
             if linger.over(supervisor.lingering({s for s, done in summary.finished.items() if done})):
-                ok = _stop_lingering(supervisor, linger.names)
+                _stop_lingering(supervisor, linger)
+                ok = True  # the run stands on what was recorded: _conclude checks the bag's counts
                 break
         else:
             print(f"vibro graph: timeout after {timeout_s:g} s; still running: "
@@ -333,16 +334,15 @@ class Linger:
         return bool(names) and now - self._since >= self.limit_s
 
 
-def _stop_lingering(supervisor: Supervisor, names: list[str], grace_s: float = 5.0) -> bool:
-    """Stop nodes whose work is over but which have not exited (hung), saying so with each one's threads' stacks;
-    the run then stands on what was recorded (its count check follows in :func:`_conclude`): True."""
-    for name in names:
+def _stop_lingering(supervisor: Supervisor, linger: Linger, grace_s: float = 5.0) -> None:
+    """Stop the nodes ``linger`` names, whose work is over but which have not exited (hung), saying so with each
+    one's threads' stacks."""
+    for name in linger.names:
         supervisor.dump_stacks(name, wait_s=0.5)
-        print(f"vibro graph: warning: {name} is still running {LINGER_S:g} s after its streams ended and every "
+        print(f"vibro graph: warning: {name} is still running {linger.limit_s:g} s after its streams ended and every "
               f"other node finished; stopping it (its threads' stacks are in {supervisor.logs[name]}); the results "
               "are those it published, checked against the bag below", file=sys.stderr, flush=True)
-    supervisor.stop(grace_s=grace_s, names=names)
-    return True
+    supervisor.stop(grace_s=grace_s, names=linger.names)
 
 
 def _conclude(summary: GraphSummary, supervisor: Supervisor, bag: Path, ok: bool) -> bool:

@@ -132,7 +132,7 @@ FINAL_STREAM = {"dic_tracker": "dic", "impact_detector": "accel_impacts", "traje
 
 def status_streams(spec: NodeSpec) -> set[str]:
     """The vibro/status streams node ``spec`` announces the end of: its data topics' last name components."""
-    return {t.rsplit("/", 1)[-1] for t in spec.publishes} & set(T.STATUS_STREAMS)
+    return T.status_streams(spec.publishes)
 
 
 def history_kept_until(name: str, present: Iterable[str]) -> list[str]:

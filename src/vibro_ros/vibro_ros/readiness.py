@@ -282,7 +282,7 @@ class ReaderGate:
 
 def streams_published_by(node_name: str) -> set[str]:
     """The vibro/status streams ``node_name`` announces (its topics' last name components)."""
-    return {t.name.rsplit("/", 1)[-1] for t in topics.ALL_TOPICS if node_name in t.nodes} & set(topics.STATUS_STREAMS)
+    return topics.status_streams(t.name for t in topics.ALL_TOPICS if node_name in t.nodes)
 
 
 class WriterWatch:

@@ -78,3 +78,9 @@ ALL_TOPICS = (FRAMES, DIC, ACCEL, ACCEL_IMPACTS, STRUCTURE, FLIGHTS, IMPACTS, SI
 #: The streams a vibro/status StreamStatus names (``stream``): the data topics' last name component.
 STATUS_STREAMS = ("frames", "dic", "accel", "accel_impacts", "flights", "impacts", "simulation", "discrepancy",
                   "impacts_final_model")
+
+
+def status_streams(topic_names) -> set[str]:
+    """The vibro/status streams of the data topics ``topic_names`` (names, relative or not): their last name
+    components that are streams."""
+    return {str(t).rsplit("/", 1)[-1] for t in topic_names} & set(STATUS_STREAMS)
